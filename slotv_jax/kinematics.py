@@ -1,0 +1,212 @@
+"""Franka Emika Panda kinematics through MuJoCo MJX.
+
+Forward kinematics comes from ``mjx.kinematics`` on the MJCF in
+``franka_assets/panda.xml`` (written from Franka's modified DH table, SPEC §1).
+The TCP Jacobian is the geometric one built from the same call's joint anchors
+and axes: for a hinge j with world axis w_j through anchor a_j,
+``∂p/∂q_j = w_j × (p − a_j)`` and ``∂z/∂q_j = w_j × z`` for the tool axis z.
+
+Inverse kinematics is damped least squares on the position task. A soft
+tool-down preference and a pull towards ``Q_HOME`` act only in the null space of
+the position task, and every solve ends with position-only iterations, so the
+soft terms never cost position accuracy. Joint limits are enforced by clipping
+every iterate.
+
+Everything here is a pure function of arrays; nothing is jitted. Batch with
+``jax.vmap`` and compile with ``jax.jit`` at the call site:
+
+>>> import jax, slotv_jax.kinematics as K
+>>> K.tcp_position(K.Q_HOME)  # doctest: +SKIP
+Array([0.3069, 0., 0.4869], dtype=float32)
+>>> qs = jax.random.uniform(jax.random.key(0), (1000, 7), minval=K.Q_MIN, maxval=K.Q_MAX)
+>>> jax.jit(jax.vmap(K.tcp_position))(qs).shape
+(1000, 3)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import io
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from jaxtyping import Array, Float
+
+from slotv_jax import validation
+
+with contextlib.redirect_stdout(io.StringIO()):
+    # mujoco.mjx prints a notice when the optional warp backend is absent.
+    from mujoco import mjx
+
+ASSETS_DIR = Path(__file__).resolve().parent.parent / "franka_assets"
+PANDA_XML = ASSETS_DIR / "panda.xml"
+SCENE_XML = ASSETS_DIR / "scene.xml"
+TCP_SITE = "tcp"
+
+NQ = 7
+Q_HOME = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
+Q_MIN = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
+Q_MAX = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
+TOOL_DOWN = np.array([0.0, 0.0, -1.0])
+
+
+@functools.cache
+def mj_model(path: str | Path = PANDA_XML) -> mujoco.MjModel:
+    """The compiled MuJoCo model (cached per path)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"MJCF not found: {path}")
+    return mujoco.MjModel.from_xml_path(str(path))
+
+
+@functools.cache
+def _mjx_panda() -> tuple[mjx.Model, mjx.Data, int]:
+    m = mj_model(PANDA_XML)
+    if m.nq != NQ:
+        raise ValueError(f"{PANDA_XML}: expected {NQ} joints, got nq={m.nq}")
+    with jax.ensure_compile_time_eval():  # concrete arrays even if first called under a trace
+        mx = mjx.put_model(m)
+        d0 = mjx.make_data(mx)
+    return mx, d0, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, TCP_SITE)
+
+
+class TcpState(NamedTuple):
+    """TCP pose and its Jacobians at one configuration."""
+
+    pos: Float[Array, 3]  # TCP position, world frame (m)
+    rot: Float[Array, "3 3"]  # world-from-tool rotation; column 2 is the tool z axis
+    jac_pos: Float[Array, "3 7"]  # ∂pos/∂q (m/rad)
+    jac_axis: Float[Array, "3 7"]  # ∂(tool z axis)/∂q (1/rad)
+
+
+def tcp_state(q: Float[Array, 7]) -> TcpState:
+    """TCP pose and Jacobians from one ``mjx.kinematics`` call (no validation)."""
+    mx, d0, site = _mjx_panda()
+    d = mjx.kinematics(mx, d0.replace(qpos=jnp.asarray(q, d0.qpos.dtype)))
+    pos = d.site_xpos[site]
+    rot = d.site_xmat[site].reshape(3, 3)
+    axes, anchors = d.xaxis, d.xanchor  # (7, 3) each: hinge axes and points, world frame
+    jac_pos = jnp.cross(axes, pos - anchors).T
+    jac_axis = jnp.cross(axes, rot[:, 2]).T
+    return TcpState(pos, rot, jac_pos, jac_axis)
+
+
+def _check_q(q) -> None:
+    validation.check_array("q", q, (NQ,))
+
+
+def tcp_position(q: Float[Array, 7]) -> Float[Array, 3]:
+    """TCP position (m, world frame) of joint configuration ``q`` (rad), via MJX.
+
+    Example: ``tcp_position(Q_HOME) ≈ (0.3069, 0.0, 0.4869)``.
+    """
+    _check_q(q)
+    return tcp_state(q).pos
+
+
+def tcp_pose(q: Float[Array, 7]) -> tuple[Float[Array, 3], Float[Array, "3 3"]]:
+    """TCP position (m) and world-from-tool rotation matrix of ``q`` (rad), via MJX."""
+    _check_q(q)
+    s = tcp_state(q)
+    return s.pos, s.rot
+
+
+# --------------------------------------------------------------------------- IK
+
+
+@dataclasses.dataclass(frozen=True)
+class IKConfig:
+    """Damped-least-squares IK settings."""
+
+    iters: int = 6  # iterations with the null-space soft terms, per target
+    refine_iters: int = 2  # position-only iterations that finish every solve
+    damping: float = 1e-3  # λ (m) in (J Jᵀ + λ² I)⁻¹
+    max_step: float = 0.4  # largest joint step per iteration (rad)
+    tool_down_gain: float = 0.5  # null-space step towards the tool z axis pointing down
+    posture_gain: float = 0.1  # null-space step towards Q_HOME
+
+    def __post_init__(self):
+        for f in ("iters", "refine_iters"):
+            if int(getattr(self, f)) < 0:
+                raise ValueError(f"IKConfig.{f}: expected >= 0, got {getattr(self, f)}")
+        for f in ("damping", "max_step"):
+            validation.check_positive(f"IKConfig.{f}", getattr(self, f))
+        for f in ("tool_down_gain", "posture_gain"):
+            if not getattr(self, f) >= 0:
+                raise ValueError(f"IKConfig.{f}: expected >= 0, got {getattr(self, f)}")
+
+
+def _solve_spd3(a: Float[Array, "3 3"], b: Float[Array, 3]) -> Float[Array, 3]:
+    """Solve a 3×3 symmetric positive-definite system by the adjugate (vmap-friendly)."""
+    c0 = jnp.cross(a[1], a[2])
+    c1 = jnp.cross(a[2], a[0])
+    c2 = jnp.cross(a[0], a[1])
+    det = jnp.dot(a[0], c0)
+    return (c0 * b[0] + c1 * b[1] + c2 * b[2]) / det
+
+
+def _ik_step(
+    q: Float[Array, 7], target: Float[Array, 3], cfg: IKConfig, soft: bool
+) -> Float[Array, 7]:
+    s = tcp_state(q)
+    j = s.jac_pos
+    jjt = j @ j.T + cfg.damping**2 * jnp.eye(3)
+    err = target - s.pos
+    dq = j.T @ _solve_spd3(jjt, err)
+    if soft:
+        # Secondary objectives, projected onto the null space N = I - J⁺J of the position task.
+        axis_err = s.rot[:, 2] - jnp.asarray(TOOL_DOWN, q.dtype)
+        dq2 = -cfg.tool_down_gain * (s.jac_axis.T @ axis_err)
+        dq2 = dq2 + cfg.posture_gain * (jnp.asarray(Q_HOME, q.dtype) - q)
+        dq2 = dq2 - j.T @ _solve_spd3(jjt, j @ dq2)
+        dq = dq + dq2
+    step = jnp.max(jnp.abs(dq))
+    dq = dq * jnp.minimum(1.0, cfg.max_step / jnp.maximum(step, 1e-12))
+    return jnp.clip(q + dq, jnp.asarray(Q_MIN, q.dtype), jnp.asarray(Q_MAX, q.dtype))
+
+
+def solve_ik(
+    target: Float[Array, 3], q0: Float[Array, 7], cfg: IKConfig = IKConfig()
+) -> tuple[Float[Array, 7], Float[Array, ""]]:
+    """Joint configuration reaching ``target`` (m), started from ``q0`` (rad).
+
+    Returns ``(q, residual)`` with ``residual = ‖tcp_position(q) − target‖`` (m).
+    Pure; batch with ``vmap``. Joint limits hold exactly (iterates are clipped).
+    """
+    q = jnp.asarray(q0)
+    q = jax.lax.fori_loop(0, cfg.iters, lambda _, q: _ik_step(q, target, cfg, True), q)
+    q = jax.lax.fori_loop(0, cfg.refine_iters, lambda _, q: _ik_step(q, target, cfg, False), q)
+    return q, jnp.linalg.norm(tcp_state(q).pos - target)
+
+
+def solve_path_ik(
+    path: Float[Array, "T 3"], q0: Float[Array, 7] = Q_HOME, cfg: IKConfig = IKConfig()
+) -> tuple[Float[Array, "T 7"], Float[Array, T]]:
+    """IK for every point of a path, each solve warm-started from the previous solution.
+
+    Returns joint configurations ``(T, 7)`` and per-point position residuals ``(T,)`` (m).
+    """
+    q0 = jnp.asarray(q0, jnp.asarray(path).dtype)
+
+    def body(q, target):
+        q, res = solve_ik(target, q, cfg)
+        return q, (q, res)
+
+    _, (qs, res) = jax.lax.scan(body, q0, path)
+    return qs, res
+
+
+def check_ik_inputs(path, q0) -> None:
+    """Boundary checks for user calls of the IK functions."""
+    validation.check_array("path", path, (None, 3))
+    validation.check_array("q0", q0, (NQ,))
+    if validation.is_concrete(q0):
+        q = np.asarray(q0)
+        if np.any(q < Q_MIN - 1e-9) or np.any(q > Q_MAX + 1e-9):
+            raise ValueError("q0: expected joint values within the Panda's limits Q_MIN..Q_MAX")

@@ -1,0 +1,81 @@
+"""Checks for user input at the public boundary.
+
+Every check raises :class:`ValueError` naming the argument and what was
+expected. Shape checks always run; value checks (NaN, ranges) run only on
+concrete arrays, so the same public functions stay usable under ``jit`` and
+``vmap``, where the caller is responsible for the values.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax
+import numpy as np
+
+G_MAX = 8  # goal slots in every scene
+
+
+def is_concrete(x) -> bool:
+    """True if ``x`` holds values now (not a tracer inside jit/vmap/grad)."""
+    return not isinstance(x, jax.core.Tracer)
+
+
+def check_shape(name: str, x, shape: Sequence[int | None]) -> None:
+    """Raise unless ``x.shape`` matches ``shape`` (``None`` matches any size)."""
+    got = tuple(np.shape(x))
+    if len(got) != len(shape) or any(s is not None and s != g for s, g in zip(shape, got)):
+        want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+        raise ValueError(f"{name}: expected shape {want}, got {got}")
+
+
+def check_finite(name: str, x) -> None:
+    """Raise if a concrete ``x`` holds NaN or ±inf."""
+    if is_concrete(x):
+        a = np.asarray(x)
+        if a.dtype.kind in "fc" and not np.all(np.isfinite(a)):
+            bad = int(np.size(a) - np.count_nonzero(np.isfinite(a)))
+            raise ValueError(f"{name}: expected finite values, found {bad} NaN/inf entries")
+
+
+def check_array(name: str, x, shape: Sequence[int | None]) -> None:
+    """Shape check plus finiteness check."""
+    check_shape(name, x, shape)
+    check_finite(name, x)
+
+
+def check_positive(name: str, value) -> None:
+    """Raise unless a concrete scalar is finite and > 0."""
+    if is_concrete(value):
+        v = np.asarray(value)
+        if v.ndim != 0 or not np.isfinite(v) or not v > 0:
+            raise ValueError(f"{name}: expected a finite number > 0, got {value!r}")
+
+
+def check_goal_mask(name: str, goal_mask, *, batch_shape: tuple[int, ...] = ()) -> None:
+    """A goal mask has G_MAX boolean slots, at least one real goal, and real goals first."""
+    check_shape(name, goal_mask, (*batch_shape, G_MAX))
+    if not is_concrete(goal_mask):
+        return
+    m = np.asarray(goal_mask)
+    if m.dtype != np.bool_:
+        if not np.all((m == 0) | (m == 1)):
+            raise ValueError(f"{name}: expected booleans (or 0/1), got dtype {m.dtype}")
+        m = m.astype(bool)
+    counts = m.sum(-1)
+    if np.any(counts < 1):
+        raise ValueError(f"{name}: expected 1..{G_MAX} real goals, found a mask with none")
+
+
+def check_goals(name: str, goals, goal_mask, *, batch_shape: tuple[int, ...] = ()) -> None:
+    """Goals are finite (G_MAX, 3) arrays; real goals must be pairwise distinct."""
+    check_array(name, goals, (*batch_shape, G_MAX, 3))
+    check_goal_mask("goal_mask", goal_mask, batch_shape=batch_shape)
+    if not (is_concrete(goals) and is_concrete(goal_mask)):
+        return
+    g = np.asarray(goals, np.float64).reshape(-1, G_MAX, 3)
+    m = np.asarray(goal_mask, bool).reshape(-1, G_MAX)
+    d = np.linalg.norm(g[:, :, None] - g[:, None, :], axis=-1)
+    pair = m[:, :, None] & m[:, None, :] & ~np.eye(G_MAX, dtype=bool)
+    if np.any(pair & (d < 1e-9)):
+        raise ValueError(f"{name}: two real goals share the same position")
