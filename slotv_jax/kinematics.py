@@ -79,13 +79,13 @@ def _mjx_panda() -> tuple[mjx.Model, mjx.Data, int]:
 class TcpState(NamedTuple):
     """TCP pose and its Jacobians at one configuration."""
 
-    pos: Float[Array, 3]  # TCP position, world frame (m)
+    pos: Float[Array, "3"]  # TCP position, world frame (m)
     rot: Float[Array, "3 3"]  # world-from-tool rotation; column 2 is the tool z axis
     jac_pos: Float[Array, "3 7"]  # ∂pos/∂q (m/rad)
     jac_axis: Float[Array, "3 7"]  # ∂(tool z axis)/∂q (1/rad)
 
 
-def tcp_state(q: Float[Array, 7]) -> TcpState:
+def tcp_state(q: Float[Array, "7"]) -> TcpState:
     """TCP pose and Jacobians from one ``mjx.kinematics`` call (no validation)."""
     mx, d0, site = _mjx_panda()
     d = mjx.kinematics(mx, d0.replace(qpos=jnp.asarray(q, d0.qpos.dtype)))
@@ -101,7 +101,7 @@ def _check_q(q) -> None:
     validation.check_array("q", q, (NQ,))
 
 
-def tcp_position(q: Float[Array, 7]) -> Float[Array, 3]:
+def tcp_position(q: Float[Array, "7"]) -> Float[Array, "3"]:
     """TCP position (m, world frame) of joint configuration ``q`` (rad), via MJX.
 
     Example: ``tcp_position(Q_HOME) ≈ (0.3069, 0.0, 0.4869)``.
@@ -110,7 +110,7 @@ def tcp_position(q: Float[Array, 7]) -> Float[Array, 3]:
     return tcp_state(q).pos
 
 
-def tcp_pose(q: Float[Array, 7]) -> tuple[Float[Array, 3], Float[Array, "3 3"]]:
+def tcp_pose(q: Float[Array, "7"]) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
     """TCP position (m) and world-from-tool rotation matrix of ``q`` (rad), via MJX."""
     _check_q(q)
     s = tcp_state(q)
@@ -142,7 +142,7 @@ class IKConfig:
                 raise ValueError(f"IKConfig.{f}: expected >= 0, got {getattr(self, f)}")
 
 
-def _solve_spd3(a: Float[Array, "3 3"], b: Float[Array, 3]) -> Float[Array, 3]:
+def _solve_spd3(a: Float[Array, "3 3"], b: Float[Array, "3"]) -> Float[Array, "3"]:
     """Solve a 3×3 symmetric positive-definite system by the adjugate (vmap-friendly)."""
     c0 = jnp.cross(a[1], a[2])
     c1 = jnp.cross(a[2], a[0])
@@ -152,8 +152,8 @@ def _solve_spd3(a: Float[Array, "3 3"], b: Float[Array, 3]) -> Float[Array, 3]:
 
 
 def _ik_step(
-    q: Float[Array, 7], target: Float[Array, 3], cfg: IKConfig, soft: bool
-) -> Float[Array, 7]:
+    q: Float[Array, "7"], target: Float[Array, "3"], cfg: IKConfig, soft: bool
+) -> Float[Array, "7"]:
     s = tcp_state(q)
     j = s.jac_pos
     jjt = j @ j.T + cfg.damping**2 * jnp.eye(3)
@@ -172,8 +172,8 @@ def _ik_step(
 
 
 def solve_ik(
-    target: Float[Array, 3], q0: Float[Array, 7], cfg: IKConfig = IKConfig()
-) -> tuple[Float[Array, 7], Float[Array, ""]]:
+    target: Float[Array, "3"], q0: Float[Array, "7"], cfg: IKConfig = IKConfig()
+) -> tuple[Float[Array, "7"], Float[Array, ""]]:
     """Joint configuration reaching ``target`` (m), started from ``q0`` (rad).
 
     Returns ``(q, residual)`` with ``residual = ‖tcp_position(q) − target‖`` (m).
@@ -186,8 +186,8 @@ def solve_ik(
 
 
 def solve_path_ik(
-    path: Float[Array, "T 3"], q0: Float[Array, 7] = Q_HOME, cfg: IKConfig = IKConfig()
-) -> tuple[Float[Array, "T 7"], Float[Array, T]]:
+    path: Float[Array, "T 3"], q0: Float[Array, "7"] = Q_HOME, cfg: IKConfig = IKConfig()
+) -> tuple[Float[Array, "T 7"], Float[Array, "T"]]:
     """IK for every point of a path, each solve warm-started from the previous solution.
 
     Returns joint configurations ``(T, 7)`` and per-point position residuals ``(T,)`` (m).

@@ -53,7 +53,7 @@ class Scene:
     """One environment: up to G_MAX goals, the first ``n_goals`` real."""
 
     goals: Float[Array, "8 3"]  # goal (cube centre) positions, world frame (m); padding is 0
-    goal_mask: Bool[Array, 8]  # True for real goals
+    goal_mask: Bool[Array, "8"]  # True for real goals
     n_goals: Int[Array, ""]  # number of real goals, 1..8
 
 
@@ -118,10 +118,10 @@ def check_scene(scene: Scene, cfg: SceneConfig = SceneConfig(), *, batched: bool
 class Camera:
     """A pinhole observer camera (MuJoCo convention: looks along its −z, x right, y up)."""
 
-    pos: Float[Array, 3]  # camera centre, world frame (m)
+    pos: Float[Array, "3"]  # camera centre, world frame (m)
     rot: Float[Array, "3 3"]  # world-from-camera rotation; columns are the camera x, y, z axes
     fovy: Float[Array, ""]  # vertical field of view (degrees)
-    resolution: Int[Array, 2]  # image width, height (pixels)
+    resolution: Int[Array, "2"]  # image width, height (pixels)
 
 
 @functools.cache
