@@ -187,7 +187,7 @@ def solve_ik(
 
 def solve_path_ik(
     path: Float[Array, "T 3"], q0: Float[Array, "7"] = Q_HOME, cfg: IKConfig = IKConfig()
-) -> tuple[Float[Array, "T 7"], Float[Array, "T"]]:
+) -> tuple[Float[Array, "T 7"], Float[Array, " T"]]:
     """IK for every point of a path, each solve warm-started from the previous solution.
 
     Returns joint configurations ``(T, 7)`` and per-point position residuals ``(T,)`` (m).

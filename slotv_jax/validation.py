@@ -24,7 +24,9 @@ def is_concrete(x) -> bool:
 def check_shape(name: str, x, shape: Sequence[int | None]) -> None:
     """Raise unless ``x.shape`` matches ``shape`` (``None`` matches any size)."""
     got = tuple(np.shape(x))
-    if len(got) != len(shape) or any(s is not None and s != g for s, g in zip(shape, got, strict=True)):
+    if len(got) != len(shape) or any(
+        s is not None and s != g for s, g in zip(shape, got, strict=True)
+    ):
         want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
         raise ValueError(f"{name}: expected shape {want}, got {got}")
 
