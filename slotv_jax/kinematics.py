@@ -171,6 +171,11 @@ def _ik_step(
     return jnp.clip(q + dq, jnp.asarray(Q_MIN, q.dtype), jnp.asarray(Q_MAX, q.dtype))
 
 
+def _iterate(q: Float[Array, "7"], target: Float[Array, "3"], cfg: IKConfig) -> Float[Array, "7"]:
+    q = jax.lax.fori_loop(0, cfg.iters, lambda _, q: _ik_step(q, target, cfg, True), q)
+    return jax.lax.fori_loop(0, cfg.refine_iters, lambda _, q: _ik_step(q, target, cfg, False), q)
+
+
 def solve_ik(
     target: Float[Array, "3"], q0: Float[Array, "7"], cfg: IKConfig = IKConfig()
 ) -> tuple[Float[Array, "7"], Float[Array, ""]]:
@@ -179,27 +184,37 @@ def solve_ik(
     Returns ``(q, residual)`` with ``residual = ‖tcp_position(q) − target‖`` (m).
     Pure; batch with ``vmap``. Joint limits hold exactly (iterates are clipped).
     """
-    q = jnp.asarray(q0)
-    q = jax.lax.fori_loop(0, cfg.iters, lambda _, q: _ik_step(q, target, cfg, True), q)
-    q = jax.lax.fori_loop(0, cfg.refine_iters, lambda _, q: _ik_step(q, target, cfg, False), q)
+    q = _iterate(jnp.asarray(q0), target, cfg)
     return q, jnp.linalg.norm(tcp_state(q).pos - target)
+
+
+class PathIK(NamedTuple):
+    """Result of :func:`solve_path_ik`."""
+
+    q: Float[Array, "T 7"]  # joint configurations (rad)
+    xyz: Float[Array, "T 3"]  # executed TCP positions FK(q) (m)
+    residual: Float[Array, " T"]  # ‖xyz − path‖ per point (m)
 
 
 def solve_path_ik(
     path: Float[Array, "T 3"], q0: Float[Array, "7"] = Q_HOME, cfg: IKConfig = IKConfig()
-) -> tuple[Float[Array, "T 7"], Float[Array, " T"]]:
-    """IK for every point of a path, each solve warm-started from the previous solution.
+) -> PathIK:
+    """IK for every point of a path, warm-started along it from ``q0``.
 
-    Returns joint configurations ``(T, 7)`` and per-point position residuals ``(T,)`` (m).
+    Each solve starts from the previous point's solution, so a few iterations
+    per point suffice for densely sampled paths. Returns the joint configurations, the executed TCP
+    positions and the per-point position residuals.
     """
-    q0 = jnp.asarray(q0, jnp.asarray(path).dtype)
+    path = jnp.asarray(path)
+    q0 = jnp.asarray(q0, path.dtype)
 
     def body(q, target):
-        q, res = solve_ik(target, q, cfg)
-        return q, (q, res)
+        q = _iterate(q, target, cfg)
+        return q, q
 
-    _, (qs, res) = jax.lax.scan(body, q0, path)
-    return qs, res
+    _, qs = jax.lax.scan(body, q0, path)
+    xyz = jax.vmap(lambda q: tcp_state(q).pos)(qs)
+    return PathIK(qs, xyz, jnp.linalg.norm(xyz - path, axis=-1))
 
 
 def check_ik_inputs(path, q0) -> None:

@@ -1,0 +1,124 @@
+"""Random pick-and-place trajectories (SPEC §3).
+
+For a scene and a key:
+
+1. the target is uniform among the scene's real goals;
+2. the number of via points is uniform in ``{3, 4, 5}``;
+3. via points are uniform in the box x ∈ [0.25, 0.70], y ∈ [−0.50, 0.50],
+   z ∈ [0.10, 0.40];
+4. the Cartesian path is TCP(q_home) → via_1 → … → via_N → target, piecewise linear;
+5. it is resampled to 100 points equally spaced by arc length (t_i = i / 99);
+6. joint configurations come from warm-started, position-only IK (MJX FK and
+   Jacobian; soft terms in the null space), starting from ``Q_HOME``;
+7. the stored path is the executed one, FK(q_i). A draw whose worst position
+   residual exceeds 2 mm is rejected by the caller (see :mod:`slotv_jax.data`).
+
+Shapes are fixed: unused via-point slots are collapsed onto the goal, adding
+zero-length segments that the arc-length resampling skips.
+
+>>> import jax
+>>> from slotv_jax.scene import sample_scene
+>>> tr = sample_trajectory(jax.random.key(0), sample_scene(jax.random.key(1), 3))
+>>> tr.xyz.shape, tr.q.shape
+((100, 3), (100, 7))
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+from jaxtyping import Array, Float, Int
+
+from slotv_jax import kinematics, validation
+from slotv_jax.scene import Scene
+
+
+@dataclasses.dataclass(frozen=True)
+class TrajectoryConfig:
+    """How random trajectories are drawn."""
+
+    n_points: int = 100  # samples along the path, equally spaced by arc length
+    via_counts: tuple[int, ...] = (3, 4, 5)  # allowed numbers of via points
+    via_low: tuple[float, float, float] = (0.25, -0.50, 0.10)  # via-point box, lower corner (m)
+    via_high: tuple[float, float, float] = (0.70, 0.50, 0.40)  # via-point box, upper corner (m)
+    max_residual: float = 2e-3  # reject draws whose IK misses any point by more (m)
+    ik: kinematics.IKConfig = dataclasses.field(  # iterations per path point
+        default_factory=lambda: kinematics.IKConfig(iters=2, refine_iters=1)
+    )
+
+    def __post_init__(self):
+        if int(self.n_points) < 2:
+            raise ValueError(f"TrajectoryConfig.n_points: expected >= 2, got {self.n_points}")
+        if not self.via_counts or min(self.via_counts) < 0:
+            raise ValueError(
+                f"TrajectoryConfig.via_counts: expected non-negative counts, got {self.via_counts}"
+            )
+        lo, hi = np.asarray(self.via_low), np.asarray(self.via_high)
+        if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
+            raise ValueError(
+                "TrajectoryConfig.via_low/via_high: expected 3-vectors with low < high"
+            )
+        validation.check_positive("TrajectoryConfig.max_residual", self.max_residual)
+
+    @property
+    def max_via(self) -> int:
+        return max(self.via_counts)
+
+
+@struct.dataclass
+class Trajectory:
+    """One trajectory, as stored in the datasets."""
+
+    target: Int[Array, ""]  # goal slot the robot moves to
+    xyz: Float[Array, "T 3"]  # executed TCP path FK(q_i) (m)
+    q: Float[Array, "T 7"]  # joint configurations (rad)
+    n_via: Int[Array, ""]  # number of via points used
+    residual: Float[Array, ""]  # worst ‖FK(q_i) − planned_i‖ over the path (m)
+
+
+def resample_polyline(waypoints: Float[Array, "W 3"], n: int) -> Float[Array, "n 3"]:
+    """``n`` points equally spaced by arc length along a polyline, ends included.
+
+    Zero-length segments are allowed and skipped.
+    """
+    seg = jnp.linalg.norm(jnp.diff(waypoints, axis=0), axis=-1)  # (W-1,)
+    cum = jnp.concatenate([jnp.zeros(1, seg.dtype), jnp.cumsum(seg)])  # (W,)
+    s = jnp.linspace(0.0, 1.0, n, dtype=seg.dtype) * cum[-1]
+    # Segment index of each sample: the last segment whose start is <= s (clamped), skipping
+    # zero-length segments because their start equals the next one's.
+    idx = jnp.clip(jnp.searchsorted(cum, s, side="right") - 1, 0, seg.shape[0] - 1)
+    frac = jnp.where(seg[idx] > 0, (s - cum[idx]) / jnp.where(seg[idx] > 0, seg[idx], 1.0), 0.0)
+    frac = jnp.clip(frac, 0.0, 1.0)
+    return waypoints[idx] + frac[:, None] * (waypoints[idx + 1] - waypoints[idx])
+
+
+def plan_path(
+    key: jax.Array, scene: Scene, cfg: TrajectoryConfig = TrajectoryConfig()
+) -> tuple[Int[Array, ""], Int[Array, ""], Float[Array, "n 3"]]:
+    """Draw target, via points and the resampled Cartesian path (steps 1–5)."""
+    k_target, k_count, k_via = jax.random.split(key, 3)
+    target = jax.random.randint(k_target, (), 0, scene.n_goals)
+    n_via = jnp.asarray(cfg.via_counts, jnp.int32)[
+        jax.random.randint(k_count, (), 0, len(cfg.via_counts))
+    ]
+    via = jax.random.uniform(
+        k_via, (cfg.max_via, 3), minval=jnp.asarray(cfg.via_low), maxval=jnp.asarray(cfg.via_high)
+    )
+    goal = scene.goals[target]
+    via = jnp.where((jnp.arange(cfg.max_via) < n_via)[:, None], via, goal)
+    start = kinematics.tcp_state(jnp.asarray(kinematics.Q_HOME, via.dtype)).pos
+    waypoints = jnp.concatenate([start[None], via, goal[None]], axis=0)
+    return target, n_via, resample_polyline(waypoints, cfg.n_points)
+
+
+def sample_trajectory(
+    key: jax.Array, scene: Scene, cfg: TrajectoryConfig = TrajectoryConfig()
+) -> Trajectory:
+    """One random trajectory in ``scene`` (pure; deterministic in ``key``; vmap to batch)."""
+    target, n_via, path = plan_path(key, scene, cfg)
+    ik = kinematics.solve_path_ik(path, jnp.asarray(kinematics.Q_HOME, path.dtype), cfg.ik)
+    return Trajectory(target=target, xyz=ik.xyz, q=ik.q, n_via=n_via, residual=jnp.max(ik.residual))
