@@ -81,3 +81,27 @@ def check_goals(name: str, goals, goal_mask, *, batch_shape: tuple[int, ...] = (
     pair = m[:, :, None] & m[:, None, :] & ~np.eye(G_MAX, dtype=bool)
     if np.any(pair & (d < 1e-9)):
         raise ValueError(f"{name}: two real goals share the same position")
+
+
+def check_labels(name: str, labels, goal_mask, *, atol: float = 1e-4) -> None:
+    """Labels are probability vectors over the real goals: finite, ≥ 0, summing to 1
+    (within ``atol``) over real goals and exactly 0 on padded slots."""
+    check_array(name, labels, np.shape(goal_mask))
+    if not (is_concrete(labels) and is_concrete(goal_mask)):
+        return
+    y = np.asarray(labels, np.float64)
+    m = np.asarray(goal_mask, bool)
+    if np.any(y < 0):
+        raise ValueError(
+            f"{name}: expected probabilities >= 0, found {int(np.sum(y < 0))} negative"
+        )
+    if np.any(y[~m] != 0):
+        raise ValueError(f"{name}: expected 0 on padded goal slots, found non-zero entries")
+    s = y.sum(-1)
+    bad = np.abs(s - 1.0) > atol
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise ValueError(
+            f"{name}: expected each row to sum to 1 over real goals, "
+            f"row {i} sums to {s.flat[i]:.6g}"
+        )

@@ -1,0 +1,249 @@
+"""Checkpoints (Orbax) and the learned observer as a plain JAX function (SPEC §9).
+
+A checkpoint is a directory:
+
+- ``config.json`` — format tag, the :class:`~slotv_jax.config.TrainConfig` that
+  rebuilds the model, the epoch, free-form ``meta`` (labeler, seed, accuracies),
+  and the path, shape and dtype of every saved array;
+- ``state/`` — an Orbax checkpoint of the parameters, the optimiser state, the
+  epoch counter and the PRNG key (all float32 / int32 / uint32 arrays), stored
+  as a flat dict keyed by each leaf's path in the training state.
+
+Writes are atomic: everything goes to a temporary sibling directory that is
+renamed into place; an existing checkpoint is swapped out only after the new one
+is complete. Loading checks the saved shapes against the model the config
+builds (and, for resuming, against the caller's config) and raises ValueError
+naming the mismatch.
+
+>>> observer = load_observer("runs/slotv_effdist")        # doctest: +SKIP
+>>> logits = observer(xyz, goals, goal_mask)              # (8,), padded slots −∞
+>>> jax.grad(lambda x: jax.nn.softmax(observer(x, goals, goal_mask))[0])(xyz)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import uuid
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+from jaxtyping import Array, Bool, Float
+
+from slotv_jax import models
+from slotv_jax.config import TrainConfig
+
+FORMAT = "slotv_jax.checkpoint/1"
+CONFIG_FILE = "config.json"
+STATE_DIR = "state"
+
+
+def _leaf_name(path) -> str:
+    parts = []
+    for k in path:
+        if isinstance(k, jax.tree_util.DictKey):
+            parts.append(str(k.key))
+        elif isinstance(k, jax.tree_util.SequenceKey):
+            parts.append(str(k.idx))
+        elif isinstance(k, jax.tree_util.GetAttrKey):
+            parts.append(k.name)
+        elif isinstance(k, jax.tree_util.FlattenedIndexKey):
+            parts.append(str(k.key))
+        else:
+            parts.append(str(k))
+    return ".".join(parts)
+
+
+def _raw_key(state):
+    """TrainState with its typed PRNG key replaced by the raw uint32 key data."""
+    return state._replace(key=jax.random.key_data(state.key))
+
+
+def _flatten(state) -> dict[str, Any]:
+    """TrainState (with a raw key) → {path: array}."""
+    flat, _ = jax.tree_util.tree_flatten_with_path(state)
+    return {_leaf_name(p): x for p, x in flat}
+
+
+def _template(cfg: TrainConfig):
+    """Abstract TrainState, raw key (shapes and dtypes only), for ``cfg``."""
+    from slotv_jax import train as train_lib
+
+    trainer = train_lib.make_train(cfg, progress=False)
+    return jax.eval_shape(lambda k: _raw_key(trainer.init(k)), jax.random.key(0))
+
+
+def _describe(flat: Mapping[str, Any]) -> dict[str, dict]:
+    return {
+        k: {"shape": list(np.shape(v)), "dtype": str(jnp.dtype(v.dtype))} for k, v in flat.items()
+    }
+
+
+def exists(path: str | os.PathLike) -> bool:
+    """True if ``path`` holds a complete checkpoint."""
+    p = Path(path)
+    return (p / CONFIG_FILE).is_file() and (p / STATE_DIR).is_dir()
+
+
+def save(
+    path: str | os.PathLike, cfg: TrainConfig, state, *, meta: Mapping[str, Any] | None = None
+) -> Path:
+    """Write ``state`` (a :class:`~slotv_jax.train.TrainState` of one trial) atomically."""
+    import orbax.checkpoint as ocp
+
+    path = Path(path).absolute()
+    flat = _flatten(_raw_key(state))
+    want = _describe(_flatten(_template(cfg)))
+    got = _describe(flat)
+    if want != got:
+        raise ValueError(_mismatch("state", want, got, cfg))
+    flat = jax.device_get(flat)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
+    try:
+        ckptr = ocp.StandardCheckpointer()
+        ckptr.save(tmp / STATE_DIR, flat)
+        ckptr.wait_until_finished()
+        ckptr.close()
+        doc = {
+            "format": FORMAT,
+            "config": cfg.to_dict(),
+            "epoch": int(np.asarray(flat["epoch"])),
+            "meta": dict(meta or {}),
+            "arrays": got,
+        }
+        (tmp / CONFIG_FILE).write_text(json.dumps(doc, indent=2, sort_keys=True, default=str))
+        if path.exists():
+            old = path.parent / f".{path.name}.old-{uuid.uuid4().hex[:8]}"
+            os.replace(path, old)
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return path
+
+
+def _read_doc(path: Path) -> dict:
+    f = path / CONFIG_FILE
+    if not f.is_file() or not (path / STATE_DIR).is_dir():
+        raise ValueError(
+            f"checkpoint {path}: not a slotv_jax checkpoint (missing {CONFIG_FILE} or {STATE_DIR}/)"
+        )
+    doc = json.loads(f.read_text())
+    if doc.get("format") != FORMAT:
+        raise ValueError(f"checkpoint {path}: format {doc.get('format')!r}, expected {FORMAT!r}")
+    return doc
+
+
+def _mismatch(what: str, want: dict, got: dict, cfg: TrainConfig) -> str:
+    lines = []
+    for k in sorted(set(want) | set(got)):
+        if want.get(k) != got.get(k):
+            w = want.get(k)
+            g = got.get(k)
+            lines.append(
+                f"  {k}: config builds {w['shape'] if w else 'nothing'}"
+                f"{'' if not w else ' ' + w['dtype']}, {what} has {g['shape'] if g else 'nothing'}"
+                f"{'' if not g else ' ' + g['dtype']}"
+            )
+        if len(lines) >= 6:
+            lines.append("  ...")
+            break
+    return (
+        f"checkpoint {what} does not fit the model of its config (method={cfg.method}, "
+        f"hidden={cfg.hidden}, optimizer={cfg.optimizer}):\n" + "\n".join(lines)
+    )
+
+
+def load_config(path: str | os.PathLike) -> TrainConfig:
+    """The :class:`TrainConfig` stored with a checkpoint."""
+    return TrainConfig.from_dict(_read_doc(Path(path))["config"])
+
+
+def restore(path: str | os.PathLike, cfg: TrainConfig | None = None):
+    """Read a checkpoint: ``(cfg, state, meta)``.
+
+    If ``cfg`` is given (resuming a run), the stored config must describe the same
+    model and optimiser; ``epochs`` and the evaluation/logging fields may differ.
+    Raises ValueError on any mismatch of config or array shapes.
+    """
+    import orbax.checkpoint as ocp
+
+    path = Path(path).absolute()
+    doc = _read_doc(path)
+    saved = TrainConfig.from_dict(doc["config"])
+    if cfg is not None:
+        free = {"epochs", "eval_every", "eval_size", "eval_chunk", "log_every"}
+        a, b = saved.to_dict(), cfg.to_dict()
+        diff = {k: (a[k], b[k]) for k in a if k not in free and a[k] != b[k]}
+        if diff:
+            raise ValueError(
+                f"checkpoint {path}: its config differs from the requested one in "
+                + ", ".join(
+                    f"{k} (saved {v[0]!r}, requested {v[1]!r})" for k, v in sorted(diff.items())
+                )
+            )
+    use = saved if cfg is None else cfg
+    template = _template(use)
+    tflat = _flatten(template)
+    want = _describe(tflat)
+    if want != doc.get("arrays"):
+        raise ValueError(
+            f"checkpoint {path}: " + _mismatch("arrays", want, doc.get("arrays") or {}, use)
+        )
+    abstract = {k: jax.ShapeDtypeStruct(v.shape, v.dtype) for k, v in tflat.items()}
+    ckptr = ocp.StandardCheckpointer()
+    try:
+        flat = ckptr.restore(path / STATE_DIR, abstract)
+    except ValueError as e:
+        raise ValueError(
+            f"checkpoint {path}: stored arrays do not fit the config's model: {e}"
+        ) from e
+    finally:
+        ckptr.close()
+    leaves_paths, treedef = jax.tree_util.tree_flatten_with_path(template)
+    leaves = [jnp.asarray(flat[_leaf_name(p)]) for p, _ in leaves_paths]
+    state = jax.tree_util.tree_unflatten(treedef, leaves)
+    state = state._replace(key=jax.random.wrap_key_data(state.key))
+    return use, state, doc.get("meta", {})
+
+
+def make_observer(cfg: TrainConfig, params) -> Callable:
+    """The pure function ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
+
+    SLOT-V: s_k = (1/T) Σ_i V(p_i, g_k); T-REX: R_k = Σ_i r(p_i, g_k); padded slots −∞.
+    Shapes are checked on every call; values (NaN, an empty mask) on concrete inputs.
+    Works under ``jit``, ``vmap`` and ``grad`` (w.r.t. ``xyz`` or ``goals``).
+    """
+    abstract = nnx.eval_shape(lambda: models.make_model(cfg, nnx.Rngs(0)))
+    graphdef, _ = nnx.split(abstract)
+
+    def observer(
+        xyz: Float[Array, "T 3"], goals: Float[Array, "8 3"], goal_mask: Bool[Array, "8"]
+    ) -> Float[Array, "8"]:
+        models.check_observer_inputs(xyz, goals, goal_mask)
+        model = nnx.merge(graphdef, params)
+        return model(jnp.asarray(xyz), jnp.asarray(goals), jnp.asarray(goal_mask, bool))
+
+    observer.config = cfg  # type: ignore[attr-defined]
+    return observer
+
+
+def load_observer(path: str | os.PathLike) -> Callable:
+    """Load a checkpoint as ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
+
+    The logits are SLOT-V's observer scores (softmax gives P(goal | trajectory)) or
+    T-REX's per-goal returns; padded goals are −∞. The function is pure: use it under
+    ``jit``, ``vmap`` (batch the arguments) and ``grad`` with respect to ``xyz``.
+    """
+    cfg, state, _ = restore(path)
+    return make_observer(cfg, state.params)

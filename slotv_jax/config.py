@@ -1,0 +1,260 @@
+"""Training configurations for SLOT-V and T-REX (SPEC §5, §6, §8).
+
+A configuration is one frozen :class:`TrainConfig`. Two preset builders make
+them, one per method:
+
+- :func:`paper` — the paper's hyperparameters (SPEC §5, §6):
+  SLOT-V hidden (1536, 768), RMSprop lr 0.005, ρ 0.9, momentum 0, batch 32,
+  15 epochs; T-REX hidden (1792, 768), Adam lr 0.005, β1 0.9, β2 0.999,
+  batch 128, 25 epochs.
+- :func:`quick` — small networks and few epochs that fit the 2-core CPU budget
+  of SPEC §8 (the whole quick Table 1 in about 5 minutes, data included).
+
+Both take keyword overrides; :func:`apply_overrides` parses ``key=value``
+strings from the command line. Derived values (steps per epoch, the number of
+evaluations, the evaluation chunk) are computed by methods, never stored.
+
+>>> cfg = quick("slotv", epochs=2)
+>>> cfg.method, cfg.epochs, cfg.steps_per_epoch(1000) == 1000 // cfg.batch_size
+('slotv', 2, True)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import types
+import typing
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+METHODS = ("slotv", "trex")
+OPTIMIZERS = ("rmsprop", "adam")
+COMPUTE_DTYPES = ("float32", "bfloat16")
+# Elements of the largest first hidden activation (rows × width) one evaluation chunk may hold.
+EVAL_CHUNK_BUDGET = 1 << 24
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything that defines one training run (and rebuilds its model).
+
+    The model is V(r, g) = MLP(r − g) with the ``hidden`` widths (ReLU) and a
+    linear scalar output; SLOT-V averages it over the trajectory, T-REX sums it.
+    """
+
+    method: str = "slotv"  # "slotv" (SPEC §5) or "trex" (SPEC §6)
+    hidden: tuple[int, ...] = (1536, 768)  # hidden widths after the r − g layer
+    compute_dtype: str = "float32"  # matmul dtype of the hidden layers; params stay float32
+    optimizer: str = "rmsprop"  # "rmsprop" or "adam"
+    learning_rate: float = 0.005
+    rho: float = 0.9  # RMSprop decay of the squared-gradient average
+    momentum: float = 0.0  # RMSprop momentum (0: none)
+    b1: float = 0.9  # Adam β1
+    b2: float = 0.999  # Adam β2
+    eps: float = 1e-8  # added to the root of the second moment (both optimisers)
+    batch_size: int = 32  # trajectories (SLOT-V) or pairs (T-REX) per update
+    epochs: int = 15
+    train_size: int | None = None  # use only the first n training trajectories (None: all)
+    eval_every: int = 0  # validate every k updates inside the loop (0: never)
+    eval_size: int = 1000  # trajectories of the fixed validation subset
+    eval_chunk: int | None = None  # trajectories per evaluation chunk (None: derived)
+    log_every: int = 50  # updates between progress reports (when not validating)
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"TrainConfig.method: expected one of {METHODS}, got {self.method!r}")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(
+                f"TrainConfig.optimizer: expected one of {OPTIMIZERS}, got {self.optimizer!r}"
+            )
+        if self.compute_dtype not in COMPUTE_DTYPES:
+            raise ValueError(
+                f"TrainConfig.compute_dtype: expected one of {COMPUTE_DTYPES}, "
+                f"got {self.compute_dtype!r}"
+            )
+        hidden = tuple(self.hidden)
+        if not hidden or any(not isinstance(h, int) or h < 1 for h in hidden):
+            raise ValueError(
+                "TrainConfig.hidden: expected a non-empty tuple of positive ints, "
+                f"got {self.hidden!r}"
+            )
+        object.__setattr__(self, "hidden", hidden)
+        for name in ("learning_rate", "eps"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and v > 0 and v < float("inf")):
+                raise ValueError(f"TrainConfig.{name}: expected a finite number > 0, got {v!r}")
+        for name in ("rho", "b1", "b2"):
+            v = getattr(self, name)
+            if not 0.0 <= v < 1.0:
+                raise ValueError(f"TrainConfig.{name}: expected a number in [0, 1), got {v!r}")
+        if not 0.0 <= self.momentum <= 1.0:
+            raise ValueError(
+                f"TrainConfig.momentum: expected a number in [0, 1], got {self.momentum!r}"
+            )
+        for name in ("batch_size", "eval_size", "log_every"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 1:
+                raise ValueError(f"TrainConfig.{name}: expected an int >= 1, got {v!r}")
+        for name in ("epochs", "eval_every"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or v < 0:
+                raise ValueError(f"TrainConfig.{name}: expected an int >= 0, got {v!r}")
+        for name in ("train_size", "eval_chunk"):
+            v = getattr(self, name)
+            if v is not None and (not isinstance(v, int) or v < 1):
+                raise ValueError(f"TrainConfig.{name}: expected None or an int >= 1, got {v!r}")
+
+    # ---- derived values (computed, never stored) ----
+
+    def n_used(self, n_train: int) -> int:
+        """Training trajectories used: the first ``train_size`` of ``n_train`` (or all)."""
+        return n_train if self.train_size is None else min(self.train_size, n_train)
+
+    def steps_per_epoch(self, n_train: int) -> int:
+        """Updates per epoch: ⌊n_used / batch⌋ (SLOT-V drops the last partial batch;
+        T-REX draws n_used pairs per epoch, SPEC §6)."""
+        return self.n_used(n_train) // self.batch_size
+
+    def block_size(self, n_train: int) -> int:
+        """Updates between host reports (and validations, when ``eval_every`` > 0)."""
+        k = self.eval_every if self.eval_every > 0 else self.log_every
+        return max(1, min(k, self.steps_per_epoch(n_train)))
+
+    def evals_per_epoch(self, n_train: int) -> int:
+        """Validations per epoch when ``eval_every`` > 0: after each full block of k updates."""
+        if self.eval_every == 0:
+            return 0
+        return self.steps_per_epoch(n_train) // self.block_size(n_train)
+
+    def eval_chunk_size(self, n_devices: int = 1, n_goals: int = 8, n_points: int = 100) -> int:
+        """Trajectories per evaluation chunk: ``eval_chunk`` or the largest power of two whose
+        first hidden activation (chunk · T · G · H1 elements) fits EVAL_CHUNK_BUDGET, rounded up
+        to a multiple of ``n_devices``."""
+        if self.eval_chunk is not None:
+            c = self.eval_chunk
+        else:
+            per = n_points * n_goals * self.hidden[0]
+            c = 1
+            while 2 * c * per <= EVAL_CHUNK_BUDGET and c < 4096:
+                c *= 2
+        return -(-c // n_devices) * n_devices
+
+    # ---- serialisation ----
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-ready dict (tuples become lists)."""
+        d = dataclasses.asdict(self)
+        d["hidden"] = list(self.hidden)
+        return d
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> TrainConfig:
+        """Rebuild from :meth:`to_dict` output; unknown keys raise ValueError."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"TrainConfig: unknown fields {unknown}")
+        kw = dict(d)
+        if "hidden" in kw:
+            kw["hidden"] = tuple(int(h) for h in kw["hidden"])
+        return cls(**kw)
+
+
+def paper(method: str, **overrides: Any) -> TrainConfig:
+    """The paper's hyperparameters (SPEC §5, §6), with optional overrides.
+
+    SLOT-V: hidden (1536, 768), RMSprop lr 0.005, ρ 0.9, momentum 0, batch 32, 15 epochs.
+    T-REX: hidden (1792, 768), Adam lr 0.005, β1 0.9, β2 0.999, batch 128, 25 epochs.
+    """
+    if method == "slotv":
+        base = TrainConfig(
+            method="slotv",
+            hidden=(1536, 768),
+            optimizer="rmsprop",
+            learning_rate=0.005,
+            rho=0.9,
+            momentum=0.0,
+            batch_size=32,
+            epochs=15,
+        )
+    elif method == "trex":
+        base = TrainConfig(
+            method="trex",
+            hidden=(1792, 768),
+            optimizer="adam",
+            learning_rate=0.005,
+            b1=0.9,
+            b2=0.999,
+            batch_size=128,
+            epochs=25,
+        )
+    else:
+        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+    return dataclasses.replace(base, **overrides)
+
+
+def quick(method: str, **overrides: Any) -> TrainConfig:
+    """Small, CPU-cheap settings for the quick Table 1 (SPEC §8) **[choice]**.
+
+    The optimisers and learning rates are the paper's; the networks are smaller,
+    and each run uses the first 4,000 training trajectories. Measured on the
+    2-core CPU this is about 12 s per (labeler, method, trial), evaluation on the
+    four Table 1 splits included (see experiments/BENCHMARKS.md).
+    """
+    if method == "slotv":
+        base = paper("slotv", hidden=(64, 32), batch_size=32, epochs=3, train_size=4000)
+    elif method == "trex":
+        base = paper("trex", hidden=(64, 32), batch_size=64, epochs=6, train_size=4000)
+    else:
+        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+    return dataclasses.replace(base, **overrides)
+
+
+PRESETS = {"quick": quick, "paper": paper}
+
+
+def preset(name: str, method: str, **overrides: Any) -> TrainConfig:
+    """``PRESETS[name](method, **overrides)`` with a clear error for an unknown preset."""
+    if name not in PRESETS:
+        raise ValueError(f"preset: expected one of {tuple(PRESETS)}, got {name!r}")
+    return PRESETS[name](method, **overrides)
+
+
+def _parse_value(name: str, text: str, annotation: Any) -> Any:
+    hint = typing.get_type_hints(TrainConfig)[name]
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType) and type(None) in args:
+        if text.strip().lower() in {"none", "null", ""}:
+            return None
+        hint = next(a for a in args if a is not type(None))
+        origin = typing.get_origin(hint)
+    try:
+        if origin is tuple:
+            return tuple(int(v) for v in text.replace("/", ",").split(",") if v.strip())
+        if hint is int:
+            return int(text)
+        if hint is float:
+            return float(text)
+        return text
+    except ValueError as e:
+        raise ValueError(f"override {name}={text!r}: cannot parse as {hint}") from e
+
+
+def apply_overrides(cfg: TrainConfig, items: Iterable[str]) -> TrainConfig:
+    """Apply ``key=value`` strings (e.g. ``"hidden=256,128"``, ``"epochs=3"``) to ``cfg``."""
+    fields = {f.name: f for f in dataclasses.fields(TrainConfig)}
+    changes: dict[str, Any] = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"override {item!r}: expected key=value")
+        key, text = (s.strip() for s in item.split("=", 1))
+        key = key.replace("-", "_")
+        if key not in fields:
+            raise ValueError(f"override {item!r}: unknown field {key!r}; known: {sorted(fields)}")
+        changes[key] = _parse_value(key, text, fields[key].type)
+    return dataclasses.replace(cfg, **changes)

@@ -1,0 +1,185 @@
+"""Accuracy of a learned observer (SPEC §8) and T-REX's pairwise accuracy.
+
+Accuracy is the fraction of trajectories where the argmax of the model's masked
+scores equals the argmax of the labeler's y over real goals,
+
+    acc = (1/N) Σ_n 1[ argmax_k s_k(γ_n) = argmax_k y_k(γ_n) ],
+
+ties going to the lowest slot index (``jnp.argmax`` returns the first maximum).
+For SLOT-V s is the observer logits; for T-REX it is the per-goal return.
+
+A split is evaluated in fixed-size chunks (:func:`chunk` pads the last one and
+marks the padding invalid), scanned inside one compiled function, with each
+chunk's batch axis sharded over the devices of the training mesh.
+
+>>> import jax.numpy as jnp
+>>> mask = jnp.array([True, True, True] + [False] * 5)
+>>> int(predict(jnp.array([1.0, 3.0, 3.0, 9, 9, 9, 9, 9]), mask))  # tie -> lowest, padding ignored
+1
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Mapping
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+from jaxtyping import Array, Bool, Float, Int
+
+from slotv_jax import models
+
+
+class EvalData(NamedTuple):
+    """A split cut into M chunks of C trajectories (the padding has ``valid`` False)."""
+
+    xyz: Float[Array, "M C T 3"]
+    goals: Float[Array, "M C 8 3"]
+    goal_mask: Bool[Array, "M C 8"]
+    labels: Float[Array, "M C 8"]
+    valid: Bool[Array, "M C"]
+
+
+def predict(scores: Float[Array, "... 8"], goal_mask: Bool[Array, "... 8"]) -> Int[Array, "..."]:
+    """argmax over real goals of the model's scores (ties: lowest index)."""
+    return jnp.argmax(models.mask_logits(scores, goal_mask), axis=-1)
+
+
+def target(labels: Float[Array, "... 8"], goal_mask: Bool[Array, "... 8"]) -> Int[Array, "..."]:
+    """argmax over real goals of the labeler's distribution (ties: lowest index)."""
+    return jnp.argmax(jnp.where(goal_mask, labels, -jnp.inf), axis=-1)
+
+
+def chunk(data, size: int) -> EvalData:
+    """Cut (N, ...) arrays with fields xyz/goals/goal_mask/labels into chunks of ``size``.
+
+    The last chunk is padded with copies of the first trajectory, marked invalid.
+    """
+    n = data.xyz.shape[0]
+    size = int(size)
+    if size < 1 or n < 1:
+        raise ValueError(f"chunk: expected n >= 1 trajectories and size >= 1, got {n}, {size}")
+    m = -(-n // size)
+    pad = m * size - n
+
+    def cut(x):
+        x = jnp.asarray(x)
+        if pad:
+            x = jnp.concatenate([x, jnp.repeat(x[:1], pad, axis=0)])
+        return x.reshape(m, size, *x.shape[1:])
+
+    valid = jnp.arange(m * size).reshape(m, size) < n
+    return EvalData(cut(data.xyz), cut(data.goals), cut(data.goal_mask), cut(data.labels), valid)
+
+
+def chunked_accuracy(
+    model: models.Model, ev: EvalData, *, shard: Callable[[Array], Array] = lambda x: x
+) -> Float[Array, ""]:
+    """SPEC §8 accuracy of ``model`` over all valid trajectories of ``ev`` (pure; jit it).
+
+    ``shard`` constrains each chunk's batch axis (the training mesh's data axis).
+    """
+
+    def body(correct, xs):
+        xyz, goals, goal_mask, labels, valid = (shard(x) for x in xs)
+        hit = predict(model(xyz, goals, goal_mask), goal_mask) == target(labels, goal_mask)
+        return correct + jnp.sum(hit & valid), None
+
+    correct, _ = jax.lax.scan(body, jnp.zeros((), jnp.int32), ev)
+    return correct / jnp.sum(ev.valid)
+
+
+def chunked_pairwise_accuracy(
+    model: models.Model, data, key: jax.Array, n_chunks: int, chunk_size: int, *, shard=lambda x: x
+) -> Float[Array, ""]:
+    """Fraction of SPEC §6 pairs (drawn fresh from ``key``) whose order the model gets right:
+    1[R(γ₂, g_{k₂}) > R(γ₁, g_{k₁})] = ℓ. Pure; for T-REX it is the training objective's
+    accuracy, for SLOT-V the same test on its per-goal scores."""
+
+    def body(correct, k):
+        idx, slot, label = models.sample_trex_pairs(k, data.goal_mask, data.labels, chunk_size)
+        xyz = shard(data.xyz[idx])  # (C, 2, T, 3)
+        goal = shard(data.goals[idx, slot])  # (C, 2, 3)
+        r = model.scores(xyz, goal[..., None, :])[..., 0]  # (C, 2)
+        return correct + jnp.sum((r[:, 1] > r[:, 0]) == (shard(label) > 0.5)), None
+
+    correct, _ = jax.lax.scan(body, jnp.zeros((), jnp.int32), jax.random.split(key, n_chunks))
+    return correct / (n_chunks * chunk_size)
+
+
+# ---------------------------------------------------------------- convenience (entry points)
+
+
+def _batched(trainer, params) -> bool:
+    """True if ``params`` has a leading trial axis relative to the model's parameters."""
+    _, abstract = nnx.split(nnx.eval_shape(lambda: models.make_model(trainer.cfg, nnx.Rngs(0))))
+    ref = jax.tree.leaves(abstract)[0]
+    got = jax.tree.leaves(params)[0]
+    if got.shape == ref.shape:
+        return False
+    if got.shape[1:] == ref.shape:
+        return True
+    raise ValueError(
+        f"params: leaf shape {got.shape} does not fit the config's model ({ref.shape}; "
+        f"hidden={trainer.cfg.hidden})"
+    )
+
+
+@functools.cache
+def _jit_accuracy(trainer, batched: bool):
+    f = trainer.accuracy
+    return jax.jit(jax.vmap(f, in_axes=(0, None)) if batched else f)
+
+
+def accuracy(cfg, params, data, labeler: str | None = None, *, mesh=None) -> np.ndarray:
+    """SPEC §8 accuracy of ``params`` on a whole split (jit-compiled, chunked, sharded).
+
+    ``data`` is a :class:`slotv_jax.train.TrainData` or a ``Split`` with ``labeler``.
+    ``params`` may carry a leading trial axis (from :func:`slotv_jax.train.train_trials`):
+    then the result has shape (n_trials,), else it is a scalar array.
+    """
+    from slotv_jax import train as train_lib
+
+    if labeler is not None:
+        data = train_lib.prepare(data, labeler)
+    trainer = train_lib.make_train(cfg, mesh=mesh, progress=False)
+    ev = trainer.replicate(trainer.eval_data(data, size=data.xyz.shape[0]))
+    return np.asarray(_jit_accuracy(trainer, _batched(trainer, params))(params, ev))
+
+
+def split_accuracies(
+    cfg, params, splits: Mapping[str, object], labeler: str, *, mesh=None
+) -> dict[str, np.ndarray]:
+    """:func:`accuracy` on each named split (``Split`` objects), keyed by split name."""
+    return {name: accuracy(cfg, params, s, labeler, mesh=mesh) for name, s in splits.items()}
+
+
+@functools.cache
+def _jit_pairwise(trainer, batched: bool, n_chunks: int, chunk_size: int):
+    def f(params, data, key):
+        return chunked_pairwise_accuracy(
+            trainer.model(params), data, key, n_chunks, chunk_size, shard=trainer._shard_batch
+        )
+
+    return jax.jit(jax.vmap(f, in_axes=(0, None, None)) if batched else f)
+
+
+def pairwise_accuracy(
+    cfg, params, data, labeler: str | None = None, *, key=None, n_pairs: int = 10_000, mesh=None
+) -> np.ndarray:
+    """T-REX's diagnostic: accuracy of ordering ``n_pairs`` SPEC §6 pairs of ``data``
+    (rounded up to whole chunks). Same trial-axis convention as :func:`accuracy`."""
+    from slotv_jax import train as train_lib
+
+    if labeler is not None:
+        data = train_lib.prepare(data, labeler)
+    trainer = train_lib.make_train(cfg, mesh=mesh, progress=False)
+    size = cfg.eval_chunk_size(trainer.mesh.size, 1, data.xyz.shape[1]) * 2
+    size = min(size, -(-n_pairs // trainer.mesh.size) * trainer.mesh.size)
+    n_chunks = -(-n_pairs // size)
+    key = jax.random.key(0) if key is None else key
+    f = _jit_pairwise(trainer, _batched(trainer, params), n_chunks, size)
+    return np.asarray(f(params, trainer.replicate(data), key))

@@ -1,0 +1,202 @@
+"""The learned observers: SLOT-V's value network and T-REX's reward network (SPEC §5, §6).
+
+Both methods share one network archetype, a function of one trajectory point
+``r`` and one goal ``g`` through the goal-relative input ``r − g``:
+
+    f(r, g) = w_L · relu(W_{L−1} ⋯ relu(W_1 (r − g) + b_1) ⋯) + b_L,
+
+with hidden widths ``hidden`` (paper: 1536/768 for SLOT-V, 1792/768 for T-REX).
+For a trajectory p_0..p_{T−1} and goals g_1..g_8:
+
+- SLOT-V's observer score is the mean over time, s_k = (1/T) Σ_i V(p_i, g_k),
+  the integral of V over t ∈ [0, 1] (Wallkötter et al. 2022, §III);
+- T-REX's return is the sum, R_k = Σ_i r(p_i, g_k) (Brown et al. 2019);
+- padded goal slots get the logit −∞, so softmax gives them probability 0 and
+  the real goals' probabilities do not depend on the padding.
+
+Because the first layer sees only r − g, translating a scene together with its
+trajectory leaves every score unchanged. It is evaluated as
+W_1 r − (W_1 g − b_1): a (T, H) and a (G, H) product broadcast to (T, G, H),
+instead of a (T·G, 3) × (3, H) product. This layer is always float32 at the
+highest matmul precision (r and g are metres of similar size, so rounding them
+before the subtraction would cost accuracy near the goal); the hidden layers
+use ``compute_dtype`` (bfloat16 on GPUs) with float32 parameters, and the
+scalar output and the reduction over time are float32.
+
+>>> import jax, jax.numpy as jnp
+>>> from flax import nnx
+>>> m = SlotV((16, 8), rngs=nnx.Rngs(0))
+>>> xyz = jnp.linspace(0.0, 0.3, 300).reshape(100, 3)
+>>> goals = jnp.zeros((8, 3)).at[1, 0].set(0.5)
+>>> m(xyz, goals, jnp.arange(8) < 2).shape
+(8,)
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+from flax import nnx
+from jaxtyping import Array, Bool, Float
+
+from slotv_jax import validation
+from slotv_jax.validation import G_MAX
+
+_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
+
+
+def _dtype(name: str):
+    if name not in _DTYPES:
+        raise ValueError(f"compute_dtype: expected one of {tuple(_DTYPES)}, got {name!r}")
+    return _DTYPES[name]
+
+
+def mask_logits(scores: Float[Array, "... G"], goal_mask: Bool[Array, "... G"]) -> Array:
+    """Padded goal slots get −∞: softmax then gives them exactly 0."""
+    return jnp.where(goal_mask, scores, -jnp.inf)
+
+
+class GoalRelativeMLP(nnx.Module):
+    """f(r, g) = MLP(r − g): Dense(hidden[0]) ReLU → … → Dense(hidden[-1]) ReLU → Dense(1).
+
+    Parameters are float32; the hidden matmuls run in ``compute_dtype``.
+    """
+
+    def __init__(self, hidden: Sequence[int], *, compute_dtype: str = "float32", rngs: nnx.Rngs):
+        hidden = tuple(int(h) for h in hidden)
+        if not hidden or min(hidden) < 1:
+            raise ValueError(f"hidden: expected positive widths, got {hidden}")
+        # float32 compute: no explicit dtype, so float64 parameters (under jax x64) give a
+        # float64 model, e.g. for finite-difference checks.
+        cd = None if compute_dtype == "float32" else _dtype(compute_dtype)
+        out = None if cd is None else jnp.float32
+        self.hidden = hidden
+        self.compute_dtype = compute_dtype
+        self.first = nnx.Linear(3, hidden[0], precision=jax.lax.Precision.HIGHEST, rngs=rngs)
+        self.layers = nnx.List(
+            [nnx.Linear(a, b, dtype=cd, rngs=rngs) for a, b in itertools.pairwise(hidden)]
+        )
+        self.readout = nnx.Linear(hidden[-1], 1, dtype=cd, preferred_element_type=out, rngs=rngs)
+
+    def _trunk(self, h: Array) -> Array:
+        out = jnp.promote_types(h.dtype, jnp.float32)
+        if self.compute_dtype != "float32":
+            h = h.astype(_dtype(self.compute_dtype))
+        for layer in self.layers:
+            h = jax.nn.relu(layer(h))
+        return self.readout(h)[..., 0].astype(out)
+
+    def __call__(self, r: Float[Array, "... 3"], g: Float[Array, "... 3"]) -> Float[Array, "..."]:
+        """f(r, g) for broadcastable batches of points and goals."""
+        return self._trunk(jax.nn.relu(self.first(r - g)))
+
+    def grid(
+        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"]
+    ) -> Float[Array, "... T G"]:
+        """f(p_i, g_k) for every point and goal: W_1 p_i − (W_1 g_k − b_1), then the trunk."""
+        w = self.first.kernel[...]
+        b = self.first.bias[...]
+        hp = jax.lax.Precision.HIGHEST
+        a = jnp.matmul(xyz, w, precision=hp)  # (..., T, H)
+        c = jnp.matmul(goals, w, precision=hp) - b  # (..., G, H)
+        return self._trunk(jax.nn.relu(a[..., :, None, :] - c[..., None, :, :]))
+
+
+class SlotV(nnx.Module):
+    """SLOT-V observer: logits s_k = (1/T) Σ_i V(p_i, g_k), padded goals at −∞ (SPEC §5)."""
+
+    method = "slotv"
+
+    def __init__(
+        self, hidden: Sequence[int] = (1536, 768), *, compute_dtype: str = "float32", rngs: nnx.Rngs
+    ):
+        self.value = GoalRelativeMLP(hidden, compute_dtype=compute_dtype, rngs=rngs)
+
+    def scores(
+        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"]
+    ) -> Float[Array, "... G"]:
+        """Unmasked s_k = mean over time of V(p_i, g_k)."""
+        return self.value.grid(xyz, goals).mean(axis=-2)
+
+    def __call__(
+        self,
+        xyz: Float[Array, "... T 3"],
+        goals: Float[Array, "... G 3"],
+        goal_mask: Bool[Array, "... G"],
+    ) -> Float[Array, "... G"]:
+        """Masked logits; softmax gives P(goal k | trajectory)."""
+        return mask_logits(self.scores(xyz, goals), goal_mask)
+
+
+class TRex(nnx.Module):
+    """Adapted T-REX: per-goal returns R_k = Σ_i r(p_i, g_k), padded goals at −∞ (SPEC §6)."""
+
+    method = "trex"
+
+    def __init__(
+        self, hidden: Sequence[int] = (1792, 768), *, compute_dtype: str = "float32", rngs: nnx.Rngs
+    ):
+        self.reward = GoalRelativeMLP(hidden, compute_dtype=compute_dtype, rngs=rngs)
+
+    def scores(
+        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"]
+    ) -> Float[Array, "... G"]:
+        """Unmasked returns R_k = Σ_i r(p_i, g_k)."""
+        return self.reward.grid(xyz, goals).sum(axis=-2)
+
+    def __call__(
+        self,
+        xyz: Float[Array, "... T 3"],
+        goals: Float[Array, "... G 3"],
+        goal_mask: Bool[Array, "... G"],
+    ) -> Float[Array, "... G"]:
+        """Masked returns, used as logits for evaluation (SPEC §6)."""
+        return mask_logits(self.scores(xyz, goals), goal_mask)
+
+
+Model = SlotV | TRex
+
+
+def make_model(cfg, rngs: nnx.Rngs | jax.Array | int) -> Model:
+    """Build the model a :class:`slotv_jax.config.TrainConfig` describes."""
+    if not isinstance(rngs, nnx.Rngs):
+        rngs = nnx.Rngs(rngs)
+    cls = {"slotv": SlotV, "trex": TRex}.get(cfg.method)
+    if cls is None:
+        raise ValueError(f"cfg.method: expected 'slotv' or 'trex', got {cfg.method!r}")
+    return cls(cfg.hidden, compute_dtype=cfg.compute_dtype, rngs=rngs)
+
+
+def check_observer_inputs(xyz, goals, goal_mask, *, batch_shape: tuple[int, ...] = ()) -> None:
+    """Boundary checks for one trajectory (or a batch): shapes, finiteness, a real goal.
+
+    ``xyz`` is (..., T, 3) with T ≥ 2, ``goals`` (..., 8, 3), ``goal_mask`` (..., 8) with
+    at least one real goal. Value checks run only on concrete arrays.
+    """
+    validation.check_array("xyz", xyz, (*batch_shape, None, 3))
+    if jnp.shape(xyz)[-2] < 2:
+        raise ValueError(f"xyz: expected at least 2 trajectory points, got shape {jnp.shape(xyz)}")
+    validation.check_array("goals", goals, (*batch_shape, G_MAX, 3))
+    validation.check_goal_mask("goal_mask", goal_mask, batch_shape=batch_shape)
+
+
+def sample_trex_pairs(
+    key: jax.Array, goal_mask: Bool[Array, "N 8"], labels: Float[Array, "N 8"], n_pairs: int
+) -> tuple[Array, Array, Array]:
+    """T-REX training pairs exactly as SPEC §6, drawn on device.
+
+    Two trajectories i₁, i₂ uniform over the N trajectories (independently, with
+    replacement); for each, a goal slot k_j uniform over its scene's real goals (real
+    goals fill the first slots); the label is ℓ = 1[y_{k₂}(i₂) > y_{k₁}(i₁)].
+
+    Returns ``idx (n, 2)`` int32, ``slot (n, 2)`` int32 and ``label (n,)`` float32 in {0, 1}.
+    """
+    k_idx, k_goal = jax.random.split(key)
+    idx = jax.random.randint(k_idx, (n_pairs, 2), 0, goal_mask.shape[0])
+    n_real = goal_mask[idx].sum(-1)  # (n, 2)
+    slot = jax.random.randint(k_goal, (n_pairs, 2), 0, n_real)
+    y = labels[idx, slot]  # (n, 2)
+    return idx, slot, (y[:, 1] > y[:, 0]).astype(jnp.float32)
