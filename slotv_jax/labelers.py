@@ -1,0 +1,724 @@
+"""The four hand-crafted legibility labelers (observer models) of SPEC §4.
+
+Each labeler maps one trajectory to a probability vector over the goal slots::
+
+    y = labeler(xyz (T, 3), goals (8, 3), goal_mask (8,), ...)  # (8,)
+
+with ``y >= 0``, ``sum(y[goal_mask]) == 1`` and ``y[~goal_mask] == 0`` exactly. They
+are pure JAX functions: batch them with ``jax.vmap``, compile them with ``jax.jit``
+and differentiate them with ``jax.grad``. Nothing here is jitted except the bulk
+labeller :func:`label_all` and the command line.
+
+Notation (SPEC §4): ``S = xyz[0]``, ``p_i = xyz[i]``, ``d_k(i) = ‖p_i − g_k‖`` (m), and
+softmax is taken over the real goals only (log-sum-exp form, padded slots at −∞).
+
+Time. Trajectories are sampled at normalised times ``t_i = i / (T − 1)`` unless
+time stamps ``t (T,)`` are given. Given time stamps must be finite and strictly
+increasing; they are normalised to ``τ = (t − t₀) / (t_{T−1} − t₀)`` ∈ [0, 1]. Without
+``t`` every labeler computes exactly the SPEC formula.
+
+Validation. The public functions check their arguments at the boundary and raise
+``ValueError`` naming the argument: shapes (always), and NaN/inf, an empty goal
+mask, β ≤ 0, non-increasing ``t`` and points behind the camera (only on concrete
+values, so the same functions work under ``jit``/``vmap``/``grad``).
+
+>>> import jax.numpy as jnp
+>>> goals = jnp.zeros((8, 3)).at[0].set([0.5, 0.2, 0.0]).at[1].set([0.5, -0.2, 0.0])
+>>> mask = jnp.arange(8) < 2
+>>> xyz = jnp.linspace(jnp.array([0.0, 0.0, 0.3]), jnp.array([0.5, 0.2, 0.0]), 100)
+>>> y = dragan(xyz, goals, mask)
+>>> bool(y[0] > y[1]), float(y[2:].sum())
+(True, 0.0)
+
+Command line (label user trajectories from an ``.npz`` holding ``xyz (N, T, 3)``,
+``goals`` and ``goal_mask`` (per trajectory or shared) and optional ``t``)::
+
+    python -m slotv_jax.labelers --in trajs.npz --out labels.npz
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from slotv_jax import validation
+from slotv_jax.scene import Camera, project
+from slotv_jax.scene import camera as scene_camera
+from slotv_jax.validation import G_MAX
+
+__all__ = [
+    "DEFAULT_BETAS",
+    "DEPTH_EPS",
+    "LABELERS",
+    "LABELER_NAMES",
+    "depth_ok",
+    "dragan",
+    "effdist",
+    "fastapp",
+    "label_all",
+    "main",
+    "nikolaidis",
+]
+
+LABELER_NAMES = ("dragan", "nikolaidis", "effdist", "fastapp")
+DEFAULT_BETAS = {"dragan": 5.0, "nikolaidis": 7.5, "effdist": 5.0, "fastapp": 5.0}
+DEPTH_EPS = 1e-6  # a point or goal with camera depth <= this is invalid (SPEC §4.2)
+DEFAULT_CHUNK = 8192  # trajectories per compiled call in label_all
+
+# ----------------------------------------------------------------- time weights
+
+
+class TimeWeights(NamedTuple):
+    """Per-point weights that turn the integrals of SPEC §4 into dot products."""
+
+    dragan: np.ndarray | Array  # (..., T): trapezoid weight × (1 − τ), summing to 1
+    effdist: np.ndarray | Array  # (..., T): time-average weights, summing to 1
+    fastapp: np.ndarray | Array  # (..., T): s_k = β Σ_i fastapp_i d_k(i)
+
+
+def _weights_from_tau(tau, xp) -> TimeWeights:
+    """Weights for normalised times ``tau (..., T)`` (0 = start, 1 = end), with ``xp`` np or jnp."""
+    T = tau.shape[-1]
+    h = xp.diff(tau, axis=-1)  # (..., T−1) interval lengths
+    zero = xp.zeros_like(tau[..., :1])
+    one_minus = 1.0 - tau
+
+    # Dragan: trapezoid rule for ∫ P(t)(1 − t) dt / ∫ (1 − t) dt. The trapezoid weight
+    # of point i is half of each adjacent interval; the same weights integrate the
+    # denominator, so the labels sum to 1 over the real goals.
+    trap = (xp.concatenate([zero, h], axis=-1) + xp.concatenate([h, zero], axis=-1)) / 2
+    c = trap * one_minus
+    c = c / xp.sum(c, axis=-1, keepdims=True)
+
+    # EffDist: each sample stands for the time around it, the two end samples
+    # mirroring their single neighbour interval; for uniform τ every weight is 1/T.
+    cell = (
+        xp.concatenate([h[..., :1], h], axis=-1) + xp.concatenate([h, h[..., -1:]], axis=-1)
+    ) / 2
+    w = cell / xp.sum(cell, axis=-1, keepdims=True)
+
+    # FastApp: Σ_{i≥1} w_i (d(i−1) − d(i)) / Σ_{i≥1} w_i Δt_i with w_i = 1 − τ_i, written
+    # as one weight per point (summation by parts). With T = 2 the only weight is
+    # w_1 = 0 and the ratio is 0/0; its limit, the one approach speed, is used.
+    if T == 2:
+        a = xp.concatenate([1.0 / h, -1.0 / h], axis=-1)
+    else:
+        wr = one_minus[..., 1:]  # w_i for i = 1..T−1
+        a = xp.concatenate([wr, zero], axis=-1) - xp.concatenate([zero, wr], axis=-1)
+        a = a / xp.sum(wr * h, axis=-1, keepdims=True)
+    return TimeWeights(c, w, a)
+
+
+def _uniform_weights(T: int, dtype) -> TimeWeights:
+    """Weights for t_i = i/(T−1), computed in float64 and cast (SPEC §4 exactly)."""
+    tw = _weights_from_tau(np.arange(T, dtype=np.float64) / (T - 1), np)
+    w = np.full(T, 1.0 / T)  # EffDist: (1/T) Σ_i, exactly as SPEC §4.3 writes it
+    return TimeWeights(*(jnp.asarray(x, dtype) for x in (tw.dragan, w, tw.fastapp)))
+
+
+def _time_weights(t, T: int, dtype) -> TimeWeights:
+    if t is None:
+        return _uniform_weights(T, dtype)
+    t = jnp.asarray(t, dtype)
+    tau = (t - t[..., :1]) / (t[..., -1:] - t[..., :1])
+    return _weights_from_tau(tau, jnp)
+
+
+# ------------------------------------------------------------------- cores
+# Batched cores: every array may carry leading batch dimensions ``...``. Distances
+# are laid out (..., G, T) so that the softmax over goals is an elementwise
+# reduction over 8 rows and the time integrals reduce the contiguous axis.
+
+
+def _distances(points: Float[Array, "... T D"], goals: Float[Array, "... G D"]) -> Array:
+    """``d[..., k, i] = ‖points_i − goals_k‖`` with a finite gradient at 0.
+
+    Summed coordinate by coordinate: XLA then emits one vectorised loop over (G, T)
+    instead of a reduction over a minor axis of size 3 (several times faster on CPU).
+    """
+    sq = 0.0
+    for j in range(points.shape[-1]):
+        sq = sq + (goals[..., :, j, None] - points[..., None, :, j]) ** 2
+    # max(·, tiny) keeps the gradient finite when a point sits exactly on a goal
+    # (e.g. a trajectory ending at its target); it changes d only below 1e-19 m.
+    return jnp.sqrt(jnp.maximum(sq, jnp.finfo(sq.dtype).tiny))
+
+
+def _integrate(f: Float[Array, "... G T"], w: Float[Array, "... T"]) -> Float[Array, "... G"]:
+    """``Σ_i w_i f[..., :, i]``, as a contraction: XLA then uses a fast matrix-vector kernel."""
+    return jnp.einsum("...gt,...t->...g", f, w)
+
+
+def _masked_softmax(s: Array, mask: Array, axis: int) -> Array:
+    """Softmax over ``axis`` restricted to ``mask``; exact zeros elsewhere (log-sum-exp form)."""
+    s = jnp.where(mask, s, -jnp.inf)
+    e = jnp.exp(s - jnp.max(s, axis=axis, keepdims=True))
+    return e / jnp.sum(e, axis=axis, keepdims=True)
+
+
+def _dragan_core(d: Array, mask: Array, beta, c: Array) -> Array:
+    """SPEC §4.1 from distances ``d (..., G, T)`` and integration weights ``c (..., T)``."""
+    logits = beta * (d[..., :, :1] - d)  # β (‖S − g_k‖ − d_k(i)), (..., G, T)
+    p = _masked_softmax(logits, mask[..., :, None], axis=-2)  # P_k(i)
+    return _integrate(p, c)
+
+
+def _effdist_core(d: Array, mask: Array, beta, w: Array) -> Array:
+    """SPEC §4.3 [reconstruction] from distances ``d (..., G, T)``."""
+    return _masked_softmax(-beta * _integrate(d, w), mask, axis=-1)
+
+
+def _fastapp_core(d: Array, mask: Array, beta, a: Array) -> Array:
+    """SPEC §4.4 [reconstruction] from distances ``d (..., G, T)``."""
+    return _masked_softmax(beta * _integrate(d, a), mask, axis=-1)
+
+
+def _image(points: Float[Array, "... 3"], pos, rot, eps) -> tuple[Array, Array]:
+    """:func:`slotv_jax.scene.project` with the division guarded where depth <= eps.
+
+    Returns the image points (u, v) and ``ok = depth > eps``; where not ok, (u, v) is
+    the finite ``(p_c.x, p_c.y)`` so that neither values nor gradients become NaN.
+    The rotation ``p_c = Rᵀ (p − c)`` is written out per coordinate (3×3 is too small
+    for a matrix kernel to pay off).
+    """
+    rel = points - pos
+    pc = [sum(rel[..., k] * rot[k, j] for k in range(3)) for j in range(3)]
+    depth = -pc[2]
+    ok = depth > eps
+    inv = 1.0 / jnp.where(ok, depth, 1.0)
+    return jnp.stack([pc[0] * inv, pc[1] * inv], axis=-1), ok
+
+
+def _nikolaidis_core(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS) -> Array:
+    """SPEC §4.2: Dragan legibility of the image-plane points; uniform if any depth is invalid."""
+    uv, ok_p = _image(xyz, pos, rot, eps)
+    uv_g, ok_g = _image(goals, pos, rot, eps)
+    y = _dragan_core(_distances(uv, uv_g), mask, beta, c)
+    ok = jnp.all(ok_p, axis=-1) & jnp.all(ok_g | ~mask, axis=-1)
+    uniform = mask / jnp.sum(mask, axis=-1, keepdims=True)
+    return jnp.where(ok[..., None], y, uniform.astype(y.dtype))
+
+
+# ------------------------------------------------------------ public labelers
+
+
+def _prepare(xyz, goals, goal_mask, beta, t, beta_name="beta"):
+    """Boundary checks shared by the four labelers; returns arrays and time weights."""
+    validation.check_array("xyz", xyz, (None, 3))
+    T = int(np.shape(xyz)[0])
+    if T < 2:
+        raise ValueError(f"xyz: expected at least 2 trajectory points (T >= 2), got T = {T}")
+    validation.check_goals("goals", goals, goal_mask)
+    validation.check_positive(beta_name, beta)
+    if t is not None:
+        _check_times("t", t, (T,))
+    xyz = jnp.asarray(xyz)
+    if not jnp.issubdtype(xyz.dtype, jnp.floating):
+        xyz = xyz.astype(jnp.result_type(float))
+    goals = jnp.asarray(goals, xyz.dtype)
+    mask = jnp.asarray(goal_mask).astype(bool)
+    return xyz, goals, mask, _time_weights(t, T, xyz.dtype)
+
+
+def _check_times(name: str, t, shape) -> None:
+    validation.check_array(name, t, shape)
+    if validation.is_concrete(t) and not np.all(np.diff(np.asarray(t, np.float64), axis=-1) > 0):
+        raise ValueError(f"{name}: expected strictly increasing time stamps")
+
+
+def dragan(
+    xyz: Float[Array, "T 3"],
+    goals: Float[Array, "8 3"],
+    goal_mask: Bool[Array, " 8"],
+    *,
+    beta: float = 5.0,
+    t: Float[Array, " T"] | None = None,
+) -> Float[Array, " 8"]:
+    """Dragan legibility (SPEC §4.1; Dragan & Srinivasa, RSS 2013, "Generating Legible Motion").
+
+    Per point, the probability of each goal given the motion so far::
+
+        P_k(i) = softmax_k( β (‖S − g_k‖ − ‖p_i − g_k‖) )        (real goals only)
+        y_k    = ∫₀¹ P_k(t)(1 − t) dt / ∫₀¹ (1 − t) dt            (trapezoid rule)
+
+    The cost-so-far term of the paper cancels across goals. Equals the first author's
+    numpy ``legibility(...)[-1]`` with ``beta = velocity / 2``.
+
+    Args:
+      xyz: trajectory points (m), ``xyz[0]`` the start S; T >= 2.
+      goals: goal positions (m); padded slots are ignored.
+      goal_mask: True for real goals (at least one).
+      beta: inverse temperature (1/m), > 0. SPEC default 5.
+      t: optional strictly increasing time stamps (any unit; normalised to [0, 1]).
+        Default: uniform ``i / (T − 1)``.
+
+    Returns:
+      ``y (8,)``: probabilities over the real goals, exactly 0 on padded slots.
+
+    Example: a straight line to goal 0 between two goals mirrored in y:
+
+    >>> import jax.numpy as jnp
+    >>> g = jnp.zeros((8, 3)).at[0].set([1.0, 0.5, 0.0]).at[1].set([1.0, -0.5, 0.0])
+    >>> xyz = jnp.linspace(jnp.zeros(3), g[0], 50)
+    >>> y = dragan(xyz, g, jnp.arange(8) < 2)
+    >>> bool(y[0] > 0.5), round(float(y[0] + y[1]), 6)
+    (True, 1.0)
+    """
+    xyz, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
+    return _dragan_core(_distances(xyz, goals), mask, beta, tw.dragan)
+
+
+def effdist(
+    xyz: Float[Array, "T 3"],
+    goals: Float[Array, "8 3"],
+    goal_mask: Bool[Array, " 8"],
+    *,
+    beta: float = 5.0,
+    t: Float[Array, " T"] | None = None,
+) -> Float[Array, " 8"]:
+    """EffDist, the "effective distance" observer (SPEC §4.3) **[reconstruction]**.
+
+    The goal the motion stays closest to, on average over time::
+
+        s_k = −β (1/T) Σ_i ‖p_i − g_k‖,     y = softmax(s)  (real goals only)
+
+    This is a reconstruction: the source definition (Zhao et al., ICRA 2020, as used in
+    Wallkötter et al. 2022, arXiv 2201.05765) could not be read. It is isolated in
+    :func:`_effdist_core` so it can be replaced without touching anything else.
+
+    Args:
+      xyz, goals, goal_mask: as in :func:`dragan`.
+      beta: inverse temperature (1/m), > 0. SPEC default 5.
+      t: optional time stamps. The mean becomes a time average: each point is weighted
+        by the time around it (half of each neighbouring interval; the two end points
+        count their one interval in full). Uniform stamps give exactly 1/T.
+
+    Example: a path that stays at goal 0 gets most of the mass:
+
+    >>> import jax.numpy as jnp
+    >>> g = jnp.zeros((8, 3)).at[0].set([0.4, 0.0, 0.0]).at[1].set([0.4, 0.4, 0.0])
+    >>> y = effdist(jnp.tile(g[0], (10, 1)), g, jnp.arange(8) < 2, beta=5.0)
+    >>> round(float(y[0]), 4)  # softmax(0, −5·0.4) = 1 / (1 + e^−2)
+    0.8808
+    """
+    xyz, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
+    return _effdist_core(_distances(xyz, goals), mask, beta, tw.effdist)
+
+
+def fastapp(
+    xyz: Float[Array, "T 3"],
+    goals: Float[Array, "8 3"],
+    goal_mask: Bool[Array, " 8"],
+    *,
+    beta: float = 5.0,
+    t: Float[Array, " T"] | None = None,
+) -> Float[Array, " 8"]:
+    """FastApp, the "fast approach" observer (SPEC §4.4) **[reconstruction]**.
+
+    The goal the motion approaches most, early. With ``a_k(i) = d_k(i−1) − d_k(i)`` (m)
+    and ``w_i = 1 − t_i`` for i = 1..T−1::
+
+        s_k = β Σ_i w_i a_k(i) / Σ_i w_i Δt_i,    y = softmax(s)  (real goals only)
+
+    i.e. β times the (1 − t)-weighted mean approach speed (m per unit time); β has
+    units of time/m. ``Δt_i = t_i − t_{i−1}`` (1/(T−1) by default). For T = 2 the only
+    weight is 0 and the ratio is 0/0; its limit, ``s_k = β a_k(1) / Δt``, is used.
+
+    This is a reconstruction: the source definition (Zhao et al., ICRA 2020, as used in
+    Wallkötter et al. 2022, arXiv 2201.05765) could not be read. It is isolated in
+    :func:`_fastapp_core` so it can be replaced without touching anything else.
+
+    Example: T = 2 from the origin straight to goal 0 at 0.5 m; goal 1 is 0.5 m away
+    too but sideways (its distance grows to √0.5 m):
+
+    >>> import jax.numpy as jnp
+    >>> g = jnp.zeros((8, 3)).at[0].set([0.5, 0.0, 0.0]).at[1].set([0.0, 0.5, 0.0])
+    >>> y = fastapp(jnp.stack([jnp.zeros(3), g[0]]), g, jnp.arange(8) < 2, beta=1.0)
+    >>> round(float(y[0]), 4)  # softmax(0.5, 0.5 − √0.5)
+    0.6698
+    """
+    xyz, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
+    return _fastapp_core(_distances(xyz, goals), mask, beta, tw.fastapp)
+
+
+def _as_camera(cam) -> Camera:
+    if isinstance(cam, str):
+        return scene_camera(cam)
+    if not isinstance(cam, Camera):
+        raise ValueError(
+            f"camera: expected a slotv_jax.scene.Camera or a camera name, got {type(cam)}"
+        )
+    validation.check_array("camera.pos", cam.pos, (3,))
+    validation.check_array("camera.rot", cam.rot, (3, 3))
+    return cam
+
+
+def _check_depth(xyz, goals, goal_mask, cam: Camera, eps: float = DEPTH_EPS) -> None:
+    """Raise if a concrete point or real goal is at depth <= eps (behind the camera)."""
+    if not all(validation.is_concrete(x) for x in (xyz, goals, goal_mask, cam.pos, cam.rot)):
+        return
+    c = Camera(
+        pos=np.asarray(cam.pos, np.float64),
+        rot=np.asarray(cam.rot, np.float64),
+        fovy=cam.fovy,
+        resolution=cam.resolution,
+    )
+    with np.errstate(divide="ignore", invalid="ignore"):
+        _, dp = project(np.asarray(xyz, np.float64), c)
+        _, dg = project(np.asarray(goals, np.float64), c)
+    bad_p = np.flatnonzero(~(dp > eps))
+    if bad_p.size:
+        raise ValueError(
+            f"xyz: {bad_p.size} point(s) at camera depth <= {eps} m (on or behind the camera "
+            f"plane), first at index {bad_p[0]}; every point must be in front of the camera"
+        )
+    bad_g = np.flatnonzero(np.asarray(goal_mask, bool) & ~(dg > eps))
+    if bad_g.size:
+        raise ValueError(
+            f"goals: real goal slot(s) {bad_g.tolist()} at camera depth <= {eps} m "
+            "(on or behind the camera plane)"
+        )
+
+
+def depth_ok(
+    xyz: Float[Array, "T 3"], goals: Float[Array, "8 3"], goal_mask: Bool[Array, " 8"], camera
+) -> Bool[Array, ""]:
+    """True if every point and real goal lies in front of ``camera`` (depth > 1e-6 m).
+
+    The traced counterpart of :func:`nikolaidis`'s eager depth check, for use under
+    ``jit``/``vmap`` where it cannot raise.
+    """
+    cam = _as_camera(camera)
+    mask = jnp.asarray(goal_mask).astype(bool)
+    _, ok_p = _image(jnp.asarray(xyz), cam.pos, cam.rot, DEPTH_EPS)
+    _, ok_g = _image(jnp.asarray(goals), cam.pos, cam.rot, DEPTH_EPS)
+    return jnp.all(ok_p) & jnp.all(ok_g | ~mask)
+
+
+def nikolaidis(
+    xyz: Float[Array, "T 3"],
+    goals: Float[Array, "8 3"],
+    goal_mask: Bool[Array, " 8"],
+    camera: Camera | str,
+    *,
+    beta: float = 7.5,
+    t: Float[Array, " T"] | None = None,
+) -> Float[Array, " 8"]:
+    """Viewpoint-based (Nikolaidis) legibility: Dragan legibility in the image plane (SPEC §4.2).
+
+    Points and goals are projected into ``camera`` (MuJoCo convention: it looks along
+    its −z axis, x right, y up)::
+
+        p_c = R_camᵀ (p − c_cam),   (u, v) = (p_c.x, p_c.y) / (−p_c.z)
+
+    and :func:`dragan` is applied to the 2-D points (u, v are normalised image
+    coordinates, tan of the view angle, so β is per unit of image plane at depth 1).
+    Reference: Nikolaidis, Dragan & Srinivasa, "Viewpoint-Based Legibility
+    Optimization", HRI 2016.
+
+    Depth rule: a point or real goal with depth ``−p_c.z <= 1e-6`` m is invalid.
+    On concrete inputs this raises ``ValueError``. Under ``jit``/``vmap``/``grad`` it
+    cannot raise; the label is then the uniform distribution over the real goals (an
+    observer who cannot see the motion has no preference), finite with finite
+    gradients, never NaN. Use :func:`depth_ok` to detect that case in traced code.
+
+    Args:
+      xyz, goals, goal_mask, t: as in :func:`dragan`.
+      camera: a :class:`slotv_jax.scene.Camera` (e.g. ``scene.camera("observer")``) or
+        a camera name of the scene model.
+      beta: inverse temperature (per unit image plane), > 0. SPEC default 7.5.
+
+    Example:
+
+    >>> import jax.numpy as jnp
+    >>> g = jnp.zeros((8, 3)).at[0].set([0.5, 0.3, 0.025]).at[1].set([0.5, -0.3, 0.025])
+    >>> xyz = jnp.linspace(jnp.array([0.3, 0.0, 0.49]), g[0], 100)
+    >>> y = nikolaidis(xyz, g, jnp.arange(8) < 2, "observer")
+    >>> bool(y[0] > y[1])
+    True
+    """
+    cam = _as_camera(camera)
+    xyz, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
+    _check_depth(xyz, goals, mask, cam)
+    return _nikolaidis_core(
+        xyz, goals, mask, cam.pos.astype(xyz.dtype), cam.rot.astype(xyz.dtype), beta, tw.dragan
+    )
+
+
+LABELERS: dict[str, Callable[..., Array]] = {
+    "dragan": dragan,
+    "nikolaidis": nikolaidis,
+    "effdist": effdist,
+    "fastapp": fastapp,
+}
+
+# ------------------------------------------------------------ bulk labelling
+
+_TRACES = {"label_chunk": 0}  # traces of the bulk kernel (tests check it compiles once)
+
+
+def _label_chunk(xyz, goals, mask, t, pos, rot, betas, names: tuple[str, ...]):
+    """Labels and validity flags for one fixed-size chunk (the one compiled kernel)."""
+    _TRACES["label_chunk"] += 1
+    T = xyz.shape[-2]
+    tw = _time_weights(t, T, xyz.dtype)
+    out = {}
+    if {"dragan", "effdist", "fastapp"} & set(names):
+        d = _distances(xyz, goals)  # shared by the three world-space labelers
+        if "dragan" in names:
+            out["dragan"] = _dragan_core(d, mask, betas["dragan"], tw.dragan)
+        if "effdist" in names:
+            out["effdist"] = _effdist_core(d, mask, betas["effdist"], tw.effdist)
+        if "fastapp" in names:
+            out["fastapp"] = _fastapp_core(d, mask, betas["fastapp"], tw.fastapp)
+    # Per-trajectory validity flags, so that label_all can reject bad input without
+    # an extra pass over the data on the host.
+    real = mask[..., :, None]
+    gd = jnp.sum((goals[..., :, None, :] - goals[..., None, :, :]) ** 2, axis=-1)
+    flags = {
+        "xyz_finite": jnp.all(jnp.isfinite(xyz), axis=(-2, -1)),
+        "goals_finite": jnp.all(jnp.isfinite(goals), axis=(-2, -1)),
+        "goals_distinct": ~jnp.any(
+            real & jnp.swapaxes(real, -1, -2) & ~jnp.eye(G_MAX, dtype=bool) & (gd < 1e-18),
+            axis=(-2, -1),
+        ),
+    }
+    if "nikolaidis" in names:
+        out["nikolaidis"] = _nikolaidis_core(
+            xyz, goals, mask, pos, rot, betas["nikolaidis"], tw.dragan
+        )
+        _, ok_p = _image(xyz, pos, rot, DEPTH_EPS)
+        _, ok_g = _image(goals, pos, rot, DEPTH_EPS)
+        flags["xyz_depth"] = jnp.all(ok_p, axis=-1)
+        flags["goals_depth"] = jnp.all(ok_g | ~mask, axis=-1)
+    return {k: out[k] for k in names}, flags
+
+
+_label_chunk_jit = jax.jit(_label_chunk, static_argnames=("names",))
+
+_FLAG_ERRORS = {
+    "xyz_finite": "xyz: expected finite values; trajectory {i} holds NaN/inf",
+    "goals_finite": "goals: expected finite values; trajectory {i} holds NaN/inf",
+    "goals_distinct": "goals: two real goals share the same position (trajectory {i})",
+    "xyz_depth": "xyz: trajectory {i} has point(s) at camera depth <= {eps} m "
+    "(on or behind the camera plane)",
+    "goals_depth": "goals: trajectory {i} has real goal(s) at camera depth <= {eps} m "
+    "(on or behind the camera plane)",
+}
+
+
+def _pad_rows(a: np.ndarray, n: int) -> np.ndarray:
+    """Pad axis 0 to ``n`` rows by repeating the last row (padded rows stay valid)."""
+    if a.shape[0] == n:
+        return a
+    return np.concatenate([a, np.repeat(a[-1:], n - a.shape[0], axis=0)])
+
+
+def label_all(
+    xyz: Float[np.ndarray, "N T 3"],
+    goals: Float[np.ndarray, "N 8 3"],
+    goal_mask: Bool[np.ndarray, "N 8"],
+    *,
+    t: Float[np.ndarray, "*N T"] | None = None,
+    chunk_size: int = DEFAULT_CHUNK,
+    progress: bool = True,
+    labelers: Sequence[str] = LABELER_NAMES,
+    beta_dragan: float = DEFAULT_BETAS["dragan"],
+    beta_nikolaidis: float = DEFAULT_BETAS["nikolaidis"],
+    beta_effdist: float = DEFAULT_BETAS["effdist"],
+    beta_fastapp: float = DEFAULT_BETAS["fastapp"],
+    camera: Camera | str = "observer",
+) -> dict[str, np.ndarray]:
+    """Label many trajectories with the four labelers, in fixed-size compiled chunks.
+
+    The trajectories go through one jitted kernel in chunks of ``chunk_size`` (the last
+    chunk padded), so the kernel is compiled once per (chunk_size, T, labelers) and
+    memory stays bounded by the chunk. The distances to the goals are computed once
+    and shared by dragan, effdist and fastapp. Labels are float32.
+
+    Args:
+      xyz: ``(N, T, 3)`` trajectories (m), T >= 2.
+      goals: ``(N, 8, 3)`` goals per trajectory, or ``(8, 3)`` shared by all.
+      goal_mask: ``(N, 8)`` or ``(8,)``, True for real goals (at least one each).
+      t: optional time stamps, ``(T,)`` shared or ``(N, T)``, strictly increasing.
+      chunk_size: trajectories per compiled call.
+      progress: show a tqdm progress bar.
+      labelers: which labels to compute (default all four).
+      beta_*: inverse temperatures (SPEC §4 defaults). Changing them does not recompile.
+      camera: the Nikolaidis camera, a :class:`~slotv_jax.scene.Camera` or a name.
+
+    Returns:
+      ``{name: (N, 8) float32}`` for each requested labeler.
+
+    Raises:
+      ValueError: naming the argument, for bad shapes, NaN/inf, an empty goal mask,
+        β <= 0, non-increasing ``t``, or (nikolaidis) points or goals behind the camera.
+
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> xyz = rng.uniform([0.3, -0.4, 0.1], [0.7, 0.4, 0.4], (10, 100, 3))
+    >>> goals = np.zeros((8, 3))
+    >>> goals[:3] = [[0.4, 0.3, 0.025], [0.5, 0.0, 0.025], [0.6, -0.3, 0.025]]
+    >>> y = label_all(xyz, goals, np.arange(8) < 3, progress=False)
+    >>> sorted(y), y["dragan"].shape
+    (['dragan', 'effdist', 'fastapp', 'nikolaidis'], (10, 8))
+    """
+    from tqdm.auto import tqdm
+
+    names = tuple(labelers)
+    unknown = [n for n in names if n not in LABELERS]
+    if unknown or not names:
+        raise ValueError(f"labelers: expected a non-empty subset of {LABELER_NAMES}, got {names}")
+    validation.check_shape("xyz", xyz, (None, None, 3))
+    N, T = int(np.shape(xyz)[0]), int(np.shape(xyz)[1])
+    if T < 2:
+        raise ValueError(f"xyz: expected at least 2 trajectory points (T >= 2), got T = {T}")
+    goals = np.asarray(goals)
+    goal_mask = np.asarray(goal_mask)
+    if goals.ndim == 2:
+        goals = np.broadcast_to(goals, (N, *goals.shape))
+    if goal_mask.ndim == 1:
+        goal_mask = np.broadcast_to(goal_mask, (N, *goal_mask.shape))
+    validation.check_shape("goals", goals, (N, G_MAX, 3))
+    validation.check_goal_mask("goal_mask", goal_mask, batch_shape=(N,))
+    if t is not None:
+        t = np.asarray(t)
+        if t.ndim == 1:
+            _check_times("t", t, (T,))
+        else:
+            _check_times("t", t, (N, T))
+    betas = {
+        "dragan": beta_dragan,
+        "nikolaidis": beta_nikolaidis,
+        "effdist": beta_effdist,
+        "fastapp": beta_fastapp,
+    }
+    for n in names:
+        validation.check_positive(f"beta_{n}", betas[n])
+    chunk_size = int(chunk_size)
+    if chunk_size < 1:
+        raise ValueError(f"chunk_size: expected a positive integer, got {chunk_size}")
+    cam = _as_camera(camera)
+    pos, rot = np.asarray(cam.pos, np.float32), np.asarray(cam.rot, np.float32)
+    beta_arr = {n: np.float32(betas[n]) for n in names}
+
+    out = {n: np.empty((N, G_MAX), np.float32) for n in names}
+    if N == 0:
+        return out
+    C = min(chunk_size, N)
+
+    def submit(start):
+        stop = min(start + C, N)
+        x = _pad_rows(np.asarray(xyz[start:stop], np.float32), C)
+        g = _pad_rows(np.asarray(goals[start:stop], np.float32), C)
+        m = _pad_rows(np.asarray(goal_mask[start:stop]).astype(bool), C)
+        tt = None if t is None else t.astype(np.float32)
+        if tt is not None and tt.ndim == 2:
+            tt = _pad_rows(tt[start:stop], C)
+        return start, stop, _label_chunk_jit(x, g, m, tt, pos, rot, beta_arr, names=names)
+
+    def collect(job):
+        start, stop, (labels, flags) = job
+        n = stop - start
+        for key, ok in flags.items():
+            ok = np.asarray(ok)[:n]
+            if not ok.all():
+                i = start + int(np.flatnonzero(~ok)[0])
+                raise ValueError(_FLAG_ERRORS[key].format(i=i, eps=DEPTH_EPS))
+        for k, v in labels.items():
+            out[k][start:stop] = np.asarray(v)[:n]
+
+    with tqdm(total=N, unit="traj", desc="labelling", disable=not progress) as bar:
+        pending = None
+        for start in range(0, N, C):
+            job = submit(start)  # dispatch the next chunk before waiting on the previous
+            if pending is not None:
+                collect(pending)
+                bar.update(pending[1] - pending[0])
+            pending = job
+        collect(pending)
+        bar.update(pending[1] - pending[0])
+    return out
+
+
+# ------------------------------------------------------------------ command line
+
+
+def _save_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m slotv_jax.labelers --in trajs.npz --out labels.npz``."""
+    from slotv_jax import XLA_CONFIG
+
+    p = argparse.ArgumentParser(
+        prog="python -m slotv_jax.labelers",
+        description="Label trajectories with the four legibility labelers (SPEC §4). The input "
+        ".npz holds xyz (N, T, 3), goals (N, 8, 3) or (8, 3), goal_mask (N, 8) or (8,), and "
+        "optionally t (T,) or (N, T); the output .npz holds y_<labeler> (N, 8) float32 and the "
+        "betas used.",
+    )
+    p.add_argument("--in", dest="inp", required=True, type=Path, help="input .npz")
+    p.add_argument("--out", required=True, type=Path, help="output .npz (written atomically)")
+    for n in LABELER_NAMES:
+        p.add_argument(f"--beta-{n}", type=float, default=DEFAULT_BETAS[n], help=f"β of {n}")
+    p.add_argument("--camera", default="observer", help="scene camera for nikolaidis")
+    p.add_argument(
+        "--labelers", default=",".join(LABELER_NAMES), help="comma-separated subset to compute"
+    )
+    p.add_argument("--chunk-size", type=int, default=DEFAULT_CHUNK)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = p.parse_args(argv)
+    print(XLA_CONFIG.summary(), file=sys.stderr)
+
+    names = tuple(s.strip() for s in args.labelers.split(",") if s.strip())
+    with np.load(args.inp, allow_pickle=False) as f:
+        missing = [k for k in ("xyz", "goals", "goal_mask") if k not in f.files]
+        if missing:
+            p.error(f"{args.inp}: missing array(s) {missing}; it holds {f.files}")
+        data = {k: f[k] for k in ("xyz", "goals", "goal_mask", "t") if k in f.files}
+    betas = {n: getattr(args, f"beta_{n}") for n in LABELER_NAMES}
+    try:
+        y = label_all(
+            data["xyz"],
+            data["goals"],
+            data["goal_mask"],
+            t=data.get("t"),
+            chunk_size=args.chunk_size,
+            progress=not args.quiet,
+            labelers=names,
+            camera=args.camera,
+            **{f"beta_{n}": b for n, b in betas.items()},
+        )
+    except ValueError as e:
+        p.error(f"{args.inp}: {e}")
+    arrays = {f"y_{n}": v for n, v in y.items()}
+    arrays.update({f"beta_{n}": np.float64(betas[n]) for n in names})
+    if "nikolaidis" in names:
+        arrays["camera"] = np.asarray(args.camera)
+    _save_npz_atomic(args.out, arrays)
+    print(f"wrote {', '.join(arrays)} for {len(data['xyz'])} trajectories to {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
