@@ -3,7 +3,7 @@
 Both methods share one network archetype, a function of one trajectory point
 ``r`` and one goal ``g`` through the goal-relative input ``r − g``:
 
-    f(r, g) = w_L · relu(W_{L−1} ⋯ relu(W_1 (r − g) + b_1) ⋯) + b_L,
+    f(r, g) = w_L · relu(W_{L−1} ⋯ relu(W_1 (r − g) + b_1) ⋯),
 
 with hidden widths ``hidden`` (paper: 1536/768 for SLOT-V, 1792/768 for T-REX).
 For a trajectory p_0..p_{T−1} and goals g_1..g_8:
@@ -62,6 +62,9 @@ def mask_logits(scores: Float[Array, "... G"], goal_mask: Bool[Array, "... G"]) 
 class GoalRelativeMLP(nnx.Module):
     """f(r, g) = MLP(r − g): Dense(hidden[0]) ReLU → … → Dense(hidden[-1]) ReLU → Dense(1).
 
+    The output layer has no bias: softmax over goals (SLOT-V) and the pairwise loss
+    (T-REX) are both invariant to it.
+
     Parameters are float32; the hidden matmuls run in ``compute_dtype``.
     """
 
@@ -79,7 +82,13 @@ class GoalRelativeMLP(nnx.Module):
         self.layers = nnx.List(
             [nnx.Linear(a, b, dtype=cd, rngs=rngs) for a, b in itertools.pairwise(hidden)]
         )
-        self.readout = nnx.Linear(hidden[-1], 1, dtype=cd, preferred_element_type=out, rngs=rngs)
+        # No output bias [choice]: a constant added to f shifts every goal's score equally,
+        # which neither the softmax over goals nor T-REX's pairwise loss can see. Its
+        # gradient is zero up to rounding, and RMSprop/Adam would blow that noise up into
+        # steps of size ~lr (a random walk that makes runs irreproducible across devices).
+        self.readout = nnx.Linear(
+            hidden[-1], 1, use_bias=False, dtype=cd, preferred_element_type=out, rngs=rngs
+        )
 
     def _trunk(self, h: Array) -> Array:
         out = jnp.promote_types(h.dtype, jnp.float32)

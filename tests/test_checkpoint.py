@@ -1,0 +1,171 @@
+"""Tests for slotv_jax.checkpoint: save → load → identical logits, exact resume, clear errors
+for mismatched checkpoints, and the loaded observer under jit, vmap and grad (checked
+against central finite differences in float64)."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_train import synthetic_split
+
+import slotv_jax
+from slotv_jax import checkpoint, config, train
+
+FD_TOL = 1e-6  # float64 directional derivative against central differences (relative)
+F32_GRAD_TOL = 1e-3  # float32 gradient against the float64 one (relative to its norm)
+
+
+@pytest.fixture(scope="module")
+def split():
+    return synthetic_split(3, 96)
+
+
+def cfg_for(method, **kw):
+    return config.quick(
+        method, **{"hidden": (16, 8), "batch_size": 16, "epochs": 2, "train_size": None, **kw}
+    )
+
+
+def one_epoch(trainer):
+    return jax.jit(lambda s, d: trainer.run(s, d, epochs=1))
+
+
+@pytest.mark.parametrize("method", ["slotv", "trex"])
+def test_save_load_gives_identical_logits(tmp_path, split, method):
+    cfg = cfg_for(method, epochs=1)
+    trainer = train.make_train(cfg, progress=False)
+    data = train.prepare(split, "effdist")
+    state, _ = jax.jit(trainer.train)(jax.random.key(0), data)
+    path = checkpoint.save(tmp_path / "ck", cfg, state, meta={"labeler": "effdist"})
+    assert checkpoint.exists(path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ck"]  # no temporary left behind
+    doc = json.loads((path / "config.json").read_text())
+    assert doc["config"]["hidden"] == [16, 8] and doc["epoch"] == 1
+    assert doc["meta"] == {"labeler": "effdist"}
+
+    observer = slotv_jax.load_observer(path)
+    model = trainer.model(state.params)
+    for i in range(4):
+        got = observer(split.xyz[i], split.goals[i], split.goal_mask[i])
+        want = model(split.xyz[i], split.goals[i], split.goal_mask[i])
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    batched = jax.jit(jax.vmap(observer))(split.xyz[:8], split.goals[:8], split.goal_mask[:8])
+    np.testing.assert_allclose(
+        batched, model(split.xyz[:8], split.goals[:8], split.goal_mask[:8]), rtol=1e-6
+    )
+    assert np.all(np.isneginf(np.asarray(batched)[~split.goal_mask[:8]]))
+
+    # overwriting is atomic and replaces the content
+    checkpoint.save(path, cfg, state, meta={"labeler": "effdist", "run": 2})
+    assert checkpoint.restore(path)[2]["run"] == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ck"]
+
+
+@pytest.mark.parametrize("method", ["slotv", "trex"])
+def test_resume_continues_exactly(tmp_path, split, method):
+    cfg = cfg_for(method)
+    trainer = train.make_train(cfg, progress=False)
+    data = train.prepare(split, "effdist")
+    step = one_epoch(trainer)
+    s0 = trainer.init(jax.random.key(4))
+    s1, _ = step(s0, data)
+    s2, _ = step(s1, data)
+
+    checkpoint.save(tmp_path / "ck", cfg, s1)
+    cfg_r, r1, _ = checkpoint.restore(tmp_path / "ck", cfg)
+    assert cfg_r == cfg and int(r1.epoch) == 1
+    r2, _ = step(r1, data)
+    for a, b in zip(jax.tree.leaves(s2), jax.tree.leaves(r2), strict=True):
+        if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
+            a, b = jax.random.key_data(a), jax.random.key_data(b)
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+    # and the per-epoch driver equals the pure two-epoch train()
+    full, _ = jax.jit(trainer.train)(jax.random.key(4), data)
+    for a, b in zip(jax.tree.leaves(full.params), jax.tree.leaves(s2.params), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=0, atol=1e-6)
+
+
+def test_mismatched_checkpoints_fail_clearly(tmp_path, split):
+    cfg = cfg_for("slotv", epochs=1)
+    trainer = train.make_train(cfg, progress=False)
+    state = trainer.init(jax.random.key(0))
+    path = checkpoint.save(tmp_path / "ck", cfg, state)
+
+    # the stored config says another architecture than the stored arrays
+    doc = json.loads((path / "config.json").read_text())
+    doc["config"]["hidden"] = [16, 16]
+    (path / "config.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"does not fit the model.*hidden=\(16, 16\)"):
+        slotv_jax.load_observer(path)
+
+    # resuming with a different architecture or method than the checkpoint's
+    path = checkpoint.save(tmp_path / "ck", cfg, state)
+    with pytest.raises(ValueError, match=r"hidden \(saved \[16, 8\], requested \[32, 8\]\)"):
+        checkpoint.restore(path, cfg_for("slotv", hidden=(32, 8)))
+    with pytest.raises(ValueError, match="method"):
+        checkpoint.restore(path, cfg_for("trex"))
+    checkpoint.restore(path, cfg_for("slotv", epochs=9))  # more epochs is fine
+
+    # saving a state that the config does not describe
+    other = train.make_train(cfg_for("slotv", hidden=(8, 8)), progress=False)
+    with pytest.raises(ValueError, match="does not fit"):
+        checkpoint.save(tmp_path / "bad", cfg, other.init(jax.random.key(0)))
+    assert not (tmp_path / "bad").exists()
+
+    with pytest.raises(ValueError, match="not a slotv_jax checkpoint"):
+        slotv_jax.load_observer(tmp_path / "nowhere")
+
+
+@pytest.mark.parametrize("method", ["slotv", "trex"])
+def test_observer_gradient_matches_finite_differences(tmp_path, split, method):
+    cfg = cfg_for(method, epochs=1)
+    trainer = train.make_train(cfg, progress=False)
+    state, _ = jax.jit(trainer.train)(jax.random.key(1), train.prepare(split, "effdist"))
+    path = checkpoint.save(tmp_path / "ck", cfg, state)
+    observer = slotv_jax.load_observer(path)
+    xyz, goals, mask = split.xyz[5], split.goals[5], split.goal_mask[5]
+    k = int(np.argmax(split.labels["effdist"][5]))
+
+    def prob(obs, x):
+        return jax.nn.softmax(obs(x, goals, mask))[k]
+
+    g32 = jax.jit(jax.grad(lambda x: prob(observer, x)))(xyz)
+    assert g32.shape == (100, 3) and np.all(np.isfinite(np.asarray(g32)))
+    assert np.linalg.norm(np.asarray(g32)) > 0
+
+    with jax.enable_x64(True):
+        cfg_l, st, _ = checkpoint.restore(path)
+        p64 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float64), st.params)
+        obs64 = checkpoint.make_observer(cfg_l, p64)
+        x64 = jnp.asarray(xyz, jnp.float64)
+        g64 = np.asarray(jax.grad(lambda x: prob(obs64, x))(x64))
+        assert g64.dtype == np.float64
+        rng = np.random.default_rng(0)
+        for _ in range(3):
+            v = rng.normal(size=xyz.shape)
+            v /= np.linalg.norm(v)
+            h = 1e-4  # the ReLU net is piecewise linear: small, but well above rounding
+            fd = (prob(obs64, x64 + h * v) - prob(obs64, x64 - h * v)) / (2 * h)
+            assert float(fd) == pytest.approx(float(np.sum(g64 * v)), rel=FD_TOL, abs=1e-12)
+    err = np.linalg.norm(np.asarray(g32, np.float64) - g64) / np.linalg.norm(g64)
+    assert err < F32_GRAD_TOL, err
+
+
+def test_observer_rejects_bad_inputs(tmp_path, split):
+    cfg = cfg_for("slotv", epochs=1)
+    state = train.make_train(cfg, progress=False).init(jax.random.key(0))
+    observer = slotv_jax.load_observer(checkpoint.save(tmp_path / "ck", cfg, state))
+    xyz, goals, mask = split.xyz[0], split.goals[0], split.goal_mask[0]
+    with pytest.raises(ValueError, match="xyz"):
+        observer(xyz[None], goals, mask)  # batch with vmap instead
+    with pytest.raises(ValueError, match="goal_mask"):
+        observer(xyz, goals, np.zeros(8, bool))
+    bad = goals.copy()
+    bad[0, 0] = np.inf
+    with pytest.raises(ValueError, match="goals: expected finite"):
+        observer(xyz, bad, mask)

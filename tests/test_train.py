@@ -1,0 +1,408 @@
+"""Tests for slotv_jax.config, slotv_jax.train and slotv_jax.evaluate: presets, learning on a
+tiny dataset, vmap and multi-device equivalence, in-loop validation, progress reports,
+accuracy against a NumPy reference, and input validation."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import slotv_jax  # noqa: F401  (applies the XLA CPU setting before JAX starts)
+from slotv_jax import config, evaluate, train
+
+PROB_TOL = 1e-5  # goal probabilities of two runs that differ only in summation order
+STEP_FRAC = 1e-2  # their parameters differ by less than this fraction of one update (lr)
+T = 100
+HOME = np.array([0.3069, 0.0, 0.4869])
+
+
+# ------------------------------------------------------------- a tiny synthetic dataset
+
+
+@dataclasses.dataclass(frozen=True)
+class TinySplit:
+    """The fields of slotv_jax.data.Split that training reads."""
+
+    name: str
+    xyz: np.ndarray  # (N, T, 3)
+    env_id: np.ndarray  # (N,)
+    scene_goals: np.ndarray  # (S, 8, 3)
+    scene_mask: np.ndarray  # (S, 8)
+    labels: dict  # name -> (N, 8)
+
+    @property
+    def goals(self):
+        return self.scene_goals[self.env_id]
+
+    @property
+    def goal_mask(self):
+        return self.scene_mask[self.env_id]
+
+    def __len__(self):
+        return len(self.xyz)
+
+
+def effdist_np(xyz, goals, mask, beta=5.0):
+    """SPEC §4.3 in float64: softmax over real goals of −β · mean_i ‖p_i − g_k‖."""
+    d = np.linalg.norm(xyz[:, :, None, :] - goals[:, None, :, :], axis=-1).mean(1)
+    s = np.where(mask, -beta * d, -np.inf)
+    e = np.exp(s - s.max(-1, keepdims=True))
+    return e / e.sum(-1, keepdims=True)
+
+
+def synthetic_split(seed: int, n: int, n_scenes: int = 20, counts=(2, 3, 5, 6), name="train"):
+    """SPEC §2-§3 without the IK: cubes on the table, piecewise-linear via-point paths from
+    the home TCP to the target, resampled to 100 points by arc length; EffDist labels."""
+    rng = np.random.default_rng(seed)
+    sg = np.zeros((n_scenes, 8, 3), np.float32)
+    sm = np.zeros((n_scenes, 8), bool)
+    for s in range(n_scenes):
+        c = int(rng.choice(counts))
+        pts: list[np.ndarray] = []
+        while len(pts) < c:
+            p = np.array([rng.uniform(0.3, 0.7), rng.uniform(-0.45, 0.45), 0.025])
+            if all(np.linalg.norm(p - q) >= 0.1 for q in pts):
+                pts.append(p)
+        sg[s, :c], sm[s, :c] = pts, True
+    env = rng.integers(0, n_scenes, n).astype(np.int32)
+    xyz = np.zeros((n, T, 3), np.float32)
+    for i in range(n):
+        k = rng.integers(0, sm[env[i]].sum())
+        via = rng.uniform([0.25, -0.5, 0.1], [0.7, 0.5, 0.4], (rng.integers(3, 6), 3))
+        path = np.vstack([HOME, via, sg[env[i], k]])
+        arc = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+        u = np.linspace(0, arc[-1], T)
+        xyz[i] = np.stack([np.interp(u, arc, path[:, j]) for j in range(3)], 1)
+    y = effdist_np(xyz.astype(np.float64), sg[env].astype(np.float64), sm[env])
+    return TinySplit(name, xyz, env, sg, sm, {"effdist": y.astype(np.float32)})
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return synthetic_split(0, 400), synthetic_split(1, 200, name="trajectory_test")
+
+
+def small_cfg(method, **kw):
+    base = dict(hidden=(16, 8), batch_size=16, epochs=2, train_size=None, learning_rate=0.002)
+    return config.quick(method, **{**base, **kw})
+
+
+def probabilities(cfg, params, data, n=64):
+    model = train.make_train(cfg, progress=False).model(params)
+    return np.asarray(jax.nn.softmax(model(data.xyz[:n], data.goals[:n], data.goal_mask[:n])))
+
+
+def assert_same_run(cfg, params_a, params_b, probs_a, probs_b):
+    """Two runs that differ only in float summation order: the same function to float
+    tolerance, and parameters within a small fraction of one optimiser step.
+
+    RMSprop and Adam divide each gradient by its running RMS. In a direction the loss cannot
+    see (e.g. the bias of a last-hidden-layer unit that is active on every row shifts all goal
+    scores equally) the gradient is rounding noise (~1e-10), which that division turns into
+    steps of ~1e-2·lr. A tolerance relative to the parameter's own size would call that a
+    different run; one relative to the step size does not, while a real divergence (another
+    batch, pair or key) moves parameters by whole steps (~lr).
+    """
+    np.testing.assert_allclose(probs_a, probs_b, rtol=0, atol=PROB_TOL)
+    for x, y in zip(jax.tree.leaves(params_a), jax.tree.leaves(params_b), strict=True):
+        np.testing.assert_allclose(
+            np.asarray(x), np.asarray(y), rtol=0, atol=STEP_FRAC * cfg.learning_rate
+        )
+
+
+# ------------------------------------------------------------- config
+
+
+def test_paper_presets_follow_spec():
+    s = config.paper("slotv")
+    assert (s.hidden, s.optimizer, s.learning_rate, s.rho, s.momentum) == (
+        (1536, 768), "rmsprop", 0.005, 0.9, 0.0)  # fmt: skip
+    assert (s.batch_size, s.epochs, s.train_size, s.compute_dtype) == (32, 15, None, "float32")
+    t = config.paper("trex")
+    assert (t.hidden, t.optimizer, t.learning_rate, t.b1, t.b2) == (
+        (1792, 768), "adam", 0.005, 0.9, 0.999)  # fmt: skip
+    assert (t.batch_size, t.epochs) == (128, 25)
+    q = config.quick("trex", epochs=1)
+    assert q.epochs == 1 and q.method == "trex"
+
+
+def test_config_overrides_roundtrip_and_errors():
+    cfg = config.apply_overrides(
+        config.paper("slotv"),
+        ["hidden=256,128,64", "epochs=3", "learning_rate=0.01", "train_size=none", "eval-every=10"],
+    )
+    assert cfg.hidden == (256, 128, 64) and cfg.epochs == 3 and cfg.learning_rate == 0.01
+    assert cfg.train_size is None and cfg.eval_every == 10
+    assert config.TrainConfig.from_dict(json.loads(cfg.to_json())) == cfg
+    assert cfg.steps_per_epoch(1000) == 1000 // 32 and cfg.block_size(1000) == 10
+    assert cfg.evals_per_epoch(1000) == 3
+    with pytest.raises(ValueError, match="unknown field"):
+        config.apply_overrides(cfg, ["hiden=3"])
+    with pytest.raises(ValueError, match="method"):
+        config.TrainConfig(method="dqn")
+    with pytest.raises(ValueError, match="learning_rate"):
+        config.paper("slotv", learning_rate=-1.0)
+    with pytest.raises(ValueError, match="hidden"):
+        config.paper("slotv", hidden=())
+    with pytest.raises(ValueError, match="preset"):
+        config.preset("huge", "slotv")
+
+
+# ------------------------------------------------------------- learning
+
+
+def excess_loss(loss, labels):
+    """Cross-entropy minus the labels' entropy: the KL divergence the model can remove."""
+    y = np.asarray(labels, np.float64)
+    h = -np.sum(np.where(y > 0, y * np.log(np.where(y > 0, y, 1)), 0), -1).mean()
+    return np.asarray(loss) - h
+
+
+def test_slotv_learns_effdist(tiny):
+    """Acceptance: ≥ 0.95 test accuracy on EffDist labels (representable exactly by V)."""
+    tr, te = tiny
+    cfg = small_cfg("slotv", hidden=(32, 32), epochs=10)
+    data = train.prepare(tr, "effdist")
+    state, metrics = train.train_trials(cfg, data, [0], progress=False)
+    kl = excess_loss(metrics.loss[0], data.labels)
+    assert kl[-1, -1] < 0.3 * kl[0, 0], kl  # the removable loss falls by > 70%
+    acc = evaluate.accuracy(cfg, state.params, te, "effdist")
+    assert acc.shape == (1,) and acc[0] >= 0.95, acc
+
+
+def test_trex_learns_well_above_chance(tiny):
+    tr, te = tiny
+    cfg = small_cfg("trex", hidden=(32, 32), epochs=12, batch_size=32)
+    data = train.prepare(tr, "effdist")
+    state, metrics = train.train_trials(cfg, data, [0], progress=False)
+    loss = np.asarray(metrics.loss[0])
+    assert loss[-3:].mean() < 0.8 * loss[0, :1].mean(), loss  # BCE falls
+    chance = np.mean(1.0 / te.goal_mask.sum(-1))
+    acc = evaluate.accuracy(cfg, state.params, te, "effdist")[0]
+    assert acc > chance + 0.3, (acc, chance)
+    pair = evaluate.pairwise_accuracy(cfg, state.params, te, "effdist", n_pairs=2000)[0]
+    assert pair > 0.7, pair
+
+
+# ------------------------------------------------------------- equivalences
+
+
+@pytest.mark.parametrize("method", ["slotv", "trex"])
+def test_vmapped_trials_equal_one_by_one(tiny, method):
+    tr, _ = tiny
+    cfg = small_cfg(method, epochs=1, train_size=128)
+    data = train.prepare(tr, "effdist")
+    states, metrics = train.train_trials(cfg, data, [3, 7], progress=False)
+    trainer = train.make_train(cfg, progress=False)
+    f = jax.jit(trainer.train)
+    for i, seed in enumerate([3, 7]):
+        s, m = f(jax.random.key(seed), data)
+        p_i = train.select_trial(states.params, i)
+        pa, pb = probabilities(cfg, p_i, data), probabilities(cfg, s.params, data)
+        assert_same_run(cfg, p_i, s.params, pa, pb)
+        np.testing.assert_allclose(metrics.loss[i], m.loss, rtol=PROB_TOL)
+    a, b = (np.asarray(jax.tree.leaves(states.params)[0][i]) for i in (0, 1))
+    assert not np.allclose(a, b)  # different seeds really differ
+
+
+TWO_DEVICES = textwrap.dedent(
+    """
+    import json, sys
+    import numpy as np, jax
+    import slotv_jax
+    from slotv_jax import config, train
+    sys.path.insert(0, {tests!r})
+    from test_train import synthetic_split
+    assert jax.device_count() == 2, jax.devices()
+    split = synthetic_split(0, 160)
+    data = train.prepare(split, "effdist")
+    out = {{}}
+    for method in ("slotv", "trex"):
+        cfg = config.quick(method, hidden=(16, 8), batch_size=16, epochs=2, train_size=None)
+        res = {{}}
+        for n in (1, 2):
+            mesh = train.make_mesh(cfg.batch_size, jax.devices()[:n])
+            trainer = train.make_train(cfg, mesh=mesh, progress=False)
+            assert trainer.mesh.size == n
+            state, _ = jax.jit(trainer.train)(jax.random.key(5), trainer.replicate(data))
+            leaf = jax.tree.leaves(state.params)[1]
+            res[n] = [np.asarray(x).tolist() for x in jax.tree.leaves(state.params)]
+            res[f"devices{{n}}"] = len(leaf.sharding.device_set)
+            model = trainer.model(state.params)
+            p = jax.nn.softmax(model(data.xyz[:64], data.goals[:64], data.goal_mask[:64]))
+            res[f"probs{{n}}"] = np.asarray(p).tolist()
+        out[method] = res
+    print("RESULT" + json.dumps(out))
+    """
+)
+
+
+def test_one_and_two_devices_give_the_same_params():
+    """The batch axis sharded over 2 CPU devices gives the 1-device result (fresh process,
+    so the device-count flag applies before JAX starts; slotv_jax appends its own flag)."""
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = (
+        env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+    ).strip()
+    code = TWO_DEVICES.format(tests=os.path.dirname(__file__))
+    r = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = json.loads(r.stdout.split("RESULT", 1)[1])
+    for method in ("slotv", "trex"):
+        res = out[method]
+        assert res["devices1"] == 1 and res["devices2"] == 2
+        cfg = config.quick(method)  # the subprocess's learning rate
+        assert_same_run(
+            cfg, res["1"], res["2"], np.asarray(res["probs1"]), np.asarray(res["probs2"])
+        )
+
+
+# ------------------------------------------------------------- in-loop validation, progress
+
+
+def test_eval_every_k_updates(tiny):
+    tr, te = tiny
+    data = train.prepare(tr, "effdist")
+    val = train.prepare(te, "effdist")
+    # 10 updates per epoch, k = 3: validations after 3, 6, 9 updates of each epoch, then a tail
+    cfg = small_cfg("slotv", epochs=2, train_size=160, eval_every=3, eval_size=50)
+    _, metrics = train.train_trials(cfg, data, [0], val=val, progress=False)
+    np.testing.assert_array_equal(metrics.eval_updates[0], [[3, 6, 9], [13, 16, 19]])
+    acc = np.asarray(metrics.eval_accuracy[0])
+    assert acc.shape == (2, 3) and np.all((acc >= 0) & (acc <= 1))
+    np.testing.assert_allclose(acc * 50, np.round(acc * 50), atol=1e-4)  # out of 50
+    assert metrics.loss.shape == (1, 2, 4)  # 3 blocks + the 1-update tail per epoch
+
+    # k = 5 divides the epoch: the last validation sees the final parameters
+    cfg = dataclasses.replace(cfg, eval_every=5)
+    states, metrics = train.train_trials(cfg, data, [0], val=val, progress=False)
+    np.testing.assert_array_equal(metrics.eval_updates[0], [[5, 10], [15, 20]])
+    sub = train.subset(val, 50)
+    final = evaluate.accuracy(cfg, train.select_trial(states.params, 0), sub)
+    assert float(metrics.eval_accuracy[0, -1, -1]) == pytest.approx(float(final), abs=1e-6)
+    init = train.make_train(cfg, progress=False).init(jax.random.key(0))
+    start = evaluate.accuracy(cfg, init.params, sub)
+    assert float(metrics.start_accuracy[0]) == pytest.approx(float(start), abs=1e-6)
+    # without eval_every nothing is validated
+    _, m0 = train.train_trials(dataclasses.replace(cfg, eval_every=0), data, [0], val=val,
+                               progress=False)  # fmt: skip
+    assert m0.eval_accuracy.shape == (1, 2, 0) and np.isnan(m0.start_accuracy[0])
+
+
+def test_progress_reaches_the_host(tiny):
+    tr, _ = tiny
+    cfg = small_cfg("slotv", epochs=2, train_size=160, log_every=4)
+    seen = []
+
+    class Spy(train._Progress):
+        def __call__(self, updates, loss, *, total):
+            seen.append((int(np.max(updates)), total, float(np.mean(loss))))
+            return super().__call__(updates, loss, total=total)
+
+    spy = Spy("test", cfg.batch_size)
+    trainer = dataclasses.replace(train.make_train(cfg, progress=True), progress=spy)
+    _, metrics = jax.jit(trainer.train)(jax.random.key(0), train.prepare(tr, "effdist"))
+    jax.block_until_ready(metrics)
+    # 10 updates per epoch in blocks of 4: reports after 4, 8, 10 | 14, 18, 20
+    assert [u for u, _, _ in seen] == [4, 8, 10, 14, 18, 20]
+    assert all(t == 20 for _, t, _ in seen) and spy.last == 20 and spy.bar is None
+    np.testing.assert_allclose([v for _, _, v in seen], np.ravel(metrics.loss), rtol=1e-6)
+
+
+def test_training_compiles_once_per_config(tiny):
+    tr, _ = tiny
+    cfg = small_cfg("trex", epochs=1, train_size=64)
+    a = train.prepare(tr, "effdist")
+    b = train.make_data(
+        tr.xyz[::-1], tr.goals[::-1], tr.goal_mask[::-1], tr.labels["effdist"][::-1]
+    )
+    train.train_trials(cfg, a, 2, progress=False)
+    train.train_trials(cfg, b, [5, 6], progress=False)
+    assert train._jit_trials(train.make_train(cfg, progress=False))._cache_size() == 1
+
+
+# ------------------------------------------------------------- evaluation
+
+
+def test_accuracy_matches_numpy_and_breaks_ties_low():
+    rng = np.random.default_rng(0)
+    n = 37
+    counts = rng.choice([2, 3, 5, 6], n)
+    mask = np.arange(8)[None] < counts[:, None]
+    scores = np.where(mask, rng.normal(size=(n, 8)), 100.0).astype(np.float32)  # padding high
+    labels = np.where(mask, rng.uniform(0.1, 1, (n, 8)), 0)
+    labels /= labels.sum(-1, keepdims=True)
+    scores[0, :2] = 5.0  # tie in the scores -> slot 0
+    labels[1, :2] = 0.5  # tie in the labels -> slot 0
+    labels[1, 2:] = 0
+    scores[1, :2] = [5.0, 5.0]
+    pred = np.asarray(evaluate.predict(jnp.asarray(scores), jnp.asarray(mask)))
+    tgt = np.asarray(evaluate.target(jnp.asarray(labels), jnp.asarray(mask)))
+    ref_pred = np.argmax(np.where(mask, scores, -np.inf), -1)
+    ref_tgt = np.argmax(np.where(mask, labels, -np.inf), -1)
+    np.testing.assert_array_equal(pred, ref_pred)
+    np.testing.assert_array_equal(tgt, ref_tgt)
+    assert pred[0] == 0 and tgt[1] == 0 and pred[1] == 0
+
+
+def test_chunked_accuracy_covers_the_whole_split_once(tiny):
+    """Chunked, padded evaluation equals a plain per-trajectory NumPy count."""
+    _, te = tiny
+    cfg = small_cfg("slotv", eval_chunk=16)  # 200 = 12 chunks + 8 (padded)
+    trainer = train.make_train(cfg, progress=False)
+    state = trainer.init(jax.random.key(1))
+    acc = float(evaluate.accuracy(cfg, state.params, te, "effdist"))
+    model = trainer.model(state.params)
+    logits = np.asarray(model(te.xyz, te.goals, te.goal_mask))
+    ref = np.mean(
+        np.argmax(logits, -1) == np.argmax(np.where(te.goal_mask, te.labels["effdist"], -1), -1)
+    )
+    assert acc == pytest.approx(ref, abs=1e-7)
+    assert 0.0 < acc < 1.0
+
+
+# ------------------------------------------------------------- validation at the boundary
+
+
+def test_prepare_rejects_bad_inputs(tiny):
+    tr, _ = tiny
+    y = tr.labels["effdist"]
+    ok = (tr.xyz, tr.goals, tr.goal_mask, y)
+    train.make_data(*ok)
+    bad_xyz = tr.xyz.copy()
+    bad_xyz[2, 5, 0] = np.nan
+    with pytest.raises(ValueError, match="xyz: expected finite"):
+        train.make_data(bad_xyz, *ok[1:])
+    with pytest.raises(ValueError, match="xyz"):
+        train.make_data(tr.xyz[:, :, :2], *ok[1:])
+    no_goal = tr.goal_mask.copy()
+    no_goal[3] = False
+    with pytest.raises(ValueError, match=r"goal_mask.*none"):
+        train.make_data(tr.xyz, tr.goals, no_goal, np.where(no_goal, y, 0))
+    with pytest.raises(ValueError, match=r"labels.*sum to 1"):
+        train.make_data(*ok[:3], y * 0.5)
+    neg = y.copy()
+    neg[0, 0] = -0.1
+    neg[0, 1] += 0.1
+    with pytest.raises(ValueError, match=r"labels.*>= 0"):
+        train.make_data(*ok[:3], neg)
+    pad = y.copy()
+    pad[0, 7] = 0.01 if not tr.goal_mask[0, 7] else 0
+    with pytest.raises(ValueError, match=r"labels.*padded"):
+        train.make_data(*ok[:3], pad)
+    with pytest.raises(ValueError, match="labeler"):
+        train.prepare(tr, "dragan")
+    with pytest.raises(ValueError, match="no full batch"):
+        cfg = small_cfg("slotv", batch_size=64, train_size=32)
+        train.train_trials(cfg, train.prepare(tr, "effdist"), 1, progress=False)
