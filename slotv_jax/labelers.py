@@ -166,11 +166,16 @@ def _masked_softmax(s: Array, mask: Array, axis: int) -> Array:
     return e / jnp.sum(e, axis=axis, keepdims=True)
 
 
-def _dragan_core(d: Array, mask: Array, beta, c: Array) -> Array:
-    """SPEC §4.1 from distances ``d (..., G, T)`` and integration weights ``c (..., T)``."""
-    logits = beta * (d[..., :, :1] - d)  # β (‖S − g_k‖ − d_k(i)), (..., G, T)
-    p = _masked_softmax(logits, mask[..., :, None], axis=-2)  # P_k(i)
-    return _integrate(p, c)
+def _dragan_core(d: Array, d0: Array, mask: Array, beta, c: Array) -> Array:
+    """SPEC §4.1 from distances ``d (..., G, T)``, start distances ``d0 (..., G, 1)`` and
+    integration weights ``c (..., T)``.
+
+    ``y_k = Σ_i c_i e_k(i) / Z(i)`` with ``e = exp(logits − max)``, ``Z = Σ_k e_k``: the
+    per-point normalisation is folded into the weights (one pass fewer than forming P).
+    """
+    logits = jnp.where(mask[..., :, None], beta * (d0 - d), -jnp.inf)  # β(‖S − g_k‖ − d_k(i))
+    e = jnp.exp(logits - jnp.max(logits, axis=-2, keepdims=True))  # exactly 0 on padding
+    return _integrate(e, c / jnp.sum(e, axis=-2))
 
 
 def _effdist_core(d: Array, mask: Array, beta, w: Array) -> Array:
@@ -199,14 +204,19 @@ def _image(points: Float[Array, "... 3"], pos, rot, eps) -> tuple[Array, Array]:
     return jnp.stack([pc[0] * inv, pc[1] * inv], axis=-1), ok
 
 
-def _nikolaidis_core(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS) -> Array:
-    """SPEC §4.2: Dragan legibility of the image-plane points; uniform if any depth is invalid."""
+def _nikolaidis_parts(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS):
+    """SPEC §4.2 labels plus the per-trajectory depth-validity of the points and real goals."""
     uv, ok_p = _image(xyz, pos, rot, eps)
     uv_g, ok_g = _image(goals, pos, rot, eps)
-    y = _dragan_core(_distances(uv, uv_g), mask, beta, c)
-    ok = jnp.all(ok_p, axis=-1) & jnp.all(ok_g | ~mask, axis=-1)
+    y = _dragan_core(_distances(uv, uv_g), _distances(uv[..., :1, :], uv_g), mask, beta, c)
+    ok_p, ok_g = jnp.all(ok_p, axis=-1), jnp.all(ok_g | ~mask, axis=-1)
     uniform = mask / jnp.sum(mask, axis=-1, keepdims=True)
-    return jnp.where(ok[..., None], y, uniform.astype(y.dtype))
+    return jnp.where((ok_p & ok_g)[..., None], y, uniform.astype(y.dtype)), ok_p, ok_g
+
+
+def _nikolaidis_core(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS) -> Array:
+    """SPEC §4.2: Dragan legibility of the image-plane points; uniform if any depth is invalid."""
+    return _nikolaidis_parts(xyz, goals, mask, pos, rot, beta, c, eps)[0]
 
 
 # ------------------------------------------------------------ public labelers
@@ -275,7 +285,8 @@ def dragan(
     (True, 1.0)
     """
     xyz, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
-    return _dragan_core(_distances(xyz, goals), mask, beta, tw.dragan)
+    d0 = _distances(xyz[..., :1, :], goals)
+    return _dragan_core(_distances(xyz, goals), d0, mask, beta, tw.dragan)
 
 
 def effdist(
@@ -476,31 +487,27 @@ def _label_chunk(xyz, goals, mask, t, pos, rot, betas, names: tuple[str, ...]):
     if {"dragan", "effdist", "fastapp"} & set(names):
         d = _distances(xyz, goals)  # shared by the three world-space labelers
         if "dragan" in names:
-            out["dragan"] = _dragan_core(d, mask, betas["dragan"], tw.dragan)
+            d0 = _distances(xyz[..., :1, :], goals)
+            out["dragan"] = _dragan_core(d, d0, mask, betas["dragan"], tw.dragan)
         if "effdist" in names:
             out["effdist"] = _effdist_core(d, mask, betas["effdist"], tw.effdist)
         if "fastapp" in names:
             out["fastapp"] = _fastapp_core(d, mask, betas["fastapp"], tw.fastapp)
-    # Per-trajectory validity flags, so that label_all can reject bad input without
-    # an extra pass over the data on the host.
-    real = mask[..., :, None]
-    gd = jnp.sum((goals[..., :, None, :] - goals[..., None, :, :]) ** 2, axis=-1)
+    # Per-trajectory validity flags, so that label_all can reject bad input without an
+    # extra pass over the data on the host. A sum is non-finite if any term is NaN/inf
+    # (or if it overflows float32, at magnitudes no distance computation survives).
+    real = mask[..., :, None] & mask[..., None, :] & ~jnp.eye(G_MAX, dtype=bool)
+    gd = sum((goals[..., :, None, j] - goals[..., None, :, j]) ** 2 for j in range(3))
     flags = {
-        "xyz_finite": jnp.all(jnp.isfinite(xyz), axis=(-2, -1)),
-        "goals_finite": jnp.all(jnp.isfinite(goals), axis=(-2, -1)),
-        "goals_distinct": ~jnp.any(
-            real & jnp.swapaxes(real, -1, -2) & ~jnp.eye(G_MAX, dtype=bool) & (gd < 1e-18),
-            axis=(-2, -1),
-        ),
+        "xyz_finite": jnp.isfinite(jnp.sum(xyz, axis=(-2, -1))),
+        "goals_finite": jnp.isfinite(jnp.sum(goals, axis=(-2, -1))),
+        "goals_distinct": ~jnp.any(real & (gd < 1e-18), axis=(-2, -1)),
     }
     if "nikolaidis" in names:
-        out["nikolaidis"] = _nikolaidis_core(
+        y, flags["xyz_depth"], flags["goals_depth"] = _nikolaidis_parts(
             xyz, goals, mask, pos, rot, betas["nikolaidis"], tw.dragan
         )
-        _, ok_p = _image(xyz, pos, rot, DEPTH_EPS)
-        _, ok_g = _image(goals, pos, rot, DEPTH_EPS)
-        flags["xyz_depth"] = jnp.all(ok_p, axis=-1)
-        flags["goals_depth"] = jnp.all(ok_g | ~mask, axis=-1)
+        out["nikolaidis"] = y
     return {k: out[k] for k in names}, flags
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -29,6 +30,20 @@ def call(name, xyz, goals, mask, cam=OBSERVER, **kw):
     if name == "nikolaidis":
         return L.nikolaidis(xyz, goals, mask, cam, **kw)
     return L.LABELERS[name](xyz, goals, mask, **kw)
+
+
+@functools.cache
+def _compiled(name):
+    def f(xyz, goals, mask, cam, beta, t):
+        return call(name, xyz, goals, mask, cam, beta=beta, t=t)
+
+    return jax.jit(f)
+
+
+def jcall(name, xyz, goals, mask, cam=OBSERVER, *, beta=None, t=None):
+    """``call`` through one jitted function per labeler (fewer compiles than eager ops)."""
+    beta = L.DEFAULT_BETAS[name] if beta is None else beta
+    return _compiled(name)(xyz, goals, mask, cam, beta, t)
 
 
 def ref_call(name, xyz, goals, mask, cam=OBSERVER, **kw):
@@ -95,8 +110,8 @@ def test_world_labelers_invariant_to_translation_and_rotation_about_z(name):
         for _ in range(3):
             xyz, goals, mask = random_case(rng)
             R, shift = rot_z(rng.uniform(-np.pi, np.pi)), rng.uniform(-2, 2, 3)
-            y = np.asarray(call(name, xyz, goals, mask))
-            y_moved = np.asarray(call(name, xyz @ R.T + shift, goals @ R.T + shift, mask))
+            y = np.asarray(jcall(name, xyz, goals, mask))
+            y_moved = np.asarray(jcall(name, xyz @ R.T + shift, goals @ R.T + shift, mask))
             np.testing.assert_allclose(y_moved, y, rtol=0, atol=1e-12)
 
 
@@ -104,17 +119,17 @@ def test_nikolaidis_depends_on_viewpoint_but_moves_with_the_camera():
     rng = np.random.default_rng(3)
     xyz, goals, mask = random_case(rng, n_goals=4, contiguous=True)
     with jax.enable_x64(True):
-        y = np.asarray(call("nikolaidis", xyz, goals, mask))
-        y_side = np.asarray(call("nikolaidis", xyz, goals, mask, cam=SIDE))
+        y = np.asarray(jcall("nikolaidis", xyz, goals, mask))
+        y_side = np.asarray(jcall("nikolaidis", xyz, goals, mask, cam=SIDE))
         assert np.abs(y - y_side).max() > 1e-3  # a different viewpoint sees a different motion
         # Moving the whole scene, camera included, changes nothing.
         R, shift = rot_z(0.7), np.array([0.3, -1.0, 0.2])
         pos = np.asarray(OBSERVER.pos, np.float64)
         rot = np.asarray(OBSERVER.rot, np.float64)
         cam = OBSERVER.replace(pos=jnp.asarray(R @ pos + shift), rot=jnp.asarray(R @ rot))
-        y_moved = np.asarray(call("nikolaidis", xyz @ R.T + shift, goals @ R.T + shift, mask, cam))
+        y_moved = np.asarray(jcall("nikolaidis", xyz @ R.T + shift, goals @ R.T + shift, mask, cam))
         y_same_cam = np.asarray(
-            call("nikolaidis", xyz, goals, mask, OBSERVER.replace(pos=pos, rot=rot))
+            jcall("nikolaidis", xyz, goals, mask, OBSERVER.replace(pos=pos, rot=rot))
         )
         np.testing.assert_allclose(y_moved, y_same_cam, rtol=0, atol=1e-12)
 
@@ -128,7 +143,7 @@ def test_vmap_equals_loop(name):
         batched = jax.vmap(lambda x, g, m: L.nikolaidis(x, g, m, OBSERVER))(xyz, goals, mask)
     else:
         batched = jax.vmap(L.LABELERS[name])(xyz, goals, mask)
-    looped = np.stack([np.asarray(call(name, *c)) for c in cases])
+    looped = np.stack([np.asarray(jcall(name, *c)) for c in cases])
     np.testing.assert_allclose(np.asarray(batched), looped, rtol=0, atol=1e-6)
 
 
@@ -157,7 +172,7 @@ def test_grad_is_finite(name):
     xyz, goals, mask = random_case(rng, n_goals=3, contiguous=True)
     xyz[-1] = goals[0]  # ends exactly on a goal: ‖p − g‖ = 0
     target = np.eye(8)[0]
-    g = jax.grad(lambda x: jnp.sum(call(name, x, goals, mask) * target))(jnp.asarray(xyz))
+    g = jax.jit(jax.grad(lambda x: jnp.sum(call(name, x, goals, mask) * target)))(xyz)
     assert g.shape == xyz.shape
     assert np.all(np.isfinite(np.asarray(g)))
     assert np.abs(np.asarray(g)).max() > 0
@@ -173,7 +188,7 @@ def test_matches_float64_reference(name):
         for T, n in [(100, 2), (100, 3), (100, 5), (100, 6), (100, 8), (2, 4), (3, 7), (17, 8)]:
             xyz, goals, mask = random_case(rng, T=T, n_goals=n)
             beta = float(rng.uniform(1.0, 10.0))
-            y = np.asarray(call(name, xyz, goals, mask, beta=beta))
+            y = np.asarray(jcall(name, xyz, goals, mask, beta=beta))
             assert y.dtype == np.float64
             np.testing.assert_allclose(
                 y, ref_call(name, xyz, goals, mask, beta=beta), rtol=0, atol=REF_TOL
@@ -185,7 +200,7 @@ def test_matches_float64_reference_in_float32(name):
     rng = np.random.default_rng(8)
     for n in range(2, 9):
         xyz, goals, mask = random_case(rng, n_goals=n)
-        y = np.asarray(call(name, xyz, goals, mask))
+        y = np.asarray(jcall(name, xyz, goals, mask))
         assert y.dtype == np.float32
         np.testing.assert_allclose(y, ref_call(name, xyz, goals, mask), rtol=0, atol=REF_TOL)
 
@@ -197,16 +212,16 @@ def test_time_stamps_match_reference(name):
         for T in (2, 17, 100):
             xyz, goals, mask = random_case(rng, T=T)
             t = np.cumsum(rng.uniform(0.1, 1.0, T)) + 3.0  # irregular, not starting at 0
-            y = np.asarray(call(name, xyz, goals, mask, t=t))
+            y = np.asarray(jcall(name, xyz, goals, mask, t=t))
             np.testing.assert_allclose(
                 y, ref_call(name, xyz, goals, mask, t=t), rtol=0, atol=REF_TOL
             )
             # Stamps are normalised: an affine change of clock changes nothing...
-            y_clock = np.asarray(call(name, xyz, goals, mask, t=60.0 * t - 7.0))
+            y_clock = np.asarray(jcall(name, xyz, goals, mask, t=60.0 * t - 7.0))
             np.testing.assert_allclose(y_clock, y, rtol=0, atol=1e-12)
             # ...and uniform stamps give the default.
-            y_uniform = np.asarray(call(name, xyz, goals, mask, t=np.linspace(0.0, 2.0, T)))
-            y_default = np.asarray(call(name, xyz, goals, mask))
+            y_uniform = np.asarray(jcall(name, xyz, goals, mask, t=np.linspace(0.0, 2.0, T)))
+            y_default = np.asarray(jcall(name, xyz, goals, mask))
             np.testing.assert_allclose(y_uniform, y_default, rtol=0, atol=1e-12)
 
 
@@ -215,11 +230,11 @@ def test_extreme_beta_is_stable(name):
     rng = np.random.default_rng(10)
     xyz, goals, mask = random_case(rng)
     for beta in (1e-4, 1e4):
-        y = np.asarray(call(name, xyz, goals, mask, beta=beta))
+        y = np.asarray(jcall(name, xyz, goals, mask, beta=beta))
         assert np.all(np.isfinite(y)) and abs(y.sum() - 1.0) < SUM_TOL
         assert np.all(y[~mask] == 0.0)
     with jax.enable_x64(True):
-        y = np.asarray(call(name, xyz, goals, mask, beta=1e3))
+        y = np.asarray(jcall(name, xyz, goals, mask, beta=1e3))
         np.testing.assert_allclose(
             y, ref_call(name, xyz, goals, mask, beta=1e3), rtol=0, atol=REF_TOL
         )
@@ -477,7 +492,7 @@ def test_label_all_matches_per_trajectory_labelers_and_compiles_once():
     assert sorted(y) == sorted(ALL)
     for name in ALL:
         assert y[name].shape == (N, 8) and y[name].dtype == np.float32
-        expect = np.stack([np.asarray(call(name, *c)) for c in cases])
+        expect = np.stack([np.asarray(jcall(name, *c)) for c in cases])
         np.testing.assert_allclose(y[name], expect, rtol=0, atol=1e-6)
         assert np.all(y[name][~mask] == 0.0)
 
@@ -509,7 +524,7 @@ def test_label_all_shared_goals_time_stamps_and_subsets():
     for i in range(5):
         for name in ("fastapp", "effdist"):
             np.testing.assert_allclose(
-                y[name][i], np.asarray(call(name, xyz[i], goals, mask, t=t[i])), atol=1e-6
+                y[name][i], np.asarray(jcall(name, xyz[i], goals, mask, t=t[i])), atol=1e-6
             )
     empty = L.label_all(xyz[:0], goals, mask, progress=False)
     assert all(v.shape == (0, 8) for v in empty.values())
