@@ -97,6 +97,13 @@ def tcp_state(q: Float[Array, "7"]) -> TcpState:
     return TcpState(pos, rot, jac_pos, jac_axis)
 
 
+@functools.cache
+def home_tcp() -> np.ndarray:
+    """TCP(Q_HOME) (m), from MJX, as a constant (every trajectory starts here)."""
+    with jax.ensure_compile_time_eval():
+        return np.asarray(tcp_state(jnp.asarray(Q_HOME, jnp.float32)).pos)
+
+
 def _check_q(q) -> None:
     validation.check_array("q", q, (NQ,))
 
@@ -152,28 +159,30 @@ def _solve_spd3(a: Float[Array, "3 3"], b: Float[Array, "3"]) -> Float[Array, "3
 
 
 def _ik_step(
-    q: Float[Array, "7"], target: Float[Array, "3"], cfg: IKConfig, soft: bool
+    q: Float[Array, "7"], target: Float[Array, "3"], cfg: IKConfig, soft
 ) -> Float[Array, "7"]:
+    """One damped-least-squares step; ``soft`` (0 or 1, may be traced) adds the null-space terms."""
     s = tcp_state(q)
     j = s.jac_pos
-    jjt = j @ j.T + cfg.damping**2 * jnp.eye(3)
-    err = target - s.pos
-    dq = j.T @ _solve_spd3(jjt, err)
-    if soft:
-        # Secondary objectives, projected onto the null space N = I - J⁺J of the position task.
-        axis_err = s.rot[:, 2] - jnp.asarray(TOOL_DOWN, q.dtype)
-        dq2 = -cfg.tool_down_gain * (s.jac_axis.T @ axis_err)
-        dq2 = dq2 + cfg.posture_gain * (jnp.asarray(Q_HOME, q.dtype) - q)
-        dq2 = dq2 - j.T @ _solve_spd3(jjt, j @ dq2)
-        dq = dq + dq2
+    jjt = j @ j.T + cfg.damping**2 * jnp.eye(3, dtype=q.dtype)
+    dq = j.T @ _solve_spd3(jjt, target - s.pos)
+    # Secondary objectives, projected onto the null space N = I - J⁺J of the position task.
+    axis_err = s.rot[:, 2] - jnp.asarray(TOOL_DOWN, q.dtype)
+    dq2 = -cfg.tool_down_gain * (s.jac_axis.T @ axis_err)
+    dq2 = dq2 + cfg.posture_gain * (jnp.asarray(Q_HOME, q.dtype) - q)
+    dq2 = dq2 - j.T @ _solve_spd3(jjt, j @ dq2)
+    dq = dq + soft * dq2
     step = jnp.max(jnp.abs(dq))
     dq = dq * jnp.minimum(1.0, cfg.max_step / jnp.maximum(step, 1e-12))
     return jnp.clip(q + dq, jnp.asarray(Q_MIN, q.dtype), jnp.asarray(Q_MAX, q.dtype))
 
 
 def _iterate(q: Float[Array, "7"], target: Float[Array, "3"], cfg: IKConfig) -> Float[Array, "7"]:
-    q = jax.lax.fori_loop(0, cfg.iters, lambda _, q: _ik_step(q, target, cfg, True), q)
-    return jax.lax.fori_loop(0, cfg.refine_iters, lambda _, q: _ik_step(q, target, cfg, False), q)
+    # One loop (one trace of the kinematics): soft iterations first, then position-only ones.
+    def body(i, q):
+        return _ik_step(q, target, cfg, (i < cfg.iters).astype(q.dtype))
+
+    return jax.lax.fori_loop(0, cfg.iters + cfg.refine_iters, body, q)
 
 
 def solve_ik(

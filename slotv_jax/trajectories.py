@@ -110,9 +110,15 @@ def plan_path(
     )
     goal = scene.goals[target]
     via = jnp.where((jnp.arange(cfg.max_via) < n_via)[:, None], via, goal)
-    start = kinematics.tcp_state(jnp.asarray(kinematics.Q_HOME, via.dtype)).pos
+    start = jnp.asarray(kinematics.home_tcp(), via.dtype)
     waypoints = jnp.concatenate([start[None], via, goal[None]], axis=0)
     return target, n_via, resample_polyline(waypoints, cfg.n_points)
+
+
+def straight_path(goal: Float[Array, "3"], n: int = 100) -> Float[Array, "n 3"]:
+    """``n`` points from TCP(q_home) straight to ``goal`` (the reachability check of a goal)."""
+    start = jnp.asarray(kinematics.home_tcp(), goal.dtype)
+    return resample_polyline(jnp.stack([start, goal]), n)
 
 
 def sample_trajectory(
