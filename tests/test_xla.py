@@ -1,0 +1,156 @@
+"""The XLA CPU setting applied by ``import slotv_jax`` (``slotv_jax._xla``).
+
+``configure`` is tested on plain dicts; the import-time behaviour, which depends
+on the state of a fresh interpreter, in subprocesses.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+import sys
+
+import pytest
+
+from slotv_jax import _xla
+
+FLAG = "--xla_cpu_use_fusion_emitters=false"
+OTHER = "--xla_force_host_platform_device_count=2"
+
+
+def test_flag_constants():
+    assert _xla.FLAG == FLAG
+    assert _xla.OPT_OUT_VAR == "SLOTV_JAX_XLA_FLAGS"
+
+
+@pytest.mark.parametrize("environ", [{}, {"XLA_FLAGS": ""}, {"XLA_FLAGS": "  "}])
+def test_sets_flag_when_absent(environ):
+    cfg = _xla.configure(environ)
+    assert environ["XLA_FLAGS"] == FLAG
+    assert cfg.applied == (FLAG,)
+    assert cfg.xla_flags == FLAG
+
+
+def test_appends_to_user_flags_without_overwriting():
+    environ = {"XLA_FLAGS": f"{OTHER} --xla_dump_to=/tmp/x", "HOME": "/home/u"}
+    cfg = _xla.configure(environ)
+    assert environ["XLA_FLAGS"] == f"{OTHER} --xla_dump_to=/tmp/x {FLAG}"
+    assert environ["HOME"] == "/home/u"
+    assert cfg.applied == (FLAG,)
+    assert cfg.xla_flags == environ["XLA_FLAGS"]
+
+
+@pytest.mark.parametrize(
+    "user", ["--xla_cpu_use_fusion_emitters=true", f"{OTHER} --xla_cpu_use_fusion_emitters=false"]
+)
+def test_respects_users_own_value(user):
+    environ = {"XLA_FLAGS": user}
+    cfg = _xla.configure(environ)
+    assert environ == {"XLA_FLAGS": user}
+    assert cfg.applied == ()
+    assert cfg.xla_flags == user
+    assert "already set" in cfg.reason
+
+
+def test_is_idempotent():
+    environ = {"XLA_FLAGS": OTHER}
+    _xla.configure(environ)
+    second = _xla.configure(environ)
+    assert environ["XLA_FLAGS"] == f"{OTHER} {FLAG}"
+    assert second.applied == ()
+
+
+@pytest.mark.parametrize("value", ["0", "false", "no", "off", "OFF", " False "])
+def test_opt_out(value):
+    environ = {"SLOTV_JAX_XLA_FLAGS": value, "XLA_FLAGS": OTHER}
+    cfg = _xla.configure(environ)
+    assert environ == {"SLOTV_JAX_XLA_FLAGS": value, "XLA_FLAGS": OTHER}
+    assert cfg.applied == ()
+    assert "SLOTV_JAX_XLA_FLAGS=0" in cfg.summary()
+    empty = {"SLOTV_JAX_XLA_FLAGS": value}
+    _xla.configure(empty)
+    assert "XLA_FLAGS" not in empty
+
+
+@pytest.mark.parametrize("value", ["1", "true", ""])
+def test_other_opt_out_values_still_apply(value):
+    environ = {"SLOTV_JAX_XLA_FLAGS": value}
+    assert _xla.configure(environ).applied == (FLAG,)
+    assert environ["XLA_FLAGS"] == FLAG
+
+
+def test_summary_and_frozen_record():
+    applied = _xla.configure({})
+    assert FLAG in applied.summary() and "appended" in applied.summary()
+    assert "SLOTV_JAX_XLA_FLAGS=0" in applied.summary()  # says how to opt out
+    kept = _xla.configure({"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"})
+    assert "left unchanged" in kept.summary()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        applied.applied = ()  # type: ignore[misc]
+
+
+# --------------------------------------------------------------------------- fresh interpreters
+
+
+def run_python(code: str, **env: str) -> list[str]:
+    """Run ``code`` in a fresh interpreter whose environment has no XLA settings but ``env``."""
+    base = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "SLOTV_JAX_XLA_FLAGS")}
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        env={**base, **env},
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    return out.stdout.strip().splitlines()
+
+
+IMPORT_AND_REPORT = (
+    "import os, slotv_jax; "
+    "print(os.environ.get('XLA_FLAGS', '<unset>')); "
+    "print(slotv_jax.XLA_CONFIG.summary())"
+)
+
+
+def test_import_sets_flag_in_fresh_interpreter():
+    flags, summary = run_python(IMPORT_AND_REPORT)
+    assert flags == FLAG
+    assert summary.startswith(f"slotv_jax: appended {FLAG} to XLA_FLAGS")
+
+
+def test_import_keeps_user_flags_and_jax_reads_them():
+    # JAX sees both flags: the user's (two host devices) and ours (XLA accepts its name).
+    code = IMPORT_AND_REPORT + "; import jax; print(jax.device_count())"
+    flags, summary, devices = run_python(code, XLA_FLAGS=OTHER, JAX_PLATFORMS="cpu")
+    assert flags == f"{OTHER} {FLAG}"
+    assert "appended" in summary
+    assert devices == "2"
+
+
+def test_import_respects_opt_out():
+    flags, summary = run_python(IMPORT_AND_REPORT, SLOTV_JAX_XLA_FLAGS="0")
+    assert flags == "<unset>"
+    assert "left unchanged" in summary and "SLOTV_JAX_XLA_FLAGS=0" in summary
+
+
+def test_import_after_jax_started_warns_and_changes_nothing():
+    code = "\n".join(
+        [
+            "import os, warnings, jax",
+            "jax.devices()",
+            "with warnings.catch_warnings(record=True) as caught:",
+            "    warnings.simplefilter('always')",
+            "    import slotv_jax",
+            "print(os.environ.get('XLA_FLAGS', '<unset>'))",
+            "print(slotv_jax.XLA_CONFIG.applied)",
+            "print([w.category.__name__ for w in caught])",
+            "print(slotv_jax.XLA_CONFIG.summary())",
+        ]
+    )
+    flags, applied, warned, summary = run_python(code, JAX_PLATFORMS="cpu")
+    assert flags == "<unset>"
+    assert applied == "()"
+    assert warned == "['RuntimeWarning']"
+    assert "left unchanged" in summary and "already initialised" in summary
