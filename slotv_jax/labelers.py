@@ -73,7 +73,7 @@ __all__ = [
 LABELER_NAMES = ("dragan", "nikolaidis", "effdist", "fastapp")
 DEFAULT_BETAS = {"dragan": 5.0, "nikolaidis": 7.5, "effdist": 5.0, "fastapp": 5.0}
 DEPTH_EPS = 1e-6  # a point or goal with camera depth <= this is invalid (SPEC §4.2)
-DEFAULT_CHUNK = 8192  # trajectories per compiled call in label_all
+DEFAULT_CHUNK = 1024  # trajectories per compiled call in label_all (fastest on a 2-core CPU)
 
 # ----------------------------------------------------------------- time weights
 
@@ -478,42 +478,7 @@ LABELERS: dict[str, Callable[..., Array]] = {
 _TRACES = {"label_chunk": 0}  # traces of the bulk kernel (tests check it compiles once)
 
 
-def _label_chunk(xyz, goals, mask, t, pos, rot, betas, names: tuple[str, ...]):
-    """Labels and validity flags for one fixed-size chunk (the one compiled kernel)."""
-    _TRACES["label_chunk"] += 1
-    T = xyz.shape[-2]
-    tw = _time_weights(t, T, xyz.dtype)
-    out = {}
-    if {"dragan", "effdist", "fastapp"} & set(names):
-        d = _distances(xyz, goals)  # shared by the three world-space labelers
-        if "dragan" in names:
-            d0 = _distances(xyz[..., :1, :], goals)
-            out["dragan"] = _dragan_core(d, d0, mask, betas["dragan"], tw.dragan)
-        if "effdist" in names:
-            out["effdist"] = _effdist_core(d, mask, betas["effdist"], tw.effdist)
-        if "fastapp" in names:
-            out["fastapp"] = _fastapp_core(d, mask, betas["fastapp"], tw.fastapp)
-    # Per-trajectory validity flags, so that label_all can reject bad input without an
-    # extra pass over the data on the host. A sum is non-finite if any term is NaN/inf
-    # (or if it overflows float32, at magnitudes no distance computation survives).
-    real = mask[..., :, None] & mask[..., None, :] & ~jnp.eye(G_MAX, dtype=bool)
-    gd = sum((goals[..., :, None, j] - goals[..., None, :, j]) ** 2 for j in range(3))
-    flags = {
-        "xyz_finite": jnp.isfinite(jnp.sum(xyz, axis=(-2, -1))),
-        "goals_finite": jnp.isfinite(jnp.sum(goals, axis=(-2, -1))),
-        "goals_distinct": ~jnp.any(real & (gd < 1e-18), axis=(-2, -1)),
-    }
-    if "nikolaidis" in names:
-        y, flags["xyz_depth"], flags["goals_depth"] = _nikolaidis_parts(
-            xyz, goals, mask, pos, rot, betas["nikolaidis"], tw.dragan
-        )
-        out["nikolaidis"] = y
-    return {k: out[k] for k in names}, flags
-
-
-_label_chunk_jit = jax.jit(_label_chunk, static_argnames=("names",))
-
-_FLAG_ERRORS = {
+_FLAG_ERRORS = {  # bit i of the kernel's `bad` output, in this order
     "xyz_finite": "xyz: expected finite values; trajectory {i} holds NaN/inf",
     "goals_finite": "goals: expected finite values; trajectory {i} holds NaN/inf",
     "goals_distinct": "goals: two real goals share the same position (trajectory {i})",
@@ -522,6 +487,50 @@ _FLAG_ERRORS = {
     "goals_depth": "goals: trajectory {i} has real goal(s) at camera depth <= {eps} m "
     "(on or behind the camera plane)",
 }
+
+
+def _label_chunk(xyz, goals, mask, t, pos, rot, betas, names: tuple[str, ...]):
+    """Labels ``(C, len(names), 8)`` and a validity bitmask ``(C,)`` for one chunk.
+
+    The one compiled kernel of :func:`label_all`; ``betas`` is ``(len(names),)``.
+    """
+    _TRACES["label_chunk"] += 1
+    T = xyz.shape[-2]
+    tw = _time_weights(t, T, xyz.dtype)
+    beta = dict(zip(names, betas, strict=True))
+    out = {}
+    if {"dragan", "effdist", "fastapp"} & set(names):
+        d = _distances(xyz, goals)  # shared by the three world-space labelers
+        if "dragan" in names:
+            d0 = _distances(xyz[..., :1, :], goals)
+            out["dragan"] = _dragan_core(d, d0, mask, beta["dragan"], tw.dragan)
+        if "effdist" in names:
+            out["effdist"] = _effdist_core(d, mask, beta["effdist"], tw.effdist)
+        if "fastapp" in names:
+            out["fastapp"] = _fastapp_core(d, mask, beta["fastapp"], tw.fastapp)
+    # Per-trajectory validity, so that label_all can reject bad input without an extra
+    # pass over the data on the host. A sum is non-finite if any term is NaN/inf (or if
+    # it overflows float32, at magnitudes no distance computation survives either).
+    real = mask[..., :, None] & mask[..., None, :] & ~jnp.eye(G_MAX, dtype=bool)
+    gd = sum((goals[..., :, None, j] - goals[..., None, :, j]) ** 2 for j in range(3))
+    ok = {
+        "xyz_finite": jnp.isfinite(jnp.sum(xyz, axis=(-2, -1))),
+        "goals_finite": jnp.isfinite(jnp.sum(goals, axis=(-2, -1))),
+        "goals_distinct": ~jnp.any(real & (gd < 1e-18), axis=(-2, -1)),
+    }
+    if "nikolaidis" in names:
+        out["nikolaidis"], ok["xyz_depth"], ok["goals_depth"] = _nikolaidis_parts(
+            xyz, goals, mask, pos, rot, beta["nikolaidis"], tw.dragan
+        )
+    bad = sum(
+        jnp.where(ok[k], 0, 1 << bit).astype(jnp.int32)
+        for bit, k in enumerate(_FLAG_ERRORS)
+        if k in ok
+    )
+    return jnp.stack([out[k] for k in names], axis=-2), bad
+
+
+_label_chunk_jit = jax.jit(_label_chunk, static_argnames=("names",))
 
 
 def _pad_rows(a: np.ndarray, n: int) -> np.ndarray:
@@ -617,7 +626,8 @@ def label_all(
         raise ValueError(f"chunk_size: expected a positive integer, got {chunk_size}")
     cam = _as_camera(camera)
     pos, rot = np.asarray(cam.pos, np.float32), np.asarray(cam.rot, np.float32)
-    beta_arr = {n: np.float32(betas[n]) for n in names}
+    beta_arr = np.array([betas[n] for n in names], np.float32)
+    goal_mask = goal_mask.astype(bool, copy=False)
 
     out = {n: np.empty((N, G_MAX), np.float32) for n in names}
     if N == 0:
@@ -628,22 +638,23 @@ def label_all(
         stop = min(start + C, N)
         x = _pad_rows(np.asarray(xyz[start:stop], np.float32), C)
         g = _pad_rows(np.asarray(goals[start:stop], np.float32), C)
-        m = _pad_rows(np.asarray(goal_mask[start:stop]).astype(bool), C)
+        m = _pad_rows(goal_mask[start:stop], C)
         tt = None if t is None else t.astype(np.float32)
         if tt is not None and tt.ndim == 2:
             tt = _pad_rows(tt[start:stop], C)
         return start, stop, _label_chunk_jit(x, g, m, tt, pos, rot, beta_arr, names=names)
 
     def collect(job):
-        start, stop, (labels, flags) = job
+        start, stop, (labels, bad) = job
         n = stop - start
-        for key, ok in flags.items():
-            ok = np.asarray(ok)[:n]
-            if not ok.all():
-                i = start + int(np.flatnonzero(~ok)[0])
-                raise ValueError(_FLAG_ERRORS[key].format(i=i, eps=DEPTH_EPS))
-        for k, v in labels.items():
-            out[k][start:stop] = np.asarray(v)[:n]
+        bad = np.asarray(bad)[:n]
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            bit = (int(bad[i]) & -int(bad[i])).bit_length() - 1  # lowest set bit
+            raise ValueError(list(_FLAG_ERRORS.values())[bit].format(i=start + i, eps=DEPTH_EPS))
+        labels = np.asarray(labels)
+        for j, k in enumerate(names):
+            out[k][start:stop] = labels[:n, j]
 
     with tqdm(total=N, unit="traj", desc="labelling", disable=not progress) as bar:
         pending = None
