@@ -31,8 +31,9 @@ from typing import Any
 METHODS = ("slotv", "trex")
 OPTIMIZERS = ("rmsprop", "adam")
 COMPUTE_DTYPES = ("float32", "bfloat16")
-# Elements of the largest first hidden activation (rows × width) one evaluation chunk may hold.
-EVAL_CHUNK_BUDGET = 1 << 24
+# Elements of the first hidden activation (rows × width) one evaluation chunk may hold:
+# small on CPUs (cache-friendly), large on accelerators (fewer, bigger matmuls).
+EVAL_CHUNK_BUDGET = {"cpu": 1 << 24, "accelerator": 1 << 28}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,16 +128,20 @@ class TrainConfig:
             return 0
         return self.steps_per_epoch(n_train) // self.block_size(n_train)
 
-    def eval_chunk_size(self, n_devices: int = 1, n_goals: int = 8, n_points: int = 100) -> int:
+    def eval_chunk_size(
+        self, n_devices: int = 1, n_goals: int = 8, n_points: int = 100, platform: str = "cpu"
+    ) -> int:
         """Trajectories per evaluation chunk: ``eval_chunk`` or the largest power of two whose
-        first hidden activation (chunk · T · G · H1 elements) fits EVAL_CHUNK_BUDGET, rounded up
-        to a multiple of ``n_devices``."""
+        first hidden activation (chunk · T · G · H1 elements, all devices together) fits
+        EVAL_CHUNK_BUDGET of the platform, rounded up to a multiple of ``n_devices``."""
         if self.eval_chunk is not None:
             c = self.eval_chunk
         else:
+            budget = EVAL_CHUNK_BUDGET["cpu" if platform == "cpu" else "accelerator"]
+            budget *= n_devices
             per = n_points * n_goals * self.hidden[0]
             c = 1
-            while 2 * c * per <= EVAL_CHUNK_BUDGET and c < 4096:
+            while 2 * c * per <= budget and c < 8192:
                 c *= 2
         return -(-c // n_devices) * n_devices
 

@@ -34,6 +34,7 @@ scalar output and the reduction over time are float32.
 
 from __future__ import annotations
 
+import functools
 import itertools
 from collections.abc import Sequence
 
@@ -46,6 +47,8 @@ from slotv_jax import validation
 from slotv_jax.validation import G_MAX
 
 _DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
+BACKWARDS = ("autodiff", "fused", "recompute")  # see GoalRelativeMLP.grid
+_List = getattr(nnx, "List", list)  # flax < 0.12 keeps sub-modules in plain lists
 
 
 def _dtype(name: str):
@@ -79,7 +82,7 @@ class GoalRelativeMLP(nnx.Module):
         self.hidden = hidden
         self.compute_dtype = compute_dtype
         self.first = nnx.Linear(3, hidden[0], precision=jax.lax.Precision.HIGHEST, rngs=rngs)
-        self.layers = nnx.List(
+        self.layers = _List(
             [nnx.Linear(a, b, dtype=cd, rngs=rngs) for a, b in itertools.pairwise(hidden)]
         )
         # No output bias [choice]: a constant added to f shifts every goal's score equally,
@@ -90,11 +93,12 @@ class GoalRelativeMLP(nnx.Module):
             hidden[-1], 1, use_bias=False, dtype=cd, preferred_element_type=out, rngs=rngs
         )
 
-    def _trunk(self, h: Array) -> Array:
+    def _trunk(self, h: Array, start: int = 0) -> Array:
+        """Hidden layers ``start``… and the readout, from the activations before them."""
         out = jnp.promote_types(h.dtype, jnp.float32)
         if self.compute_dtype != "float32":
             h = h.astype(_dtype(self.compute_dtype))
-        for layer in self.layers:
+        for layer in self.layers[start:]:
             h = jax.nn.relu(layer(h))
         return self.readout(h)[..., 0].astype(out)
 
@@ -103,15 +107,140 @@ class GoalRelativeMLP(nnx.Module):
         return self._trunk(jax.nn.relu(self.first(r - g)))
 
     def grid(
-        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"]
+        self,
+        xyz: Float[Array, "... T 3"],
+        goals: Float[Array, "... G 3"],
+        *,
+        backward: str = "autodiff",
     ) -> Float[Array, "... T G"]:
-        """f(p_i, g_k) for every point and goal: W_1 p_i − (W_1 g_k − b_1), then the trunk."""
-        w = self.first.kernel[...]
-        b = self.first.bias[...]
-        hp = jax.lax.Precision.HIGHEST
-        a = jnp.matmul(xyz, w, precision=hp)  # (..., T, H)
-        c = jnp.matmul(goals, w, precision=hp) - b  # (..., G, H)
-        return self._trunk(jax.nn.relu(a[..., :, None, :] - c[..., None, :, :]))
+        """f(p_i, g_k) for every point and goal: W_1 p_i − (W_1 g_k − b_1), then the trunk.
+
+        ``backward`` picks how the gradient of the first layers is computed (the values are
+        the same): "autodiff" (plain JAX; supports every transformation), or, for training
+        (reverse mode only), "fused" (:func:`goal_relative_features` with its one-pass
+        custom gradient) or "recompute" (:func:`goal_relative_two_layers`: the first
+        activation is recomputed in the backward pass instead of stored).
+        """
+        cd = None if self.compute_dtype == "float32" else _dtype(self.compute_dtype)
+        w1, b1 = self.first.kernel[...], self.first.bias[...]
+        if backward == "recompute" and len(self.layers) > 0:
+            l2 = self.layers[0]
+            z2 = goal_relative_two_layers(xyz, goals, w1, b1, l2.kernel[...], l2.bias[...], cd)
+            return self._trunk(jax.nn.relu(z2), start=1)
+        if backward not in BACKWARDS:
+            raise ValueError(f"backward: expected one of {BACKWARDS}, got {backward!r}")
+        h = goal_relative_features(xyz, goals, w1, b1, cd, backward != "autodiff")
+        return self._trunk(h)
+
+
+def _features(xyz, goals, w, b, dtype):
+    hp = jax.lax.Precision.HIGHEST
+    a = jnp.matmul(xyz, w, precision=hp)  # (..., T, H)
+    c = jnp.matmul(goals, w, precision=hp) - b  # (..., G, H)
+    h = jax.nn.relu(a[..., :, None, :] - c[..., None, :, :])
+    return h if dtype is None else h.astype(dtype)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(4,))
+def _features_fused(xyz, goals, w, b, dtype):
+    return _features(xyz, goals, w, b, dtype)
+
+
+def _features_fused_fwd(xyz, goals, w, b, dtype):
+    return _features(xyz, goals, w, b, dtype), (xyz, goals, w, b)
+
+
+def _features_fused_bwd(dtype, res, dh):
+    xyz, goals, w, b = res
+    hp = jax.lax.Precision.HIGHEST
+    a = jnp.matmul(xyz, w, precision=hp)
+    c = jnp.matmul(goals, w, precision=hp) - b
+    pre = a[..., :, None, :] - c[..., None, :, :]  # (..., T, G, H), recomputed, never stored
+    dpre = jnp.where(pre > 0, dh.astype(pre.dtype), 0.0)
+    # W_1 and b_1 in one pass over dpre: Σ_{t,k} (p_t − g_k, 1) ⊗ dpre_{t,k}
+    d = xyz[..., :, None, :] - goals[..., None, :, :]  # (..., T, G, 3)
+    d4 = jnp.concatenate([d, jnp.ones_like(d[..., :1])], axis=-1).astype(pre.dtype)
+    dwb = jnp.sum(d4[..., :, None] * dpre[..., None, :], axis=tuple(range(dpre.ndim - 1)))
+    # the inputs (dead code, removed by XLA, when only parameters are differentiated)
+    dxyz = jnp.matmul(dpre.sum(-2), w.T, precision=hp)
+    dgoals = -jnp.matmul(dpre.sum(-3), w.T, precision=hp)
+    return (
+        dxyz.astype(xyz.dtype),
+        dgoals.astype(goals.dtype),
+        dwb[:3].astype(w.dtype),
+        dwb[3].astype(b.dtype),
+    )
+
+
+_features_fused.defvjp(_features_fused_fwd, _features_fused_bwd)
+
+
+def _two_layers(xyz, goals, w1, b1, w2, b2, dtype):
+    h1 = _features(xyz, goals, w1, b1, dtype)
+    return jnp.matmul(h1, w2.astype(h1.dtype)) + b2.astype(h1.dtype)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(6,))
+def _two_layers_recompute(xyz, goals, w1, b1, w2, b2, dtype):
+    return _two_layers(xyz, goals, w1, b1, w2, b2, dtype)
+
+
+def _two_layers_fwd(xyz, goals, w1, b1, w2, b2, dtype):
+    return _two_layers(xyz, goals, w1, b1, w2, b2, dtype), (xyz, goals, w1, b1, w2, b2)
+
+
+def _two_layers_bwd(dtype, res, dz):
+    xyz, goals, w1, b1, w2, b2 = res
+    h1 = _features(xyz, goals, w1, b1, dtype)  # recomputed, not stored by the forward pass
+    rows = tuple(range(h1.ndim - 1))
+    dw2 = jax.lax.dot_general(h1, dz, ((rows, rows), ((), ())), preferred_element_type=jnp.float32)
+    db2 = jnp.sum(dz.astype(jnp.float32), axis=rows)
+    dh1 = jnp.matmul(dz, w2.astype(h1.dtype).T)
+    dxyz, dgoals, dw1, db1 = _features_fused_bwd(dtype, (xyz, goals, w1, b1), dh1)
+    return dxyz, dgoals, dw1, db1, dw2.astype(w2.dtype), db2.astype(b2.dtype)
+
+
+_two_layers_recompute.defvjp(_two_layers_fwd, _two_layers_bwd)
+
+
+def goal_relative_two_layers(
+    xyz: Float[Array, "... T 3"],
+    goals: Float[Array, "... G 3"],
+    w1: Float[Array, "3 H"],
+    b1: Float[Array, " H"],
+    w2: Float[Array, "H N"],
+    b2: Float[Array, " N"],
+    dtype=None,
+) -> Float[Array, "... T G N"]:
+    """Pre-activation of the second hidden layer, W_2 relu(W_1 (p_t − g_k) + b_1) + b_2, with
+    a custom gradient that recomputes the first activation in the backward pass (so the
+    forward pass stores only its small inputs) and reuses the one-pass first-layer gradient
+    of :func:`goal_relative_features`. Matmuls in ``dtype`` (None: the parameters' dtype),
+    weight gradients accumulated in float32. Reverse mode only."""
+    return _two_layers_recompute(xyz, goals, w1, b1, w2, b2, dtype)
+
+
+def goal_relative_features(
+    xyz: Float[Array, "... T 3"],
+    goals: Float[Array, "... G 3"],
+    w: Float[Array, "3 H"],
+    b: Float[Array, " H"],
+    dtype=None,
+    fused_backward: bool = False,
+) -> Float[Array, "... T G H"]:
+    """First hidden layer on every (point, goal) pair: relu(W_1 (p_t − g_k) + b_1),
+    evaluated as relu(W_1 p_t − (W_1 g_k − b_1)) in the parameters' precision (float32,
+    highest matmul precision), then cast to ``dtype`` (None: keep).
+
+    With ``fused_backward`` the gradient is a custom VJP that recomputes the
+    pre-activation instead of storing it and gets ∂L/∂W_1 = Σ_{t,k} (p_t − g_k) ⊗ δ_{tk}
+    and ∂L/∂b_1 = Σ_{t,k} δ_{tk} in one pass over δ = ∂L/∂pre, instead of separate
+    reductions over k and over t (the (T·G, H) tensors dominate the memory traffic of a
+    training step). Reverse mode only (no ``jvp``); the default path supports both.
+    """
+    if fused_backward:
+        return _features_fused(xyz, goals, w, b, dtype)
+    return _features(xyz, goals, w, b, dtype)
 
 
 class SlotV(nnx.Module):
@@ -125,10 +254,10 @@ class SlotV(nnx.Module):
         self.value = GoalRelativeMLP(hidden, compute_dtype=compute_dtype, rngs=rngs)
 
     def scores(
-        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"]
+        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], **kw
     ) -> Float[Array, "... G"]:
         """Unmasked s_k = mean over time of V(p_i, g_k)."""
-        return self.value.grid(xyz, goals).mean(axis=-2)
+        return self.value.grid(xyz, goals, **kw).mean(axis=-2)
 
     def __call__(
         self,
@@ -151,10 +280,10 @@ class TRex(nnx.Module):
         self.reward = GoalRelativeMLP(hidden, compute_dtype=compute_dtype, rngs=rngs)
 
     def scores(
-        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"]
+        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], **kw
     ) -> Float[Array, "... G"]:
         """Unmasked returns R_k = Σ_i r(p_i, g_k)."""
-        return self.reward.grid(xyz, goals).sum(axis=-2)
+        return self.reward.grid(xyz, goals, **kw).sum(axis=-2)
 
     def __call__(
         self,

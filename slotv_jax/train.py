@@ -165,20 +165,22 @@ def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
 # ---------------------------------------------------------------- losses
 
 
-def slotv_loss(model: models.SlotV, xyz, goals, goal_mask, labels) -> Float[Array, ""]:
+def slotv_loss(
+    model: models.SlotV, xyz, goals, goal_mask, labels, *, backward: str = "fused"
+) -> Float[Array, ""]:
     """Mean over the batch of  −Σ_k y_k (s_k − logsumexp_{real j} s_j)  (SPEC §5)."""
-    s = model.scores(xyz, goals)  # (B, G)
+    s = model.scores(xyz, goals, backward=backward)  # (B, G)
     lse = jax.nn.logsumexp(models.mask_logits(s, goal_mask), axis=-1, keepdims=True)
     ce = -jnp.sum(jnp.where(goal_mask, labels * (s - lse), 0.0), axis=-1)
     return ce.mean()
 
 
-def trex_loss(model: models.TRex, xyz, goal, label) -> Float[Array, ""]:
+def trex_loss(model: models.TRex, xyz, goal, label, *, backward: str = "fused") -> Float[Array, ""]:
     """Mean over pairs of the BCE on σ(R₂ − R₁) (SPEC §6).
 
     xyz (B, 2, T, 3), goal (B, 2, 3), label (B,) in {0, 1}.
     """
-    ret = model.reward.grid(xyz, goal[..., None, :])[..., 0].sum(axis=-1)  # (B, 2)
+    ret = model.scores(xyz, goal[..., None, :], backward=backward)[..., 0]  # (B, 2)
     d = ret[:, 1] - ret[:, 0]
     return jnp.mean(label * jax.nn.softplus(-d) + (1.0 - label) * jax.nn.softplus(d))
 
@@ -234,6 +236,8 @@ class Trainer:
     graphdef: Any  # nnx.GraphDef of the model
     tx: optax.GradientTransformation
     progress: _Progress | None
+    backward: str = "fused"  # first-layer gradient implementation (models.GoalRelativeMLP.grid)
+    unroll: int = 1  # updates per iteration of the compiled update loop
 
     # ---- sharding helpers
     def _shard_batch(self, x):
@@ -266,7 +270,8 @@ class Trainer:
     def _slotv_step(self, data: TrainData, carry, idx):
         idx = self._shard_batch(idx)
         batch = [self._shard_batch(x[idx]) for x in data]
-        return self._update(carry, slotv_loss, *batch)
+        loss = functools.partial(slotv_loss, backward=self.backward)
+        return self._update(carry, loss, *batch)
 
     def _trex_step(self, data: TrainData, carry, key):
         idx, slot, label = models.sample_trex_pairs(
@@ -275,7 +280,8 @@ class Trainer:
         idx, slot, label = (self._shard_batch(a) for a in (idx, slot, label))
         xyz = self._shard_batch(data.xyz[idx])  # (B, 2, T, 3)
         goal = self._shard_batch(data.goals[idx, slot])  # (B, 2, 3)
-        return self._update(carry, trex_loss, xyz, goal, label)
+        loss = functools.partial(trex_loss, backward=self.backward)
+        return self._update(carry, loss, xyz, goal, label)
 
     def accuracy(self, params: nnx.State, val: evaluate.EvalData) -> Float[Array, ""]:
         """Accuracy of ``params`` on a chunked evaluation set (pure)."""
@@ -284,7 +290,8 @@ class Trainer:
     def eval_data(self, data: TrainData, size: int | None = None) -> evaluate.EvalData:
         """The fixed validation subset (first ``size`` or ``cfg.eval_size``), chunked."""
         n = self.cfg.eval_size if size is None else size
-        chunk = self.cfg.eval_chunk_size(self.mesh.size, G_MAX, data.xyz.shape[1])
+        platform = self.mesh.devices.flat[0].platform
+        chunk = self.cfg.eval_chunk_size(self.mesh.size, G_MAX, data.xyz.shape[1], platform)
         return evaluate.chunk(subset(data, n), min(chunk, _round_up(n, self.mesh.size)))
 
     # ---- the compiled loop
@@ -320,7 +327,9 @@ class Trainer:
         def block(carry, xs):
             (params, opt_state), epoch = carry
             b, inputs = xs
-            (params, opt_state), losses = jax.lax.scan(step_fn, (params, opt_state), inputs)
+            (params, opt_state), losses = jax.lax.scan(
+                step_fn, (params, opt_state), inputs, unroll=self.unroll
+            )
             updates = epoch * steps + (b + 1) * k
             acc = self.accuracy(params, val) if validate else jnp.float32(jnp.nan)
             report(updates, losses.mean())
@@ -367,19 +376,31 @@ def _round_up(n: int, m: int) -> int:
 
 
 @functools.cache
-def _make_train(cfg: TrainConfig, mesh: Mesh, progress: bool) -> Trainer:
+def _make_train(
+    cfg: TrainConfig, mesh: Mesh, progress: bool, backward: str, unroll: int
+) -> Trainer:
     abstract = nnx.eval_shape(lambda: models.make_model(cfg, nnx.Rngs(0)))
     graphdef, _ = nnx.split(abstract)
     bar = _Progress(f"{cfg.method} ", cfg.batch_size) if progress else None
-    return Trainer(cfg, mesh, graphdef, make_optimizer(cfg), bar)
+    return Trainer(cfg, mesh, graphdef, make_optimizer(cfg), bar, backward, unroll)
 
 
-def make_train(cfg: TrainConfig, *, mesh: Mesh | None = None, progress: bool = True) -> Trainer:
+def make_train(
+    cfg: TrainConfig,
+    *,
+    mesh: Mesh | None = None,
+    progress: bool = True,
+    backward: str = "fused",
+    unroll: int = 1,
+) -> Trainer:
     """The :class:`Trainer` for ``cfg`` (cached: the same config gives the same object, so
     jitted calls reuse their compilation). ``mesh`` defaults to :func:`make_mesh`."""
     if not isinstance(cfg, TrainConfig):
         raise ValueError(f"cfg: expected a TrainConfig, got {type(cfg).__name__}")
-    return _make_train(cfg, make_mesh(cfg.batch_size) if mesh is None else mesh, bool(progress))
+    mesh = make_mesh(cfg.batch_size) if mesh is None else mesh
+    if backward not in models.BACKWARDS:
+        raise ValueError(f"backward: expected one of {models.BACKWARDS}, got {backward!r}")
+    return _make_train(cfg, mesh, bool(progress), backward, int(unroll))
 
 
 # ---------------------------------------------------------------- drivers

@@ -1,0 +1,347 @@
+"""Benchmark: SLOT-V and T-REX training steps at paper sizes, against the device's matmul peak.
+
+    python -m slotv_jax.benchmarks.training              # CPU: short windows
+    python -m slotv_jax.benchmarks.training --device-run # GPU: long windows, variants
+
+What is timed is the real compiled training loop (:meth:`slotv_jax.train.Trainer.run`):
+one call runs one epoch, a ``lax.scan`` of ``--steps`` updates over synthetic data held
+on the device (no host sync per update, the state donated). Per (method, dtype):
+
+- trajectories/s: SLOT-V trajectories per second; T-REX pairs per second × 2;
+- achieved FLOP/s: analytic matmul FLOPs per update over its time. Forward FLOPs per
+  trajectory and goal are 2·(3·H1/G + Σ_l H_l·H_{l+1} · T + H_L · T) (the goal-relative
+  layer as computed: (T, 3)×(3, H1) and (G, 3)×(3, H1) per trajectory); an update costs
+  ≈ 3× its forward FLOPs (backward: gradients w.r.t. activations and weights). Padded goal
+  slots are computed and counted (the loop has fixed shapes);
+- the matmul peak of the same device and dtype, measured in the same run: an N×N×N
+  ``jnp.dot`` (N = 8192 on GPUs, 2048 on CPUs), median of repeated calls.
+
+Also reported: forward-only evaluation throughput (SPEC §8 accuracy, chunked), and with
+``--device-run`` two implementation variants of the update: the plain autodiff
+first-layer gradient instead of the fused one, and an unrolled update loop.
+
+It imports neither MuJoCo nor the data pipeline: it runs on an accelerator image with
+only jax, flax, optax, orbax, jaxtyping and tqdm.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import functools
+import itertools
+import json
+import platform
+import statistics
+import sys
+import time
+
+import slotv_jax  # applies the XLA CPU setting before JAX starts
+
+T = 100
+G = 8
+
+
+def variants(backward: str) -> list[tuple[str, dict]]:
+    """Other implementations of the same update (Trainer.backward, Trainer.unroll)."""
+    from slotv_jax.models import BACKWARDS
+
+    out = [(f"backward={b}", {"backward": b}) for b in BACKWARDS if b != backward]
+    return [*out, (f"backward={backward}, unroll 4", {"backward": backward, "unroll": 4})]
+
+
+def forward_flops(hidden: tuple[int, ...], rows_per_traj: int, goals_per_traj: int) -> float:
+    """Matmul FLOPs of one forward pass over one trajectory (``rows_per_traj`` = T · goals)."""
+    f = 2 * 3 * hidden[0] * (T + goals_per_traj)  # W1 p_t and W1 g_k
+    for a, b in itertools.pairwise(hidden):
+        f += 2 * a * b * rows_per_traj
+    f += 2 * hidden[-1] * rows_per_traj  # readout
+    return float(f)
+
+
+def update_flops(cfg) -> tuple[float, int]:
+    """(FLOPs per update ≈ 3 × forward, trajectories per update)."""
+    if cfg.method == "slotv":
+        per = forward_flops(cfg.hidden, T * G, G)
+        return 3.0 * per * cfg.batch_size, cfg.batch_size
+    per_pair = 2 * forward_flops(cfg.hidden, T, 1)  # two trajectories, one goal each
+    return 3.0 * per_pair * cfg.batch_size, 2 * cfg.batch_size
+
+
+def synthetic_data(n: int, seed: int = 0):
+    """Random but valid trajectories, scenes and label distributions (on the host)."""
+    import numpy as np
+
+    from slotv_jax import train
+
+    rng = np.random.default_rng(seed)
+    counts = rng.choice([2, 3, 5, 6], n)
+    mask = np.arange(G)[None] < counts[:, None]
+    goals = np.zeros((n, G, 3), np.float32)
+    goals[..., 0] = rng.uniform(0.3, 0.7, (n, G))
+    goals[..., 1] = rng.uniform(-0.45, 0.45, (n, G))
+    goals[..., 2] = 0.025
+    goals = np.where(mask[..., None], goals, 0.0).astype(np.float32)
+    t = np.linspace(0, 1, T)[None, :, None]
+    start = np.array([0.3069, 0.0, 0.4869])
+    end = goals[np.arange(n), rng.integers(0, counts)]
+    bend = rng.normal(0, 0.1, (n, 1, 3)) * np.sin(np.pi * t)
+    xyz = ((1 - t) * start + t * end[:, None] + bend).astype(np.float32)
+    logits = np.where(mask, rng.normal(size=(n, G)), -np.inf)
+    y = np.exp(logits - logits.max(-1, keepdims=True))
+    y = (y / y.sum(-1, keepdims=True)).astype(np.float32)
+    return train.TrainData(xyz, goals, mask, y)
+
+
+def _median_time(fn, repeats: int) -> float:
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return statistics.median(ts)
+
+
+def matmul_peak(dtype: str, n: int, repeats: int) -> float:
+    """FLOP/s of an n×n×n product in ``dtype`` (median of ``repeats`` timed batches)."""
+    import jax
+    import jax.numpy as jnp
+
+    dt = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}[dtype]
+    ka, kb = jax.random.split(jax.random.key(0))
+    a = jax.random.normal(ka, (n, n), dt)
+    b = jax.random.normal(kb, (n, n), dt)
+    inner = 10
+
+    @jax.jit
+    def chain(a, b):
+        # independent products (each reads the same inputs), kept alive by a cheap sum
+        def body(acc, i):
+            return acc + jnp.dot(a * (1 + i.astype(dt)), b)[0, 0].astype(jnp.float32), None
+
+        return jax.lax.scan(body, jnp.float32(0), jnp.arange(inner))[0]
+
+    jax.block_until_ready(chain(a, b))
+    t = _median_time(lambda: jax.block_until_ready(chain(a, b)), repeats)
+    return inner * 2.0 * n**3 / t
+
+
+@dataclasses.dataclass
+class Row:
+    name: str
+    dtype: str
+    batch: int
+    hidden: tuple[int, ...]
+    step_ms: float
+    traj_per_s: float
+    flops_per_s: float
+    peak: float
+    compile_s: float
+
+    @property
+    def frac(self) -> float:
+        return self.flops_per_s / self.peak
+
+
+def bench_train(
+    method: str,
+    dtype: str,
+    steps: int,
+    repeats: int,
+    *,
+    backward: str = "fused",
+    unroll: int = 1,
+    profile: str | None = None,
+) -> tuple[float, float, float, object]:
+    """(seconds per update, FLOPs per update, compile seconds, cfg) of the paper-size loop."""
+    import jax
+
+    from slotv_jax import config, train
+
+    cfg = config.paper(method, compute_dtype=dtype, epochs=1, log_every=steps)
+    n = steps * cfg.batch_size
+    trainer = train.make_train(cfg, progress=False, backward=backward, unroll=unroll)
+    data = trainer.replicate(synthetic_data(n))
+    state = trainer.replicate(trainer.init(jax.random.key(0)))
+    epoch = jax.jit(functools.partial(trainer.run, epochs=1), donate_argnums=0)
+    t0 = time.perf_counter()
+    compiled = epoch.lower(state, data).compile()
+    compile_s = time.perf_counter() - t0
+    holder = [compiled(state, data)[0]]  # warm-up
+
+    def once():
+        holder[0], m = compiled(holder[0], data)
+        jax.block_until_ready(m)
+
+    t = _median_time(once, repeats) / steps
+    if profile:
+        import pathlib
+
+        d = pathlib.Path(profile)
+        d.mkdir(parents=True, exist_ok=True)
+        (d / f"{method}_{dtype}_{backward}.hlo.txt").write_text(compiled.as_text())
+        with jax.profiler.trace(
+            str(d / f"{method}_{dtype}_{backward}"), create_perfetto_trace=True
+        ):
+            for _ in range(2):
+                once()
+        kernel_summary(d / f"{method}_{dtype}_{backward}", steps * 2)
+    flops, _ = update_flops(cfg)
+    return t, flops, compile_s, cfg
+
+
+def kernel_summary(trace_dir, updates: int, top: int = 25) -> None:
+    """Print the device kernels of a profiler trace by total time (per update)."""
+    import gzip
+    import pathlib
+    from collections import defaultdict
+
+    files = sorted(pathlib.Path(trace_dir).rglob("*.trace.json.gz"))
+    if not files:
+        print(f"    (no perfetto trace under {trace_dir})")
+        return
+    doc = json.loads(gzip.open(files[-1]).read())
+    events = doc["traceEvents"] if isinstance(doc, dict) else doc
+    names = {e["pid"]: e["args"]["name"] for e in events
+             if e.get("ph") == "M" and e.get("name") == "process_name"}  # fmt: skip
+    dev = {p for p, n in names.items() if "GPU" in n or "gpu" in n or "TPU" in n}
+    tot: dict[str, float] = defaultdict(float)
+    cnt: dict[str, int] = defaultdict(int)
+    for e in events:
+        if e.get("ph") == "X" and (not dev or e.get("pid") in dev):
+            tot[e["name"]] += e.get("dur", 0.0)
+            cnt[e["name"]] += 1
+    total = sum(tot.values())
+    print(f"    device time in trace: {total / updates:.1f} µs/update over {len(tot)} kernels "
+          f"(pids {sorted(names[p] for p in dev) if dev else 'all'})")  # fmt: skip
+    for name, us in sorted(tot.items(), key=lambda kv: -kv[1])[:top]:
+        print(f"    {us / updates:9.1f} µs/update {100 * us / total:5.1f}%  "
+              f"x{cnt[name] / updates:.2f}  {name[:110]}")  # fmt: skip
+
+
+def bench_eval(method: str, dtype: str, n: int, repeats: int) -> tuple[float, float, float]:
+    """(trajectories/s, FLOP/s, compile s) of chunked SPEC §8 accuracy at paper size."""
+    import jax
+
+    from slotv_jax import config, train
+
+    cfg = config.paper(method, compute_dtype=dtype)
+    trainer = train.make_train(cfg, progress=False)
+    params = trainer.replicate(trainer.init(jax.random.key(0)).params)
+    ev = trainer.replicate(trainer.eval_data(synthetic_data(n, seed=1), size=n))
+    f = jax.jit(trainer.accuracy)
+    t0 = time.perf_counter()
+    compiled = f.lower(params, ev).compile()
+    compile_s = time.perf_counter() - t0
+    jax.block_until_ready(compiled(params, ev))
+    t = _median_time(lambda: jax.block_until_ready(compiled(params, ev)), repeats)
+    fl = forward_flops(cfg.hidden, T * G, G) * n
+    return n / t, fl / t, compile_s
+
+
+def environment() -> dict:
+    import flax
+    import jax
+    import jaxlib
+    import optax
+
+    devs = jax.devices()
+    return {
+        "date": datetime.date.today().isoformat(),
+        "device": f"{len(devs)} × {devs[0].device_kind} ({devs[0].platform})",
+        "jax": jax.__version__,
+        "jaxlib": jaxlib.__version__,
+        "flax": flax.__version__,
+        "optax": optax.__version__,
+        "python": platform.python_version(),
+        "host": platform.machine(),
+        "xla_flags": slotv_jax.XLA_CONFIG.xla_flags,
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.training")
+    ap.add_argument("--device-run", action="store_true", help="accelerator settings + variants")
+    ap.add_argument("--steps", type=int, default=None, help="updates per timed epoch")
+    ap.add_argument("--repeats", type=int, default=None)
+    ap.add_argument("--dtypes", default="float32,bfloat16")
+    ap.add_argument("--methods", default="slotv,trex")
+    ap.add_argument("--no-eval", action="store_true")
+    ap.add_argument("--backward", default="fused", help="first-layer gradient implementation")
+    ap.add_argument(
+        "--variant-methods", default=None,
+        help="methods to also time with the other implementations (default: slotv with "
+        "--device-run, none otherwise)",
+    )  # fmt: skip
+    ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
+    ap.add_argument("--profile", default=None, help="dir: HLO + kernel profile of slotv train")
+    args = ap.parse_args(argv)
+
+    import jax
+
+    gpu = jax.default_backend() != "cpu"
+    if args.variant_methods is None:
+        args.variant_methods = "slotv" if args.device_run else ""
+    steps = args.steps or (400 if gpu else 3)
+    repeats = args.repeats or (5 if gpu else 2)
+    n_peak = 8192 if gpu else 2048
+    n_eval = 16384 if gpu else 64
+    env = environment()
+    print(slotv_jax.XLA_CONFIG.summary())
+    print(json.dumps(env), flush=True)
+    print(f"steps per timed epoch {steps}, repeats {repeats}, peak matmul {n_peak}³", flush=True)
+
+    rows: list[Row] = []
+    extra: list[dict] = []
+    for dtype in args.dtypes.split(","):
+        peak = matmul_peak(dtype, n_peak, repeats)
+        print(f"[{dtype}] matmul peak {peak / 1e12:.2f} TFLOP/s", flush=True)
+        for method in args.methods.split(","):
+            prof = args.profile if method == "slotv" else None
+            t, fl, cs, cfg = bench_train(
+                method, dtype, steps, repeats, backward=args.backward, profile=prof
+            )
+            _, traj = update_flops(cfg)
+            row = Row(f"{method} train", dtype, cfg.batch_size, cfg.hidden, t * 1e3, traj / t,
+                      fl / t, peak, cs)  # fmt: skip
+            rows.append(row)
+            print(f"  {row.name}: {row.step_ms:.3f} ms/update, {row.traj_per_s:,.0f} traj/s, "
+                  f"{row.flops_per_s / 1e12:.2f} TFLOP/s = {100 * row.frac:.1f}% of peak "
+                  f"(compile {cs:.1f} s)", flush=True)  # fmt: skip
+            if method in args.variant_methods.split(","):
+                for label, kw in variants(args.backward):
+                    tv, flv, _, _ = bench_train(
+                        method, dtype, steps, repeats, profile=args.profile, **kw
+                    )
+                    v = {"method": method, "variant": label, "dtype": dtype, "step_ms": tv * 1e3,
+                         "traj_per_s": traj / tv, "frac_peak": flv / tv / peak}  # fmt: skip
+                    extra.append(v)
+                    print(f"    variant {label}: {tv * 1e3:.3f} ms/update, {traj / tv:,.0f} "
+                          f"traj/s, {100 * flv / tv / peak:.1f}% of peak", flush=True)  # fmt: skip
+            if not args.no_eval:
+                tps, fps, ecs = bench_eval(method, dtype, n_eval, repeats)
+                rows.append(Row(f"{method} eval", dtype, n_eval, cfg.hidden, 1e3 * n_eval / tps,
+                                tps, fps, peak, ecs))  # fmt: skip
+                print(f"  {method} eval: {tps:,.0f} traj/s, {fps / 1e12:.2f} TFLOP/s = "
+                      f"{100 * fps / peak:.1f}% of peak", flush=True)  # fmt: skip
+
+    print()
+    print(f"device: {env['device']}; jax {env['jax']}, flax {env['flax']}, {env['date']}")
+    print(
+        "| what | dtype | batch | hidden | ms/call | trajectories/s | TFLOP/s | % of matmul peak |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r.name} | {r.dtype} | {r.batch} | {'/'.join(map(str, r.hidden))} | "
+              f"{r.step_ms:.3f} | {r.traj_per_s:,.0f} | {r.flops_per_s / 1e12:.3f} | "
+              f"{100 * r.frac:.1f}% (peak {r.peak / 1e12:.2f}) |")  # fmt: skip
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"environment": env, "rows": [dataclasses.asdict(r) for r in rows],
+                       "variants": extra}, f, indent=2)  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
