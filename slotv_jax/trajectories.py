@@ -26,6 +26,7 @@ zero-length segments that the arc-length resampling skips.
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -96,9 +97,16 @@ def resample_polyline(waypoints: Float[Array, "W 3"], n: int) -> Float[Array, "n
     return waypoints[idx] + frac[:, None] * (waypoints[idx + 1] - waypoints[idx])
 
 
-def plan_path(
-    key: jax.Array, scene: Scene, cfg: TrajectoryConfig = TrajectoryConfig()
-) -> tuple[Int[Array, ""], Int[Array, ""], Float[Array, "n 3"]]:
+class Plan(NamedTuple):
+    """A planned Cartesian path (steps 1–5 of SPEC §3)."""
+
+    target: Int[Array, ""]  # goal slot
+    n_via: Int[Array, ""]  # via points used
+    waypoints: Float[Array, "W 3"]  # start, via points (unused ones collapsed onto the goal), goal
+    path: Float[Array, "n 3"]  # resampled path, equally spaced by arc length (m)
+
+
+def plan_path(key: jax.Array, scene: Scene, cfg: TrajectoryConfig = TrajectoryConfig()) -> Plan:
     """Draw target, via points and the resampled Cartesian path (steps 1–5)."""
     k_target, k_count, k_via = jax.random.split(key, 3)
     target = jax.random.randint(k_target, (), 0, scene.n_goals)
@@ -112,7 +120,7 @@ def plan_path(
     via = jnp.where((jnp.arange(cfg.max_via) < n_via)[:, None], via, goal)
     start = jnp.asarray(kinematics.home_tcp(), via.dtype)
     waypoints = jnp.concatenate([start[None], via, goal[None]], axis=0)
-    return target, n_via, resample_polyline(waypoints, cfg.n_points)
+    return Plan(target, n_via, waypoints, resample_polyline(waypoints, cfg.n_points))
 
 
 def straight_path(goal: Float[Array, "3"], n: int = 100) -> Float[Array, "n 3"]:
@@ -125,6 +133,6 @@ def sample_trajectory(
     key: jax.Array, scene: Scene, cfg: TrajectoryConfig = TrajectoryConfig()
 ) -> Trajectory:
     """One random trajectory in ``scene`` (pure; deterministic in ``key``; vmap to batch)."""
-    target, n_via, path = plan_path(key, scene, cfg)
+    target, n_via, _, path = plan_path(key, scene, cfg)
     ik = kinematics.solve_path_ik(path, jnp.asarray(kinematics.Q_HOME, path.dtype), cfg.ik)
     return Trajectory(target=target, xyz=ik.xyz, q=ik.q, n_via=n_via, residual=jnp.max(ik.residual))

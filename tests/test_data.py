@@ -1,0 +1,212 @@
+"""Datasets: split structure, determinism, labels, storage, corruption detection, resume, CLI."""
+
+import dataclasses
+import json
+import os
+
+import numpy as np
+import pytest
+
+from slotv_jax import data
+from slotv_jax.trajectories import TrajectoryConfig
+
+GOAL_COUNTS = {
+    "train": {2, 3, 5, 6},
+    "trajectory_val": {2, 3, 5, 6},
+    "trajectory_test": {2, 3, 5, 6},
+    "position_val": {2, 3, 5, 6},
+    "position_test": {2, 3, 5, 6},
+    "goal_count_val": {7},
+    "goal_count_test": {4, 8},
+}
+
+
+def test_split_sizes_scenes_and_goal_counts(tiny_data, tiny_cfg):
+    assert set(tiny_data) == set(data.SPLITS)
+    for name, split in tiny_data.items():
+        assert len(split) == tiny_cfg.split_size(name)
+        n_scenes = tiny_cfg.n_train_scenes if name.startswith(("train", "trajectory")) else 4
+        assert split.scene_goals.shape == (n_scenes, 8, 3)
+        assert set(split.scene_mask.sum(-1)) <= GOAL_COUNTS[name]
+        assert split.env_id.min() >= 0 and split.env_id.max() < n_scenes
+        assert split.meta["reachability"]["trajectory_rejection_rate"] >= 0
+    # train / trajectory_* share their scenes; the other splits have new ones.
+    np.testing.assert_array_equal(
+        tiny_data["train"].scene_goals, tiny_data["trajectory_test"].scene_goals
+    )
+    a = tiny_data["position_val"].scene_goals.reshape(-1, 3)
+    b = tiny_data["position_test"].scene_goals.reshape(-1, 3)
+    assert not np.array_equal(a, b)
+    # Trajectory splits drawn independently of train.
+    assert not np.array_equal(tiny_data["train"].xyz[:100], tiny_data["trajectory_val"].xyz)
+
+
+def test_labels_are_distributions(tiny_data):
+    for split in tiny_data.values():
+        assert set(split.labels) == set(data.LABELER_NAMES)
+        for y in split.labels.values():
+            assert y.shape == (len(split), 8) and y.dtype == np.float32
+            assert np.all(y[~split.goal_mask] == 0.0)
+            assert np.all(y >= 0)
+            np.testing.assert_allclose(y.sum(-1), 1.0, atol=1e-5)
+
+
+def test_determinism_and_chunk_size_independence(tiny_data, tiny_cfg):
+    """Same seed and config: identical arrays, whatever the chunk size."""
+    again = data.generate_dataset(tiny_cfg, None, splits=["position_val"], progress=False)
+    ref = tiny_data["position_val"]
+    for k, a in ref.arrays().items():
+        np.testing.assert_array_equal(a, again["position_val"].arrays()[k], err_msg=k)
+    # Another chunk size: the same draws; floats agree to float32 rounding (XLA compiles each
+    # batch shape on its own, so the last bit may differ).
+    cfg = dataclasses.replace(tiny_cfg, chunk_size=64)
+    small = data.generate_dataset(cfg, None, splits=["position_val"], progress=False)
+    for k in ("target", "env_id", "n_via", "scene_goals", "scene_mask"):
+        np.testing.assert_array_equal(getattr(ref, k), getattr(small["position_val"], k), k)
+    np.testing.assert_allclose(small["position_val"].xyz, ref.xyz, rtol=0, atol=1e-5)
+    other = data.generate_dataset(
+        dataclasses.replace(tiny_cfg, seed=1), None, splits=["position_val"], progress=False
+    )
+    assert not np.array_equal(ref.xyz, other["position_val"].xyz)
+
+
+def test_unreachable_draws_are_rejected_and_counted(tiny_cfg):
+    """Via points partly out of reach: those draws are redrawn and the rate is reported."""
+    far = TrajectoryConfig(via_low=(0.25, -0.5, 0.1), via_high=(1.3, 0.5, 0.4))
+    cfg = dataclasses.replace(tiny_cfg, trajectory=far)
+    split = data.generate_dataset(cfg, None, splits=["position_test"], progress=False)
+    split = split["position_test"]
+    r = split.meta["reachability"]
+    assert len(split) == cfg.n_eval
+    assert 0.05 < r["trajectory_rejection_rate"] < 0.95
+    assert r["trajectories_drawn"] > cfg.n_eval
+    assert split.residual.max() <= far.max_residual
+
+
+def test_round_trip_and_checksums(tiny_data, tiny_cfg, tmp_path):
+    split = tiny_data["goal_count_val"]
+    data.save_split(tmp_path, split, tiny_cfg)
+    back = data.load_split(tmp_path, "goal_count_val")
+    for k, a in split.arrays().items():
+        np.testing.assert_array_equal(a, back.arrays()[k], err_msg=k)
+        assert back.arrays()[k].dtype == a.dtype
+    meta = json.loads((tmp_path / "goal_count_val.json").read_text())
+    assert meta["config_digest"] == tiny_cfg.digest()
+    assert meta["seed"] == tiny_cfg.seed
+    assert {"jax", "mujoco", "numpy"} <= set(meta["environment"])
+    assert set(meta["arrays"]) == set(split.arrays())
+    assert all(len(v["sha256"]) == 64 for v in meta["arrays"].values())
+    assert not list(tmp_path.glob(".*tmp"))  # no temporary files left behind
+    np.testing.assert_array_equal(back.goals, split.scene_goals[split.env_id])
+
+
+@pytest.fixture
+def saved(tiny_data, tiny_cfg, tmp_path):
+    data.save_split(tmp_path, tiny_data["position_test"], tiny_cfg)
+    return tmp_path
+
+
+def test_truncated_file_is_detected(saved):
+    p = saved / "position_test.npz"
+    p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
+    with pytest.raises(ValueError, match=r"position_test\.npz.*(corrupt|truncated)"):
+        data.load_split(saved, "position_test")
+
+
+def test_flipped_byte_is_detected(saved):
+    p = saved / "position_test.npz"
+    b = bytearray(p.read_bytes())
+    # Flip a byte inside the xyz payload (stored uncompressed), far from any header.
+    off = b.find(b"xyz.npy") + 4000
+    b[off] ^= 0xFF
+    p.write_bytes(bytes(b))
+    with pytest.raises(ValueError, match=r"position_test\.npz"):
+        data.load_split(saved, "position_test")
+
+
+def test_swapped_array_fails_checksum(saved, tiny_data):
+    split = tiny_data["position_test"]
+    arrays = split.arrays()
+    arrays["target"] = (arrays["target"] + 1) % 2
+    np.savez(saved / "position_test.npz", **arrays)
+    with pytest.raises(ValueError, match="'target' fails its SHA-256"):
+        data.load_split(saved, "position_test")
+
+
+def test_corrupt_or_mismatched_sidecar(saved):
+    j = saved / "position_test.json"
+    meta = json.loads(j.read_text())
+    meta["arrays"]["xyz"]["shape"] = [1, 100, 3]
+    j.write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match=r"'xyz'.*sidecar says"):
+        data.load_split(saved, "position_test")
+    j.write_text("{not json")
+    with pytest.raises(ValueError, match=r"position_test\.json: corrupt JSON"):
+        data.load_split(saved, "position_test")
+    j.unlink()
+    with pytest.raises(FileNotFoundError, match=r"position_test\.json"):
+        data.load_split(saved, "position_test")
+    with pytest.raises(ValueError, match="name: expected one of"):
+        data.load_split(saved, "validation")
+
+
+def test_missing_array_is_detected(saved, tiny_data):
+    arrays = tiny_data["position_test"].arrays()
+    del arrays["q"]
+    np.savez(saved / "position_test.npz", **arrays)
+    with pytest.raises(ValueError, match="do not match the sidecar"):
+        data.load_split(saved, "position_test")
+
+
+def test_resume_skips_finished_splits_and_refuses_other_configs(tiny_data, tiny_cfg, tmp_path):
+    for name in ("position_val", "position_test"):
+        data.save_split(tmp_path, tiny_data[name], tiny_cfg)
+    stamp = os.stat(tmp_path / "position_val.npz").st_mtime_ns
+    out = data.generate_dataset(
+        tiny_cfg, tmp_path, splits=["position_val", "position_test"], progress=False
+    )
+    assert os.stat(tmp_path / "position_val.npz").st_mtime_ns == stamp
+    np.testing.assert_array_equal(out["position_val"].xyz, tiny_data["position_val"].xyz)
+    with pytest.raises(ValueError, match="another config"):
+        data.generate_dataset(dataclasses.replace(tiny_cfg, seed=9), tmp_path, progress=False)
+
+
+def test_cli_generate_and_relabel(tmp_path, tiny_data):
+    args = ["--out", str(tmp_path), "--splits", "goal_count_test", "--n-eval", "100"]
+    args += ["--n-train", "300", "--chunk-size", "512"]
+    assert data.main(args) == 0
+    split = data.load_split(tmp_path, "goal_count_test")
+    assert len(split) == 100 and split.meta["config"]["preset"] == "quick"
+    assert data.main(["--out", str(tmp_path), "--splits", "goal_count_test", "--relabel",
+                      "--beta-dragan", "1.0"]) == 0  # fmt: skip
+    relabelled = data.load_split(tmp_path, "goal_count_test")
+    assert relabelled.meta["label_config"]["beta_dragan"] == 1.0
+    np.testing.assert_array_equal(relabelled.xyz, split.xyz)
+    np.testing.assert_array_equal(relabelled.labels["effdist"], split.labels["effdist"])
+    assert not np.allclose(relabelled.labels["dragan"], split.labels["dragan"])
+    # Softer labels: lower β gives higher entropy.
+    ent = lambda y: -(y * np.log(np.where(y > 0, y, 1))).sum(-1).mean()  # noqa: E731
+    assert ent(relabelled.labels["dragan"]) > ent(split.labels["dragan"])
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        {"n_train": 0},
+        {"n_eval": -5},
+        {"chunk_size": 0},
+        {"n_new_scenes": 0},
+        {"train_goal_counts": (2, 9)},
+        {"goal_count_val_counts": ()},
+    ],
+)
+def test_config_validation(kw):
+    with pytest.raises(ValueError, match="DataConfig"):
+        data.DataConfig(**kw)
+
+
+def test_presets_keep_every_split():
+    q, p = data.quick(), data.paper()
+    assert (p.n_train, p.n_eval, p.n_train_scenes, p.n_new_scenes) == (100_000, 10_000, 250, 10)
+    assert q.n_train_scenes == 250 and q.n_new_scenes == 10
+    assert p.n_train + 6 * p.n_eval == 160_000
