@@ -19,8 +19,9 @@ increasing; they are normalised to ``τ = (t − t₀) / (t_{T−1} − t₀)`` 
 
 Validation. The public functions check their arguments at the boundary and raise
 ``ValueError`` naming the argument: shapes (always), and NaN/inf, an empty goal
-mask, β ≤ 0, non-increasing ``t`` and points behind the camera (only on concrete
-values, so the same functions work under ``jit``/``vmap``/``grad``).
+mask, two real goals at one position, β ≤ 0, non-increasing ``t`` and points behind
+the camera (only on concrete values, so the same functions work under
+``jit``/``vmap``/``grad``).
 
 >>> import jax.numpy as jnp
 >>> goals = jnp.zeros((8, 3)).at[0].set([0.5, 0.2, 0.0]).at[1].set([0.5, -0.2, 0.0])
@@ -126,12 +127,19 @@ def _uniform_weights(T: int, dtype) -> TimeWeights:
     return TimeWeights(*(jnp.asarray(x, dtype) for x in (tw.dragan, w, tw.fastapp)))
 
 
+def _normalise_times(t, xp):
+    return (t - t[..., :1]) / (t[..., -1:] - t[..., :1])
+
+
 def _time_weights(t, T: int, dtype) -> TimeWeights:
     if t is None:
         return _uniform_weights(T, dtype)
+    if validation.is_concrete(t):
+        # Normalise in float64 first: large clock offsets (e.g. Unix time) would
+        # otherwise lose all resolution in float32.
+        t = _normalise_times(np.asarray(t, np.float64), np)
     t = jnp.asarray(t, dtype)
-    tau = (t - t[..., :1]) / (t[..., -1:] - t[..., :1])
-    return _weights_from_tau(tau, jnp)
+    return _weights_from_tau(_normalise_times(t, jnp), jnp)
 
 
 # ------------------------------------------------------------------- cores
@@ -627,6 +635,8 @@ def label_all(
     cam = _as_camera(camera)
     pos, rot = np.asarray(cam.pos, np.float32), np.asarray(cam.rot, np.float32)
     beta_arr = np.array([betas[n] for n in names], np.float32)
+    if t is not None:  # normalised once, in float64 (see _time_weights)
+        t = _normalise_times(np.asarray(t, np.float64), np).astype(np.float32)
     goal_mask = goal_mask.astype(bool, copy=False)
 
     out = {n: np.empty((N, G_MAX), np.float32) for n in names}
@@ -639,9 +649,7 @@ def label_all(
         x = _pad_rows(np.asarray(xyz[start:stop], np.float32), C)
         g = _pad_rows(np.asarray(goals[start:stop], np.float32), C)
         m = _pad_rows(goal_mask[start:stop], C)
-        tt = None if t is None else t.astype(np.float32)
-        if tt is not None and tt.ndim == 2:
-            tt = _pad_rows(tt[start:stop], C)
+        tt = t if t is None or t.ndim == 1 else _pad_rows(t[start:stop], C)
         return start, stop, _label_chunk_jit(x, g, m, tt, pos, rot, beta_arr, names=names)
 
     def collect(job):
@@ -709,11 +717,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(XLA_CONFIG.summary(), file=sys.stderr)
 
     names = tuple(s.strip() for s in args.labelers.split(",") if s.strip())
-    with np.load(args.inp, allow_pickle=False) as f:
-        missing = [k for k in ("xyz", "goals", "goal_mask") if k not in f.files]
-        if missing:
-            p.error(f"{args.inp}: missing array(s) {missing}; it holds {f.files}")
-        data = {k: f[k] for k in ("xyz", "goals", "goal_mask", "t") if k in f.files}
+    try:
+        with np.load(args.inp, allow_pickle=False) as f:
+            files = list(f.files)
+            data = {k: f[k] for k in ("xyz", "goals", "goal_mask", "t") if k in files}
+    except (OSError, ValueError) as e:  # missing file, not an .npz, or object arrays
+        p.error(f"{args.inp}: cannot read ({e})")
+    missing = [k for k in ("xyz", "goals", "goal_mask") if k not in data]
+    if missing:
+        p.error(f"{args.inp}: missing array(s) {missing}; it holds {files}")
     betas = {n: getattr(args, f"beta_{n}") for n in LABELER_NAMES}
     try:
         y = label_all(

@@ -226,6 +226,19 @@ def test_time_stamps_match_reference(name):
 
 
 @pytest.mark.parametrize("name", ALL)
+def test_clock_offsets_do_not_cost_float32_precision(name):
+    # Unix-time stamps: 1.7e9 s is beyond float32's resolution of 1 s steps; the
+    # stamps are normalised in float64 before the float32 computation.
+    rng = np.random.default_rng(18)
+    xyz, goals, mask = random_case(rng)
+    t = 1.7e9 + 0.01 * np.arange(len(xyz))
+    y = np.asarray(call(name, xyz, goals, mask, t=t))
+    np.testing.assert_allclose(y, np.asarray(call(name, xyz, goals, mask)), rtol=0, atol=1e-6)
+    y_bulk = L.label_all(xyz[None], goals, mask, t=t, labelers=(name,), progress=False)[name]
+    np.testing.assert_allclose(y_bulk[0], y, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ALL)
 def test_extreme_beta_is_stable(name):
     rng = np.random.default_rng(10)
     xyz, goals, mask = random_case(rng)
@@ -548,6 +561,8 @@ def test_command_line(tmp_path):
     np.savez(src, xyz=xyz, goals=goals)  # no goal_mask
     with pytest.raises(SystemExit):
         L.main(["--in", str(src), "--out", str(dst), "--quiet"])
+    with pytest.raises(SystemExit):  # no such file
+        L.main(["--in", str(tmp_path / "missing.npz"), "--out", str(dst), "--quiet"])
     bad = xyz.copy()
     bad[0, 0, 0] = np.nan
     np.savez(src, xyz=bad, goals=goals, goal_mask=mask)
