@@ -1,0 +1,329 @@
+"""Table 1 of the paper: accuracy of SLOT-V and T-REX on every labeler and split (SPEC §8).
+
+    python -m slotv_jax.experiments.table1                      # quick preset, CPU, minutes
+    python -m slotv_jax.experiments.table1 --preset paper       # paper sizes (GPU)
+    python -m slotv_jax.experiments.table1 --labelers dragan --methods slotv --trials 3
+
+Steps: generate (or reuse) the seven dataset splits, cached by config digest;
+train each (labeler, method, trial) cell; evaluate it on the four Table 1
+splits; write the cell to ``OUT/results.json`` atomically as soon as it
+finishes. A rerun with the same ``--out`` skips finished cells, so an
+interrupted run loses at most the cell in flight. The end of the run prints
+the table in the paper's layout (mean ± SD over trials, the paper's values and
+the difference) and writes ``OUT/table1.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+import slotv_jax
+from slotv_jax import config as train_config
+from slotv_jax import data as data_lib
+
+LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
+METHODS = ("slotv", "trex")
+SPLITS = ("train", "trajectory_test", "position_test", "goal_count_test")
+SPLIT_TITLES = {
+    "train": "train",
+    "trajectory_test": "trajectory",
+    "position_test": "position",
+    "goal_count_test": "goal count",
+}
+LABELER_TITLES = {
+    "dragan": "Dragan",
+    "effdist": "EffDist",
+    "fastapp": "FastApp",
+    "nikolaidis": "Nikolaidis",
+}
+METHOD_TITLES = {"slotv": "SLOT-V", "trex": "T-REX"}
+
+# The paper's Table 1: mean (SD) accuracy over 10 trials (Wallkötter et al. 2022).
+PAPER = {
+    ("dragan", "slotv"): [(0.940, 0.064), (0.938, 0.065), (0.895, 0.083), (0.922, 0.064)],
+    ("dragan", "trex"): [(0.795, 0.182), (0.792, 0.180), (0.783, 0.170), (0.749, 0.198)],
+    ("effdist", "slotv"): [(1.000, 0.000), (1.000, 0.000), (1.000, 0.000), (0.996, 0.005)],
+    ("effdist", "trex"): [(0.796, 0.032), (0.798, 0.034), (0.782, 0.033), (0.772, 0.031)],
+    ("fastapp", "slotv"): [(0.973, 0.008), (0.972, 0.008), (0.972, 0.013), (0.954, 0.017)],
+    ("fastapp", "trex"): [(0.869, 0.034), (0.866, 0.034), (0.879, 0.024), (0.860, 0.006)],
+    ("nikolaidis", "slotv"): [(0.911, 0.029), (0.910, 0.031), (0.875, 0.054), (0.893, 0.041)],
+    ("nikolaidis", "trex"): [(0.845, 0.033), (0.844, 0.034), (0.841, 0.039), (0.796, 0.040)],
+}
+PAPER_TABLE = {
+    (lab, meth, split): PAPER[(lab, meth)][i]
+    for (lab, meth) in PAPER
+    for i, split in enumerate(SPLITS)
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Table1Config:
+    """What one Table 1 run does."""
+
+    preset: str
+    trials: int
+    data: data_lib.DataConfig
+    train: dict[str, train_config.TrainConfig]  # method -> training config
+
+    def to_json(self) -> dict:
+        return {
+            "preset": self.preset,
+            "trials": self.trials,
+            "data": self.data.to_json(),
+            "data_digest": self.data.digest(),
+            "train": {m: c.to_dict() for m, c in self.train.items()},
+        }
+
+
+def quick() -> Table1Config:
+    """CPU preset: quick data, small networks, 2 trials **[choice]**."""
+    return Table1Config("quick", 2, data_lib.quick(), {m: train_config.quick(m) for m in METHODS})
+
+
+def paper() -> Table1Config:
+    """The paper's sizes and hyperparameters, 10 trials."""
+    return Table1Config("paper", 10, data_lib.paper(), {m: train_config.paper(m) for m in METHODS})
+
+
+def tiny() -> Table1Config:
+    """A seconds-scale preset for tests and smoke runs (not a result)."""
+    d = data_lib.DataConfig(
+        preset="tiny", n_train=300, n_eval=100, n_train_scenes=20, n_new_scenes=4, chunk_size=512
+    )
+    t = {
+        "slotv": train_config.quick("slotv", hidden=(32, 16), epochs=2, train_size=None),
+        "trex": train_config.quick("trex", hidden=(32, 16), epochs=2, train_size=None),
+    }
+    return Table1Config("tiny", 2, d, t)
+
+
+PRESETS = {"quick": quick, "paper": paper, "tiny": tiny}
+
+
+# ------------------------------------------------------------------- results
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def load_results(out: Path, cfg: Table1Config) -> dict:
+    """Existing results of the same config (for resuming), or a fresh document."""
+    path = out / "results.json"
+    fresh = {
+        "preset": cfg.preset,
+        "config": cfg.to_json(),
+        "environment": {},
+        "cells": [],
+        "summary": [],
+        "timing": {"cells": []},
+    }
+    if not path.exists():
+        return fresh
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: corrupt results file ({e}); move it away to start over") from e
+    old = doc.get("config", {})
+    if (old.get("data_digest"), old.get("train")) != (cfg.data.digest(), cfg.to_json()["train"]):
+        raise ValueError(
+            f"{path}: holds results of another configuration; use another --out to start anew"
+        )
+    doc["config"] = cfg.to_json()  # the trial count may grow between runs
+    return doc
+
+
+def summarise(cells: list[dict]) -> list[dict]:
+    """Mean and SD (ddof=1 when n > 1) of accuracy over trials, per (labeler, method, split)."""
+    groups: dict[tuple, list[float]] = {}
+    for c in cells:
+        groups.setdefault((c["labeler"], c["method"], c["split"]), []).append(c["accuracy"])
+    out = []
+    for (lab, meth, split), accs in sorted(groups.items()):
+        a = np.asarray(accs, np.float64)
+        sd = float(a.std(ddof=1)) if a.size > 1 else 0.0
+        out.append(
+            {
+                "labeler": lab,
+                "method": meth,
+                "split": split,
+                "mean": float(a.mean()),
+                "sd": sd,
+                "n": int(a.size),
+            }
+        )
+    return out
+
+
+def render_table(summary: list[dict]) -> str:
+    """Markdown table in the paper's layout: ours ± SD, the paper's, and the difference."""
+    by = {(s["labeler"], s["method"], s["split"]): s for s in summary}
+    lines = [
+        "| labeler | split | SLOT-V (ours) | SLOT-V (paper) | Δ "
+        "| T-REX (ours) | T-REX (paper) | Δ |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for lab in LABELERS:
+        for i, split in enumerate(SPLITS):
+            row = [LABELER_TITLES[lab] if i == 0 else "", SPLIT_TITLES[split]]
+            for meth in METHODS:
+                s = by.get((lab, meth, split))
+                pm, psd = PAPER_TABLE[(lab, meth, split)]
+                if s is None:
+                    row += ["—", f"{pm:.3f} ({psd:.3f})", "—"]
+                else:
+                    ours = f"{s['mean']:.3f} ± {s['sd']:.3f} (n={s['n']})"
+                    row += [ours, f"{pm:.3f} ({psd:.3f})", f"{s['mean'] - pm:+.3f}"]
+            lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------- run
+
+
+def dataset_dir(cache: Path, cfg: data_lib.DataConfig) -> Path:
+    """Where a dataset of this config is cached: one directory per config digest."""
+    return cache / f"{cfg.preset}-{cfg.digest()}"
+
+
+def run(
+    cfg: Table1Config,
+    out: Path,
+    *,
+    labelers: Sequence[str] = LABELERS,
+    methods: Sequence[str] = METHODS,
+    cache: Path = Path("data"),
+    progress: bool = True,
+) -> dict:
+    """Run (or resume) Table 1 and return the results document."""
+    from slotv_jax import evaluate, train
+
+    t_start = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    doc = load_results(out, cfg)
+    doc["environment"] = {**data_lib.environment(), "xla": slotv_jax.XLA_CONFIG.summary()}
+
+    t0 = time.perf_counter()
+    ddir = dataset_dir(cache, cfg.data)
+    dataset = data_lib.generate_dataset(cfg.data, ddir, progress=progress)
+    doc["timing"]["data_s"] = time.perf_counter() - t0
+    doc["dataset"] = str(ddir)
+
+    done = {(c["labeler"], c["method"], c["trial"]) for c in doc["cells"]}
+    todo = [
+        (lab, meth, t)
+        for lab in labelers
+        for meth in methods
+        for t in range(cfg.trials)
+        if (lab, meth, t) not in done
+    ]
+    bar = tqdm(todo, desc="table1 cells", unit="cell", disable=not progress)
+    for lab, meth, trial in bar:
+        bar.set_postfix_str(f"{lab}/{meth}/trial {trial}")
+        tc = cfg.train[meth]
+        t_cell = time.perf_counter()
+        tdata = train.prepare(dataset["train"], lab)
+        state, metrics = train.train_trials(tc, tdata, [trial], progress=False)
+        t_train = time.perf_counter() - t_cell
+        cells = []
+        for split in SPLITS:
+            acc = evaluate.accuracy(tc, state.params, dataset[split], lab)
+            cells.append(
+                {
+                    "labeler": lab,
+                    "method": meth,
+                    "split": split,
+                    "trial": trial,
+                    "accuracy": float(np.asarray(acc).reshape(-1)[0]),
+                }
+            )
+        final_loss = float(np.asarray(metrics.loss)[0, -1].mean())
+        doc["cells"].extend(cells)
+        doc["timing"]["cells"].append(
+            {
+                "labeler": lab,
+                "method": meth,
+                "trial": trial,
+                "train_s": t_train,
+                "total_s": time.perf_counter() - t_cell,
+                "final_loss": final_loss,
+            }
+        )
+        doc["summary"] = summarise(doc["cells"])
+        _atomic_write_text(out / "results.json", json.dumps(doc, indent=1))
+    bar.close()
+
+    doc["summary"] = summarise(doc["cells"])
+    doc["timing"]["last_run_total_s"] = time.perf_counter() - t_start
+    _atomic_write_text(out / "results.json", json.dumps(doc, indent=1))
+    _atomic_write_text(out / "table1.md", report(doc))
+    return doc
+
+
+def report(doc: dict) -> str:
+    """The Markdown report: how it was made and the table."""
+    env = doc["environment"]
+    cells = doc["timing"]["cells"]
+    per_cell = np.mean([c["total_s"] for c in cells]) if cells else float("nan")
+    return "\n".join(
+        [
+            f"# Table 1 ({doc['preset']} preset)",
+            "",
+            f"Accuracy (SPEC §8) as mean ± SD over trials; the paper's values (10 trials) "
+            f"in parentheses. {len(doc['cells']) // len(SPLITS)} trained models, "
+            f"{per_cell:.1f} s per cell on average (training and evaluation).",
+            "",
+            f"jax {env.get('jax')}, flax {env.get('flax')}, mujoco {env.get('mujoco')}, "
+            f"devices {env.get('devices')}.",
+            "",
+            render_table(doc["summary"]),
+            "",
+        ]
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m slotv_jax.experiments.table1",
+        description="Reproduce Table 1 of the SLOT-V paper.",
+    )
+    p.add_argument("--preset", choices=sorted(PRESETS), default="quick")
+    p.add_argument("--labelers", nargs="+", choices=LABELERS, default=list(LABELERS))
+    p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+    p.add_argument("--trials", type=int, help="trials per cell (default: the preset's)")
+    p.add_argument("--out", type=Path, help="results directory (default: runs/table1_<preset>)")
+    p.add_argument("--cache", type=Path, default=Path("data"), help="dataset cache directory")
+    args = p.parse_args(argv)
+    print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
+
+    cfg = PRESETS[args.preset]()
+    if args.trials is not None:
+        if args.trials < 1:
+            p.error("--trials: expected an integer >= 1")
+        cfg = dataclasses.replace(cfg, trials=args.trials)
+    out = args.out or Path("runs") / f"table1_{args.preset}"
+    t0 = time.perf_counter()
+    doc = run(cfg, out, labelers=args.labelers, methods=args.methods, cache=args.cache)
+    print()
+    print(render_table(doc["summary"]))
+    print(
+        f"\n{len(doc['cells'])} cell results in {out / 'results.json'}; table in "
+        f"{out / 'table1.md'}; this run took {time.perf_counter() - t0:.0f} s"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
