@@ -1,0 +1,236 @@
+"""Sample efficiency of SLOT-V and T-REX: the paper's Fig. 3 (SPEC §8).
+
+Protocol: each method trains on Dragan labels for one epoch of the train split;
+every ``--every`` updates (10 in the paper) the model is evaluated on a fixed
+subset of ``trajectory_val`` (the first ``--val-size`` trajectories). The
+x axis is the number of training examples consumed so far: labelled
+trajectories for SLOT-V, labelled trajectory pairs for T-REX (its training
+examples; an epoch has as many pairs as there are training trajectories,
+SPEC §6). Each method is repeated ``--repeats`` times with different seeds;
+the plot shows the mean ± SD over repeats.
+
+    python -m slotv_jax.experiments.sample_efficiency                 # quick (CPU)
+    python -m slotv_jax.experiments.sample_efficiency --preset paper  # paper networks (GPU)
+
+Writes ``OUT/sample_efficiency.csv`` (method, repeat, updates, examples,
+accuracy), ``OUT/sample_efficiency.json`` (protocol, config, the examples each
+method needs to reach the threshold) and ``OUT/sample_efficiency.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import io
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+import slotv_jax
+from slotv_jax import config as train_config
+from slotv_jax import data as data_lib
+from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
+
+LABELER = "dragan"
+
+
+def examples_to_reach(examples: np.ndarray, acc: np.ndarray, threshold: float) -> float | None:
+    """First x at which ``acc`` reaches ``threshold`` (None if it never does)."""
+    hit = np.flatnonzero(acc >= threshold)
+    return float(examples[hit[0]]) if hit.size else None
+
+
+def run(
+    preset: str,
+    out: Path,
+    *,
+    repeats: int,
+    every: int = 10,
+    val_size: int = 1000,
+    threshold: float = 0.8,
+    methods: Sequence[str] = METHODS,
+    cache: Path = Path("data"),
+    progress: bool = True,
+) -> dict:
+    """Run the protocol for each method and write the CSV, JSON and PNG."""
+    from slotv_jax import train
+
+    out.mkdir(parents=True, exist_ok=True)
+    dcfg = data_lib.PRESETS[preset]() if preset in data_lib.PRESETS else None
+    if dcfg is None:
+        raise ValueError(f"preset: expected one of {sorted(data_lib.PRESETS)}, got {preset!r}")
+    dataset = data_lib.generate_dataset(
+        dcfg, dataset_dir(cache, dcfg), splits=["train", "trajectory_val"], progress=progress
+    )
+    tdata = train.prepare(dataset["train"], LABELER)
+    vdata = train.prepare(dataset["trajectory_val"], LABELER)
+    val_size = min(val_size, len(dataset["trajectory_val"]))
+    rows: list[dict] = []
+    summary: dict[str, dict] = {}
+    configs = {}
+    for method in methods:
+        base = train_config.preset(preset, method)
+        cfg = dataclasses.replace(
+            base, epochs=1, train_size=None, eval_every=every, eval_size=val_size
+        )
+        configs[method] = cfg.to_dict()
+        t0 = time.perf_counter()
+        _, metrics = train.train_trials(
+            cfg, tdata, list(range(repeats)), val=vdata, progress=progress
+        )
+        elapsed = time.perf_counter() - t0
+        upd = np.concatenate([[0], np.asarray(metrics.eval_updates)[0, 0]])
+        acc = np.concatenate(
+            [np.asarray(metrics.start_accuracy)[:, None], np.asarray(metrics.eval_accuracy)[:, 0]],
+            axis=1,
+        )  # (repeats, V + 1)
+        examples = upd * cfg.batch_size
+        for r in range(repeats):
+            for u, x, a in zip(upd, examples, acc[r], strict=True):
+                rows.append(
+                    {
+                        "method": method,
+                        "repeat": r,
+                        "updates": int(u),
+                        "examples": int(x),
+                        "accuracy": float(a),
+                    }
+                )
+        mean = acc.mean(0)
+        per_repeat = [examples_to_reach(examples, acc[r], threshold) for r in range(repeats)]
+        summary[method] = {
+            "examples_to_threshold_mean_curve": examples_to_reach(examples, mean, threshold),
+            "examples_to_threshold_per_repeat": per_repeat,
+            "final_accuracy_mean": float(mean[-1]),
+            "final_accuracy_sd": float(acc[:, -1].std(ddof=1)) if repeats > 1 else 0.0,
+            "examples_per_epoch": int(examples[-1]),
+            "time_s": elapsed,
+        }
+    doc = {
+        "preset": preset,
+        "labeler": LABELER,
+        "protocol": {
+            "epochs": 1,
+            "evaluate_every_updates": every,
+            "validation": f"first {val_size} trajectories of trajectory_val",
+            "x_axis": "training examples consumed: trajectories (SLOT-V), pairs (T-REX)",
+            "repeats": repeats,
+            "threshold": threshold,
+            "train_trajectories": len(dataset["train"]),
+        },
+        "config": configs,
+        "summary": summary,
+        "environment": {**data_lib.environment(), "xla": slotv_jax.XLA_CONFIG.summary()},
+    }
+    _write(out / "sample_efficiency.csv", _csv(rows))
+    _write(out / "sample_efficiency.json", json.dumps(doc, indent=1))
+    plot(rows, summary, doc, out / "sample_efficiency.png")
+    return doc
+
+
+def _csv(rows: list[dict]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=["method", "repeat", "updates", "examples", "accuracy"])
+    w.writeheader()
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+def _write(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def plot(rows: list[dict], summary: dict, doc: dict, path: Path) -> None:
+    """Mean ± SD validation accuracy against examples seen, both methods on one axis."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.2), dpi=150)
+    for method, color in zip(summary, ("tab:blue", "tab:orange"), strict=False):
+        r = [row for row in rows if row["method"] == method]
+        x = np.array(sorted({row["examples"] for row in r}))
+        acc = np.array(
+            [
+                [row["accuracy"] for row in r if row["repeat"] == k]
+                for k in sorted({row["repeat"] for row in r})
+            ]
+        )
+        m, s = acc.mean(0), acc.std(0, ddof=1) if len(acc) > 1 else np.zeros(acc.shape[1])
+        ax.plot(x, m, color=color, label=f"{METHOD_TITLES[method]} (n={len(acc)})")
+        ax.fill_between(x, m - s, m + s, color=color, alpha=0.25, linewidth=0)
+        hit = summary[method]["examples_to_threshold_mean_curve"]
+        if hit is not None:
+            ax.axvline(hit, color=color, linestyle=":", linewidth=1)
+    thr = doc["protocol"]["threshold"]
+    ax.axhline(thr, color="grey", linestyle="--", linewidth=0.8)
+    ax.set_xscale(
+        "symlog", linthresh=max(1, min(row["examples"] for row in rows if row["examples"]))
+    )
+    ax.set_xlabel("training examples seen (SLOT-V: trajectories, T-REX: pairs)")
+    ax.set_ylabel("validation accuracy (trajectory_val)")
+    ax.set_ylim(0, 1)
+    ax.set_title(f"Sample efficiency on Dragan labels ({doc['preset']} preset, one epoch)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.png")
+    fig.savefig(tmp)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m slotv_jax.experiments.sample_efficiency",
+        description="SLOT-V vs T-REX sample efficiency (the paper's Fig. 3).",
+    )
+    p.add_argument("--preset", choices=sorted(data_lib.PRESETS), default="quick")
+    p.add_argument("--repeats", type=int, help="repeats per method (default: 10 paper, 3 quick)")
+    p.add_argument("--every", type=int, default=10, help="updates between evaluations")
+    p.add_argument("--val-size", type=int, default=1000, help="fixed trajectory_val subset")
+    p.add_argument("--threshold", type=float, default=0.8)
+    p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+    p.add_argument("--out", type=Path, help="default: runs/sample_efficiency_<preset>")
+    p.add_argument("--cache", type=Path, default=Path("data"))
+    args = p.parse_args(argv)
+    print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
+    repeats = args.repeats or (10 if args.preset == "paper" else 3)
+    for name in ("repeats", "every", "val_size"):
+        v = repeats if name == "repeats" else getattr(args, name)
+        if v < 1:
+            p.error(f"--{name.replace('_', '-')}: expected an integer >= 1")
+    out = args.out or Path("runs") / f"sample_efficiency_{args.preset}"
+    doc = run(
+        args.preset,
+        out,
+        repeats=repeats,
+        every=args.every,
+        val_size=args.val_size,
+        threshold=args.threshold,
+        methods=args.methods,
+        cache=args.cache,
+    )
+    for method, s in doc["summary"].items():
+        hit = s["examples_to_threshold_mean_curve"]
+        print(
+            f"{METHOD_TITLES[method]:>6s}: final accuracy {s['final_accuracy_mean']:.3f} ± "
+            f"{s['final_accuracy_sd']:.3f}; reaches {args.threshold:.0%} after "
+            f"{'never' if hit is None else f'{hit:,.0f}'} examples "
+            f"(of {s['examples_per_epoch']:,} in the epoch)"
+        )
+    print(f"wrote {out}/sample_efficiency.{{csv,json,png}}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
