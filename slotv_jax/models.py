@@ -156,14 +156,18 @@ def _features_fused_bwd(dtype, res, dh):
     a = jnp.matmul(xyz, w, precision=hp)
     c = jnp.matmul(goals, w, precision=hp) - b
     pre = a[..., :, None, :] - c[..., None, :, :]  # (..., T, G, H), recomputed, never stored
-    dpre = jnp.where(pre > 0, dh.astype(pre.dtype), 0.0)
-    # W_1 and b_1 in one pass over dpre: Σ_{t,k} (p_t − g_k, 1) ⊗ dpre_{t,k}
+    dpre = jnp.where(pre > 0, dh, jnp.zeros((), dh.dtype))  # in the cotangent's dtype
+    # W_1 and b_1 as one skinny matmul over all (t, k) rows: Σ_{t,k} (p_t − g_k, 1) ⊗ δ_{tk}
     d = xyz[..., :, None, :] - goals[..., None, :, :]  # (..., T, G, 3)
-    d4 = jnp.concatenate([d, jnp.ones_like(d[..., :1])], axis=-1).astype(pre.dtype)
-    dwb = jnp.sum(d4[..., :, None] * dpre[..., None, :], axis=tuple(range(dpre.ndim - 1)))
+    d4 = jnp.concatenate([d, jnp.ones_like(d[..., :1])], axis=-1).astype(dpre.dtype)
+    rows = tuple(range(dpre.ndim - 1))
+    dwb = jax.lax.dot_general(
+        d4, dpre, ((rows, rows), ((), ())), preferred_element_type=jnp.float32
+    )
     # the inputs (dead code, removed by XLA, when only parameters are differentiated)
-    dxyz = jnp.matmul(dpre.sum(-2), w.T, precision=hp)
-    dgoals = -jnp.matmul(dpre.sum(-3), w.T, precision=hp)
+    f32 = jnp.promote_types(dpre.dtype, jnp.float32)
+    dxyz = jnp.matmul(dpre.sum(-2, dtype=f32), w.T, precision=hp)
+    dgoals = -jnp.matmul(dpre.sum(-3, dtype=f32), w.T, precision=hp)
     return (
         dxyz.astype(xyz.dtype),
         dgoals.astype(goals.dtype),
@@ -233,10 +237,11 @@ def goal_relative_features(
     highest matmul precision), then cast to ``dtype`` (None: keep).
 
     With ``fused_backward`` the gradient is a custom VJP that recomputes the
-    pre-activation instead of storing it and gets ∂L/∂W_1 = Σ_{t,k} (p_t − g_k) ⊗ δ_{tk}
-    and ∂L/∂b_1 = Σ_{t,k} δ_{tk} in one pass over δ = ∂L/∂pre, instead of separate
-    reductions over k and over t (the (T·G, H) tensors dominate the memory traffic of a
-    training step). Reverse mode only (no ``jvp``); the default path supports both.
+    pre-activation instead of storing a mask, and gets ∂L/∂W_1 = Σ_{t,k} (p_t − g_k) ⊗ δ_{tk}
+    and ∂L/∂b_1 = Σ_{t,k} δ_{tk} as one (4 × T·G) · (T·G × H) matmul over δ = ∂L/∂pre
+    (accumulated in float32), instead of reductions over k and over t followed by small
+    products (autodiff): the (T·G, H) tensors dominate the memory traffic of a training
+    step. Reverse mode only (no ``jvp``); the default path supports both.
     """
     if fused_backward:
         return _features_fused(xyz, goals, w, b, dtype)

@@ -385,21 +385,37 @@ def _make_train(
     return Trainer(cfg, mesh, graphdef, make_optimizer(cfg), bar, backward, unroll)
 
 
+def default_backward(platform: str) -> str:
+    """The fastest measured gradient implementation of the first layers (same values):
+    "recompute" on CPUs, "autodiff" on GPUs (H100; see experiments/BENCHMARKS.md)."""
+    return "recompute" if platform == "cpu" else "autodiff"
+
+
 def make_train(
     cfg: TrainConfig,
     *,
     mesh: Mesh | None = None,
     progress: bool = True,
-    backward: str = "fused",
+    backward: str = "auto",
     unroll: int = 1,
 ) -> Trainer:
-    """The :class:`Trainer` for ``cfg`` (cached: the same config gives the same object, so
-    jitted calls reuse their compilation). ``mesh`` defaults to :func:`make_mesh`."""
+    """The :class:`Trainer` for ``cfg`` (cached: the same arguments give the same object, so
+    jitted calls reuse their compilation).
+
+    ``mesh`` defaults to :func:`make_mesh`; ``progress`` reports to a tqdm bar;
+    ``backward`` picks the implementation of the first layers' gradient (same values, see
+    :meth:`slotv_jax.models.GoalRelativeMLP.grid`; "auto": :func:`default_backward`);
+    ``unroll`` unrolls the update loop.
+    """
     if not isinstance(cfg, TrainConfig):
         raise ValueError(f"cfg: expected a TrainConfig, got {type(cfg).__name__}")
     mesh = make_mesh(cfg.batch_size) if mesh is None else mesh
+    if backward == "auto":
+        backward = default_backward(mesh.devices.flat[0].platform)
     if backward not in models.BACKWARDS:
-        raise ValueError(f"backward: expected one of {models.BACKWARDS}, got {backward!r}")
+        raise ValueError(
+            f"backward: expected 'auto' or one of {models.BACKWARDS}, got {backward!r}"
+        )
     return _make_train(cfg, mesh, bool(progress), backward, int(unroll))
 
 

@@ -45,8 +45,13 @@ G = 8
 
 def variants(backward: str) -> list[tuple[str, dict]]:
     """Other implementations of the same update (Trainer.backward, Trainer.unroll)."""
-    from slotv_jax.models import BACKWARDS
+    import jax
 
+    from slotv_jax.models import BACKWARDS
+    from slotv_jax.train import default_backward
+
+    if backward == "auto":
+        backward = default_backward(jax.default_backend())
     out = [(f"backward={b}", {"backward": b}) for b in BACKWARDS if b != backward]
     return [*out, (f"backward={backward}, unroll 4", {"backward": backward, "unroll": 4})]
 
@@ -150,7 +155,7 @@ def bench_train(
     steps: int,
     repeats: int,
     *,
-    backward: str = "fused",
+    backward: str = "auto",
     unroll: int = 1,
     profile: str | None = None,
 ) -> tuple[float, float, float, object]:
@@ -162,6 +167,7 @@ def bench_train(
     cfg = config.paper(method, compute_dtype=dtype, epochs=1, log_every=steps)
     n = steps * cfg.batch_size
     trainer = train.make_train(cfg, progress=False, backward=backward, unroll=unroll)
+    backward = trainer.backward
     data = trainer.replicate(synthetic_data(n))
     state = trainer.replicate(trainer.init(jax.random.key(0)))
     epoch = jax.jit(functools.partial(trainer.run, epochs=1), donate_argnums=0)
@@ -180,13 +186,12 @@ def bench_train(
 
         d = pathlib.Path(profile)
         d.mkdir(parents=True, exist_ok=True)
-        (d / f"{method}_{dtype}_{backward}.hlo.txt").write_text(compiled.as_text())
-        with jax.profiler.trace(
-            str(d / f"{method}_{dtype}_{backward}"), create_perfetto_trace=True
-        ):
+        tag = f"{method}_{dtype}_{backward}_unroll{unroll}"
+        (d / f"{tag}.hlo.txt").write_text(compiled.as_text())
+        with jax.profiler.trace(str(d / tag), create_perfetto_trace=True):
             for _ in range(2):
                 once()
-        kernel_summary(d / f"{method}_{dtype}_{backward}", steps * 2)
+        kernel_summary(d / tag, steps * 2)
     flops, _ = update_flops(cfg)
     return t, flops, compile_s, cfg
 
@@ -268,7 +273,7 @@ def main(argv=None) -> int:
     ap.add_argument("--dtypes", default="float32,bfloat16")
     ap.add_argument("--methods", default="slotv,trex")
     ap.add_argument("--no-eval", action="store_true")
-    ap.add_argument("--backward", default="fused", help="first-layer gradient implementation")
+    ap.add_argument("--backward", default="auto", help="first-layer gradient implementation")
     ap.add_argument(
         "--variant-methods", default=None,
         help="methods to also time with the other implementations (default: slotv with "
@@ -292,6 +297,9 @@ def main(argv=None) -> int:
     print(json.dumps(env), flush=True)
     print(f"steps per timed epoch {steps}, repeats {repeats}, peak matmul {n_peak}³", flush=True)
 
+    from slotv_jax.train import default_backward
+
+    bw = default_backward(jax.default_backend()) if args.backward == "auto" else args.backward
     rows: list[Row] = []
     extra: list[dict] = []
     for dtype in args.dtypes.split(","):
@@ -303,8 +311,8 @@ def main(argv=None) -> int:
                 method, dtype, steps, repeats, backward=args.backward, profile=prof
             )
             _, traj = update_flops(cfg)
-            row = Row(f"{method} train", dtype, cfg.batch_size, cfg.hidden, t * 1e3, traj / t,
-                      fl / t, peak, cs)  # fmt: skip
+            row = Row(f"{method} train ({bw})", dtype, cfg.batch_size, cfg.hidden, t * 1e3,
+                      traj / t, fl / t, peak, cs)  # fmt: skip
             rows.append(row)
             print(f"  {row.name}: {row.step_ms:.3f} ms/update, {row.traj_per_s:,.0f} traj/s, "
                   f"{row.flops_per_s / 1e12:.2f} TFLOP/s = {100 * row.frac:.1f}% of peak "
