@@ -43,6 +43,7 @@ from tqdm.auto import tqdm
 import slotv_jax
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
+from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import LABELERS, dataset_dir
 
 PHASES = {
@@ -82,7 +83,13 @@ def paper(**kw) -> SearchConfig:
     return SearchConfig(**{**base, "trex_epochs": 15, "train_size": None, **kw})
 
 
-PRESETS = {"quick": quick, "paper": paper}
+def tiny(**kw) -> SearchConfig:
+    """Seconds-scale search for tests (not a result)."""
+    base = {"preset": "tiny", "rollouts": 2, "width_divisor": 64, "train_size": None}
+    return SearchConfig(**{**base, **kw})
+
+
+PRESETS = {"quick": quick, "paper": paper, "tiny": tiny}
 
 
 def sample_hparams(phase: str, i: int, cfg: SearchConfig) -> dict:
@@ -145,7 +152,7 @@ def run(
             raise ValueError(f"{path}: results of another search config; use another --out")
         doc = old
     doc["environment"] = {**data_lib.environment(), "xla": slotv_jax.XLA_CONFIG.summary()}
-    dcfg = data_lib.PRESETS[cfg.preset]()
+    dcfg = table1.PRESETS[cfg.preset]().data
     dataset = data_lib.generate_dataset(
         dcfg, dataset_dir(cache, dcfg), splits=["train", "trajectory_val"], progress=progress
     )

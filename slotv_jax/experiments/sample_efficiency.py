@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 import slotv_jax
-from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
+from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
 
 LABELER = "dragan"
@@ -62,9 +62,10 @@ def run(
     from slotv_jax import train
 
     out.mkdir(parents=True, exist_ok=True)
-    dcfg = data_lib.PRESETS[preset]() if preset in data_lib.PRESETS else None
-    if dcfg is None:
-        raise ValueError(f"preset: expected one of {sorted(data_lib.PRESETS)}, got {preset!r}")
+    if preset not in table1.PRESETS:
+        raise ValueError(f"preset: expected one of {sorted(table1.PRESETS)}, got {preset!r}")
+    t1 = table1.PRESETS[preset]()
+    dcfg = t1.data
     dataset = data_lib.generate_dataset(
         dcfg, dataset_dir(cache, dcfg), splits=["train", "trajectory_val"], progress=progress
     )
@@ -75,7 +76,7 @@ def run(
     summary: dict[str, dict] = {}
     configs = {}
     for method in methods:
-        base = train_config.preset(preset, method)
+        base = t1.train[method]
         cfg = dataclasses.replace(
             base, epochs=1, train_size=None, eval_every=every, eval_size=val_size
         )
@@ -194,7 +195,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         prog="python -m slotv_jax.experiments.sample_efficiency",
         description="SLOT-V vs T-REX sample efficiency (the paper's Fig. 3).",
     )
-    p.add_argument("--preset", choices=sorted(data_lib.PRESETS), default="quick")
+    p.add_argument("--preset", choices=sorted(table1.PRESETS), default="quick")
     p.add_argument("--repeats", type=int, help="repeats per method (default: 10 paper, 3 quick)")
     p.add_argument("--every", type=int, default=10, help="updates between evaluations")
     p.add_argument("--val-size", type=int, default=1000, help="fixed trajectory_val subset")

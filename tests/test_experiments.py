@@ -1,0 +1,181 @@
+"""Experiments: Table 1 results schema, resume after a kill, sample efficiency, search."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slotv_jax import data
+from slotv_jax.experiments import hparam_search, sample_efficiency, table1
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def cache(tiny_data, tmp_path_factory):
+    """The tiny preset's dataset, stored where the experiments look for it."""
+    cfg = table1.tiny()
+    assert cfg.data == data.DataConfig(preset="tiny", chunk_size=512, **_tiny_kw())
+    root = tmp_path_factory.mktemp("cache")
+    d = table1.dataset_dir(root, cfg.data)
+    d.mkdir(parents=True)
+    for split in tiny_data.values():
+        data.save_split(d, split, cfg.data)
+    return root
+
+
+def _tiny_kw():
+    from conftest import TINY
+
+    return TINY
+
+
+def _check_schema(doc: dict) -> None:
+    """SPEC §9's results.json schema."""
+    assert set(doc) >= {"preset", "config", "environment", "cells", "summary", "timing"}
+    assert isinstance(doc["preset"], str) and isinstance(doc["config"], dict)
+    assert {"jax", "devices", "mujoco", "flax"} <= set(doc["environment"])
+    for c in doc["cells"]:
+        assert set(c) == {"labeler", "method", "split", "trial", "accuracy"}
+        assert c["labeler"] in table1.LABELERS and c["method"] in table1.METHODS
+        assert c["split"] in table1.SPLITS and isinstance(c["trial"], int)
+        assert 0.0 <= c["accuracy"] <= 1.0
+    for s in doc["summary"]:
+        assert set(s) == {"labeler", "method", "split", "mean", "sd", "n"}
+        assert s["n"] >= 1 and s["sd"] >= 0
+    assert isinstance(doc["timing"], dict)
+
+
+def test_table1_results_schema_and_report(cache, tmp_path):
+    cfg = table1.tiny()
+    doc = table1.run(
+        cfg, tmp_path, labelers=["effdist"], methods=["slotv", "trex"], cache=cache, progress=False
+    )
+    _check_schema(doc)
+    on_disk = json.loads((tmp_path / "results.json").read_text())
+    _check_schema(on_disk)
+    assert len(on_disk["cells"]) == 2 * cfg.trials * len(table1.SPLITS)
+    assert {(s["method"], s["split"]) for s in on_disk["summary"]} == {
+        (m, s) for m in ("slotv", "trex") for s in table1.SPLITS
+    }
+    md = (tmp_path / "table1.md").read_text()
+    assert "0.996 (0.005)" in md and "EffDist" in md  # the paper's value beside ours
+    # Summary statistics agree with the cells.
+    for s in on_disk["summary"]:
+        accs = [
+            c["accuracy"]
+            for c in on_disk["cells"]
+            if (c["labeler"], c["method"], c["split"]) == (s["labeler"], s["method"], s["split"])
+        ]
+        assert s["n"] == len(accs) == cfg.trials
+        np.testing.assert_allclose(s["mean"], np.mean(accs))
+        np.testing.assert_allclose(s["sd"], np.std(accs, ddof=1))
+
+
+def test_summarise_hand_case():
+    cells = [
+        {"labeler": "dragan", "method": "slotv", "split": "train", "trial": t, "accuracy": a}
+        for t, a in enumerate([0.5, 0.7, 0.9])
+    ]
+    (s,) = table1.summarise(cells)
+    assert s["n"] == 3 and s["mean"] == pytest.approx(0.7) and s["sd"] == pytest.approx(0.2)
+
+
+def test_killed_run_resumes_without_recomputing(cache, tmp_path):
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "slotv_jax.experiments.table1", "--preset", "tiny"]
+    cmd += ["--labelers", "dragan", "effdist", "--trials", "2", "--out", str(out)]
+    cmd += ["--cache", str(cache)]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)  # fmt: skip
+    results = out / "results.json"
+    deadline = time.monotonic() + 240
+    first = None
+    while time.monotonic() < deadline and proc.poll() is None:
+        if results.exists():
+            first = json.loads(results.read_text())
+            if first["cells"]:
+                break
+        time.sleep(0.2)
+    assert first and first["cells"], "no cell finished before the deadline"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    killed = json.loads(results.read_text())  # a complete document, never a torn write
+    n_done = len(killed["timing"]["cells"])
+    assert 1 <= n_done < 8, "the run should have been killed midway"
+
+    subprocess.run(cmd, cwd=REPO, env=env, check=True, capture_output=True)
+    final = json.loads(results.read_text())
+    _check_schema(final)
+    # Finished cells were kept as they were, and only the missing ones were trained.
+    assert final["timing"]["cells"][:n_done] == killed["timing"]["cells"]
+    assert final["cells"][: len(killed["cells"])] == killed["cells"]
+    keys = [(c["labeler"], c["method"], c["trial"]) for c in final["timing"]["cells"]]
+    assert len(keys) == len(set(keys)) == 2 * 2 * 2
+    assert len(final["cells"]) == 8 * len(table1.SPLITS)
+    assert (out / "table1.md").exists()
+    assert not list(out.glob(".*tmp"))
+
+
+def test_resume_refuses_another_config(cache, tmp_path):
+    cfg = table1.tiny()
+    table1.run(cfg, tmp_path, labelers=["effdist"], methods=["trex"], cache=cache, progress=False)
+    other = table1.Table1Config(
+        "tiny", 2, cfg.data, {**cfg.train, "trex": cfg.train["trex"].__class__(method="trex")}
+    )
+    with pytest.raises(ValueError, match="another configuration"):
+        table1.run(other, tmp_path, labelers=["effdist"], cache=cache, progress=False)
+
+
+def test_sample_efficiency_outputs(cache, tmp_path):
+    doc = sample_efficiency.run(
+        "tiny", tmp_path, repeats=2, every=2, val_size=50, cache=cache, progress=False
+    )
+    rows = (tmp_path / "sample_efficiency.csv").read_text().splitlines()
+    assert rows[0] == "method,repeat,updates,examples,accuracy"
+    assert (tmp_path / "sample_efficiency.png").stat().st_size > 10_000
+    for method, s in doc["summary"].items():
+        cfg = table1.tiny().train[method]
+        steps = 300 // cfg.batch_size
+        mine = [r.split(",") for r in rows[1:] if r.startswith(method)]
+        assert len(mine) == 2 * (steps // 2 + 1)  # start + every 2 updates, per repeat
+        ex = sorted({int(r[3]) for r in mine})
+        assert ex[0] == 0 and ex[-1] == (steps // 2) * 2 * cfg.batch_size
+        assert s["examples_per_epoch"] == ex[-1]
+    assert sample_efficiency.examples_to_reach(np.array([0, 10, 20]), np.array([0.1, 0.85, 0.9]),
+                                               0.8) == 10  # fmt: skip
+    assert sample_efficiency.examples_to_reach(np.array([0, 10]), np.array([0.1, 0.5]), 0.8) is None
+
+
+def test_hparam_search_is_resumable_and_reproducible(cache, tmp_path):
+    cfg = hparam_search.tiny()
+    doc = hparam_search.run(cfg, tmp_path, phases=["slotv_small_batch", "trex"], cache=cache,
+                            progress=False)  # fmt: skip
+    assert len(doc["rollouts"]) == 4
+    again = hparam_search.run(cfg, tmp_path, phases=["slotv_small_batch", "trex"], cache=cache,
+                              progress=False)  # fmt: skip
+    assert again["rollouts"] == doc["rollouts"]  # nothing recomputed
+    hp = hparam_search.sample_hparams("slotv_large_batch", 3, hparam_search.paper())
+    assert hp == hparam_search.sample_hparams("slotv_large_batch", 3, hparam_search.paper())
+    assert hp["hidden"][0] in hparam_search.HIDDEN1 and hp["batch_size"] in (64, 128, 256, 512)
+    assert 0.0004 <= hp["learning_rate"] <= 0.02 and 0.7 <= hp["rho"] <= 0.999
+    extra = [
+        len(hparam_search.sample_hparams("trex", i, hparam_search.paper())["hidden"]) > 2
+        for i in range(400)
+    ]
+    assert 0.14 < np.mean(extra) < 0.26
+    assert "Spearman" in (tmp_path / "summary.md").read_text()
+
+
+def test_spearman_hand_cases():
+    x = np.array([1.0, 2, 3, 4])
+    assert hparam_search.spearman(x, x**3) == pytest.approx(1.0)
+    assert hparam_search.spearman(x, -x) == pytest.approx(-1.0)
+    assert np.isnan(hparam_search.spearman(x, np.ones(4)))
