@@ -57,6 +57,7 @@ def run(
     methods: Sequence[str] = METHODS,
     cache: Path = Path("data"),
     progress: bool = True,
+    compute_dtype: str | None = None,
 ) -> dict:
     """Run the protocol for each method and write the CSV, JSON and PNG."""
     from slotv_jax import train
@@ -65,6 +66,8 @@ def run(
     if preset not in table1.PRESETS:
         raise ValueError(f"preset: expected one of {sorted(table1.PRESETS)}, got {preset!r}")
     t1 = table1.PRESETS[preset]()
+    if compute_dtype is not None:
+        t1 = table1.with_compute_dtype(t1, compute_dtype)
     dcfg = t1.data
     dataset = data_lib.generate_dataset(
         dcfg, dataset_dir(cache, dcfg), splits=["train", "trajectory_val"], progress=progress
@@ -203,6 +206,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     p.add_argument("--out", type=Path, help="default: runs/sample_efficiency_<preset>")
     p.add_argument("--cache", type=Path, default=Path("data"))
+    p.add_argument("--compute-dtype", choices=("float32", "bfloat16"))
     args = p.parse_args(argv)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     repeats = args.repeats or (10 if args.preset == "paper" else 3)
@@ -220,6 +224,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         threshold=args.threshold,
         methods=args.methods,
         cache=args.cache,
+        compute_dtype=args.compute_dtype,
     )
     for method, s in doc["summary"].items():
         hit = s["examples_to_threshold_mean_curve"]

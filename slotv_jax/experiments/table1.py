@@ -110,6 +110,12 @@ def tiny() -> Table1Config:
 PRESETS = {"quick": quick, "paper": paper, "tiny": tiny}
 
 
+def with_compute_dtype(cfg: Table1Config, dtype: str) -> Table1Config:
+    """The same run with the hidden matmuls in ``dtype`` (parameters stay float32)."""
+    train = {m: dataclasses.replace(c, compute_dtype=dtype) for m, c in cfg.train.items()}
+    return dataclasses.replace(cfg, train=train)
+
+
 # ------------------------------------------------------------------- results
 
 
@@ -305,6 +311,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--trials", type=int, help="trials per cell (default: the preset's)")
     p.add_argument("--out", type=Path, help="results directory (default: runs/table1_<preset>)")
     p.add_argument("--cache", type=Path, default=Path("data"), help="dataset cache directory")
+    p.add_argument(
+        "--compute-dtype",
+        choices=("float32", "bfloat16"),
+        help="matmul dtype of the hidden layers (default: the preset's, float32)",
+    )
     args = p.parse_args(argv)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
 
@@ -313,6 +324,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.trials < 1:
             p.error("--trials: expected an integer >= 1")
         cfg = dataclasses.replace(cfg, trials=args.trials)
+    if args.compute_dtype is not None:
+        cfg = with_compute_dtype(cfg, args.compute_dtype)
     out = args.out or Path("runs") / f"table1_{args.preset}"
     t0 = time.perf_counter()
     doc = run(cfg, out, labelers=args.labelers, methods=args.methods, cache=args.cache)
