@@ -17,7 +17,14 @@ Rules, in order:
 3. JAX's backends are already initialised (XLA reads ``XLA_FLAGS`` once, when
    the first backend starts): nothing can be changed; a warning says so and how
    to set the flag by hand.
-4. Otherwise the flag is appended to ``XLA_FLAGS``; other flags are kept.
+4. The installed XLA does not know the flag: nothing is changed. XLA aborts the
+   process on an unknown flag (jaxlib 0.11.2 with its CUDA plugin does, for
+   this one), so support is probed once per installation in a subprocess
+   (``import jax; jax.devices()`` with the flag set) and the answer is cached
+   in ``~/.cache/slotv_jax/xla_flags.json`` (``$XDG_CACHE_HOME`` is honoured),
+   keyed by the Python executable and the versions of the installed JAX
+   packages.
+5. Otherwise the flag is appended to ``XLA_FLAGS``; other flags are kept.
 
 What happened is recorded in :data:`XLA_CONFIG`, logged on the ``slotv_jax``
 logger, printed by every command-line entry point, and stored with every
@@ -27,10 +34,15 @@ experiment's results.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import logging
 import os
+import subprocess
 import sys
 import warnings
+from collections.abc import Callable
+from pathlib import Path
 
 FLAG_NAME = "xla_cpu_use_fusion_emitters"
 FLAG = f"--{FLAG_NAME}=false"
@@ -65,9 +77,72 @@ def _backends_initialised() -> bool:
     return bool(xla_bridge.backends_are_initialized())
 
 
-def configure(environ: dict[str, str] | None = None) -> XlaConfig:
-    """Apply the CPU setting to ``environ`` (default ``os.environ``) by the rules above."""
+def _jax_packages() -> str:
+    """Versions of the installed JAX packages (jax, jaxlib, PJRT plugins), one string."""
+    from importlib import metadata
+
+    found = set()
+    for dist in metadata.distributions():
+        name = (dist.metadata["Name"] or "").lower().replace("_", "-")
+        if name.startswith(("jax", "libtpu")):
+            found.add(f"{name}=={dist.version}")
+    return ";".join(sorted(found))
+
+
+def _cache_path() -> Path:
+    root = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(root) / "slotv_jax" / "xla_flags.json"
+
+
+def probe_flag(flag: str = FLAG, timeout: float = 180.0) -> bool:
+    """Whether a fresh interpreter starts JAX's backends with ``flag`` in ``XLA_FLAGS``."""
+    env = {**os.environ, "XLA_FLAGS": flag, "XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
+    env[OPT_OUT_VAR] = "0"
+    try:
+        r = subprocess.run(
+            [sys.executable, "-c", "import jax; jax.devices()"],
+            env=env,
+            capture_output=True,
+            timeout=timeout,
+            check=False,
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    return r.returncode == 0
+
+
+def flag_supported(flag: str = FLAG) -> bool:
+    """:func:`probe_flag`, cached on disk per Python executable and JAX package versions."""
+    key = hashlib.sha256(f"{sys.executable}|{_jax_packages()}|{flag}".encode()).hexdigest()
+    path = _cache_path()
+    try:
+        cache = json.loads(path.read_text())
+        if isinstance(cache, dict) and isinstance(cache.get(key), bool):
+            return cache[key]
+    except (OSError, ValueError):
+        cache = {}
+    ok = probe_flag(flag)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps({**(cache if isinstance(cache, dict) else {}), key: ok}))
+        os.replace(tmp, path)
+    except OSError:
+        pass  # an unwritable cache only means probing again next time
+    return ok
+
+
+def configure(
+    environ: dict[str, str] | None = None, *, supported: Callable[[], bool] | None = None
+) -> XlaConfig:
+    """Apply the CPU setting to ``environ`` (default ``os.environ``) by the rules above.
+
+    ``supported`` answers rule 4; it defaults to :func:`flag_supported` for the
+    process environment and to "yes" for an explicit ``environ`` dict.
+    """
     env = os.environ if environ is None else environ
+    if supported is None:
+        supported = flag_supported if environ is None else (lambda: True)
     current = env.get("XLA_FLAGS", "")
     if env.get(OPT_OUT_VAR, "").strip().lower() in {"0", "false", "no", "off"}:
         return XlaConfig((), current, f"disabled by {OPT_OUT_VAR}=0")
@@ -82,6 +157,8 @@ def configure(environ: dict[str, str] | None = None) -> XlaConfig:
             stacklevel=3,
         )
         return XlaConfig((), current, "JAX backends were already initialised")
+    if not supported():
+        return XlaConfig((), current, f"this XLA build does not know {FLAG_NAME}")
     new = f"{current} {FLAG}".strip()
     env["XLA_FLAGS"] = new
     return XlaConfig((FLAG,), new, "faster MJX kinematics on the CPU")

@@ -192,7 +192,11 @@ def solve_ik(
 
     Returns ``(q, residual)`` with ``residual = ‖tcp_position(q) − target‖`` (m).
     Pure; batch with ``vmap``. Joint limits hold exactly (iterates are clipped).
+    Tested on the workspace of SPEC §3 (via-point box and cube region); close to
+    the base axis with joint 4 at its limit, more iterations may be needed.
     """
+    validation.check_array("target", target, (3,))
+    _check_q0(q0)
     q = _iterate(jnp.asarray(q0), target, cfg)
     return q, jnp.linalg.norm(tcp_state(q).pos - target)
 
@@ -214,6 +218,7 @@ def solve_path_ik(
     per point suffice for densely sampled paths. Returns the joint configurations, the executed TCP
     positions and the per-point position residuals.
     """
+    check_ik_inputs(path, q0)
     path = jnp.asarray(path)
     q0 = jnp.asarray(q0, path.dtype)
 
@@ -227,8 +232,12 @@ def solve_path_ik(
 
 
 def check_ik_inputs(path, q0) -> None:
-    """Boundary checks for user calls of the IK functions."""
+    """Boundary checks of the IK functions (values only when concrete, so jit/vmap work)."""
     validation.check_array("path", path, (None, 3))
+    _check_q0(q0)
+
+
+def _check_q0(q0) -> None:
     validation.check_array("q0", q0, (NQ,))
     if validation.is_concrete(q0):
         q = np.asarray(q0)

@@ -132,3 +132,18 @@ def test_sample_trajectory_deterministic_and_tool_down(tiny_data):
 def test_trajectory_config_validation(kw):
     with pytest.raises(ValueError, match="TrajectoryConfig"):
         T.TrajectoryConfig(**kw)
+
+
+def test_ik_entry_points_validate_their_input():
+    bad_q0 = np.r_[K.Q_HOME[:3], 0.5, K.Q_HOME[4:]]  # joint 4 above its upper limit
+    with pytest.raises(ValueError, match=r"^q0: "):
+        K.solve_path_ik(np.full((2, 3), 0.4), bad_q0)
+    with pytest.raises(ValueError, match=r"^path: expected finite"):
+        K.solve_path_ik(np.array([[0.4, 0.0, np.nan]]), K.Q_HOME)
+    with pytest.raises(ValueError, match=r"^q0: expected shape \(7"):
+        K.solve_path_ik(np.full((2, 3), 0.4), K.Q_HOME[:6])
+    with pytest.raises(ValueError, match=r"^target: expected finite"):
+        K.solve_ik(np.array([0.4, np.inf, 0.2]), K.Q_HOME)
+    # Traced inputs skip the value checks, so the functions still batch and compile.
+    q, r = jax.jit(jax.vmap(lambda t: K.solve_ik(t, K.Q_HOME)))(jnp.full((2, 3), 0.4))
+    assert q.shape == (2, 7) and float(r.max()) < 1e-3

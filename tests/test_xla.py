@@ -154,3 +154,34 @@ def test_import_after_jax_started_warns_and_changes_nothing():
     assert applied == "()"
     assert warned == "['RuntimeWarning']"
     assert "left unchanged" in summary and "already initialised" in summary
+
+
+# ------------------------------------------------- rule 4: flags this XLA does not know
+
+
+def test_unsupported_flag_is_not_applied():
+    environ = {"XLA_FLAGS": OTHER}
+    cfg = _xla.configure(environ, supported=lambda: False)
+    assert environ == {"XLA_FLAGS": OTHER}
+    assert cfg.applied == ()
+    assert "does not know" in cfg.summary()
+
+
+def test_probe_detects_unknown_and_known_flags():
+    """XLA aborts on an unknown flag; the probe reports it instead of crashing us."""
+    assert _xla.probe_flag("--xla_slotv_jax_no_such_flag=true") is False
+    assert _xla.probe_flag(OTHER) is True
+
+
+def test_probe_result_is_cached(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    calls = []
+    monkeypatch.setattr(_xla, "probe_flag", lambda flag=FLAG: calls.append(flag) or True)
+    assert _xla.flag_supported() is True
+    assert _xla.flag_supported() is True
+    assert calls == [FLAG]
+    assert (tmp_path / "slotv_jax" / "xla_flags.json").exists()
+    # A corrupt cache file is probed again and rewritten.
+    (tmp_path / "slotv_jax" / "xla_flags.json").write_text("{oops")
+    assert _xla.flag_supported() is True
+    assert len(calls) == 2
