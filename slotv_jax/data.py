@@ -69,6 +69,8 @@ SPLITS = (
 )
 LABELER_NAMES = ("dragan", "nikolaidis", "effdist", "fastapp")
 FORMAT_VERSION = 1
+# Bump when generation code changes what a config produces, so cached datasets are not reused.
+GENERATOR_VERSION = 1
 
 # Arrays stored per split: name -> (dtype, shape with "N", "S", "T" symbols).
 _TRAJ_ARRAYS = {
@@ -141,8 +143,8 @@ class DataConfig:
         return dataclasses.asdict(self)
 
     def digest(self) -> str:
-        """Short hash of the config: equal digests mean identical datasets."""
-        blob = json.dumps(self.to_json(), sort_keys=True).encode()
+        """Short hash of the config and generator version: equal digests, identical datasets."""
+        blob = json.dumps([GENERATOR_VERSION, self.to_json()], sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 
 
