@@ -177,9 +177,9 @@ def plot(rows: list[dict], summary: dict, doc: dict, path: Path) -> None:
             ax.axvline(hit, color=color, linestyle=":", linewidth=1)
     thr = doc["protocol"]["threshold"]
     ax.axhline(thr, color="grey", linestyle="--", linewidth=0.8)
-    ax.set_xscale(
-        "symlog", linthresh=max(1, min(row["examples"] for row in rows if row["examples"]))
-    )
+    first = min(row["examples"] for row in rows if row["examples"])
+    ax.set_xscale("symlog", linthresh=max(1, first))
+    ax.set_xlim(0, max(row["examples"] for row in rows) * 1.05)
     ax.set_xlabel("training examples seen (SLOT-V: trajectories, T-REX: pairs)")
     ax.set_ylabel("validation accuracy (trajectory_val)")
     ax.set_ylim(0, 1)
@@ -191,6 +191,18 @@ def plot(rows: list[dict], summary: dict, doc: dict, path: Path) -> None:
     fig.savefig(tmp)
     plt.close(fig)
     os.replace(tmp, path)
+
+
+def replot(out: Path) -> None:
+    """Render ``OUT/sample_efficiency.png`` again from the saved CSV and JSON."""
+    doc = json.loads((out / "sample_efficiency.json").read_text())
+    with open(out / "sample_efficiency.csv", newline="") as f:
+        rows = [
+            {**r, "repeat": int(r["repeat"]), "updates": int(r["updates"]),
+             "examples": int(r["examples"]), "accuracy": float(r["accuracy"])}
+            for r in csv.DictReader(f)
+        ]  # fmt: skip
+    plot(rows, doc["summary"], doc, out / "sample_efficiency.png")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -207,7 +219,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="default: runs/sample_efficiency_<preset>")
     p.add_argument("--cache", type=Path, default=Path("data"))
     p.add_argument("--compute-dtype", choices=("float32", "bfloat16"))
+    p.add_argument("--replot", action="store_true", help="only redraw the PNG of --out")
     args = p.parse_args(argv)
+    if args.replot:
+        if args.out is None:
+            p.error("--replot needs --out")
+        replot(args.out)
+        print(f"wrote {args.out}/sample_efficiency.png")
+        return 0
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     repeats = args.repeats or (10 if args.preset == "paper" else 3)
     for name in ("repeats", "every", "val_size"):
