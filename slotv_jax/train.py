@@ -511,8 +511,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"resuming from {out} after epoch {int(state.epoch)}", flush=True)
     else:
         state, meta = trainer.init(jax.random.key(args.seed)), {}
-    print(f"devices: {trainer.mesh.size} × {trainer.mesh.devices.flat[0].platform}; config:")
-    print(cfg.to_json(), flush=True)
+    print(f"devices: {trainer.mesh.size} × {trainer.mesh.devices.flat[0].platform}; "
+          f"backward: {trainer.backward}; config: {json.dumps(cfg.to_dict(), sort_keys=True)}",
+          flush=True)  # fmt: skip
 
     run_epoch = jax.jit(functools.partial(trainer.run, epochs=1), donate_argnums=0)
     data = trainer.replicate(data)

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import slotv_jax  # noqa: F401  (applies the XLA CPU setting before JAX starts)
+import slotv_jax  # applies the XLA CPU setting before JAX starts
 from slotv_jax import config, evaluate, train
 
 PROB_TOL = 1e-5  # goal probabilities of two runs that differ only in summation order
@@ -167,30 +167,56 @@ def excess_loss(loss, labels):
     return np.asarray(loss) - h
 
 
-def test_slotv_learns_effdist(tiny):
-    """Acceptance: ≥ 0.95 test accuracy on EffDist labels (representable exactly by V)."""
-    tr, te = tiny
-    cfg = small_cfg("slotv", hidden=(32, 32), epochs=10)
-    data = train.prepare(tr, "effdist")
+def test_slotv_learns_effdist(tiny_data):
+    """Acceptance: ≥ 0.95 test accuracy on EffDist labels (which V can represent exactly),
+    trained on the 300 trajectories of the generated tiny dataset."""
+    cfg = small_cfg("slotv", hidden=(64, 32), epochs=20)
+    data = train.prepare(tiny_data["train"], "effdist")
     state, metrics = train.train_trials(cfg, data, [0], progress=False)
     kl = excess_loss(metrics.loss[0], data.labels)
-    assert kl[-1, -1] < 0.3 * kl[0, 0], kl  # the removable loss falls by > 70%
-    acc = evaluate.accuracy(cfg, state.params, te, "effdist")
-    assert acc.shape == (1,) and acc[0] >= 0.95, acc
+    assert kl[-1, -1] < 0.5 * kl[0, 0], kl  # the removable part of the loss at least halves
+    for split in ("trajectory_test", "position_test"):
+        acc = evaluate.accuracy(cfg, state.params, tiny_data[split], "effdist")
+        assert acc.shape == (1,) and acc[0] >= 0.95, (split, acc)
 
 
-def test_trex_learns_well_above_chance(tiny):
-    tr, te = tiny
+def test_trex_learns_well_above_chance(tiny_data):
     cfg = small_cfg("trex", hidden=(32, 32), epochs=12, batch_size=32)
-    data = train.prepare(tr, "effdist")
+    data = train.prepare(tiny_data["train"], "effdist")
     state, metrics = train.train_trials(cfg, data, [0], progress=False)
     loss = np.asarray(metrics.loss[0])
-    assert loss[-3:].mean() < 0.8 * loss[0, :1].mean(), loss  # BCE falls
+    assert loss[-3:].mean() < 0.7 * loss[0, :1].mean(), loss  # BCE falls
+    te = tiny_data["trajectory_test"]
     chance = np.mean(1.0 / te.goal_mask.sum(-1))
     acc = evaluate.accuracy(cfg, state.params, te, "effdist")[0]
     assert acc > chance + 0.3, (acc, chance)
     pair = evaluate.pairwise_accuracy(cfg, state.params, te, "effdist", n_pairs=2000)[0]
-    assert pair > 0.7, pair
+    assert pair > 0.7, pair  # ordering pairs: chance is 0.5
+
+
+def test_cli_trains_checkpoints_and_resumes(tiny_data, tiny_cfg, tmp_path, capsys):
+    from slotv_jax import data as data_lib
+
+    (tmp_path / "data").mkdir()
+    for name in train.TEST_SPLITS:
+        data_lib.save_split(tmp_path / "data", tiny_data[name], tiny_cfg)
+    ck = tmp_path / "ck"
+    args = ["--data", str(tmp_path / "data"), "--labeler", "effdist", "--method", "trex",
+            "--out", str(ck), "--set", "hidden=8,8", "--set", "train_size=none",
+            "--no-progress"]  # fmt: skip
+    assert train.main([*args, "--epochs", "1"]) == 0
+    doc = json.loads((ck / "config.json").read_text())
+    assert doc["epoch"] == 1 and doc["config"]["hidden"] == [8, 8]
+    assert set(doc["meta"]["accuracy"]) == set(train.TEST_SPLITS)
+    out = capsys.readouterr().out
+    assert "accuracy goal_count_test" in out and "epoch 1/1" in out
+    assert train.main([*args, "--epochs", "2", "--resume"]) == 0
+    out = capsys.readouterr().out
+    assert "resuming from" in out and "epoch 2/2" in out and "epoch 1/2" not in out
+    assert json.loads((ck / "config.json").read_text())["epoch"] == 2
+    obs = slotv_jax.load_observer(ck)
+    s = tiny_data["trajectory_test"]
+    assert obs(s.xyz[0], s.goals[0], s.goal_mask[0]).shape == (8,)
 
 
 # ------------------------------------------------------------- equivalences
@@ -212,6 +238,8 @@ def test_vmapped_trials_equal_one_by_one(tiny, method):
         np.testing.assert_allclose(metrics.loss[i], m.loss, rtol=PROB_TOL)
     a, b = (np.asarray(jax.tree.leaves(states.params)[0][i]) for i in (0, 1))
     assert not np.allclose(a, b)  # different seeds really differ
+    # without eval_every nothing is validated
+    assert metrics.eval_accuracy.shape == (2, 1, 0) and np.all(np.isnan(metrics.start_accuracy))
 
 
 TWO_DEVICES = textwrap.dedent(
@@ -294,10 +322,6 @@ def test_eval_every_k_updates(tiny):
     init = train.make_train(cfg, progress=False).init(jax.random.key(0))
     start = evaluate.accuracy(cfg, init.params, sub)
     assert float(metrics.start_accuracy[0]) == pytest.approx(float(start), abs=1e-6)
-    # without eval_every nothing is validated
-    _, m0 = train.train_trials(dataclasses.replace(cfg, eval_every=0), data, [0], val=val,
-                               progress=False)  # fmt: skip
-    assert m0.eval_accuracy.shape == (1, 2, 0) and np.isnan(m0.start_accuracy[0])
 
 
 def test_progress_reaches_the_host(tiny):
