@@ -139,15 +139,19 @@ def accuracy(cfg, params, data, labeler: str | None = None, *, mesh=None) -> np.
 
     ``data`` is a :class:`slotv_jax.train.TrainData` or a ``Split`` with ``labeler``.
     ``params`` may carry a leading trial axis (from :func:`slotv_jax.train.train_trials`):
-    then the result has shape (n_trials,), else it is a scalar array.
+    then the result has shape (n_trials,), else it is a scalar array. The result is the
+    exact fraction correct / N in float64: the kernel's float32 ratio, whose last bit
+    depends on how XLA compiled the division, is rounded back to its count.
     """
     from slotv_jax import train as train_lib
 
     if labeler is not None:
         data = train_lib.prepare(data, labeler)
     trainer = train_lib.make_train(cfg, mesh=mesh, progress=False)
-    ev = trainer.replicate(trainer.eval_data(data, size=data.xyz.shape[0]))
-    return np.asarray(_jit_accuracy(trainer, _batched(trainer, params))(params, ev))
+    n = data.xyz.shape[0]
+    ev = trainer.replicate(trainer.eval_data(data, size=n))
+    ratio = np.asarray(_jit_accuracy(trainer, _batched(trainer, params))(params, ev))
+    return np.round(ratio.astype(np.float64) * n) / n
 
 
 def split_accuracies(

@@ -179,3 +179,14 @@ def test_spearman_hand_cases():
     assert hparam_search.spearman(x, x**3) == pytest.approx(1.0)
     assert hparam_search.spearman(x, -x) == pytest.approx(-1.0)
     assert np.isnan(hparam_search.spearman(x, np.ones(4)))
+
+
+def test_vmapped_trials_match_one_by_one(cache, tmp_path):
+    cfg = table1.tiny()
+    kw = {"labelers": ["fastapp"], "methods": ["slotv"], "cache": cache, "progress": False}
+    one = table1.run(cfg, tmp_path / "one", **kw)
+    together = table1.run(cfg, tmp_path / "together", vmap_trials=True, **kw)
+    assert [c["trained_together"] for c in together["timing"]["cells"]] == [2, 2]
+    a = {(c["trial"], c["split"]): c["accuracy"] for c in one["cells"]}
+    b = {(c["trial"], c["split"]): c["accuracy"] for c in together["cells"]}
+    assert a == b
