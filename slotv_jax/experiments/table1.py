@@ -256,8 +256,11 @@ def run(
         tdata = train.prepare(dataset["train"], lab)
         state, metrics = train.train_trials(tc, tdata, trials, progress=False)
         t_train = time.perf_counter() - t_cell
+        # "train" is scored on the trajectories the model trained on (the first train_size).
+        evalsets = {s: dataset[s] for s in SPLITS}
+        evalsets["train"] = dataset["train"].subset(np.arange(tc.n_used(len(dataset["train"]))))
         accs = {
-            split: np.asarray(evaluate.accuracy(tc, state.params, dataset[split], lab)).reshape(-1)
+            split: np.asarray(evaluate.accuracy(tc, state.params, evalsets[split], lab)).reshape(-1)
             for split in SPLITS
         }
         loss = np.asarray(metrics.loss)
