@@ -46,6 +46,7 @@ import time
 import numpy as np
 
 from slotv_jax._xla import FLAG_NAME, OPT_OUT_VAR  # no JAX import: the driver never starts XLA
+from slotv_jax.benchmarks._machine import cpu_model
 
 RESULT_TAG = "KINEMATICS_BENCHMARK_RESULT "
 N_SCENES = 250
@@ -233,17 +234,6 @@ def worker(args: argparse.Namespace) -> dict:
 # --------------------------------------------------------------------------- driver
 
 
-def _cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def _load() -> str:
     return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
@@ -293,7 +283,7 @@ def _table(title: str, rows: list[tuple]) -> None:
 def report(w: dict, wo: dict, wall_s: float) -> None:
     v = w["versions"]
     print(
-        f"# {datetime.date.today()}  {_cpu_model()}, {os.cpu_count()} cores\n"
+        f"# {datetime.date.today()}  {cpu_model()}, {os.cpu_count()} cores\n"
         f"# python {v['python']}, jax {v['jax']}, jaxlib {v['jaxlib']}, "
         f"mujoco {v['mujoco']}, backend {v['backend']}\n"
         f"# with:    {w['xla_config']}\n#          XLA_FLAGS={w['xla_flags']!r}\n"

@@ -34,6 +34,7 @@ import numpy as np
 
 import slotv_jax
 from slotv_jax import labelers as L
+from slotv_jax.benchmarks._machine import cpu_model
 from slotv_jax.scene import camera as scene_camera
 
 HOME = np.array([0.3069, 0.0, 0.4869])  # TCP(q_home), SPEC §1
@@ -109,17 +110,6 @@ def np_fastapp(xyz, goals, mask, beta=5.0):
 # ------------------------------------------------------------------- benchmark
 
 
-def _cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.labeling", description=__doc__)
     p.add_argument("--n", type=int, default=160_000, help="trajectories for JAX")
@@ -134,7 +124,7 @@ def main(argv=None) -> int:
 
     print(slotv_jax.XLA_CONFIG.summary())
     print(
-        f"# {datetime.date.today()}  {_cpu_model()}, {os.cpu_count()} cores, load average "
+        f"# {datetime.date.today()}  {cpu_model()}, {os.cpu_count()} cores, load average "
         f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}\n"
         f"# python {platform.python_version()}, jax {jax.__version__}, jaxlib "
         f"{jaxlib.__version__}, numpy {np.__version__}, backend {jax.default_backend()}\n"
