@@ -70,7 +70,7 @@ SPLITS = (
 LABELER_NAMES = ("dragan", "nikolaidis", "effdist", "fastapp")
 FORMAT_VERSION = 1
 # Bump when generation code changes what a config produces, so cached datasets are not reused.
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: IK locks joints at their limits (active set)
 
 # Arrays stored per split: name -> (dtype, shape with "N", "S", "T" symbols).
 _TRAJ_ARRAYS = {

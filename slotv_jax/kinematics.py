@@ -9,8 +9,9 @@ and axes: for a hinge j with world axis w_j through anchor a_j,
 Inverse kinematics is damped least squares on the position task. A soft
 tool-down preference and a pull towards ``Q_HOME`` act only in the null space of
 the position task, and every solve ends with position-only iterations, so the
-soft terms never cost position accuracy. Joint limits are enforced by clipping
-every iterate.
+soft terms never cost position accuracy. Joint limits are an active set: a joint
+on a limit that a step would push outwards is locked for that step, and every
+iterate is clipped.
 
 Everything here is a pure function of arrays; nothing is jitted. Batch with
 ``jax.vmap`` and compile with ``jax.jit`` at the call site:
@@ -132,7 +133,7 @@ class IKConfig:
     """Damped-least-squares IK settings."""
 
     iters: int = 6  # iterations with the null-space soft terms, per target
-    refine_iters: int = 2  # position-only iterations that finish every solve
+    refine_iters: int = 4  # position-only iterations that finish every solve
     damping: float = 1e-3  # λ (m) in (J Jᵀ + λ² I)⁻¹
     max_step: float = 0.4  # largest joint step per iteration (rad)
     tool_down_gain: float = 0.5  # null-space step towards the tool z axis pointing down
@@ -161,20 +162,41 @@ def _solve_spd3(a: Float[Array, "3 3"], b: Float[Array, "3"]) -> Float[Array, "3
 def _ik_step(
     q: Float[Array, "7"], target: Float[Array, "3"], cfg: IKConfig, soft
 ) -> Float[Array, "7"]:
-    """One damped-least-squares step; ``soft`` (0 or 1, may be traced) adds the null-space terms."""
+    """One damped-least-squares step; ``soft`` (0 or 1, may be traced) adds the null-space terms.
+
+    Joint limits are handled as an active set: a joint sitting at a limit that the
+    descent direction pushes further out is locked (its Jacobian column and soft-term
+    entry zeroed) and the step is solved with the other joints. Clipping alone would
+    break the null-space property of the soft terms at a limit.
+    """
     s = tcp_state(q)
-    j = s.jac_pos
-    jjt = j @ j.T + cfg.damping**2 * jnp.eye(3, dtype=q.dtype)
-    dq = j.T @ _solve_spd3(jjt, target - s.pos)
-    # Secondary objectives, projected onto the null space N = I - J⁺J of the position task.
+    eye = jnp.eye(3, dtype=q.dtype)
+    err = target - s.pos
+    # Secondary objectives: tool axis towards straight down, posture towards Q_HOME.
     axis_err = s.rot[:, 2] - jnp.asarray(TOOL_DOWN, q.dtype)
-    dq2 = -cfg.tool_down_gain * (s.jac_axis.T @ axis_err)
-    dq2 = dq2 + cfg.posture_gain * (jnp.asarray(Q_HOME, q.dtype) - q)
-    dq2 = dq2 - j.T @ _solve_spd3(jjt, j @ dq2)
-    dq = dq + soft * dq2
+    secondary = -cfg.tool_down_gain * (s.jac_axis.T @ axis_err)
+    secondary = secondary + cfg.posture_gain * (jnp.asarray(Q_HOME, q.dtype) - q)
+
+    def solve(free):  # free: (7,) 1 for joints that may move
+        j = s.jac_pos * free
+        jjt = j @ j.T + cfg.damping**2 * eye
+        dq = j.T @ _solve_spd3(jjt, err)
+        dq2 = free * secondary
+        dq2 = dq2 - j.T @ _solve_spd3(jjt, j @ dq2)  # project onto the null space of j
+        return dq + soft * dq2
+
+    # Active set by the sign of the descent direction at the bound (the KKT rule for box
+    # constraints): g = Jᵀ err is the steepest descent of ½‖err‖², plus the soft terms.
+    lo, hi = jnp.asarray(Q_MIN, q.dtype), jnp.asarray(Q_MAX, q.dtype)
+    g = s.jac_pos.T @ err + soft * secondary
+    blocked = ((q <= lo + _AT_LIMIT) & (g < 0)) | ((q >= hi - _AT_LIMIT) & (g > 0))
+    dq = solve(1 - blocked.astype(q.dtype))
     step = jnp.max(jnp.abs(dq))
     dq = dq * jnp.minimum(1.0, cfg.max_step / jnp.maximum(step, 1e-12))
-    return jnp.clip(q + dq, jnp.asarray(Q_MIN, q.dtype), jnp.asarray(Q_MAX, q.dtype))
+    return jnp.clip(q + dq, lo, hi)
+
+
+_AT_LIMIT = 1e-5  # rad: a joint this close to a limit counts as sitting on it
 
 
 def _iterate(q: Float[Array, "7"], target: Float[Array, "3"], cfg: IKConfig) -> Float[Array, "7"]:
@@ -191,9 +213,9 @@ def solve_ik(
     """Joint configuration reaching ``target`` (m), started from ``q0`` (rad).
 
     Returns ``(q, residual)`` with ``residual = ‖tcp_position(q) − target‖`` (m).
-    Pure; batch with ``vmap``. Joint limits hold exactly (iterates are clipped).
-    Tested on the workspace of SPEC §3 (via-point box and cube region); close to
-    the base axis with joint 4 at its limit, more iterations may be needed.
+    Pure; batch with ``vmap``. Joint limits hold exactly: a joint on a limit that the
+    step would push outwards is locked for that step (an active set), and iterates are
+    clipped.
     """
     validation.check_array("target", target, (3,))
     _check_q0(q0)

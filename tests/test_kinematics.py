@@ -112,8 +112,7 @@ def random_targets(rng: np.random.Generator) -> dict[str, np.ndarray]:
         [rng.uniform(CUBE_LO, CUBE_HI, (N_TARGETS, 2)), np.full(N_TARGETS, CUBE_Z)]
     )
     # Reachable by construction; kept inside the task workspace (the bounding box of both
-    # regions). Outside it, close to the base, targets that need joint 4 folded to its limit
-    # can stall the clipped solver.
+    # regions). Targets close to the base, with joint 4 on its limit, are tested below.
     q_near = np.clip(
         SPEC_Q_HOME + rng.normal(0.0, 0.5, (12 * N_NEAR_HOME, 7)), ref.Q_MIN, ref.Q_MAX
     )
@@ -397,3 +396,28 @@ def test_jitted_kinematics_trace_once(fk, cold, paths):
     assert TRACES["fk"] == 1
     assert TRACES["ik"] == 1
     assert TRACES["path_ik"] == 1
+
+
+# --------------------------------------------- joint limits: the active set keeps IK exact
+
+
+def test_soft_terms_cost_no_accuracy_near_joint_limits():
+    """Targets near the base put joint 4 on its limit; locking it keeps the soft terms harmless."""
+    rng = np.random.default_rng(5)
+    q = np.clip(K.Q_HOME + rng.normal(0.0, 0.3, (2000, 7)), ref.Q_MIN, ref.Q_MAX)
+    goals = jnp.asarray(ref.tcp_positions(q), jnp.float32)  # reachable by construction
+    long = {"iters": 30, "refine_iters": 30}
+    soft = np.asarray(_cold_ik(K.IKConfig(**long), "ik_long")(goals)[1])
+    plain = np.asarray(
+        _cold_ik(K.IKConfig(**long, tool_down_gain=0, posture_gain=0), "p")(goals)[1]
+    )
+    lost = (plain <= IK_TOL) & (soft > IK_TOL)
+    assert not lost.any(), f"{lost.sum()} targets lost to the soft terms"
+
+
+def test_cold_ik_reaches_a_target_near_the_base():
+    q_true = np.array([-0.09, -0.65, -0.12, -3.07, -0.28, 1.52, 0.85])  # joint 4 near its limit
+    target = jnp.asarray(ref.tcp_positions(q_true[None]), jnp.float32)
+    q, res = cold_ik(target)
+    assert float(res[0]) <= IK_TOL
+    assert np.all(np.asarray(q) >= K.Q_MIN - 1e-6) and np.all(np.asarray(q) <= K.Q_MAX + 1e-6)
