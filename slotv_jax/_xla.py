@@ -44,6 +44,8 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 
+from slotv_jax.fileio import write_text
+
 FLAG_NAME = "xla_cpu_use_fusion_emitters"
 FLAG = f"--{FLAG_NAME}=false"
 OPT_OUT_VAR = "SLOTV_JAX_XLA_FLAGS"
@@ -124,9 +126,7 @@ def flag_supported(flag: str = FLAG) -> bool:
     ok = probe_flag(flag)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(json.dumps({**(cache if isinstance(cache, dict) else {}), key: ok}))
-        os.replace(tmp, path)
+        write_text(path, json.dumps({**(cache if isinstance(cache, dict) else {}), key: ok}))
     except OSError:
         pass  # an unwritable cache only means probing again next time
     return ok

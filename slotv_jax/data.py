@@ -34,14 +34,11 @@ Command line::
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import functools
 import hashlib
 import json
-import os
 import sys
-import tempfile
 import time
 import zipfile
 from collections.abc import Sequence
@@ -54,6 +51,7 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import kinematics, validation
+from slotv_jax.fileio import atomic_write
 from slotv_jax.scene import Scene, SceneConfig, check_scene, sample_goal_count, sample_scene
 from slotv_jax.trajectories import TrajectoryConfig, plan_path, straight_path
 from slotv_jax.validation import G_MAX
@@ -442,8 +440,7 @@ def generate_dataset(
         split = generate_split(cfg, name, scenes, progress=progress)
         split.meta["reachability"]["scenes"] = {"set": set_name, "goal_counts": counts, **stats}
         if out is not None:
-            save_split(out, split, cfg)
-            split = load_split(out, name)
+            split = dataclasses.replace(split, meta=save_split(out, split, cfg))
         result[name] = split
     return result
 
@@ -498,24 +495,8 @@ def environment() -> dict:
         "numpy": np.__version__,
         "devices": [str(d) for d in jax.devices()],
         "xla_flags": slotv_jax.XLA_CONFIG.xla_flags,
+        "xla": slotv_jax.XLA_CONFIG.summary(),
     }
-
-
-def _atomic_write(path: Path, write) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
 
 
 def _check_dir_config(out: Path, cfg: DataConfig) -> None:
@@ -532,11 +513,14 @@ def _check_dir_config(out: Path, cfg: DataConfig) -> None:
             )
 
 
-def save_split(out: str | Path, split: Split, cfg: DataConfig) -> None:
-    """Write ``<split>.npz`` then its ``<split>.json`` sidecar, each atomically."""
+def save_split(out: str | Path, split: Split, cfg: DataConfig) -> dict:
+    """Write ``<split>.npz`` then its ``<split>.json`` sidecar, each atomically.
+
+    Returns the sidecar as a reader of the file sees it.
+    """
     out = Path(out)
     arrays = split.arrays()
-    _atomic_write(out / f"{split.name}.npz", lambda f: np.savez(f, **arrays))
+    atomic_write(out / f"{split.name}.npz", lambda f: np.savez(f, **arrays))
     meta = {
         **split.meta,
         "format_version": FORMAT_VERSION,
@@ -551,7 +535,8 @@ def save_split(out: str | Path, split: Split, cfg: DataConfig) -> None:
         },
     }
     blob = json.dumps(meta, indent=1, default=str).encode()
-    _atomic_write(out / f"{split.name}.json", lambda f: f.write(blob))
+    atomic_write(out / f"{split.name}.json", lambda f: f.write(blob))
+    return json.loads(blob)
 
 
 def _read_json(path: Path) -> dict:

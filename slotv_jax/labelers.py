@@ -40,9 +40,7 @@ Command line (label user trajectories from an ``.npz`` holding ``xyz (N, T, 3)``
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import NamedTuple
@@ -53,6 +51,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from slotv_jax import validation
+from slotv_jax.fileio import atomic_write
 from slotv_jax.scene import Camera, project
 from slotv_jax.scene import camera as scene_camera
 from slotv_jax.validation import G_MAX
@@ -680,16 +679,8 @@ def label_all(
 # ------------------------------------------------------------------ command line
 
 
-def _save_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+def _savez(path, arrays: dict[str, np.ndarray]) -> None:
+    atomic_write(path, lambda f: np.savez(f, **arrays))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -745,7 +736,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     arrays.update({f"beta_{n}": np.float64(betas[n]) for n in names})
     if "nikolaidis" in names:
         arrays["camera"] = np.asarray(args.camera)
-    _save_npz_atomic(args.out, arrays)
+    _savez(args.out, arrays)
     print(f"wrote {', '.join(arrays)} for {len(data['xyz'])} trajectories to {args.out}")
     return 0
 

@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -45,6 +44,7 @@ from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import LABELERS, dataset_dir
+from slotv_jax.fileio import write_text
 
 PHASES = {
     "slotv_large_batch": ("slotv", (64, 128, 256, 512)),
@@ -151,7 +151,7 @@ def run(
         if (old.get("search"), old.get("labeler")) != (doc["search"], labeler):
             raise ValueError(f"{path}: results of another search config; use another --out")
         doc = old
-    doc["environment"] = {**data_lib.environment(), "xla": slotv_jax.XLA_CONFIG.summary()}
+    doc["environment"] = data_lib.environment()
     dcfg = table1.PRESETS[cfg.preset]().data
     dataset = data_lib.generate_dataset(
         dcfg, dataset_dir(cache, dcfg), splits=["train", "trajectory_val"], progress=progress
@@ -179,13 +179,9 @@ def run(
                 "time_s": time.perf_counter() - t0,
             }
         )
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(doc, indent=1))
-        os.replace(tmp, path)
+        write_text(path, json.dumps(doc, indent=1))
     summary = summarise(doc)
-    tmp = out / f".summary.md.{os.getpid()}.tmp"
-    tmp.write_text(summary)
-    os.replace(tmp, out / "summary.md")
+    write_text(out / "summary.md", summary)
     return doc
 
 

@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import itertools
-import os
 import shlex
 import sys
 from collections.abc import Mapping, Sequence
@@ -34,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from slotv_jax import data as data_lib
+from slotv_jax.fileio import save_figure, write_text
 
 LABELERS = data_lib.LABELER_NAMES  # dragan, nikolaidis, effdist, fastapp
 TITLES = {
@@ -370,18 +370,10 @@ def plot(stats: dict, path: Path) -> None:
     ax.set_title("Pairwise argmax agreement\n(mean over splits)", fontsize=10)
     fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
     fig.suptitle("Label statistics per labeler and split", fontsize=12)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.png")
     try:
-        fig.savefig(tmp, bbox_inches="tight")
+        save_figure(fig, path, bbox_inches="tight")
     finally:
         plt.close(fig)
-    os.replace(tmp, path)
-
-
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def write_report(
@@ -414,7 +406,7 @@ def write_report(
         environment=first.meta.get("environment", {}),
         figure="labels.png",
     )
-    _write_text(out / "labels.md", md)
+    write_text(out / "labels.md", md)
     return stats
 
 

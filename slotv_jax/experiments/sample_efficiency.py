@@ -24,7 +24,6 @@ import csv
 import dataclasses
 import io
 import json
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -36,6 +35,7 @@ import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
+from slotv_jax.fileio import save_figure, write_text
 
 LABELER = "dragan"
 
@@ -130,10 +130,10 @@ def run(
         },
         "config": configs,
         "summary": summary,
-        "environment": {**data_lib.environment(), "xla": slotv_jax.XLA_CONFIG.summary()},
+        "environment": data_lib.environment(),
     }
-    _write(out / "sample_efficiency.csv", _csv(rows))
-    _write(out / "sample_efficiency.json", json.dumps(doc, indent=1))
+    write_text(out / "sample_efficiency.csv", _csv(rows))
+    write_text(out / "sample_efficiency.json", json.dumps(doc, indent=1))
     plot(rows, summary, doc, out / "sample_efficiency.png")
     return doc
 
@@ -144,12 +144,6 @@ def _csv(rows: list[dict]) -> str:
     w.writeheader()
     w.writerows(rows)
     return buf.getvalue()
-
-
-def _write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def plot(rows: list[dict], summary: dict, doc: dict, path: Path) -> None:
@@ -187,10 +181,10 @@ def plot(rows: list[dict], summary: dict, doc: dict, path: Path) -> None:
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right")
     fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        save_figure(fig, path)
+    finally:
+        plt.close(fig)
 
 
 def replot(out: Path) -> None:

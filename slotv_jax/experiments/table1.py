@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -30,6 +29,7 @@ from tqdm.auto import tqdm
 import slotv_jax
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
+from slotv_jax.fileio import write_text
 
 LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
 METHODS = ("slotv", "trex")
@@ -117,12 +117,6 @@ def with_compute_dtype(cfg: Table1Config, dtype: str) -> Table1Config:
 
 
 # ------------------------------------------------------------------- results
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def load_results(out: Path, cfg: Table1Config) -> dict:
@@ -225,7 +219,7 @@ def run(
     t_start = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     doc = load_results(out, cfg)
-    doc["environment"] = {**data_lib.environment(), "xla": slotv_jax.XLA_CONFIG.summary()}
+    doc["environment"] = data_lib.environment()
 
     t0 = time.perf_counter()
     ddir = dataset_dir(cache, cfg.data)
@@ -283,14 +277,14 @@ def run(
                 }
             )
         doc["summary"] = summarise(doc["cells"])
-        _atomic_write_text(out / "results.json", json.dumps(doc, indent=1))
+        write_text(out / "results.json", json.dumps(doc, indent=1))
         bar.update(len(trials))
     bar.close()
 
     doc["summary"] = summarise(doc["cells"])
     doc["timing"]["last_run_total_s"] = time.perf_counter() - t_start
-    _atomic_write_text(out / "results.json", json.dumps(doc, indent=1))
-    _atomic_write_text(out / "table1.md", report(doc))
+    write_text(out / "results.json", json.dumps(doc, indent=1))
+    write_text(out / "table1.md", report(doc))
     return doc
 
 
