@@ -37,9 +37,9 @@ class EvalData(NamedTuple):
     """A split cut into M chunks of C trajectories (the padding has ``valid`` False)."""
 
     xyz: Float[Array, "M C T 3"]
-    goals: Float[Array, "M C 8 3"]
-    goal_mask: Bool[Array, "M C 8"]
-    labels: Float[Array, "M C 8"]
+    goals: Float[Array, "M C G 3"]  # G ≤ 8 goal slots (unused trailing slots may be cut)
+    goal_mask: Bool[Array, "M C G"]
+    labels: Float[Array, "M C G"]
     valid: Bool[Array, "M C"]
 
 
@@ -138,10 +138,12 @@ def accuracy(cfg, params, data, labeler: str | None = None, *, mesh=None) -> np.
     """SPEC §8 accuracy of ``params`` on a whole split (jit-compiled, chunked, sharded).
 
     ``data`` is a :class:`slotv_jax.train.TrainData` or a ``Split`` with ``labeler``.
-    ``params`` may carry a leading trial axis (from :func:`slotv_jax.train.train_trials`):
-    then the result has shape (n_trials,), else it is a scalar array. The result is the
-    exact fraction correct / N in float64: the kernel's float32 ratio, whose last bit
-    depends on how XLA compiled the division, is rounded back to its count.
+    Goal slots that no trajectory of ``data`` uses are cut first (they cannot change an
+    argmax over real goals). ``params`` may carry a leading trial axis (from
+    :func:`slotv_jax.train.train_trials`): then the result has shape (n_trials,), else it is
+    a scalar array. The result is the exact fraction correct / N in float64: the kernel's
+    float32 ratio, whose last bit depends on how XLA compiled the division, is rounded back
+    to its count.
     """
     from slotv_jax import train as train_lib
 
@@ -149,7 +151,7 @@ def accuracy(cfg, params, data, labeler: str | None = None, *, mesh=None) -> np.
         data = train_lib.prepare(data, labeler)
     trainer = train_lib.make_train(cfg, mesh=mesh, progress=False)
     n = data.xyz.shape[0]
-    ev = trainer.replicate(trainer.eval_data(data, size=n))
+    ev = trainer.replicate(trainer.eval_data(train_lib.trim_goals(data), size=n))
     ratio = np.asarray(_jit_accuracy(trainer, _batched(trainer, params))(params, ev))
     return np.round(ratio.astype(np.float64) * n) / n
 

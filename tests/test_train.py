@@ -242,6 +242,44 @@ def test_vmapped_trials_equal_one_by_one(tiny, method):
     assert metrics.eval_accuracy.shape == (2, 1, 0) and np.all(np.isnan(metrics.start_accuracy))
 
 
+def test_trim_goals_cuts_only_unused_slots():
+    xyz = np.zeros((2, T, 3), np.float32)
+    goals = np.arange(48, dtype=np.float32).reshape(2, 8, 3)
+    mask = np.zeros((2, 8), bool)
+    mask[0, [0, 1]] = True
+    mask[1, [0, 4]] = True  # a gap: slot 4 is real, so slots 0..4 stay
+    labels = np.where(mask, 0.5, 0.0).astype(np.float32)
+    d = train.TrainData(xyz, goals, mask, labels)
+    t = train.trim_goals(d)
+    assert t.goals.shape == (2, 5, 3) and t.goal_mask.shape == (2, 5) and t.labels.shape == (2, 5)
+    np.testing.assert_array_equal(t.goals, goals[:, :5])
+    np.testing.assert_array_equal(t.goal_mask, mask[:, :5])
+    assert t.xyz is xyz
+    full = d._replace(goal_mask=np.ones((2, 8), bool))
+    assert train.trim_goals(full) is full
+
+
+@pytest.mark.parametrize("method", ["slotv", "trex"])
+def test_training_on_trimmed_goal_slots_is_the_same_run(tiny, method):
+    """train_trials cuts the unused padded slots (6 of 8 remain here); the loop on all 8
+    slots is the same run, and so is the accuracy."""
+    tr, te = tiny
+    cfg = small_cfg(method, epochs=1, train_size=128)
+    data = train.prepare(tr, "effdist")
+    assert train.trim_goals(data).goals.shape[1] == 6
+    states, _ = train.train_trials(cfg, data, [5], progress=False)
+    trainer = train.make_train(cfg, progress=False)
+    full, _ = jax.jit(trainer.train)(jax.random.key(5), data)  # 8 slots
+    p_trim = train.select_trial(states.params, 0)
+    pa, pb = probabilities(cfg, p_trim, data), probabilities(cfg, full.params, data)
+    assert_same_run(cfg, p_trim, full.params, pa, pb)
+    test = train.prepare(te, "effdist")
+    ev = trainer.replicate(trainer.eval_data(test, size=len(te)))  # 8 slots, untrimmed
+    np.testing.assert_allclose(
+        evaluate.accuracy(cfg, full.params, test), float(jax.jit(trainer.accuracy)(full.params, ev))
+    )
+
+
 TWO_DEVICES = textwrap.dedent(
     """
     import json, sys

@@ -214,6 +214,8 @@ def run(
     compiled, vmapped call (faster on a GPU); they are then written, and lost to an
     interruption, together.
     """
+    import jax
+
     from slotv_jax import evaluate, train
 
     t_start = time.perf_counter()
@@ -242,19 +244,33 @@ def run(
             units[-1][2].append(trial)
         else:
             units.append((lab, meth, [trial]))
+    # Each labeler's splits are validated and trimmed once and shared by both methods.
+    prepared: dict[tuple[str, str], train.TrainData] = {}
+
+    def split_data(lab: str, split: str, size: int | None = None) -> train.TrainData:
+        if prepared and next(iter(prepared))[0] != lab:
+            prepared.clear()  # one labeler's arrays at a time
+        if (lab, split) not in prepared:
+            prepared[(lab, split)] = train.prepare(dataset[split], lab)
+        data = prepared[(lab, split)]
+        return data if size is None else train.subset(data, size)
+
     bar = tqdm(total=len(todo), desc="table1 cells", unit="cell", disable=not progress)
     for lab, meth, trials in units:
         bar.set_postfix_str(f"{lab}/{meth}/trials {trials}")
         tc = cfg.train[meth]
         t_cell = time.perf_counter()
-        tdata = train.prepare(dataset["train"], lab)
+        tdata = split_data(lab, "train")
+        t_prep = time.perf_counter() - t_cell
         state, metrics = train.train_trials(tc, tdata, trials, progress=False)
-        t_train = time.perf_counter() - t_cell
+        jax.block_until_ready((state, metrics))
+        t_train = time.perf_counter() - t_cell - t_prep
         # "train" is scored on the trajectories the model trained on (the first train_size).
-        evalsets = {s: dataset[s] for s in SPLITS}
-        evalsets["train"] = dataset["train"].subset(np.arange(tc.n_used(len(dataset["train"]))))
+        used = {"train": tc.n_used(len(tdata.xyz))}
         accs = {
-            split: np.asarray(evaluate.accuracy(tc, state.params, evalsets[split], lab)).reshape(-1)
+            split: np.asarray(
+                evaluate.accuracy(tc, state.params, split_data(lab, split, used.get(split)))
+            ).reshape(-1)
             for split in SPLITS
         }
         loss = np.asarray(metrics.loss)
@@ -270,6 +286,7 @@ def run(
                     "labeler": lab,
                     "method": meth,
                     "trial": trial,
+                    "prepare_s": t_prep / len(trials),
                     "train_s": t_train / len(trials),
                     "total_s": t_total / len(trials),
                     "trained_together": len(trials),
