@@ -47,7 +47,7 @@ from slotv_jax import validation
 from slotv_jax.validation import G_MAX
 
 _DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
-BACKWARDS = ("autodiff", "fused", "recompute")  # see GoalRelativeMLP.grid
+BACKWARDS = ("autodiff", "fused", "split", "recompute")  # see GoalRelativeMLP.grid
 _List = getattr(nnx, "List", list)  # flax < 0.12 keeps sub-modules in plain lists
 
 
@@ -118,8 +118,9 @@ class GoalRelativeMLP(nnx.Module):
         ``backward`` picks how the gradient of the first layers is computed (the values are
         the same): "autodiff" (plain JAX; supports every transformation), or, for training
         (reverse mode only), "fused" (:func:`goal_relative_features` with its one-pass
-        custom gradient) or "recompute" (:func:`goal_relative_two_layers`: the first
-        activation is recomputed in the backward pass instead of stored).
+        custom gradient), "split" (the same custom gradient from two reductions) or
+        "recompute" (:func:`goal_relative_two_layers`: the first activation is recomputed in
+        the backward pass instead of stored).
         """
         cd = None if self.compute_dtype == "float32" else _dtype(self.compute_dtype)
         w1, b1 = self.first.kernel[...], self.first.bias[...]
@@ -129,7 +130,7 @@ class GoalRelativeMLP(nnx.Module):
             return self._trunk(jax.nn.relu(z2), start=1)
         if backward not in BACKWARDS:
             raise ValueError(f"backward: expected one of {BACKWARDS}, got {backward!r}")
-        h = goal_relative_features(xyz, goals, w1, b1, cd, backward != "autodiff")
+        h = goal_relative_features(xyz, goals, w1, b1, cd, backward != "autodiff" and backward)
         return self._trunk(h)
 
 
@@ -141,42 +142,50 @@ def _features(xyz, goals, w, b, dtype):
     return h if dtype is None else h.astype(dtype)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(4,))
-def _features_fused(xyz, goals, w, b, dtype):
+@functools.partial(jax.custom_vjp, nondiff_argnums=(4, 5))
+def _features_custom(xyz, goals, w, b, dtype, mode):
     return _features(xyz, goals, w, b, dtype)
 
 
-def _features_fused_fwd(xyz, goals, w, b, dtype):
+def _features_custom_fwd(xyz, goals, w, b, dtype, mode):
     return _features(xyz, goals, w, b, dtype), (xyz, goals, w, b)
 
 
-def _features_fused_bwd(dtype, res, dh):
+def _features_custom_bwd(dtype, mode, res, dh):
     xyz, goals, w, b = res
     hp = jax.lax.Precision.HIGHEST
     a = jnp.matmul(xyz, w, precision=hp)
     c = jnp.matmul(goals, w, precision=hp) - b
     pre = a[..., :, None, :] - c[..., None, :, :]  # (..., T, G, H), recomputed, never stored
     dpre = jnp.where(pre > 0, dh, jnp.zeros((), dh.dtype))  # in the cotangent's dtype
-    # W_1 and b_1 as one skinny matmul over all (t, k) rows: Σ_{t,k} (p_t − g_k, 1) ⊗ δ_{tk}
-    d = xyz[..., :, None, :] - goals[..., None, :, :]  # (..., T, G, 3)
-    d4 = jnp.concatenate([d, jnp.ones_like(d[..., :1])], axis=-1).astype(dpre.dtype)
-    rows = tuple(range(dpre.ndim - 1))
-    dwb = jax.lax.dot_general(
-        d4, dpre, ((rows, rows), ((), ())), preferred_element_type=jnp.float32
-    )
-    # the inputs (dead code, removed by XLA, when only parameters are differentiated)
     f32 = jnp.promote_types(dpre.dtype, jnp.float32)
-    dxyz = jnp.matmul(dpre.sum(-2, dtype=f32), w.T, precision=hp)
-    dgoals = -jnp.matmul(dpre.sum(-3, dtype=f32), w.T, precision=hp)
+    s_t = dpre.sum(-2, dtype=f32)  # (..., T, H): Σ_k δ_tk
+    s_k = dpre.sum(-3, dtype=f32)  # (..., G, H): Σ_t δ_tk
+    if mode == "fused":
+        # W_1 and b_1 as one skinny matmul over all (t, k) rows: Σ_{t,k} (p_t − g_k, 1) ⊗ δ_tk
+        d = xyz[..., :, None, :] - goals[..., None, :, :]  # (..., T, G, 3)
+        d4 = jnp.concatenate([d, jnp.ones_like(d[..., :1])], axis=-1).astype(dpre.dtype)
+        rows = tuple(range(dpre.ndim - 1))
+        dwb = jax.lax.dot_general(d4, dpre, ((rows, rows), ((), ())), preferred_element_type=f32)
+        dw, db = dwb[:3], dwb[3]
+    else:  # "split": Σ_t p_t ⊗ Σ_k δ_tk − Σ_k g_k ⊗ Σ_t δ_tk, from the two reductions
+        rows_t = tuple(range(s_t.ndim - 1))
+        dw = jax.lax.dot_general(
+            xyz.astype(f32), s_t, ((rows_t, rows_t), ((), ())), precision=hp
+        ) - jax.lax.dot_general(goals.astype(f32), s_k, ((rows_t, rows_t), ((), ())), precision=hp)
+        db = s_k.sum(rows_t)
+    # the inputs (dead code, removed by XLA, when only parameters are differentiated)
+    dxyz = jnp.matmul(s_t, w.T, precision=hp)
+    dgoals = -jnp.matmul(s_k, w.T, precision=hp)
     return (
         dxyz.astype(xyz.dtype),
         dgoals.astype(goals.dtype),
-        dwb[:3].astype(w.dtype),
-        dwb[3].astype(b.dtype),
+        dw.astype(w.dtype),
+        db.astype(b.dtype),
     )
 
 
-_features_fused.defvjp(_features_fused_fwd, _features_fused_bwd)
+_features_custom.defvjp(_features_custom_fwd, _features_custom_bwd)
 
 
 def _two_layers(xyz, goals, w1, b1, w2, b2, dtype):
@@ -197,10 +206,11 @@ def _two_layers_bwd(dtype, res, dz):
     xyz, goals, w1, b1, w2, b2 = res
     h1 = _features(xyz, goals, w1, b1, dtype)  # recomputed, not stored by the forward pass
     rows = tuple(range(h1.ndim - 1))
-    dw2 = jax.lax.dot_general(h1, dz, ((rows, rows), ((), ())), preferred_element_type=jnp.float32)
-    db2 = jnp.sum(dz.astype(jnp.float32), axis=rows)
+    f32 = jnp.promote_types(w2.dtype, jnp.float32)  # float32 (float64 under x64)
+    dw2 = jax.lax.dot_general(h1, dz, ((rows, rows), ((), ())), preferred_element_type=f32)
+    db2 = jnp.sum(dz.astype(f32), axis=rows)
     dh1 = jnp.matmul(dz, w2.astype(h1.dtype).T)
-    dxyz, dgoals, dw1, db1 = _features_fused_bwd(dtype, (xyz, goals, w1, b1), dh1)
+    dxyz, dgoals, dw1, db1 = _features_custom_bwd(dtype, "fused", (xyz, goals, w1, b1), dh1)
     return dxyz, dgoals, dw1, db1, dw2.astype(w2.dtype), db2.astype(b2.dtype)
 
 
@@ -230,7 +240,7 @@ def goal_relative_features(
     w: Float[Array, "3 H"],
     b: Float[Array, " H"],
     dtype=None,
-    fused_backward: bool = False,
+    fused_backward: bool | str = False,
 ) -> Float[Array, "... T G H"]:
     """First hidden layer on every (point, goal) pair: relu(W_1 (p_t − g_k) + b_1),
     evaluated as relu(W_1 p_t − (W_1 g_k − b_1)) in the parameters' precision (float32,
@@ -241,10 +251,13 @@ def goal_relative_features(
     and ∂L/∂b_1 = Σ_{t,k} δ_{tk} as one (4 × T·G) · (T·G × H) matmul over δ = ∂L/∂pre
     (accumulated in float32), instead of reductions over k and over t followed by small
     products (autodiff): the (T·G, H) tensors dominate the memory traffic of a training
-    step. Reverse mode only (no ``jvp``); the default path supports both.
+    step. ``fused_backward="split"`` forms the same gradient from the two reductions
+    Σ_k δ_tk and Σ_t δ_tk instead. Reverse mode only (no ``jvp``); the default path supports
+    both.
     """
     if fused_backward:
-        return _features_fused(xyz, goals, w, b, dtype)
+        mode = fused_backward if isinstance(fused_backward, str) else "fused"
+        return _features_custom(xyz, goals, w, b, dtype, mode)
     return _features(xyz, goals, w, b, dtype)
 
 

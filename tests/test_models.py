@@ -210,3 +210,28 @@ def test_observer_input_validation():
         models.check_observer_inputs(xyz, goals, np.zeros(8, bool))
     with pytest.raises(ValueError, match="compute_dtype"):
         models.GoalRelativeMLP((4,), compute_dtype="float16", rngs=nnx.Rngs(0))
+
+
+@pytest.mark.parametrize("backward", [b for b in models.BACKWARDS if b != "autodiff"])
+@pytest.mark.parametrize("shape", [(3, 7, 5), (2, 2, 6, 1)])  # SLOT-V (B, T, G); T-REX pairs
+def test_custom_first_layer_gradients_equal_autodiff(backward, shape):
+    """Every training gradient implementation gives autodiff's gradient, for the parameters
+    and for the inputs, on random data with a weighted loss over all (point, goal) values."""
+    *batch, t, g = shape
+    with jax.enable_x64(True):
+        m = models.GoalRelativeMLP((24, 16, 8), rngs=nnx.Rngs(3))
+        graphdef, params = nnx.split(m)
+        params = jax.tree.map(lambda x: x.astype(jnp.float64), params)
+        rng = np.random.default_rng(0)
+        xyz = jnp.asarray(rng.uniform(-0.5, 0.5, (*batch, t, 3)))
+        goals = jnp.asarray(rng.uniform(-0.5, 0.5, (*batch, g, 3)))
+        wts = jnp.asarray(rng.normal(size=(*batch, t, g)))
+
+        def loss(p, x, gl, bw):
+            return jnp.sum(wts * nnx.merge(graphdef, p).grid(x, gl, backward=bw))
+
+        ref = jax.grad(loss, argnums=(0, 1, 2))(params, xyz, goals, "autodiff")
+        got = jax.grad(loss, argnums=(0, 1, 2))(params, xyz, goals, backward)
+    for a, b in zip(jax.tree.leaves(ref), jax.tree.leaves(got), strict=True):
+        assert np.max(np.abs(np.asarray(a))) > 0  # the loss reaches every parameter
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-10, atol=1e-12)

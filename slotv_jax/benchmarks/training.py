@@ -11,7 +11,9 @@ on the device (no host sync per update, the state donated). Per (method, dtype):
 - achieved FLOP/s: analytic matmul FLOPs per update over its time. Forward FLOPs per
   trajectory and goal are 2·(3·H1/G + Σ_l H_l·H_{l+1} · T + H_L · T) (the goal-relative
   layer as computed: (T, 3)×(3, H1) and (G, 3)×(3, H1) per trajectory); an update costs
-  ≈ 3× its forward FLOPs (backward: gradients w.r.t. activations and weights). Padded goal
+  ≈ 3× its forward FLOPs (backward: gradients w.r.t. activations and weights). The
+  synthetic scenes have 2, 3, 5 or 6 goals, like the training split; as in training the
+  two slots no scene uses are cut (``--all-slots`` keeps all 8), and the remaining padded
   slots are computed and counted (the loop has fixed shapes);
 - the matmul peak of the same device and dtype, measured in the same run: an N×N×N
   ``jnp.dot`` (N = 8192 on GPUs, 2048 on CPUs), median of repeated calls.
@@ -65,17 +67,19 @@ def forward_flops(hidden: tuple[int, ...], rows_per_traj: int, goals_per_traj: i
     return float(f)
 
 
-def update_flops(cfg) -> tuple[float, int]:
-    """(FLOPs per update ≈ 3 × forward, trajectories per update)."""
+def update_flops(cfg, goal_slots: int = G) -> tuple[float, int]:
+    """(FLOPs per update ≈ 3 × forward, trajectories per update) with ``goal_slots`` slots."""
     if cfg.method == "slotv":
-        per = forward_flops(cfg.hidden, T * G, G)
+        per = forward_flops(cfg.hidden, T * goal_slots, goal_slots)
         return 3.0 * per * cfg.batch_size, cfg.batch_size
     per_pair = 2 * forward_flops(cfg.hidden, T, 1)  # two trajectories, one goal each
     return 3.0 * per_pair * cfg.batch_size, 2 * cfg.batch_size
 
 
-def synthetic_data(n: int, seed: int = 0):
-    """Random but valid trajectories, scenes and label distributions (on the host)."""
+def synthetic_data(n: int, seed: int = 0, trim: bool = True):
+    """Random but valid trajectories, scenes (2, 3, 5 or 6 goals, as the training split) and
+    label distributions (on the host); ``trim`` cuts the two slots no scene uses, as
+    :func:`slotv_jax.train.train_trials` does."""
     import numpy as np
 
     from slotv_jax import train
@@ -96,7 +100,8 @@ def synthetic_data(n: int, seed: int = 0):
     logits = np.where(mask, rng.normal(size=(n, G)), -np.inf)
     y = np.exp(logits - logits.max(-1, keepdims=True))
     y = (y / y.sum(-1, keepdims=True)).astype(np.float32)
-    return train.TrainData(xyz, goals, mask, y)
+    data = train.TrainData(xyz, goals, mask, y)
+    return train.trim_goals(data) if trim else data
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -149,8 +154,10 @@ def bench_train(
     backward: str = "auto",
     unroll: int = 1,
     profile: str | None = None,
-) -> tuple[float, float, float, object]:
-    """(seconds per update, FLOPs per update, compile seconds, cfg) of the paper-size loop."""
+    trim: bool = True,
+) -> tuple[float, float, float, object, int]:
+    """(seconds per update, FLOPs per update, compile seconds, cfg, goal slots) of the
+    paper-size loop."""
     import jax
 
     from slotv_jax import config, train
@@ -159,7 +166,8 @@ def bench_train(
     n = steps * cfg.batch_size
     trainer = train.make_train(cfg, progress=False, backward=backward, unroll=unroll)
     backward = trainer.backward
-    data = trainer.replicate(synthetic_data(n))
+    data = trainer.replicate(synthetic_data(n, trim=trim))
+    slots = data.goals.shape[1]
     state = trainer.replicate(trainer.init(jax.random.key(0)))
     epoch = jax.jit(functools.partial(trainer.run, epochs=1), donate_argnums=0)
     t0 = time.perf_counter()
@@ -177,14 +185,14 @@ def bench_train(
 
         d = pathlib.Path(profile)
         d.mkdir(parents=True, exist_ok=True)
-        tag = f"{method}_{dtype}_{backward}_unroll{unroll}"
+        tag = f"{method}_{dtype}_{backward}_unroll{unroll}_g{slots}"
         (d / f"{tag}.hlo.txt").write_text(compiled.as_text())
         with jax.profiler.trace(str(d / tag), create_perfetto_trace=True):
             for _ in range(2):
                 once()
         kernel_summary(d / tag, steps * 2)
-    flops, _ = update_flops(cfg)
-    return t, flops, compile_s, cfg
+    flops, _ = update_flops(cfg, slots)
+    return t, flops, compile_s, cfg, slots
 
 
 def kernel_summary(trace_dir, updates: int, top: int = 25) -> None:
@@ -216,7 +224,9 @@ def kernel_summary(trace_dir, updates: int, top: int = 25) -> None:
               f"x{cnt[name] / updates:.2f}  {name[:110]}")  # fmt: skip
 
 
-def bench_eval(method: str, dtype: str, n: int, repeats: int) -> tuple[float, float, float]:
+def bench_eval(
+    method: str, dtype: str, n: int, repeats: int, trim: bool = True
+) -> tuple[float, float, float]:
     """(trajectories/s, FLOP/s, compile s) of chunked SPEC §8 accuracy at paper size."""
     import jax
 
@@ -225,14 +235,16 @@ def bench_eval(method: str, dtype: str, n: int, repeats: int) -> tuple[float, fl
     cfg = config.paper(method, compute_dtype=dtype)
     trainer = train.make_train(cfg, progress=False)
     params = trainer.replicate(trainer.init(jax.random.key(0)).params)
-    ev = trainer.replicate(trainer.eval_data(synthetic_data(n, seed=1), size=n))
+    data = synthetic_data(n, seed=1, trim=trim)
+    ev = trainer.replicate(trainer.eval_data(data, size=n))
     f = jax.jit(trainer.accuracy)
     t0 = time.perf_counter()
     compiled = f.lower(params, ev).compile()
     compile_s = time.perf_counter() - t0
     jax.block_until_ready(compiled(params, ev))
     t = _median_time(lambda: jax.block_until_ready(compiled(params, ev)), repeats)
-    fl = forward_flops(cfg.hidden, T * G, G) * n
+    g = data.goals.shape[1]
+    fl = forward_flops(cfg.hidden, T * g, g) * n
     return n / t, fl / t, compile_s
 
 
@@ -270,6 +282,10 @@ def main(argv=None) -> int:
         help="methods to also time with the other implementations (default: slotv with "
         "--device-run, none otherwise)",
     )  # fmt: skip
+    ap.add_argument(
+        "--all-slots", action="store_true",
+        help="compute all 8 goal slots (default: cut the 2 unused ones, as training does)",
+    )  # fmt: skip
     ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
     ap.add_argument("--profile", default=None, help="dir: HLO + kernel profile of slotv train")
     args = ap.parse_args(argv)
@@ -297,12 +313,15 @@ def main(argv=None) -> int:
         peak = matmul_peak(dtype, n_peak, repeats)
         print(f"[{dtype}] matmul peak {peak / 1e12:.2f} TFLOP/s", flush=True)
         for method in args.methods.split(","):
-            prof = args.profile if method == "slotv" else None
-            t, fl, cs, cfg = bench_train(
-                method, dtype, steps, repeats, backward=args.backward, profile=prof
-            )
-            _, traj = update_flops(cfg)
-            row = Row(f"{method} train ({bw})", dtype, cfg.batch_size, cfg.hidden, t * 1e3,
+            trim = not args.all_slots
+            t, fl, cs, cfg, slots = bench_train(
+                method, dtype, steps, repeats, backward=args.backward, profile=args.profile,
+                trim=trim,
+            )  # fmt: skip
+            _, traj = update_flops(cfg, slots)
+            slot_note = f", {slots} goal slots" if method == "slotv" else ""
+            name = f"{method} train ({bw}{slot_note})"
+            row = Row(name, dtype, cfg.batch_size, cfg.hidden, t * 1e3,
                       traj / t, fl / t, peak, cs)  # fmt: skip
             rows.append(row)
             print(f"  {row.name}: {row.step_ms:.3f} ms/update, {row.traj_per_s:,.0f} traj/s, "
@@ -310,8 +329,8 @@ def main(argv=None) -> int:
                   f"(compile {cs:.1f} s)", flush=True)  # fmt: skip
             if method in args.variant_methods.split(","):
                 for label, kw in variants(args.backward):
-                    tv, flv, _, _ = bench_train(
-                        method, dtype, steps, repeats, profile=args.profile, **kw
+                    tv, flv, *_ = bench_train(
+                        method, dtype, steps, repeats, profile=args.profile, trim=trim, **kw
                     )
                     v = {"method": method, "variant": label, "dtype": dtype, "step_ms": tv * 1e3,
                          "traj_per_s": traj / tv, "frac_peak": flv / tv / peak}  # fmt: skip
@@ -319,7 +338,7 @@ def main(argv=None) -> int:
                     print(f"    variant {label}: {tv * 1e3:.3f} ms/update, {traj / tv:,.0f} "
                           f"traj/s, {100 * flv / tv / peak:.1f}% of peak", flush=True)  # fmt: skip
             if not args.no_eval:
-                tps, fps, ecs = bench_eval(method, dtype, n_eval, repeats)
+                tps, fps, ecs = bench_eval(method, dtype, n_eval, repeats, trim)
                 rows.append(Row(f"{method} eval", dtype, n_eval, cfg.hidden, 1e3 * n_eval / tps,
                                 tps, fps, peak, ecs))  # fmt: skip
                 print(f"  {method} eval: {tps:,.0f} traj/s, {fps / 1e12:.2f} TFLOP/s = "
