@@ -152,7 +152,12 @@ def accuracy(cfg, params, data, labeler: str | None = None, *, mesh=None) -> np.
     trainer = train_lib.make_train(cfg, mesh=mesh, progress=False)
     n = data.xyz.shape[0]
     ev = trainer.replicate(trainer.eval_data(train_lib.trim_goals(data), size=n))
-    ratio = np.asarray(_jit_accuracy(trainer, _batched(trainer, params))(params, ev))
+    batched = _batched(trainer, params)
+    if batched and jax.tree.leaves(params)[0].shape[0] == 1:  # one trial: no vmap
+        ratio = np.asarray(_jit_accuracy(trainer, False)(jax.tree.map(lambda x: x[0], params), ev))
+        ratio = ratio[None]
+    else:
+        ratio = np.asarray(_jit_accuracy(trainer, batched)(params, ev))
     return np.round(ratio.astype(np.float64) * n) / n
 
 

@@ -15,13 +15,13 @@ For a trajectory p_0..p_{T−1} and goals g_1..g_8:
   the real goals' probabilities do not depend on the padding.
 
 Because the first layer sees only r − g, translating a scene together with its
-trajectory leaves every score unchanged. It is evaluated as
-W_1 r − (W_1 g − b_1): a (T, H) and a (G, H) product broadcast to (T, G, H),
-instead of a (T·G, 3) × (3, H) product. This layer is always float32 at the
-highest matmul precision (r and g are metres of similar size, so rounding them
-before the subtraction would cost accuracy near the goal); the hidden layers
-use ``compute_dtype`` (bfloat16 on GPUs) with float32 parameters, and the
-scalar output and the reduction over time are float32.
+trajectory leaves every score unchanged. It is evaluated elementwise from r − g,
+or as W_1 r − (W_1 g − b_1) broadcast to (T, G, H) (:data:`first_layer_form`),
+never as a (T·G, 3) × (3, H) product. This layer is always in the parameters'
+precision, float32 (r and g are metres of similar size, so rounding them before
+the subtraction would cost accuracy near the goal); the hidden layers use
+``compute_dtype`` (bfloat16 on GPUs) with float32 parameters, and the scalar
+output and the reduction over time are float32.
 
 >>> import jax, jax.numpy as jnp
 >>> from flax import nnx
@@ -134,11 +134,40 @@ class GoalRelativeMLP(nnx.Module):
         return self._trunk(h)
 
 
+FIRST_LAYER_FORMS = ("auto", "difference", "broadcast")
+# How the first layer is evaluated; a speed choice (the values agree to float32 rounding).
+# "auto": "broadcast" for several goals on a CPU, else "difference". Read when tracing.
+first_layer_form = "auto"
+
+
+def _pre_activation(xyz, goals, w, b):
+    """W_1 (p_t − g_k) + b_1 for every (t, k): (..., T, G, H), in the parameters' precision.
+
+    - "difference": d = p_t − g_k first (exact when p_t is near g_k), then the three-term
+      product written out elementwise. XLA fuses the whole layer into the kernel that
+      consumes it, so the only (T·G, H) memory traffic is that kernel's output: the fastest
+      form on GPUs, and for one goal (T-REX's pairs) everywhere.
+    - "broadcast": W_1 p_t − (W_1 g_k − b_1), a (T, H) and a (G, H) product at the highest
+      matmul precision broadcast to (T, G, H): one subtraction per element, faster on CPUs,
+      where the arithmetic counts, when the (T, H) product is shared by several goals.
+    """
+    form = first_layer_form
+    if form not in FIRST_LAYER_FORMS:
+        raise ValueError(f"first_layer_form: expected one of {FIRST_LAYER_FORMS}, got {form!r}")
+    if form == "auto":
+        several = goals.shape[-2] > 1
+        form = "broadcast" if several and jax.default_backend() == "cpu" else "difference"
+    if form == "broadcast":
+        hp = jax.lax.Precision.HIGHEST
+        a = jnp.matmul(xyz, w, precision=hp)  # (..., T, H)
+        c = jnp.matmul(goals, w, precision=hp) - b  # (..., G, H)
+        return a[..., :, None, :] - c[..., None, :, :]
+    d = xyz[..., :, None, :] - goals[..., None, :, :]  # (..., T, G, 3)
+    return d[..., 0:1] * w[0] + d[..., 1:2] * w[1] + d[..., 2:3] * w[2] + b
+
+
 def _features(xyz, goals, w, b, dtype):
-    hp = jax.lax.Precision.HIGHEST
-    a = jnp.matmul(xyz, w, precision=hp)  # (..., T, H)
-    c = jnp.matmul(goals, w, precision=hp) - b  # (..., G, H)
-    h = jax.nn.relu(a[..., :, None, :] - c[..., None, :, :])
+    h = jax.nn.relu(_pre_activation(xyz, goals, w, b))
     return h if dtype is None else h.astype(dtype)
 
 
@@ -154,9 +183,7 @@ def _features_custom_fwd(xyz, goals, w, b, dtype, mode):
 def _features_custom_bwd(dtype, mode, res, dh):
     xyz, goals, w, b = res
     hp = jax.lax.Precision.HIGHEST
-    a = jnp.matmul(xyz, w, precision=hp)
-    c = jnp.matmul(goals, w, precision=hp) - b
-    pre = a[..., :, None, :] - c[..., None, :, :]  # (..., T, G, H), recomputed, never stored
+    pre = _pre_activation(xyz, goals, w, b)  # (..., T, G, H), recomputed, never stored
     dpre = jnp.where(pre > 0, dh, jnp.zeros((), dh.dtype))  # in the cotangent's dtype
     f32 = jnp.promote_types(dpre.dtype, jnp.float32)
     s_t = dpre.sum(-2, dtype=f32)  # (..., T, H): Σ_k δ_tk

@@ -418,8 +418,8 @@ def _make_train(
 
 def default_backward(platform: str) -> str:
     """The fastest measured gradient implementation of the first layers (same values):
-    "recompute" on CPUs, "autodiff" on GPUs (H100; see experiments/BENCHMARKS.md)."""
-    return "recompute" if platform == "cpu" else "autodiff"
+    "recompute" on CPUs, "fused" on GPUs (H100; see experiments/BENCHMARKS.md)."""
+    return "recompute" if platform == "cpu" else "fused"
 
 
 def make_train(
@@ -454,8 +454,10 @@ def make_train(
 
 
 @functools.cache
-def _jit_trials(trainer: Trainer):
-    return jax.jit(jax.vmap(trainer.train, in_axes=(0, None, None)))
+def _jit_trials(trainer: Trainer, vmapped: bool):
+    if vmapped:
+        return jax.jit(jax.vmap(trainer.train, in_axes=(0, None, None)))
+    return jax.jit(trainer.train)
 
 
 def trial_keys(seeds: int | Sequence[int]) -> jax.Array:
@@ -487,7 +489,10 @@ def train_trials(
     ev = None
     if val is not None and cfg.eval_every:
         ev = trainer.replicate(trainer.eval_data(trim_goals(subset(val, cfg.eval_size))))
-    return _jit_trials(trainer)(keys, data, ev)
+    if len(keys) == 1:  # no trial axis inside the compiled loop (XLA keeps a size-1 batch)
+        out = _jit_trials(trainer, False)(keys[0], data, ev)
+        return jax.tree.map(lambda x: x[None], out)
+    return _jit_trials(trainer, True)(keys, data, ev)
 
 
 def select_trial(tree, i: int):

@@ -235,3 +235,29 @@ def test_custom_first_layer_gradients_equal_autodiff(backward, shape):
     for a, b in zip(jax.tree.leaves(ref), jax.tree.leaves(got), strict=True):
         assert np.max(np.abs(np.asarray(a))) > 0  # the loss reaches every parameter
         np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("form", ["difference", "broadcast"])
+def test_first_layer_forms_agree(form, monkeypatch):
+    """Both evaluations of W_1 (p − g) + b_1 give the same values and gradients (float64),
+    and an unknown form is refused by name."""
+    m = models.GoalRelativeMLP((24, 8), rngs=nnx.Rngs(4))
+    rng = np.random.default_rng(2)
+    with jax.enable_x64(True):
+        graphdef, params = nnx.split(m)
+        params = jax.tree.map(lambda x: x.astype(jnp.float64), params)
+        xyz = jnp.asarray(rng.uniform(-0.5, 0.5, (2, 9, 3)))
+        goals = jnp.asarray(rng.uniform(-0.5, 0.5, (2, 4, 3)))
+
+        def f(p, x):
+            return jnp.sum(jnp.sin(nnx.merge(graphdef, p).grid(x, goals)))
+
+        monkeypatch.setattr(models, "first_layer_form", "broadcast")
+        ref = f(params, xyz), jax.grad(f, argnums=(0, 1))(params, xyz)
+        monkeypatch.setattr(models, "first_layer_form", form)
+        got = f(params, xyz), jax.grad(f, argnums=(0, 1))(params, xyz)
+    for a, b in zip(jax.tree.leaves(ref), jax.tree.leaves(got), strict=True):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-12, atol=1e-13)
+    monkeypatch.setattr(models, "first_layer_form", "matmul")
+    with pytest.raises(ValueError, match="first_layer_form"):
+        m.grid(xyz.astype(jnp.float32), goals.astype(jnp.float32))

@@ -389,9 +389,15 @@ def test_training_compiles_once_per_config(tiny):
     b = train.make_data(
         tr.xyz[::-1], tr.goals[::-1], tr.goal_mask[::-1], tr.labels["effdist"][::-1]
     )
+    slots = [train.trim_goals(train.subset(d, 64)).goals.shape for d in (a, b)]
+    assert slots[0] == slots[1]  # the same shapes after cutting unused goal slots
     train.train_trials(cfg, a, 2, progress=False)
     train.train_trials(cfg, b, [5, 6], progress=False)
-    assert train._jit_trials(train.make_train(cfg, progress=False))._cache_size() == 1
+    train.train_trials(cfg, a, [1], progress=False)  # one trial: the unbatched function
+    train.train_trials(cfg, b, [2], progress=False)
+    trainer = train.make_train(cfg, progress=False)
+    assert train._jit_trials(trainer, True)._cache_size() == 1
+    assert train._jit_trials(trainer, False)._cache_size() == 1
 
 
 # ------------------------------------------------------------- evaluation

@@ -55,6 +55,7 @@ def variants(backward: str) -> list[tuple[str, dict]]:
     if backward == "auto":
         backward = default_backward(jax.default_backend())
     out = [(f"backward={b}", {"backward": b}) for b in BACKWARDS if b != backward]
+    out += [(f"first layer {f}", {"form": f}) for f in ("difference", "broadcast")]
     return [*out, (f"backward={backward}, unroll 4", {"backward": backward, "unroll": 4})]
 
 
@@ -155,12 +156,17 @@ def bench_train(
     unroll: int = 1,
     profile: str | None = None,
     trim: bool = True,
+    form: str = "auto",
+    trials: int = 1,
 ) -> tuple[float, float, float, object, int]:
     """(seconds per update, FLOPs per update, compile seconds, cfg, goal slots) of the
-    paper-size loop."""
+    paper-size loop; with ``trials`` > 1, that many vmapped trials per call (FLOPs and
+    time of all of them together). ``form`` is :data:`slotv_jax.models.first_layer_form`."""
     import jax
 
-    from slotv_jax import config, train
+    from slotv_jax import config, models, train
+
+    models.first_layer_form = form  # read when tracing, below
 
     cfg = config.paper(method, compute_dtype=dtype, epochs=1, log_every=steps)
     n = steps * cfg.batch_size
@@ -168,8 +174,14 @@ def bench_train(
     backward = trainer.backward
     data = trainer.replicate(synthetic_data(n, trim=trim))
     slots = data.goals.shape[1]
-    state = trainer.replicate(trainer.init(jax.random.key(0)))
-    epoch = jax.jit(functools.partial(trainer.run, epochs=1), donate_argnums=0)
+    run = functools.partial(trainer.run, epochs=1)
+    if trials > 1:
+        keys = jax.random.split(jax.random.key(0), trials)
+        state = trainer.replicate(jax.vmap(trainer.init)(keys))
+        run = jax.vmap(run, in_axes=(0, None))
+    else:
+        state = trainer.replicate(trainer.init(jax.random.key(0)))
+    epoch = jax.jit(run, donate_argnums=0)
     t0 = time.perf_counter()
     compiled = epoch.lower(state, data).compile()
     compile_s = time.perf_counter() - t0
@@ -185,14 +197,15 @@ def bench_train(
 
         d = pathlib.Path(profile)
         d.mkdir(parents=True, exist_ok=True)
-        tag = f"{method}_{dtype}_{backward}_unroll{unroll}_g{slots}"
+        tag = f"{method}_{dtype}_{backward}_unroll{unroll}_g{slots}_{form}_x{trials}"
         (d / f"{tag}.hlo.txt").write_text(compiled.as_text())
         with jax.profiler.trace(str(d / tag), create_perfetto_trace=True):
             for _ in range(2):
                 once()
         kernel_summary(d / tag, steps * 2)
+    models.first_layer_form = "auto"
     flops, _ = update_flops(cfg, slots)
-    return t, flops, compile_s, cfg, slots
+    return t, flops * trials, compile_s, cfg, slots
 
 
 def kernel_summary(trace_dir, updates: int, top: int = 25) -> None:
@@ -286,6 +299,14 @@ def main(argv=None) -> int:
         "--all-slots", action="store_true",
         help="compute all 8 goal slots (default: cut the 2 unused ones, as training does)",
     )  # fmt: skip
+    ap.add_argument(
+        "--variants", default="",
+        help="comma-separated substrings: time only the variants whose label has one",
+    )  # fmt: skip
+    ap.add_argument(
+        "--vmap-trials", default="",
+        help="comma-separated trial counts to also time vmapped together (e.g. 2,4)",
+    )  # fmt: skip
     ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
     ap.add_argument("--profile", default=None, help="dir: HLO + kernel profile of slotv train")
     args = ap.parse_args(argv)
@@ -328,7 +349,10 @@ def main(argv=None) -> int:
                   f"{row.flops_per_s / 1e12:.2f} TFLOP/s = {100 * row.frac:.1f}% of peak "
                   f"(compile {cs:.1f} s)", flush=True)  # fmt: skip
             if method in args.variant_methods.split(","):
+                wanted = [w for w in args.variants.split(",") if w]
                 for label, kw in variants(args.backward):
+                    if wanted and not any(w in label for w in wanted):
+                        continue
                     tv, flv, *_ = bench_train(
                         method, dtype, steps, repeats, profile=args.profile, trim=trim, **kw
                     )
@@ -337,6 +361,17 @@ def main(argv=None) -> int:
                     extra.append(v)
                     print(f"    variant {label}: {tv * 1e3:.3f} ms/update, {traj / tv:,.0f} "
                           f"traj/s, {100 * flv / tv / peak:.1f}% of peak", flush=True)  # fmt: skip
+            for k in [int(x) for x in args.vmap_trials.split(",") if x]:
+                tv, flv, *_ = bench_train(
+                    method, dtype, steps, repeats, backward=args.backward, trim=trim, trials=k
+                )
+                v = {"method": method, "variant": f"{k} vmapped trials", "dtype": dtype,
+                     "step_ms": tv * 1e3 / k, "traj_per_s": k * traj / tv,
+                     "frac_peak": flv / tv / peak}  # fmt: skip
+                extra.append(v)
+                print(f"    {k} vmapped trials: {tv * 1e3 / k:.3f} ms/update per trial, "
+                      f"{k * traj / tv:,.0f} traj/s, {100 * flv / tv / peak:.1f}% of peak",
+                      flush=True)  # fmt: skip
             if not args.no_eval:
                 tps, fps, ecs = bench_eval(method, dtype, n_eval, repeats, trim)
                 rows.append(Row(f"{method} eval", dtype, n_eval, cfg.hidden, 1e3 * n_eval / tps,
