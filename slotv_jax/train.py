@@ -204,6 +204,39 @@ def slotv_loss(
     return ce.mean()
 
 
+def slotv_loss_packed(
+    model: models.SlotV,
+    xyz,
+    goals,
+    goal_mask,
+    labels,
+    *,
+    capacity: int,
+    backward: str = "fused",
+    shard=lambda x: x,
+) -> Float[Array, ""]:
+    """:func:`slotv_loss` computed on the batch's real (trajectory, goal) pairs only.
+
+    The real slots of the (B, G) batch are listed in order (``jnp.nonzero`` with a static
+    ``capacity``, padded with invalid pairs), V is integrated along each pair's trajectory
+    as a one-goal grid, and the scores are put back into their (B, G) slots: the network
+    runs on ``capacity`` pairs instead of B·G slots. ``capacity`` must be at least the
+    number of real pairs of every batch (:meth:`Trainer.pair_capacity` counts them exactly
+    before training); pairs beyond it would be dropped.
+    """
+    b_size, g = goal_mask.shape
+    flat = jnp.nonzero(goal_mask.reshape(-1), size=capacity, fill_value=0)[0]
+    valid = shard(jnp.arange(capacity) < goal_mask.sum())
+    b, k = shard(flat // g), shard(flat % g)
+    pair_xyz = shard(xyz[b])  # (C, T, 3)
+    pair_goal = shard(goals[b, k])[:, None, :]  # (C, 1, 3)
+    sp = model.scores(pair_xyz, pair_goal, backward=backward)[:, 0]  # (C,)
+    s = jnp.zeros((b_size, g), sp.dtype).at[b, k].add(jnp.where(valid, sp, 0.0))
+    lse = jax.nn.logsumexp(models.mask_logits(s, goal_mask), axis=-1, keepdims=True)
+    ce = -jnp.sum(jnp.where(goal_mask, labels * (s - lse), 0.0), axis=-1)
+    return ce.mean()
+
+
 def trex_loss(model: models.TRex, xyz, goal, label, *, backward: str = "fused") -> Float[Array, ""]:
     """Mean over pairs of the BCE on σ(R₂ − R₁) (SPEC §6).
 
@@ -267,6 +300,9 @@ class Trainer:
     progress: _Progress | None
     backward: str = "fused"  # first-layer gradient implementation (models.GoalRelativeMLP.grid)
     unroll: int = 1  # updates per iteration of the compiled update loop
+    # SLOT-V: real (trajectory, goal) pairs computed per update (0: all B·G slots). Set by
+    # train_trials and the CLI from an exact count over every batch (pair_capacity).
+    packed_pairs: int = 0
 
     # ---- sharding helpers
     def _shard_batch(self, x):
@@ -279,9 +315,14 @@ class Trainer:
     # ---- pieces
     def init(self, key: jax.Array) -> TrainState:
         """Fresh parameters and optimiser state from ``key`` (pure; vmappable)."""
-        k_model, k_train = jax.random.split(key)
+        k_model, k_train = jax.random.split(key)  # k_train: see state_key
         _, params = nnx.split(models.make_model(self.cfg, nnx.Rngs(params=k_model)))
         return TrainState(params, self.tx.init(params), jnp.zeros((), jnp.int32), k_train)
+
+    @staticmethod
+    def state_key(key: jax.Array) -> jax.Array:
+        """The TrainState key that :meth:`init` derives from ``key``."""
+        return jax.random.split(key)[1]
 
     def model(self, params: nnx.State):
         return nnx.merge(self.graphdef, params)
@@ -299,8 +340,48 @@ class Trainer:
     def _slotv_step(self, data: TrainData, carry, idx):
         idx = self._shard_batch(idx)
         batch = [self._shard_batch(x[idx]) for x in data]
-        loss = functools.partial(slotv_loss, backward=self.backward)
+        if self.packed_pairs:
+            loss = functools.partial(
+                slotv_loss_packed,
+                capacity=self.packed_pairs,
+                backward=self.backward,
+                shard=self._shard_batch,
+            )
+        else:
+            loss = functools.partial(slotv_loss, backward=self.backward)
         return self._update(carry, loss, *batch)
+
+    def slotv_batches(self, key: jax.Array, epoch, n: int) -> Int[Array, "S B"]:
+        """The minibatches (trajectory indices) of SLOT-V epoch ``epoch`` of a run whose
+        state key is ``key``: a fresh permutation, cut into ⌊n/B⌋ batches (pure)."""
+        steps, bs = self.cfg.steps_per_epoch(n), self.cfg.batch_size
+        perm = jax.random.permutation(jax.random.fold_in(key, epoch), n)[: steps * bs]
+        return perm.reshape(steps, bs).astype(jnp.int32)
+
+    def pair_capacity(self, state_keys: jax.Array, goal_mask, epochs: Sequence[int]) -> int:
+        """Pairs per update that make packed SLOT-V updates exact for these runs: the largest
+        number of real (trajectory, goal) pairs in any batch of the given ``epochs`` of any
+        run (``state_keys``: the TrainState keys, stacked), rounded up to a multiple of 8
+        and of the mesh size; 0 when that is no fewer than all B·G slots."""
+        mask = jnp.asarray(goal_mask)
+        n, g = mask.shape
+        n = self.cfg.n_used(n)
+        counts = mask[:n].sum(-1)
+        ep = jnp.asarray(list(epochs), jnp.int32)
+        if ep.size == 0 or self.cfg.steps_per_epoch(n) < 1:
+            return 0
+
+        @jax.jit
+        def most(keys):
+            def one(key, e):
+                return counts[self.slotv_batches(key, e, n)].sum(-1).max()
+
+            return jax.vmap(lambda k: jax.vmap(lambda e: one(k, e))(ep).max())(keys).max()
+
+        m = int(most(jnp.reshape(state_keys, (-1,))))
+        step = int(np.lcm(8, self.mesh.size))
+        cap = -(-m // step) * step
+        return 0 if cap >= self.cfg.batch_size * g else cap
 
     def _trex_step(self, data: TrainData, carry, key):
         idx, slot, label = models.sample_trex_pairs(
@@ -368,12 +449,10 @@ class Trainer:
 
         def epoch_fn(carry, _):
             params, opt_state, epoch, key = carry
-            ekey = jax.random.fold_in(key, epoch)
             if cfg.method == "slotv":
-                perm = jax.random.permutation(ekey, n)[: steps * cfg.batch_size]
-                inputs = perm.reshape(steps, cfg.batch_size).astype(jnp.int32)
+                inputs = self.slotv_batches(key, epoch, n)
             else:
-                inputs = jax.random.split(ekey, steps)
+                inputs = jax.random.split(jax.random.fold_in(key, epoch), steps)
             main = jax.tree.map(
                 lambda x: x[: n_blocks * k].reshape(n_blocks, k, *x.shape[1:]), inputs
             )
@@ -408,18 +487,20 @@ def _round_up(n: int, m: int) -> int:
 
 @functools.cache
 def _make_train(
-    cfg: TrainConfig, mesh: Mesh, progress: bool, backward: str, unroll: int
+    cfg: TrainConfig, mesh: Mesh, progress: bool, backward: str, unroll: int, packed_pairs: int
 ) -> Trainer:
     abstract = nnx.eval_shape(lambda: models.make_model(cfg, nnx.Rngs(0)))
     graphdef, _ = nnx.split(abstract)
     bar = _Progress(f"{cfg.method} ", cfg.batch_size) if progress else None
-    return Trainer(cfg, mesh, graphdef, make_optimizer(cfg), bar, backward, unroll)
+    tx = make_optimizer(cfg)
+    return Trainer(cfg, mesh, graphdef, tx, bar, backward, unroll, packed_pairs)
 
 
 def default_backward(platform: str) -> str:
     """The fastest measured gradient implementation of the first layers (same values):
-    "recompute" on CPUs, "fused" on GPUs (H100; see experiments/BENCHMARKS.md)."""
-    return "recompute" if platform == "cpu" else "fused"
+    "recompute" on CPUs, "autodiff" on GPUs (H100, with the elementwise first layer and
+    one-goal rows, as in T-REX and packed SLOT-V updates; see experiments/BENCHMARKS.md)."""
+    return "recompute" if platform == "cpu" else "autodiff"
 
 
 def make_train(
@@ -429,6 +510,7 @@ def make_train(
     progress: bool = True,
     backward: str = "auto",
     unroll: int = 1,
+    packed_pairs: int = 0,
 ) -> Trainer:
     """The :class:`Trainer` for ``cfg`` (cached: the same arguments give the same object, so
     jitted calls reuse their compilation).
@@ -436,7 +518,9 @@ def make_train(
     ``mesh`` defaults to :func:`make_mesh`; ``progress`` reports to a tqdm bar;
     ``backward`` picks the implementation of the first layers' gradient (same values, see
     :meth:`slotv_jax.models.GoalRelativeMLP.grid`; "auto": :func:`default_backward`);
-    ``unroll`` unrolls the update loop.
+    ``unroll`` unrolls the update loop; ``packed_pairs`` > 0 computes SLOT-V updates on that
+    many real (trajectory, goal) pairs (:func:`slotv_loss_packed`): it must come from
+    :meth:`Trainer.pair_capacity` for the runs it trains, as in :func:`train_trials`.
     """
     if not isinstance(cfg, TrainConfig):
         raise ValueError(f"cfg: expected a TrainConfig, got {type(cfg).__name__}")
@@ -447,7 +531,25 @@ def make_train(
         raise ValueError(
             f"backward: expected 'auto' or one of {models.BACKWARDS}, got {backward!r}"
         )
-    return _make_train(cfg, mesh, bool(progress), backward, int(unroll))
+    if packed_pairs and cfg.method != "slotv":
+        raise ValueError("packed_pairs: only SLOT-V updates can be packed")
+    return _make_train(cfg, mesh, bool(progress), backward, int(unroll), int(packed_pairs))
+
+
+def packed_trainer(trainer: Trainer, state_keys: jax.Array, data: TrainData, epochs) -> Trainer:
+    """``trainer`` with SLOT-V updates packed to the real pairs of every batch that runs with
+    ``state_keys`` (TrainState keys) will meet in ``epochs`` (exact count, see
+    :meth:`Trainer.pair_capacity`); ``trainer`` itself for T-REX or when nothing is saved."""
+    if trainer.cfg.method != "slotv":
+        return trainer
+    cap = trainer.pair_capacity(state_keys, data.goal_mask, epochs)
+    if cap == trainer.packed_pairs:
+        return trainer
+    progress = trainer.progress is not None
+    return make_train(
+        trainer.cfg, mesh=trainer.mesh, progress=progress, backward=trainer.backward,
+        unroll=trainer.unroll, packed_pairs=cap,
+    )  # fmt: skip
 
 
 # ---------------------------------------------------------------- drivers
@@ -489,6 +591,8 @@ def train_trials(
     ev = None
     if val is not None and cfg.eval_every:
         ev = trainer.replicate(trainer.eval_data(trim_goals(subset(val, cfg.eval_size))))
+    state_keys = jax.vmap(Trainer.state_key)(keys)
+    trainer = packed_trainer(trainer, state_keys, data, range(cfg.epochs))
     if len(keys) == 1:  # no trial axis inside the compiled loop (XLA keeps a size-1 batch)
         out = _jit_trials(trainer, False)(keys[0], data, ev)
         return jax.tree.map(lambda x: x[None], out)
@@ -543,17 +647,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = Path(args.out)
 
     train_split = data_lib.load_split(args.data, "train")
-    data = prepare(train_split, args.labeler, size=cfg.train_size)
+    data = trim_goals(prepare(train_split, args.labeler, size=cfg.train_size))
     trainer = make_train(cfg, progress=not args.no_progress)
     if args.resume and checkpoint.exists(out):
         _, state, meta = checkpoint.restore(out, cfg)
         print(f"resuming from {out} after epoch {int(state.epoch)}", flush=True)
     else:
         state, meta = trainer.init(jax.random.key(args.seed)), {}
+    trainer = packed_trainer(trainer, state.key, data, range(int(state.epoch), cfg.epochs))
     print(f"devices: {trainer.mesh.size} × {trainer.mesh.devices.flat[0].platform}; "
-          f"backward: {trainer.backward}; config: {json.dumps(cfg.to_dict(), sort_keys=True)}",
-          flush=True)  # fmt: skip
-
+          f"backward: {trainer.backward}; packed pairs: {trainer.packed_pairs or 'off'}; "
+          f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)  # fmt: skip
     run_epoch = jax.jit(functools.partial(trainer.run, epochs=1), donate_argnums=0)
     data = trainer.replicate(data)
     state = trainer.replicate(state)

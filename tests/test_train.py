@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from flax import nnx
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
 from slotv_jax import config, evaluate, train
@@ -278,6 +279,45 @@ def test_training_on_trimmed_goal_slots_is_the_same_run(tiny, method):
     np.testing.assert_allclose(
         evaluate.accuracy(cfg, full.params, test), float(jax.jit(trainer.accuracy)(full.params, ev))
     )
+
+
+def test_packed_slotv_updates_are_exact(tiny):
+    """SLOT-V updates on the batch's real (trajectory, goal) pairs: the capacity covers every
+    batch of the run (counted independently here), and loss and gradient equal the
+    all-slots update."""
+    tr, _ = tiny
+    cfg = small_cfg("slotv", epochs=3, train_size=None)
+    data = train.trim_goals(train.prepare(tr, "effdist"))
+    trainer = train.make_train(cfg, progress=False)
+    keys = jax.vmap(train.Trainer.state_key)(train.trial_keys([0, 1]))
+    cap = trainer.pair_capacity(keys, data.goal_mask, range(cfg.epochs))
+    counts = np.asarray(data.goal_mask).sum(-1)
+    most = max(
+        counts[np.asarray(trainer.slotv_batches(k, e, len(counts)))].sum(-1).max()
+        for k in keys
+        for e in range(cfg.epochs)
+    )
+    assert most <= cap < most + 8 and cap % 8 == 0
+    assert 0 < cap < cfg.batch_size * data.goals.shape[1]  # fewer than all slots: packing is on
+    packed = train.packed_trainer(trainer, keys, data, range(cfg.epochs))
+    assert packed.packed_pairs == cap
+
+    idx = np.asarray(trainer.slotv_batches(keys[0], 0, len(counts)))[0]
+    batch = [jnp.asarray(x)[idx] for x in data]
+    model = trainer.model(trainer.init(jax.random.key(0)).params)
+
+    def dense(m):
+        return train.slotv_loss(m, *batch, backward="autodiff")
+
+    def pack(m):
+        return train.slotv_loss_packed(m, *batch, capacity=cap, backward="autodiff")
+
+    (la, ga), (lb, gb) = (nnx.value_and_grad(f)(model) for f in (dense, pack))
+    np.testing.assert_allclose(float(lb), float(la), rtol=1e-6)
+    for a, b in zip(jax.tree.leaves(ga), jax.tree.leaves(gb), strict=True):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-4, atol=1e-6)
+    with pytest.raises(ValueError, match="packed_pairs"):
+        train.make_train(small_cfg("trex"), packed_pairs=64)
 
 
 TWO_DEVICES = textwrap.dedent(

@@ -105,6 +105,19 @@ def synthetic_data(n: int, seed: int = 0, trim: bool = True):
     return train.trim_goals(data) if trim else data
 
 
+def paper_pair_capacity(trials: int = 10) -> int:
+    """The packed SLOT-V pairs per update of a paper-preset run of ``trials`` trials
+    (seeds 0..trials−1, 15 epochs) on 100,000 synthetic training trajectories."""
+    import jax
+
+    from slotv_jax import config, train
+
+    cfg = config.paper("slotv")
+    trainer = train.make_train(cfg, progress=False)
+    keys = jax.vmap(train.Trainer.state_key)(train.trial_keys(trials))
+    return trainer.pair_capacity(keys, synthetic_data(100_000).goal_mask, range(cfg.epochs))
+
+
 def _median_time(fn, repeats: int) -> float:
     ts = []
     for _ in range(repeats):
@@ -158,10 +171,13 @@ def bench_train(
     trim: bool = True,
     form: str = "auto",
     trials: int = 1,
-) -> tuple[float, float, float, object, int]:
-    """(seconds per update, FLOPs per update, compile seconds, cfg, goal slots) of the
-    paper-size loop; with ``trials`` > 1, that many vmapped trials per call (FLOPs and
-    time of all of them together). ``form`` is :data:`slotv_jax.models.first_layer_form`."""
+    pairs: int = 0,
+) -> tuple[float, float, float, object, float]:
+    """(seconds per update, FLOPs per update, compile seconds, cfg, goal slots per
+    trajectory computed) of the paper-size loop; with ``trials`` > 1, that many vmapped
+    trials per call (FLOPs and time of all of them together). ``form`` is
+    :data:`slotv_jax.models.first_layer_form`; ``pairs`` > 0 packs SLOT-V updates to that
+    many (trajectory, goal) pairs (:func:`slotv_jax.train.slotv_loss_packed`)."""
     import jax
 
     from slotv_jax import config, models, train
@@ -170,10 +186,13 @@ def bench_train(
 
     cfg = config.paper(method, compute_dtype=dtype, epochs=1, log_every=steps)
     n = steps * cfg.batch_size
-    trainer = train.make_train(cfg, progress=False, backward=backward, unroll=unroll)
+    pairs = pairs if method == "slotv" else 0
+    trainer = train.make_train(
+        cfg, progress=False, backward=backward, unroll=unroll, packed_pairs=pairs
+    )
     backward = trainer.backward
     data = trainer.replicate(synthetic_data(n, trim=trim))
-    slots = data.goals.shape[1]
+    slots = pairs / cfg.batch_size if pairs else data.goals.shape[1]
     run = functools.partial(trainer.run, epochs=1)
     if trials > 1:
         keys = jax.random.split(jax.random.key(0), trials)
@@ -197,7 +216,7 @@ def bench_train(
 
         d = pathlib.Path(profile)
         d.mkdir(parents=True, exist_ok=True)
-        tag = f"{method}_{dtype}_{backward}_unroll{unroll}_g{slots}_{form}_x{trials}"
+        tag = f"{method}_{dtype}_{backward}_unroll{unroll}_p{pairs}_{form}_x{trials}"
         (d / f"{tag}.hlo.txt").write_text(compiled.as_text())
         with jax.profiler.trace(str(d / tag), create_perfetto_trace=True):
             for _ in range(2):
@@ -297,8 +316,10 @@ def main(argv=None) -> int:
     )  # fmt: skip
     ap.add_argument(
         "--all-slots", action="store_true",
-        help="compute all 8 goal slots (default: cut the 2 unused ones, as training does)",
+        help="compute all 8 goal slots (default: as training does, cut the 2 unused ones and "
+        "pack SLOT-V updates to the real pairs)",
     )  # fmt: skip
+    ap.add_argument("--dense", action="store_true", help="6 goal slots, SLOT-V updates not packed")
     ap.add_argument(
         "--variants", default="",
         help="comma-separated substrings: time only the variants whose label has one",
@@ -328,6 +349,10 @@ def main(argv=None) -> int:
     from slotv_jax.train import default_backward
 
     bw = default_backward(jax.default_backend()) if args.backward == "auto" else args.backward
+    pairs = 0 if (args.all_slots or args.dense) else paper_pair_capacity()
+    if pairs:
+        print(f"SLOT-V updates packed to {pairs} real (trajectory, goal) pairs of the 32 × 6 "
+              "slots (the most in any batch of a 10-trial paper run)", flush=True)  # fmt: skip
     rows: list[Row] = []
     extra: list[dict] = []
     for dtype in args.dtypes.split(","):
@@ -337,10 +362,12 @@ def main(argv=None) -> int:
             trim = not args.all_slots
             t, fl, cs, cfg, slots = bench_train(
                 method, dtype, steps, repeats, backward=args.backward, profile=args.profile,
-                trim=trim,
+                trim=trim, pairs=pairs,
             )  # fmt: skip
             _, traj = update_flops(cfg, slots)
-            slot_note = f", {slots} goal slots" if method == "slotv" else ""
+            slot_note = ""
+            if method == "slotv":
+                slot_note = f", {pairs} pairs" if pairs else f", {slots} goal slots"
             name = f"{method} train ({bw}{slot_note})"
             row = Row(name, dtype, cfg.batch_size, cfg.hidden, t * 1e3,
                       traj / t, fl / t, peak, cs)  # fmt: skip
@@ -354,8 +381,9 @@ def main(argv=None) -> int:
                     if wanted and not any(w in label for w in wanted):
                         continue
                     tv, flv, *_ = bench_train(
-                        method, dtype, steps, repeats, profile=args.profile, trim=trim, **kw
-                    )
+                        method, dtype, steps, repeats, profile=args.profile, trim=trim,
+                        pairs=pairs, **kw,
+                    )  # fmt: skip
                     v = {"method": method, "variant": label, "dtype": dtype, "step_ms": tv * 1e3,
                          "traj_per_s": traj / tv, "frac_peak": flv / tv / peak}  # fmt: skip
                     extra.append(v)
@@ -363,8 +391,9 @@ def main(argv=None) -> int:
                           f"traj/s, {100 * flv / tv / peak:.1f}% of peak", flush=True)  # fmt: skip
             for k in [int(x) for x in args.vmap_trials.split(",") if x]:
                 tv, flv, *_ = bench_train(
-                    method, dtype, steps, repeats, backward=args.backward, trim=trim, trials=k
-                )
+                    method, dtype, steps, repeats, backward=args.backward, trim=trim, trials=k,
+                    pairs=pairs,
+                )  # fmt: skip
                 v = {"method": method, "variant": f"{k} vmapped trials", "dtype": dtype,
                      "step_ms": tv * 1e3 / k, "traj_per_s": k * traj / tv,
                      "frac_peak": flv / tv / peak}  # fmt: skip
