@@ -496,11 +496,20 @@ def _make_train(
     return Trainer(cfg, mesh, graphdef, tx, bar, backward, unroll, packed_pairs)
 
 
-def default_backward(platform: str) -> str:
+def default_backward(platform: str, method: str = "slotv") -> str:
     """The fastest measured gradient implementation of the first layers (same values):
-    "recompute" on CPUs, "autodiff" on GPUs (H100, with the elementwise first layer and
-    one-goal rows, as in T-REX and packed SLOT-V updates; see experiments/BENCHMARKS.md)."""
-    return "recompute" if platform == "cpu" else "autodiff"
+    "recompute" on CPUs; on GPUs (H100, experiments/BENCHMARKS.md) "fused" for SLOT-V's
+    (T, G) grid and "autodiff" for T-REX's one-goal rows."""
+    if platform == "cpu":
+        return "recompute"
+    return "fused" if method == "slotv" else "autodiff"
+
+
+def packs_updates(platform: str) -> bool:
+    """Whether :func:`train_trials` packs SLOT-V updates to the real pairs (measured: twice
+    as fast on CPUs, where the arithmetic counts; slower on an H100, where the (T, G) grid
+    shares each point's first-layer work between goals)."""
+    return platform == "cpu"
 
 
 def make_train(
@@ -526,7 +535,7 @@ def make_train(
         raise ValueError(f"cfg: expected a TrainConfig, got {type(cfg).__name__}")
     mesh = make_mesh(cfg.batch_size) if mesh is None else mesh
     if backward == "auto":
-        backward = default_backward(mesh.devices.flat[0].platform)
+        backward = default_backward(mesh.devices.flat[0].platform, cfg.method)
     if backward not in models.BACKWARDS:
         raise ValueError(
             f"backward: expected 'auto' or one of {models.BACKWARDS}, got {backward!r}"
@@ -591,8 +600,9 @@ def train_trials(
     ev = None
     if val is not None and cfg.eval_every:
         ev = trainer.replicate(trainer.eval_data(trim_goals(subset(val, cfg.eval_size))))
-    state_keys = jax.vmap(Trainer.state_key)(keys)
-    trainer = packed_trainer(trainer, state_keys, data, range(cfg.epochs))
+    if packs_updates(trainer.mesh.devices.flat[0].platform):
+        state_keys = jax.vmap(Trainer.state_key)(keys)
+        trainer = packed_trainer(trainer, state_keys, data, range(cfg.epochs))
     if len(keys) == 1:  # no trial axis inside the compiled loop (XLA keeps a size-1 batch)
         out = _jit_trials(trainer, False)(keys[0], data, ev)
         return jax.tree.map(lambda x: x[None], out)
@@ -654,7 +664,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"resuming from {out} after epoch {int(state.epoch)}", flush=True)
     else:
         state, meta = trainer.init(jax.random.key(args.seed)), {}
-    trainer = packed_trainer(trainer, state.key, data, range(int(state.epoch), cfg.epochs))
+    if packs_updates(trainer.mesh.devices.flat[0].platform):
+        trainer = packed_trainer(trainer, state.key, data, range(int(state.epoch), cfg.epochs))
     print(f"devices: {trainer.mesh.size} × {trainer.mesh.devices.flat[0].platform}; "
           f"backward: {trainer.backward}; packed pairs: {trainer.packed_pairs or 'off'}; "
           f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)  # fmt: skip

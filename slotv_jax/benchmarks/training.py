@@ -45,7 +45,7 @@ T = 100
 G = 8
 
 
-def variants(backward: str) -> list[tuple[str, dict]]:
+def variants(backward: str, method: str) -> list[tuple[str, dict]]:
     """Other implementations of the same update (Trainer.backward, Trainer.unroll)."""
     import jax
 
@@ -53,7 +53,7 @@ def variants(backward: str) -> list[tuple[str, dict]]:
     from slotv_jax.train import default_backward
 
     if backward == "auto":
-        backward = default_backward(jax.default_backend())
+        backward = default_backward(jax.default_backend(), method)
     out = [(f"backward={b}", {"backward": b}) for b in BACKWARDS if b != backward]
     out += [(f"first layer {f}", {"form": f}) for f in ("difference", "broadcast")]
     return [*out, (f"backward={backward}, unroll 4", {"backward": backward, "unroll": 4})]
@@ -319,7 +319,10 @@ def main(argv=None) -> int:
         help="compute all 8 goal slots (default: as training does, cut the 2 unused ones and "
         "pack SLOT-V updates to the real pairs)",
     )  # fmt: skip
-    ap.add_argument("--dense", action="store_true", help="6 goal slots, SLOT-V updates not packed")
+    ap.add_argument(
+        "--dense", action="store_true",
+        help="6 goal slots, SLOT-V updates not packed (the GPU default)",
+    )  # fmt: skip
     ap.add_argument(
         "--variants", default="",
         help="comma-separated substrings: time only the variants whose label has one",
@@ -346,10 +349,11 @@ def main(argv=None) -> int:
     print(json.dumps(env), flush=True)
     print(f"steps per timed epoch {steps}, repeats {repeats}, peak matmul {n_peak}³", flush=True)
 
-    from slotv_jax.train import default_backward
+    from slotv_jax.train import default_backward, packs_updates
 
-    bw = default_backward(jax.default_backend()) if args.backward == "auto" else args.backward
-    pairs = 0 if (args.all_slots or args.dense) else paper_pair_capacity()
+    pairs = 0
+    if packs_updates(jax.default_backend()) and not (args.all_slots or args.dense):
+        pairs = paper_pair_capacity()
     if pairs:
         print(f"SLOT-V updates packed to {pairs} real (trajectory, goal) pairs of the 32 × 6 "
               "slots (the most in any batch of a 10-trial paper run)", flush=True)  # fmt: skip
@@ -368,6 +372,8 @@ def main(argv=None) -> int:
             slot_note = ""
             if method == "slotv":
                 slot_note = f", {pairs} pairs" if pairs else f", {slots} goal slots"
+            bw = default_backward(jax.default_backend(), method)
+            bw = bw if args.backward == "auto" else args.backward
             name = f"{method} train ({bw}{slot_note})"
             row = Row(name, dtype, cfg.batch_size, cfg.hidden, t * 1e3,
                       traj / t, fl / t, peak, cs)  # fmt: skip
@@ -377,7 +383,7 @@ def main(argv=None) -> int:
                   f"(compile {cs:.1f} s)", flush=True)  # fmt: skip
             if method in args.variant_methods.split(","):
                 wanted = [w for w in args.variants.split(",") if w]
-                for label, kw in variants(args.backward):
+                for label, kw in variants(args.backward, method):
                     if wanted and not any(w in label for w in wanted):
                         continue
                     tv, flv, *_ = bench_train(
