@@ -35,10 +35,14 @@ uses the largest number of local devices that divides ``batch_size``.
 Mixed precision: ``cfg.compute_dtype="bfloat16"`` runs the hidden matmuls in
 bfloat16; parameters, gradients and optimiser state stay float32.
 
-Implementation choices that do not change the values: ``make_train(backward=...)``
-selects how the gradient of the first layers is formed (see
-:meth:`slotv_jax.models.GoalRelativeMLP.grid`; "auto" takes the fastest measured one
-per platform) and ``unroll`` unrolls the update loop.
+Implementation choices that do not change the values (up to float rounding):
+``make_train(backward=...)`` selects how the gradient of the first layers is formed
+(see :meth:`slotv_jax.models.GoalRelativeMLP.grid`; "auto" takes the fastest measured
+one per platform and method) and ``unroll`` unrolls the update loop;
+:func:`train_trials` cuts the goal slots no training trajectory uses
+(:func:`trim_goals`) and, on CPUs, packs SLOT-V updates to each batch's real
+(trajectory, goal) pairs (:func:`slotv_loss_packed`, with a capacity counted exactly
+over every batch of the run).
 
 Sample-efficiency curves (SPEC §8): ``cfg.eval_every = k`` validates on the first
 ``cfg.eval_size`` trajectories of ``val`` after every k updates (and once before
