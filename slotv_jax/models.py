@@ -47,7 +47,7 @@ from slotv_jax import validation
 from slotv_jax.validation import G_MAX
 
 _DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
-BACKWARDS = ("autodiff", "fused", "split", "recompute")  # see GoalRelativeMLP.grid
+BACKWARDS = ("autodiff", "fused", "recompute")  # see GoalRelativeMLP.grid
 _List = getattr(nnx, "List", list)  # flax < 0.12 keeps sub-modules in plain lists
 
 
@@ -113,14 +113,13 @@ class GoalRelativeMLP(nnx.Module):
         *,
         backward: str = "autodiff",
     ) -> Float[Array, "... T G"]:
-        """f(p_i, g_k) for every point and goal: W_1 p_i − (W_1 g_k − b_1), then the trunk.
+        """f(p_i, g_k) for every point and goal: W_1 (p_i − g_k) + b_1, then the trunk.
 
         ``backward`` picks how the gradient of the first layers is computed (the values are
         the same): "autodiff" (plain JAX; supports every transformation), or, for training
         (reverse mode only), "fused" (:func:`goal_relative_features` with its one-pass
-        custom gradient), "split" (the same custom gradient from two reductions) or
-        "recompute" (:func:`goal_relative_two_layers`: the first activation is recomputed in
-        the backward pass instead of stored).
+        custom gradient) or "recompute" (:func:`goal_relative_two_layers`: the first
+        activation is recomputed in the backward pass instead of stored).
         """
         cd = None if self.compute_dtype == "float32" else _dtype(self.compute_dtype)
         w1, b1 = self.first.kernel[...], self.first.bias[...]
@@ -130,7 +129,7 @@ class GoalRelativeMLP(nnx.Module):
             return self._trunk(jax.nn.relu(z2), start=1)
         if backward not in BACKWARDS:
             raise ValueError(f"backward: expected one of {BACKWARDS}, got {backward!r}")
-        h = goal_relative_features(xyz, goals, w1, b1, cd, backward != "autodiff" and backward)
+        h = goal_relative_features(xyz, goals, w1, b1, cd, backward == "fused")
         return self._trunk(h)
 
 
@@ -171,48 +170,38 @@ def _features(xyz, goals, w, b, dtype):
     return h if dtype is None else h.astype(dtype)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(4, 5))
-def _features_custom(xyz, goals, w, b, dtype, mode):
+@functools.partial(jax.custom_vjp, nondiff_argnums=(4,))
+def _features_fused(xyz, goals, w, b, dtype):
     return _features(xyz, goals, w, b, dtype)
 
 
-def _features_custom_fwd(xyz, goals, w, b, dtype, mode):
+def _features_fused_fwd(xyz, goals, w, b, dtype):
     return _features(xyz, goals, w, b, dtype), (xyz, goals, w, b)
 
 
-def _features_custom_bwd(dtype, mode, res, dh):
+def _features_fused_bwd(dtype, res, dh):
     xyz, goals, w, b = res
     hp = jax.lax.Precision.HIGHEST
     pre = _pre_activation(xyz, goals, w, b)  # (..., T, G, H), recomputed, never stored
     dpre = jnp.where(pre > 0, dh, jnp.zeros((), dh.dtype))  # in the cotangent's dtype
     f32 = jnp.promote_types(dpre.dtype, jnp.float32)
-    s_t = dpre.sum(-2, dtype=f32)  # (..., T, H): Σ_k δ_tk
-    s_k = dpre.sum(-3, dtype=f32)  # (..., G, H): Σ_t δ_tk
-    if mode == "fused":
-        # W_1 and b_1 as one skinny matmul over all (t, k) rows: Σ_{t,k} (p_t − g_k, 1) ⊗ δ_tk
-        d = xyz[..., :, None, :] - goals[..., None, :, :]  # (..., T, G, 3)
-        d4 = jnp.concatenate([d, jnp.ones_like(d[..., :1])], axis=-1).astype(dpre.dtype)
-        rows = tuple(range(dpre.ndim - 1))
-        dwb = jax.lax.dot_general(d4, dpre, ((rows, rows), ((), ())), preferred_element_type=f32)
-        dw, db = dwb[:3], dwb[3]
-    else:  # "split": Σ_t p_t ⊗ Σ_k δ_tk − Σ_k g_k ⊗ Σ_t δ_tk, from the two reductions
-        rows_t = tuple(range(s_t.ndim - 1))
-        dw = jax.lax.dot_general(
-            xyz.astype(f32), s_t, ((rows_t, rows_t), ((), ())), precision=hp
-        ) - jax.lax.dot_general(goals.astype(f32), s_k, ((rows_t, rows_t), ((), ())), precision=hp)
-        db = s_k.sum(rows_t)
+    # W_1 and b_1 as one skinny matmul over all (t, k) rows: Σ_{t,k} (p_t − g_k, 1) ⊗ δ_tk
+    d = xyz[..., :, None, :] - goals[..., None, :, :]  # (..., T, G, 3)
+    d4 = jnp.concatenate([d, jnp.ones_like(d[..., :1])], axis=-1).astype(dpre.dtype)
+    rows = tuple(range(dpre.ndim - 1))
+    dwb = jax.lax.dot_general(d4, dpre, ((rows, rows), ((), ())), preferred_element_type=f32)
     # the inputs (dead code, removed by XLA, when only parameters are differentiated)
-    dxyz = jnp.matmul(s_t, w.T, precision=hp)
-    dgoals = -jnp.matmul(s_k, w.T, precision=hp)
+    dxyz = jnp.matmul(dpre.sum(-2, dtype=f32), w.T, precision=hp)
+    dgoals = -jnp.matmul(dpre.sum(-3, dtype=f32), w.T, precision=hp)
     return (
         dxyz.astype(xyz.dtype),
         dgoals.astype(goals.dtype),
-        dw.astype(w.dtype),
-        db.astype(b.dtype),
+        dwb[:3].astype(w.dtype),
+        dwb[3].astype(b.dtype),
     )
 
 
-_features_custom.defvjp(_features_custom_fwd, _features_custom_bwd)
+_features_fused.defvjp(_features_fused_fwd, _features_fused_bwd)
 
 
 def _two_layers(xyz, goals, w1, b1, w2, b2, dtype):
@@ -237,7 +226,7 @@ def _two_layers_bwd(dtype, res, dz):
     dw2 = jax.lax.dot_general(h1, dz, ((rows, rows), ((), ())), preferred_element_type=f32)
     db2 = jnp.sum(dz.astype(f32), axis=rows)
     dh1 = jnp.matmul(dz, w2.astype(h1.dtype).T)
-    dxyz, dgoals, dw1, db1 = _features_custom_bwd(dtype, "fused", (xyz, goals, w1, b1), dh1)
+    dxyz, dgoals, dw1, db1 = _features_fused_bwd(dtype, (xyz, goals, w1, b1), dh1)
     return dxyz, dgoals, dw1, db1, dw2.astype(w2.dtype), db2.astype(b2.dtype)
 
 
@@ -267,7 +256,7 @@ def goal_relative_features(
     w: Float[Array, "3 H"],
     b: Float[Array, " H"],
     dtype=None,
-    fused_backward: bool | str = False,
+    fused_backward: bool = False,
 ) -> Float[Array, "... T G H"]:
     """First hidden layer on every (point, goal) pair: relu(W_1 (p_t − g_k) + b_1),
     evaluated as relu(W_1 p_t − (W_1 g_k − b_1)) in the parameters' precision (float32,
@@ -278,17 +267,29 @@ def goal_relative_features(
     and ∂L/∂b_1 = Σ_{t,k} δ_{tk} as one (4 × T·G) · (T·G × H) matmul over δ = ∂L/∂pre
     (accumulated in float32), instead of reductions over k and over t followed by small
     products (autodiff): the (T·G, H) tensors dominate the memory traffic of a training
-    step. ``fused_backward="split"`` forms the same gradient from the two reductions
-    Σ_k δ_tk and Σ_t δ_tk instead. Reverse mode only (no ``jvp``); the default path supports
-    both.
+    step. Reverse mode only (no ``jvp``); the default path supports both.
     """
     if fused_backward:
-        mode = fused_backward if isinstance(fused_backward, str) else "fused"
-        return _features_custom(xyz, goals, w, b, dtype, mode)
+        return _features_fused(xyz, goals, w, b, dtype)
     return _features(xyz, goals, w, b, dtype)
 
 
-class SlotV(nnx.Module):
+class _Observer(nnx.Module):
+    """Per-goal scores of a trajectory (``scores``, set by the subclass); ``__call__`` masks
+    the padded goals to −∞."""
+
+    def __call__(
+        self,
+        xyz: Float[Array, "... T 3"],
+        goals: Float[Array, "... G 3"],
+        goal_mask: Bool[Array, "... G"],
+    ) -> Float[Array, "... G"]:
+        """Masked scores, the logits of softmax over real goals (SLOT-V: P(goal k |
+        trajectory); T-REX: the evaluation logits of SPEC §6)."""
+        return mask_logits(self.scores(xyz, goals), goal_mask)
+
+
+class SlotV(_Observer):
     """SLOT-V observer: logits s_k = (1/T) Σ_i V(p_i, g_k), padded goals at −∞ (SPEC §5)."""
 
     method = "slotv"
@@ -304,17 +305,8 @@ class SlotV(nnx.Module):
         """Unmasked s_k = mean over time of V(p_i, g_k)."""
         return self.value.grid(xyz, goals, **kw).mean(axis=-2)
 
-    def __call__(
-        self,
-        xyz: Float[Array, "... T 3"],
-        goals: Float[Array, "... G 3"],
-        goal_mask: Bool[Array, "... G"],
-    ) -> Float[Array, "... G"]:
-        """Masked logits; softmax gives P(goal k | trajectory)."""
-        return mask_logits(self.scores(xyz, goals), goal_mask)
 
-
-class TRex(nnx.Module):
+class TRex(_Observer):
     """Adapted T-REX: per-goal returns R_k = Σ_i r(p_i, g_k), padded goals at −∞ (SPEC §6)."""
 
     method = "trex"
@@ -329,15 +321,6 @@ class TRex(nnx.Module):
     ) -> Float[Array, "... G"]:
         """Unmasked returns R_k = Σ_i r(p_i, g_k)."""
         return self.reward.grid(xyz, goals, **kw).sum(axis=-2)
-
-    def __call__(
-        self,
-        xyz: Float[Array, "... T 3"],
-        goals: Float[Array, "... G 3"],
-        goal_mask: Bool[Array, "... G"],
-    ) -> Float[Array, "... G"]:
-        """Masked returns, used as logits for evaluation (SPEC §6)."""
-        return mask_logits(self.scores(xyz, goals), goal_mask)
 
 
 Model = SlotV | TRex

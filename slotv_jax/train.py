@@ -202,7 +202,11 @@ def slotv_loss(
     model: models.SlotV, xyz, goals, goal_mask, labels, *, backward: str = "fused"
 ) -> Float[Array, ""]:
     """Mean over the batch of  −Σ_k y_k (s_k − logsumexp_{real j} s_j)  (SPEC §5)."""
-    s = model.scores(xyz, goals, backward=backward)  # (B, G)
+    return _cross_entropy(model.scores(xyz, goals, backward=backward), goal_mask, labels)
+
+
+def _cross_entropy(s, goal_mask, labels) -> Float[Array, ""]:
+    """Batch mean of −Σ_k y_k log softmax_k(s) over the real goals of (B, G) scores."""
     lse = jax.nn.logsumexp(models.mask_logits(s, goal_mask), axis=-1, keepdims=True)
     ce = -jnp.sum(jnp.where(goal_mask, labels * (s - lse), 0.0), axis=-1)
     return ce.mean()
@@ -236,9 +240,7 @@ def slotv_loss_packed(
     pair_goal = shard(goals[b, k])[:, None, :]  # (C, 1, 3)
     sp = model.scores(pair_xyz, pair_goal, backward=backward)[:, 0]  # (C,)
     s = jnp.zeros((b_size, g), sp.dtype).at[b, k].add(jnp.where(valid, sp, 0.0))
-    lse = jax.nn.logsumexp(models.mask_logits(s, goal_mask), axis=-1, keepdims=True)
-    ce = -jnp.sum(jnp.where(goal_mask, labels * (s - lse), 0.0), axis=-1)
-    return ce.mean()
+    return _cross_entropy(s, goal_mask, labels)
 
 
 def trex_loss(model: models.TRex, xyz, goal, label, *, backward: str = "fused") -> Float[Array, ""]:
@@ -317,16 +319,20 @@ class Trainer:
         return jax.device_put(tree, NamedSharding(self.mesh, P()))
 
     # ---- pieces
+    @staticmethod
+    def _init_keys(key: jax.Array) -> jax.Array:
+        return jax.random.split(key)  # (model key, TrainState key)
+
     def init(self, key: jax.Array) -> TrainState:
         """Fresh parameters and optimiser state from ``key`` (pure; vmappable)."""
-        k_model, k_train = jax.random.split(key)  # k_train: see state_key
+        k_model, k_train = self._init_keys(key)
         _, params = nnx.split(models.make_model(self.cfg, nnx.Rngs(params=k_model)))
         return TrainState(params, self.tx.init(params), jnp.zeros((), jnp.int32), k_train)
 
     @staticmethod
     def state_key(key: jax.Array) -> jax.Array:
         """The TrainState key that :meth:`init` derives from ``key``."""
-        return jax.random.split(key)[1]
+        return Trainer._init_keys(key)[1]
 
     def model(self, params: nnx.State):
         return nnx.merge(self.graphdef, params)
@@ -375,14 +381,11 @@ class Trainer:
         if ep.size == 0 or self.cfg.steps_per_epoch(n) < 1:
             return 0
 
-        @jax.jit
-        def most(keys):
-            def one(key, e):
-                return counts[self.slotv_batches(key, e, n)].sum(-1).max()
+        def most(key, e):  # the most real pairs in one batch of epoch e of one run
+            return counts[self.slotv_batches(key, e, n)].sum(-1).max()
 
-            return jax.vmap(lambda k: jax.vmap(lambda e: one(k, e))(ep).max())(keys).max()
-
-        m = int(most(jnp.reshape(state_keys, (-1,))))
+        grid = jax.vmap(jax.vmap(most, in_axes=(None, 0)), in_axes=(0, None))  # (runs, epochs)
+        m = int(jax.jit(grid)(jnp.reshape(state_keys, (-1,)), ep).max())
         step = int(np.lcm(8, self.mesh.size))
         cap = -(-m // step) * step
         return 0 if cap >= self.cfg.batch_size * g else cap
@@ -552,8 +555,10 @@ def make_train(
 def packed_trainer(trainer: Trainer, state_keys: jax.Array, data: TrainData, epochs) -> Trainer:
     """``trainer`` with SLOT-V updates packed to the real pairs of every batch that runs with
     ``state_keys`` (TrainState keys) will meet in ``epochs`` (exact count, see
-    :meth:`Trainer.pair_capacity`); ``trainer`` itself for T-REX or when nothing is saved."""
-    if trainer.cfg.method != "slotv":
+    :meth:`Trainer.pair_capacity`); ``trainer`` itself for T-REX, on platforms where packing
+    does not pay (:func:`packs_updates`) or when nothing is saved."""
+    platform = trainer.mesh.devices.flat[0].platform
+    if trainer.cfg.method != "slotv" or not packs_updates(platform):
         return trainer
     cap = trainer.pair_capacity(state_keys, data.goal_mask, epochs)
     if cap == trainer.packed_pairs:
@@ -604,9 +609,7 @@ def train_trials(
     ev = None
     if val is not None and cfg.eval_every:
         ev = trainer.replicate(trainer.eval_data(trim_goals(subset(val, cfg.eval_size))))
-    if packs_updates(trainer.mesh.devices.flat[0].platform):
-        state_keys = jax.vmap(Trainer.state_key)(keys)
-        trainer = packed_trainer(trainer, state_keys, data, range(cfg.epochs))
+    trainer = packed_trainer(trainer, jax.vmap(Trainer.state_key)(keys), data, range(cfg.epochs))
     if len(keys) == 1:  # no trial axis inside the compiled loop (XLA keeps a size-1 batch)
         out = _jit_trials(trainer, False)(keys[0], data, ev)
         return jax.tree.map(lambda x: x[None], out)
@@ -668,8 +671,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"resuming from {out} after epoch {int(state.epoch)}", flush=True)
     else:
         state, meta = trainer.init(jax.random.key(args.seed)), {}
-    if packs_updates(trainer.mesh.devices.flat[0].platform):
-        trainer = packed_trainer(trainer, state.key, data, range(int(state.epoch), cfg.epochs))
+    trainer = packed_trainer(trainer, state.key, data, range(int(state.epoch), cfg.epochs))
     print(f"devices: {trainer.mesh.size} × {trainer.mesh.devices.flat[0].platform}; "
           f"backward: {trainer.backward}; packed pairs: {trainer.packed_pairs or 'off'}; "
           f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)  # fmt: skip
