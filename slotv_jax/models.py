@@ -11,6 +11,8 @@ For a trajectory p_0..p_{T−1} and goals g_1..g_8:
 - SLOT-V's observer score is the mean over time, s_k = (1/T) Σ_i V(p_i, g_k),
   the integral of V over t ∈ [0, 1] (Wallkötter et al. 2022, §III);
 - T-REX's return is the sum, R_k = Σ_i r(p_i, g_k) (Brown et al. 2019);
+- both are computed as w_L · (reduction over i of the last hidden activation): the
+  readout is linear, so it is applied once per goal instead of once per point;
 - padded goal slots get the logit −∞, so softmax gives them probability 0 and
   the real goals' probabilities do not depend on the padding.
 
@@ -93,14 +95,18 @@ class GoalRelativeMLP(nnx.Module):
             hidden[-1], 1, use_bias=False, dtype=cd, preferred_element_type=out, rngs=rngs
         )
 
-    def _trunk(self, h: Array, start: int = 0) -> Array:
-        """Hidden layers ``start``… and the readout, from the activations before them."""
-        out = jnp.promote_types(h.dtype, jnp.float32)
+    def _hidden(self, h: Array, start: int = 0) -> Array:
+        """Hidden layers ``start``… from the activations before them (in ``compute_dtype``)."""
         if self.compute_dtype != "float32":
             h = h.astype(_dtype(self.compute_dtype))
         for layer in self.layers[start:]:
             h = jax.nn.relu(layer(h))
-        return self.readout(h)[..., 0].astype(out)
+        return h
+
+    def _trunk(self, h: Array, start: int = 0) -> Array:
+        """Hidden layers ``start``… and the readout, from the activations before them."""
+        out = jnp.promote_types(h.dtype, jnp.float32)
+        return self.readout(self._hidden(h, start))[..., 0].astype(out)
 
     def __call__(self, r: Float[Array, "... 3"], g: Float[Array, "... 3"]) -> Float[Array, "..."]:
         """f(r, g) for broadcastable batches of points and goals."""
@@ -121,16 +127,44 @@ class GoalRelativeMLP(nnx.Module):
         custom gradient) or "recompute" (:func:`goal_relative_two_layers`: the first
         activation is recomputed in the backward pass instead of stored).
         """
+        out = jnp.promote_types(self.first.kernel.dtype, jnp.float32)
+        return self.readout(self._last_hidden(xyz, goals, backward))[..., 0].astype(out)
+
+    def integrate(
+        self,
+        xyz: Float[Array, "... T 3"],
+        goals: Float[Array, "... G 3"],
+        *,
+        reduce: str = "mean",
+        backward: str = "autodiff",
+    ) -> Float[Array, "... G"]:
+        """``grid(xyz, goals)`` reduced over the points (``reduce``: "mean" or "sum").
+
+        The readout is linear, so the reduction is taken first, on the last hidden
+        activation (accumulated in float32), and the readout is applied once per goal
+        in float32: mean_i w · h(p_i, g_k) = w · mean_i h(p_i, g_k). The same values as
+        reducing :meth:`grid` (up to rounding), without a (T·G, H) product with w and
+        its transposes in the backward pass.
+        """
+        if reduce not in ("mean", "sum"):
+            raise ValueError(f"reduce: expected 'mean' or 'sum', got {reduce!r}")
+        h = self._last_hidden(xyz, goals, backward)  # (..., T, G, H)
+        acc = jnp.promote_types(self.readout.kernel.dtype, jnp.float32)
+        pooled = (jnp.mean if reduce == "mean" else jnp.sum)(h, axis=-3, dtype=acc)
+        w = self.readout.kernel[...][:, 0].astype(acc)
+        return jnp.matmul(pooled, w, precision=jax.lax.Precision.HIGHEST)
+
+    def _last_hidden(self, xyz, goals, backward: str) -> Array:
+        """The last hidden activation for every (point, goal): (..., T, G, H_last)."""
         cd = None if self.compute_dtype == "float32" else _dtype(self.compute_dtype)
         w1, b1 = self.first.kernel[...], self.first.bias[...]
         if backward == "recompute" and len(self.layers) > 0:
             l2 = self.layers[0]
             z2 = goal_relative_two_layers(xyz, goals, w1, b1, l2.kernel[...], l2.bias[...], cd)
-            return self._trunk(jax.nn.relu(z2), start=1)
+            return self._hidden(jax.nn.relu(z2), start=1)
         if backward not in BACKWARDS:
             raise ValueError(f"backward: expected one of {BACKWARDS}, got {backward!r}")
-        h = goal_relative_features(xyz, goals, w1, b1, cd, backward == "fused")
-        return self._trunk(h)
+        return self._hidden(goal_relative_features(xyz, goals, w1, b1, cd, backward == "fused"))
 
 
 FIRST_LAYER_FORMS = ("auto", "difference", "broadcast")
@@ -303,7 +337,7 @@ class SlotV(_Observer):
         self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], **kw
     ) -> Float[Array, "... G"]:
         """Unmasked s_k = mean over time of V(p_i, g_k)."""
-        return self.value.grid(xyz, goals, **kw).mean(axis=-2)
+        return self.value.integrate(xyz, goals, reduce="mean", **kw)
 
 
 class TRex(_Observer):
@@ -320,7 +354,7 @@ class TRex(_Observer):
         self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], **kw
     ) -> Float[Array, "... G"]:
         """Unmasked returns R_k = Σ_i r(p_i, g_k)."""
-        return self.reward.grid(xyz, goals, **kw).sum(axis=-2)
+        return self.reward.integrate(xyz, goals, reduce="sum", **kw)
 
 
 Model = SlotV | TRex

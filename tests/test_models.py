@@ -261,3 +261,50 @@ def test_first_layer_forms_agree(form, monkeypatch):
     monkeypatch.setattr(models, "first_layer_form", "matmul")
     with pytest.raises(ValueError, match="first_layer_form"):
         m.grid(xyz.astype(jnp.float32), goals.astype(jnp.float32))
+
+
+@pytest.mark.parametrize("reduce", ["mean", "sum"])
+@pytest.mark.parametrize("backward", models.BACKWARDS)
+def test_integrate_equals_reduced_grid(reduce, backward):
+    """Reducing the last hidden activation before the linear readout gives the reduced
+    per-point values, and the same gradients, for the parameters and the inputs (float64);
+    an unknown reduction is refused by name."""
+    with jax.enable_x64(True):
+        m = models.GoalRelativeMLP((24, 16, 8), rngs=nnx.Rngs(5))
+        graphdef, params = nnx.split(m)
+        params = jax.tree.map(lambda x: x.astype(jnp.float64), params)
+        rng = np.random.default_rng(3)
+        xyz = jnp.asarray(rng.uniform(-0.5, 0.5, (3, 11, 3)))
+        goals = jnp.asarray(rng.uniform(-0.5, 0.5, (3, 5, 3)))
+        wts = jnp.asarray(rng.normal(size=(3, 5)))
+        red = {"mean": jnp.mean, "sum": jnp.sum}[reduce]
+
+        def ref(p, x, gl):
+            return jnp.sum(wts * red(nnx.merge(graphdef, p).grid(x, gl), axis=-2))
+
+        def got(p, x, gl):
+            mlp = nnx.merge(graphdef, p)
+            return jnp.sum(wts * mlp.integrate(x, gl, reduce=reduce, backward=backward))
+
+        v_ref, g_ref = jax.value_and_grad(ref, argnums=(0, 1, 2))(params, xyz, goals)
+        v_got, g_got = jax.value_and_grad(got, argnums=(0, 1, 2))(params, xyz, goals)
+    np.testing.assert_allclose(float(v_got), float(v_ref), rtol=1e-12)
+    for a, b in zip(jax.tree.leaves(g_ref), jax.tree.leaves(g_got), strict=True):
+        assert np.max(np.abs(np.asarray(a))) > 0
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-10, atol=1e-12)
+    with pytest.raises(ValueError, match="reduce"):
+        m.integrate(xyz.astype(jnp.float32), goals.astype(jnp.float32), reduce="max")
+
+
+def test_integrate_bfloat16_close_to_float32():
+    """In bfloat16 compute, the pooled readout stays within bfloat16 rounding of the
+    float32 model's reduced per-point values."""
+    rng = np.random.default_rng(4)
+    xyz = jnp.asarray(rng.uniform(-0.5, 0.5, (4, 50, 3)), jnp.float32)
+    goals = jnp.asarray(rng.uniform(-0.5, 0.5, (4, 6, 3)), jnp.float32)
+    m32 = models.GoalRelativeMLP((64, 32), rngs=nnx.Rngs(6))
+    m16 = models.GoalRelativeMLP((64, 32), compute_dtype="bfloat16", rngs=nnx.Rngs(6))
+    ref = np.asarray(m32.grid(xyz, goals).mean(axis=-2))
+    got = np.asarray(m16.integrate(xyz, goals))
+    assert got.dtype == np.float32
+    np.testing.assert_allclose(got, ref, rtol=0, atol=0.02 * np.abs(ref).max())
