@@ -185,6 +185,42 @@ def _dragan_core(d: Array, d0: Array, mask: Array, beta, c: Array) -> Array:
     return _integrate(e, c / jnp.sum(e, axis=-2))
 
 
+# Bound on |logit| under which exp needs no shift in float32: exp(±64) and a sum of
+# eight such terms stay far from overflow (exp(88.7)) and from subnormals (exp(-87.3)).
+_EXP_BOUND = 64.0
+
+
+def _dragan_unshifted(d: Array, d0: Array, mask: Array, beta, c: Array) -> Array:
+    """:func:`_dragan_core` without the per-point max shift, for bounded logits.
+
+    By the triangle inequality ``|d0_k − d_k(i)| <= ‖p_i − S‖``, so every logit lies in
+    ``±β max_i ‖p_i − S‖``; while that is at most ``_EXP_BOUND`` the exponentials
+    need no shift (softmax is shift-invariant, so the labels are the same). The exp
+    then fuses into the distance loop, and ``Z`` is a contraction instead of a
+    reduction over the goal axis.
+    """
+    e = jnp.where(mask[..., :, None], jnp.exp(beta * (d0 - d)), 0.0)
+    z = jnp.einsum("...gt,...g->...t", e, jnp.ones(e.shape[:-1], e.dtype))
+    return _integrate(e, c / z)
+
+
+def _reach(points: Float[Array, "... T D"]) -> Array:
+    """``max ‖points_i − points_0‖`` over all points and leading dimensions (a scalar)."""
+    sq = sum((points[..., j] - points[..., :1, j]) ** 2 for j in range(points.shape[-1]))
+    return jnp.sqrt(jnp.max(sq))
+
+
+def _dragan_chunk(d: Array, d0: Array, mask: Array, beta, c: Array, points: Array) -> Array:
+    """:func:`_dragan_core` for a batch of trajectories ``points (..., T, D)``.
+
+    Takes :func:`_dragan_unshifted` when ``β max ‖p_i − S‖ <= _EXP_BOUND`` over the
+    whole batch (one branch runs, chosen on the device), the max-shifted form otherwise
+    (large β, far-flung points, or NaN).
+    """
+    fits = beta * _reach(points) <= _EXP_BOUND
+    return jax.lax.cond(fits, _dragan_unshifted, _dragan_core, d, d0, mask, beta, c)
+
+
 def _effdist_core(d: Array, mask: Array, beta, w: Array) -> Array:
     """SPEC §4.3 [reconstruction] from distances ``d (..., G, T)``."""
     return _masked_softmax(-beta * _integrate(d, w), mask, axis=-1)
@@ -211,11 +247,18 @@ def _image(points: Float[Array, "... 3"], pos, rot, eps) -> tuple[Array, Array]:
     return jnp.stack([pc[0] * inv, pc[1] * inv], axis=-1), ok
 
 
-def _nikolaidis_parts(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS):
-    """SPEC §4.2 labels plus the per-trajectory depth-validity of the points and real goals."""
+def _nikolaidis_parts(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS, chunk=False):
+    """SPEC §4.2 labels plus the per-trajectory depth-validity of the points and real goals.
+
+    ``chunk=True`` labels the image points with :func:`_dragan_chunk` (bulk labelling).
+    """
     uv, ok_p = _image(xyz, pos, rot, eps)
     uv_g, ok_g = _image(goals, pos, rot, eps)
-    y = _dragan_core(_distances(uv, uv_g), _distances(uv[..., :1, :], uv_g), mask, beta, c)
+    d, d0 = _distances(uv, uv_g), _distances(uv[..., :1, :], uv_g)
+    if chunk:
+        y = _dragan_chunk(d, d0, mask, beta, c, uv)
+    else:
+        y = _dragan_core(d, d0, mask, beta, c)
     ok_p, ok_g = jnp.all(ok_p, axis=-1), jnp.all(ok_g | ~mask, axis=-1)
     uniform = mask / jnp.sum(mask, axis=-1, keepdims=True)
     return jnp.where((ok_p & ok_g)[..., None], y, uniform.astype(y.dtype)), ok_p, ok_g
@@ -510,7 +553,7 @@ def _label_chunk(xyz, goals, mask, t, pos, rot, betas, names: tuple[str, ...]):
         d = _distances(xyz, goals)  # shared by the three world-space labelers
         if "dragan" in names:
             d0 = _distances(xyz[..., :1, :], goals)
-            out["dragan"] = _dragan_core(d, d0, mask, beta["dragan"], tw.dragan)
+            out["dragan"] = _dragan_chunk(d, d0, mask, beta["dragan"], tw.dragan, xyz)
         if "effdist" in names:
             out["effdist"] = _effdist_core(d, mask, beta["effdist"], tw.effdist)
         if "fastapp" in names:
@@ -527,7 +570,7 @@ def _label_chunk(xyz, goals, mask, t, pos, rot, betas, names: tuple[str, ...]):
     }
     if "nikolaidis" in names:
         out["nikolaidis"], ok["xyz_depth"], ok["goals_depth"] = _nikolaidis_parts(
-            xyz, goals, mask, pos, rot, beta["nikolaidis"], tw.dragan
+            xyz, goals, mask, pos, rot, beta["nikolaidis"], tw.dragan, chunk=True
         )
     bad = sum(
         jnp.where(ok[k], 0, 1 << bit).astype(jnp.int32)
@@ -632,10 +675,13 @@ def label_all(
     if chunk_size < 1:
         raise ValueError(f"chunk_size: expected a positive integer, got {chunk_size}")
     cam = _as_camera(camera)
-    pos, rot = np.asarray(cam.pos, np.float32), np.asarray(cam.rot, np.float32)
-    beta_arr = np.array([betas[n] for n in names], np.float32)
+    # Put once on the device, not converted again by every call of the kernel.
+    pos, rot = jnp.asarray(cam.pos, jnp.float32), jnp.asarray(cam.rot, jnp.float32)
+    beta_arr = jnp.asarray([betas[n] for n in names], jnp.float32)
     if t is not None:  # normalised once, in float64 (see _time_weights)
         t = _normalise_times(np.asarray(t, np.float64), np).astype(np.float32)
+        if t.ndim == 1:
+            t = jnp.asarray(t)
     goal_mask = goal_mask.astype(bool, copy=False)
 
     out = {n: np.empty((N, G_MAX), np.float32) for n in names}

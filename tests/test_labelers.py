@@ -527,6 +527,52 @@ def test_label_all_matches_per_trajectory_labelers_and_compiles_once():
     )
 
 
+def test_bulk_dragan_without_shift_matches_the_shifted_form_up_to_the_bound():
+    rng = np.random.default_rng(18)
+    for _ in range(6):
+        xyz, goals, mask = random_case(rng)
+        reach = np.linalg.norm(xyz - xyz[0], axis=-1).max()
+        c = L._uniform_weights(len(xyz), jnp.float32).dragan
+        x, g, m = jnp.asarray(xyz, jnp.float32), jnp.asarray(goals, jnp.float32), jnp.asarray(mask)
+        d, d0 = L._distances(x, g), L._distances(x[:1], g)
+        for beta in (5.0, 0.999 * L._EXP_BOUND / reach):  # the default and at the bound
+            y = np.asarray(L._dragan_unshifted(d, d0, m, beta, c))
+            assert np.all(np.isfinite(y)) and np.all(y[~mask] == 0.0)
+            y_shifted = np.asarray(L._dragan_core(d, d0, m, beta, c))
+            np.testing.assert_allclose(y, y_shifted, rtol=0, atol=1e-6)
+        y = np.asarray(L._dragan_unshifted(d, d0, m, 5.0, c))
+        np.testing.assert_allclose(y, ref.dragan(xyz, goals, mask), rtol=0, atol=REF_TOL)
+
+
+def test_label_all_chooses_the_shift_per_chunk():
+    rng = np.random.default_rng(19)
+    cases = [random_case(rng) for _ in range(6)]
+    xyz, goals, mask = (np.stack(c) for c in zip(*cases, strict=True))
+    # The first chunk fits dragan's unshifted bound at β = 40, the second does not (a
+    # point far along the observer's line of sight to the start); β = 1e4 needs the
+    # shifted form everywhere.
+    pos = np.asarray(OBSERVER.pos, np.float64)
+    xyz[4, 50] = pos + 6.0 * (xyz[4, 0] - pos)
+    reach = np.linalg.norm(xyz - xyz[:, :1], axis=-1).max(axis=1)
+    assert 40.0 * reach[:3].max() <= L._EXP_BOUND < 40.0 * reach[3:].max()
+    for beta in (40.0, 1e4):
+        y = L.label_all(
+            xyz,
+            goals,
+            mask,
+            chunk_size=3,
+            labelers=("dragan", "nikolaidis"),
+            beta_dragan=beta,
+            beta_nikolaidis=beta,
+            progress=False,
+        )
+        for name in ("dragan", "nikolaidis"):
+            assert np.all(np.isfinite(y[name])) and np.all(y[name][~mask] == 0.0)
+            np.testing.assert_allclose(y[name].sum(-1), 1.0, atol=SUM_TOL)
+            expect = [jcall(name, xyz[i], goals[i], mask[i], beta=beta) for i in range(6)]
+            np.testing.assert_allclose(y[name], expect, rtol=0, atol=1e-6)
+
+
 def test_label_all_shared_goals_time_stamps_and_subsets():
     rng = np.random.default_rng(16)
     xyz = np.stack([random_case(rng, T=12)[0] for _ in range(5)])

@@ -41,7 +41,10 @@ HOME = np.array([0.3069, 0.0, 0.4869])  # TCP(q_home), SPEC §1
 
 
 def synthetic(n: int, T: int = 100, seed: int = 0):
-    """``xyz (n, T, 3)``, ``goals (n, 8, 3)``, ``goal_mask (n, 8)`` (float32, bool)."""
+    """``xyz (n, T, 3)``, ``goals (n, 8, 3)``, ``goal_mask (n, 8)`` (float32, bool).
+
+    C-contiguous arrays, like those of a dataset read with ``np.load``.
+    """
     rng = np.random.default_rng(seed)
     n_goals = rng.integers(2, 9, n)
     mask = np.arange(8)[None] < n_goals[:, None]
@@ -57,7 +60,7 @@ def synthetic(n: int, T: int = 100, seed: int = 0):
     seg = np.minimum(s.astype(int), 2)
     frac = (s - seg)[None, :, None]
     xyz = knots[:, seg] * (1 - frac) + knots[:, seg + 1] * frac
-    return xyz.astype(np.float32), goals.astype(np.float32), mask
+    return np.ascontiguousarray(xyz, np.float32), goals.astype(np.float32), mask
 
 
 # --------------------------------------------------- the NumPy researcher baseline
