@@ -68,7 +68,7 @@ SPLITS = (
 LABELER_NAMES = ("dragan", "nikolaidis", "effdist", "fastapp")
 FORMAT_VERSION = 1
 # Bump when generation code changes what a config produces, so cached datasets are not reused.
-GENERATOR_VERSION = 2  # 2: IK locks joints at their limits (active set)
+GENERATOR_VERSION = 3  # 2: IK locks joints at their limits; 3: home TCP by one compiled call
 
 # Arrays stored per split: name -> (dtype, shape with "N", "S", "T" symbols).
 _TRAJ_ARRAYS = {
@@ -226,14 +226,28 @@ class Split:
 # ------------------------------------------------------------------- generation
 
 
+_SCENE_CHUNK = 64  # scene candidates per compiled call (one compilation for every set)
+
+
 @jax.jit
-def _scene_candidates(key: jax.Array, idx, counts) -> Scene:
+def _scene_candidates_chunk(key: jax.Array, idx, counts, n_counts) -> Scene:
     def one(i):
         k = jax.random.fold_in(key, i)
         k_count, k_scene = jax.random.split(k)
-        return sample_scene(k_scene, sample_goal_count(k_count, counts))
+        return sample_scene(k_scene, sample_goal_count(k_count, counts, n_counts))
 
     return jax.vmap(one)(idx)
+
+
+def _scene_candidates(key: jax.Array, start: int, n: int, counts: tuple[int, ...]) -> Scene:
+    """Candidates ``start … start + n − 1`` of a scene set (NumPy), in fixed-size chunks."""
+    padded = np.zeros(G_MAX, np.int32)
+    padded[: len(counts)] = counts
+    parts = []
+    for i in range(start, start + n, _SCENE_CHUNK):
+        idx = jnp.arange(i, i + _SCENE_CHUNK)
+        parts.append(_scene_candidates_chunk(key, idx, padded, len(counts)))
+    return jax.tree.map(lambda *a: np.concatenate(a)[:n], *parts)
 
 
 def sample_scene_sets(cfg: DataConfig) -> dict[str, tuple[Scene, dict]]:
@@ -251,11 +265,8 @@ def sample_scene_sets(cfg: DataConfig) -> dict[str, tuple[Scene, dict]]:
     while any(need.values()):
         batch = {}
         for k in [k for k, v in need.items() if v]:
-            idx = jnp.arange(drawn[k], drawn[k] + need[k] + 8)  # a few spare candidates
-            counts = jnp.asarray(sets[k][1], jnp.int32)
-            batch[k] = jax.tree.map(
-                np.asarray, _scene_candidates(_stream_key(cfg.seed, "scenes", k), idx, counts)
-            )
+            key = _stream_key(cfg.seed, "scenes", k)
+            batch[k] = _scene_candidates(key, drawn[k], need[k] + 8, sets[k][1])  # + spares
         goals = np.concatenate([b.goals[b.goal_mask] for b in batch.values()])
         res_flat = _goal_residuals(cfg, goals)
         start = 0

@@ -86,9 +86,7 @@ class TcpState(NamedTuple):
     jac_axis: Float[Array, "3 7"]  # ∂(tool z axis)/∂q (1/rad)
 
 
-def tcp_state(q: Float[Array, "7"]) -> TcpState:
-    """TCP pose and Jacobians from one ``mjx.kinematics`` call (no validation)."""
-    mx, d0, site = _mjx_panda()
+def _tcp_state(mx: mjx.Model, d0: mjx.Data, site: int, q) -> TcpState:
     d = mjx.kinematics(mx, d0.replace(qpos=jnp.asarray(q, d0.qpos.dtype)))
     pos = d.site_xpos[site]
     rot = d.site_xmat[site].reshape(3, 3)
@@ -98,11 +96,36 @@ def tcp_state(q: Float[Array, "7"]) -> TcpState:
     return TcpState(pos, rot, jac_pos, jac_axis)
 
 
+def tcp_state(q: Float[Array, "7"]) -> TcpState:
+    """TCP pose and Jacobians from one ``mjx.kinematics`` call (no validation)."""
+    return _tcp_state(*_mjx_panda(), q)
+
+
+def host_eval(fn, model: mujoco.MjModel, *args):
+    """``fn(mjx.put_model(model), *args)`` as one compiled call on the CPU, as NumPy arrays.
+
+    For the scene's constants (the home TCP, camera poses). Evaluated op by op, MJX
+    compiles every small operation separately, which takes about 10 s on a GPU; one
+    compiled CPU call takes about a second, and gives the same constant on every machine.
+    Works when first called under a trace (the result is concrete).
+    """
+    cpu = jax.devices("cpu")[0]
+    with jax.ensure_compile_time_eval(), jax.default_device(cpu):
+        mx = mjx.put_model(model, device=cpu)
+        out = jax.jit(fn)(mx, *(jax.device_put(a, cpu) for a in args))
+        return jax.tree.map(np.asarray, out)
+
+
 @functools.cache
 def home_tcp() -> np.ndarray:
     """TCP(Q_HOME) (m), from MJX, as a constant (every trajectory starts here)."""
-    with jax.ensure_compile_time_eval():
-        return np.asarray(tcp_state(jnp.asarray(Q_HOME, jnp.float32)).pos)
+    m = mj_model(PANDA_XML)
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, TCP_SITE)
+
+    def pos(mx, q):
+        return _tcp_state(mx, mjx.make_data(mx), site, q).pos
+
+    return host_eval(pos, m, np.asarray(Q_HOME, np.float32))
 
 
 def _check_q(q) -> None:

@@ -25,7 +25,7 @@ from flax import struct
 from jaxtyping import Array, Bool, Float, Int
 
 from slotv_jax import validation
-from slotv_jax.kinematics import SCENE_XML, mj_model, mjx
+from slotv_jax.kinematics import SCENE_XML, host_eval, mj_model, mjx
 from slotv_jax.validation import G_MAX
 
 
@@ -89,9 +89,12 @@ def sample_scene(key: jax.Array, n_goals, cfg: SceneConfig = SceneConfig()) -> S
     return Scene(goals=goals, goal_mask=real, n_goals=jnp.asarray(n_goals, jnp.int32))
 
 
-def sample_goal_count(key: jax.Array, counts: tuple[int, ...]) -> Int[Array, ""]:
-    """Uniform draw from a set of goal counts, e.g. ``(2, 3, 5, 6)``."""
-    return jnp.asarray(counts, jnp.int32)[jax.random.randint(key, (), 0, len(counts))]
+def sample_goal_count(key: jax.Array, counts, n_counts=None) -> Int[Array, ""]:
+    """Uniform draw from a set of goal counts, e.g. ``(2, 3, 5, 6)``: from the first
+    ``n_counts`` entries of ``counts`` if given (an array padded to a fixed length, so
+    that sets of different sizes share one compiled function; the same draws)."""
+    n = len(counts) if n_counts is None else n_counts
+    return jnp.asarray(counts, jnp.int32)[jax.random.randint(key, (), 0, n)]
 
 
 def check_scene(scene: Scene, cfg: SceneConfig = SceneConfig(), *, batched: bool = False) -> None:
@@ -131,12 +134,16 @@ def _camera_cached(name: str) -> Camera:
     if cam < 0:
         names = [m.camera(i).name for i in range(m.ncam)]
         raise ValueError(f"camera: no camera named {name!r} in {SCENE_XML.name}; have {names}")
-    with jax.ensure_compile_time_eval():
-        mx = mjx.put_model(m)
+
+    def pose(mx):
         d = mjx.camlight(mx, mjx.kinematics(mx, mjx.make_data(mx)))
+        return d.cam_xpos[cam], d.cam_xmat[cam].reshape(3, 3)
+
+    pos, rot = host_eval(pose, m)
+    with jax.ensure_compile_time_eval():
         return Camera(
-            pos=jnp.asarray(d.cam_xpos[cam], jnp.float32),
-            rot=jnp.asarray(d.cam_xmat[cam].reshape(3, 3), jnp.float32),
+            pos=jnp.asarray(pos, jnp.float32),
+            rot=jnp.asarray(rot, jnp.float32),
             fovy=jnp.asarray(m.cam_fovy[cam], jnp.float32),
             resolution=jnp.asarray(m.cam_resolution[cam], jnp.int32),
         )
