@@ -616,6 +616,44 @@ def train_trials(
     return _jit_trials(trainer, True)(keys, data, ev)
 
 
+def precompile(
+    cfg: TrainConfig,
+    n: int,
+    n_points: int,
+    n_goals: int,
+    *,
+    mesh: Mesh | None = None,
+    progress: bool = False,
+) -> bool:
+    """Compile :func:`train_trials`'s one-trial function ahead of the data.
+
+    For a training set of ``n`` trajectories of ``n_points`` points with ``n_goals`` goal
+    slots after :func:`trim_goals` (no validation set); a later :func:`train_trials` call
+    with data of that shape (and the same ``mesh`` and ``progress``) reuses the
+    compilation. XLA compiles without holding the GIL, so this can run in a thread while
+    the dataset is generated. Returns False, compiling nothing, where the compiled
+    function depends on the data (packed SLOT-V updates, :func:`packs_updates`).
+    """
+    trainer = make_train(cfg, mesh=mesh, progress=progress)
+    if cfg.method == "slotv" and packs_updates(trainer.mesh.devices.flat[0].platform):
+        return False
+    n = cfg.n_used(int(n))
+    rep = NamedSharding(trainer.mesh, P())
+
+    def spec(shape, dtype):
+        return jax.ShapeDtypeStruct(shape, dtype, sharding=rep)
+
+    data = TrainData(
+        spec((n, n_points, 3), jnp.float32),
+        spec((n, n_goals, 3), jnp.float32),
+        spec((n, n_goals), jnp.bool_),
+        spec((n, n_goals), jnp.float32),
+    )
+    key = jax.eval_shape(lambda: jax.random.key(0))
+    _jit_trials(trainer, False).lower(key, data, None).compile()
+    return True
+
+
 def select_trial(tree, i: int):
     """Trial ``i`` of a vmapped result (state or metrics)."""
     return jax.tree.map(lambda x: x[i], tree)

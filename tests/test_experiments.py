@@ -78,6 +78,17 @@ def test_table1_results_schema_and_report(cache, tmp_path):
         np.testing.assert_allclose(s["sd"], np.std(accs, ddof=1))
 
 
+def test_table1_precompiled_run_is_the_same(cache, tmp_path):
+    """Compiling the training functions in the background while the data loads changes
+    nothing in the results."""
+    cfg = table1.tiny()
+    kw = dict(labelers=["fastapp"], methods=["trex", "slotv"], cache=cache, progress=False)
+    a = table1.run(cfg, tmp_path / "a", precompile=True, **kw)
+    b = table1.run(cfg, tmp_path / "b", precompile=False, **kw)
+    assert a["cells"] == b["cells"]
+    assert a["timing"]["precompile_wait_s"] >= 0
+
+
 def test_summarise_hand_case():
     cells = [
         {"labeler": "dragan", "method": "slotv", "split": "train", "trial": t, "accuracy": a}

@@ -440,6 +440,37 @@ def test_training_compiles_once_per_config(tiny):
     assert train._jit_trials(trainer, False)._cache_size() == 1
 
 
+def test_precompile_is_reused_by_train_trials(tiny):
+    """A training function compiled from shapes alone is the one train_trials runs: no
+    second compilation of it, and the same result as a run compiled on the spot."""
+    tr, _ = tiny
+    cfg = small_cfg("trex", epochs=1, train_size=48, hidden=(24, 8))
+    data = train.prepare(tr, "effdist")
+    g = train.trim_goals(train.subset(data, 48)).goals.shape[1]
+    compiled = []
+
+    def listen(event, duration, **kw):
+        if event.endswith("backend_compile_duration"):
+            compiled.append(kw.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        assert train.precompile(cfg, len(data.xyz), data.xyz.shape[1], g)
+        assert compiled.count("jit(train)") == 1
+        state, _ = train.train_trials(cfg, data, [3], progress=False)
+        assert compiled.count("jit(train)") == 1  # reused
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    train._jit_trials.cache_clear()  # compile again on the spot: same parameters
+    again, _ = train.train_trials(cfg, data, [3], progress=False)
+    for x, y in zip(jax.tree.leaves(state.params), jax.tree.leaves(again.params), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    # Packed SLOT-V updates depend on the data's batches: nothing to compile ahead on a CPU.
+    slotv = small_cfg("slotv", epochs=1, train_size=48)
+    expected = not train.packs_updates(jax.default_backend())
+    assert train.precompile(slotv, len(data.xyz), data.xyz.shape[1], g) is expected
+
+
 # ------------------------------------------------------------- evaluation
 
 
