@@ -50,13 +50,14 @@ def variants(backward: str, method: str) -> list[tuple[str, dict]]:
     import jax
 
     from slotv_jax.models import BACKWARDS
-    from slotv_jax.train import default_backward
+    from slotv_jax.train import default_backward, default_unroll
 
     if backward == "auto":
         backward = default_backward(jax.default_backend(), method)
     out = [(f"backward={b}", {"backward": b}) for b in BACKWARDS if b != backward]
     out += [(f"first layer {f}", {"form": f}) for f in ("difference", "broadcast")]
-    return [*out, (f"backward={backward}, unroll 4", {"backward": backward, "unroll": 4})]
+    other = 4 if default_unroll(jax.default_backend()) == 1 else 1
+    return [*out, (f"backward={backward}, unroll {other}", {"backward": backward, "unroll": other})]
 
 
 def forward_flops(hidden: tuple[int, ...], rows_per_traj: int, goals_per_traj: int) -> float:
@@ -166,7 +167,7 @@ def bench_train(
     repeats: int,
     *,
     backward: str = "auto",
-    unroll: int = 1,
+    unroll: int | str = "auto",
     profile: str | None = None,
     trim: bool = True,
     form: str = "auto",
@@ -190,7 +191,7 @@ def bench_train(
     trainer = train.make_train(
         cfg, progress=False, backward=backward, unroll=unroll, packed_pairs=pairs
     )
-    backward = trainer.backward
+    backward, unroll = trainer.backward, trainer.unroll
     data = trainer.replicate(synthetic_data(n, trim=trim))
     slots = pairs / cfg.batch_size if pairs else data.goals.shape[1]
     run = functools.partial(trainer.run, epochs=1)
@@ -349,7 +350,7 @@ def main(argv=None) -> int:
     print(json.dumps(env), flush=True)
     print(f"steps per timed epoch {steps}, repeats {repeats}, peak matmul {n_peak}³", flush=True)
 
-    from slotv_jax.train import default_backward, packs_updates
+    from slotv_jax.train import default_backward, default_unroll, packs_updates
 
     pairs = 0
     if packs_updates(jax.default_backend()) and not (args.all_slots or args.dense):
@@ -374,7 +375,8 @@ def main(argv=None) -> int:
                 slot_note = f", {pairs} pairs" if pairs else f", {slots} goal slots"
             bw = default_backward(jax.default_backend(), method)
             bw = bw if args.backward == "auto" else args.backward
-            name = f"{method} train ({bw}{slot_note})"
+            unroll = default_unroll(jax.default_backend())
+            name = f"{method} train ({bw}, unroll {unroll}{slot_note})"
             row = Row(name, dtype, cfg.batch_size, cfg.hidden, t * 1e3,
                       traj / t, fl / t, peak, cs)  # fmt: skip
             rows.append(row)
