@@ -308,3 +308,16 @@ def test_integrate_bfloat16_close_to_float32():
     got = np.asarray(m16.integrate(xyz, goals))
     assert got.dtype == np.float32
     np.testing.assert_allclose(got, ref, rtol=0, atol=0.02 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.bfloat16])
+def test_sum_over_points_forms_agree(dtype):
+    """The reduction and the contraction with ones give the same sums, accumulated in
+    float32 (bfloat16 inputs are exact in both), against a float64 NumPy sum."""
+    rng = np.random.default_rng(5)
+    h = jnp.asarray(rng.uniform(0, 2, (3, 50, 4, 16)), dtype)
+    ref = np.asarray(h, np.float64).sum(axis=-3)
+    for contraction in (False, True):
+        got = models.sum_over_points(h, jnp.float32, contraction=contraction)
+        assert got.dtype == jnp.float32 and got.shape == (3, 4, 16)
+        np.testing.assert_allclose(np.asarray(got), ref, rtol=1e-6)

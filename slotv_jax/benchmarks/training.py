@@ -65,7 +65,7 @@ def forward_flops(hidden: tuple[int, ...], rows_per_traj: int, goals_per_traj: i
     f = 2 * 3 * hidden[0] * (T + goals_per_traj)  # W1 p_t and W1 g_k
     for a, b in itertools.pairwise(hidden):
         f += 2 * a * b * rows_per_traj
-    f += 2 * hidden[-1] * rows_per_traj  # readout
+    f += 2 * hidden[-1] * goals_per_traj  # readout, once per goal (after the reduction over t)
     return float(f)
 
 
