@@ -109,7 +109,10 @@ def host_eval(fn, model: mujoco.MjModel, *args):
     compiled CPU call takes about a second, and gives the same constant on every machine.
     Works when first called under a trace (the result is concrete).
     """
-    cpu = jax.devices("cpu")[0]
+    try:
+        cpu = jax.devices("cpu")[0]
+    except RuntimeError:  # JAX_PLATFORMS without the CPU: the default device then
+        cpu = jax.devices()[0]
     with jax.ensure_compile_time_eval(), jax.default_device(cpu):
         mx = mjx.put_model(model, device=cpu)
         out = jax.jit(fn)(mx, *(jax.device_put(a, cpu) for a in args))
