@@ -188,8 +188,7 @@ def pairwise_accuracy(
     if labeler is not None:
         data = train_lib.prepare(data, labeler)
     trainer = train_lib.make_train(cfg, mesh=mesh, progress=False)
-    platform = trainer.mesh.devices.flat[0].platform
-    size = cfg.eval_chunk_size(trainer.mesh.size, 1, data.xyz.shape[1], platform) * 2
+    size = cfg.eval_chunk_size(trainer.mesh.size, 1, data.xyz.shape[1], trainer.platform) * 2
     size = min(size, -(-n_pairs // trainer.mesh.size) * trainer.mesh.size)
     n_chunks = -(-n_pairs // size)
     key = jax.random.key(0) if key is None else key

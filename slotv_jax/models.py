@@ -103,14 +103,14 @@ class GoalRelativeMLP(nnx.Module):
             h = jax.nn.relu(layer(h))
         return h
 
-    def _trunk(self, h: Array, start: int = 0) -> Array:
-        """Hidden layers ``start``… and the readout, from the activations before them."""
-        out = jnp.promote_types(h.dtype, jnp.float32)
-        return self.readout(self._hidden(h, start))[..., 0].astype(out)
+    def _readout(self, h: Array, out) -> Array:
+        """The scalar output from the last hidden activation, as ``out`` (≥ float32)."""
+        return self.readout(h)[..., 0].astype(jnp.promote_types(out, jnp.float32))
 
     def __call__(self, r: Float[Array, "... 3"], g: Float[Array, "... 3"]) -> Float[Array, "..."]:
         """f(r, g) for broadcastable batches of points and goals."""
-        return self._trunk(jax.nn.relu(self.first(r - g)))
+        h = jax.nn.relu(self.first(r - g))
+        return self._readout(self._hidden(h), h.dtype)
 
     def grid(
         self,
@@ -127,8 +127,7 @@ class GoalRelativeMLP(nnx.Module):
         custom gradient) or "recompute" (:func:`goal_relative_two_layers`: the first
         activation is recomputed in the backward pass instead of stored).
         """
-        out = jnp.promote_types(self.first.kernel.dtype, jnp.float32)
-        return self.readout(self._last_hidden(xyz, goals, backward))[..., 0].astype(out)
+        return self._readout(self._last_hidden(xyz, goals, backward), self.first.kernel.dtype)
 
     def integrate(
         self,

@@ -314,6 +314,16 @@ class Trainer:
     def _shard_batch(self, x):
         return jax.lax.with_sharding_constraint(x, NamedSharding(self.mesh, P("data")))
 
+    @property
+    def platform(self) -> str:
+        """The platform of the mesh's devices ("cpu", "gpu", …)."""
+        return self.mesh.devices.flat[0].platform
+
+    @property
+    def packs(self) -> bool:
+        """Whether :func:`train_trials` packs this trainer's updates to the real pairs."""
+        return self.cfg.method == "slotv" and packs_updates(self.platform)
+
     def replicate(self, tree):
         """Place arrays (e.g. a TrainData) on every device of the mesh."""
         return jax.device_put(tree, NamedSharding(self.mesh, P()))
@@ -407,9 +417,8 @@ class Trainer:
     def eval_data(self, data: TrainData, size: int | None = None) -> evaluate.EvalData:
         """The fixed validation subset (first ``size`` or ``cfg.eval_size``), chunked."""
         n = self.cfg.eval_size if size is None else size
-        platform = self.mesh.devices.flat[0].platform
         chunk = self.cfg.eval_chunk_size(
-            self.mesh.size, data.goals.shape[-2], data.xyz.shape[1], platform
+            self.mesh.size, data.goals.shape[-2], data.xyz.shape[1], self.platform
         )
         return evaluate.chunk(subset(data, n), min(chunk, _round_up(n, self.mesh.size)))
 
@@ -569,8 +578,7 @@ def packed_trainer(trainer: Trainer, state_keys: jax.Array, data: TrainData, epo
     ``state_keys`` (TrainState keys) will meet in ``epochs`` (exact count, see
     :meth:`Trainer.pair_capacity`); ``trainer`` itself for T-REX, on platforms where packing
     does not pay (:func:`packs_updates`) or when nothing is saved."""
-    platform = trainer.mesh.devices.flat[0].platform
-    if trainer.cfg.method != "slotv" or not packs_updates(platform):
+    if not trainer.packs:
         return trainer
     cap = trainer.pair_capacity(state_keys, data.goal_mask, epochs)
     if cap == trainer.packed_pairs:
@@ -647,7 +655,7 @@ def precompile(
     function depends on the data (packed SLOT-V updates, :func:`packs_updates`).
     """
     trainer = make_train(cfg, mesh=mesh, progress=progress)
-    if cfg.method == "slotv" and packs_updates(trainer.mesh.devices.flat[0].platform):
+    if trainer.packs:
         return False
     n = cfg.n_used(int(n))
     rep = NamedSharding(trainer.mesh, P())
@@ -722,7 +730,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         state, meta = trainer.init(jax.random.key(args.seed)), {}
     trainer = packed_trainer(trainer, state.key, data, range(int(state.epoch), cfg.epochs))
-    print(f"devices: {trainer.mesh.size} × {trainer.mesh.devices.flat[0].platform}; "
+    print(f"devices: {trainer.mesh.size} × {trainer.platform}; "
           f"backward: {trainer.backward}; packed pairs: {trainer.packed_pairs or 'off'}; "
           f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)  # fmt: skip
     run_epoch = jax.jit(functools.partial(trainer.run, epochs=1), donate_argnums=0)
