@@ -40,6 +40,7 @@ Command line (label user trajectories from an ``.npz`` holding ``xyz (N, T, 3)``
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -142,35 +143,67 @@ def _time_weights(t, T: int, dtype) -> TimeWeights:
 
 
 # ------------------------------------------------------------------- cores
-# Batched cores: every array may carry leading batch dimensions ``...``. Distances
-# are laid out (..., G, T) so that the softmax over goals is an elementwise
-# reduction over 8 rows and the time integrals reduce the contiguous axis.
+# Batched cores: every array may carry leading batch dimensions ``...``. Points are
+# laid out coordinate-major, ``pts (..., D, T)``, and distances ``(..., G, T)``: the
+# time axis is the contiguous one everywhere, so that the loops over points are
+# vectorised with unit-stride loads, the softmax over goals is an elementwise
+# reduction over at most 8 rows, and the time integrals reduce the contiguous axis.
 
 
-def _distances(points: Float[Array, "... T D"], goals: Float[Array, "... G D"]) -> Array:
-    """``d[..., k, i] = ‖points_i − goals_k‖`` with a finite gradient at 0.
+def _distances(pts: Float[Array, "... D T"], goals: Float[Array, "... G D"]) -> Array:
+    """``d[..., k, i] = ‖pts[..., :, i] − goals_k‖`` with a finite gradient at 0.
 
     Summed coordinate by coordinate: XLA then emits one vectorised loop over (G, T)
-    instead of a reduction over a minor axis of size 3 (several times faster on CPU).
+    instead of a reduction over an axis of size D.
     """
     sq = 0.0
-    for j in range(points.shape[-1]):
-        sq = sq + (goals[..., :, j, None] - points[..., None, :, j]) ** 2
+    for j in range(pts.shape[-2]):
+        sq = sq + (goals[..., :, j, None] - pts[..., None, j, :]) ** 2
     # max(·, tiny) keeps the gradient finite when a point sits exactly on a goal
     # (e.g. a trajectory ending at its target); it changes d only below 1e-19 m.
     return jnp.sqrt(jnp.maximum(sq, jnp.finfo(sq.dtype).tiny))
 
 
+_INTEGRATE_SLICES = 4
+
+
 def _integrate(f: Float[Array, "... G T"], w: Float[Array, "... T"]) -> Float[Array, "... G"]:
-    """``Σ_i w_i f[..., :, i]``, as a contraction: XLA then uses a fast matrix-vector kernel."""
-    return jnp.einsum("...gt,...t->...g", f, w)
+    """``Σ_i w_i f[..., :, i]``, with weights ``w (T,)`` shared or ``(..., T)`` per row.
+
+    Shared weights: the time axis is cut into ``_INTEGRATE_SLICES`` consecutive slices
+    whose weighted terms are added elementwise, and one contraction with ones sums
+    what is left. XLA fuses the computation of ``f`` into the elementwise part, and
+    the array that reaches the contraction is a quarter of ``f``, which on a CPU stays
+    in cache. Weights per row: one batched contraction.
+    """
+    if w.ndim > 1:
+        return jnp.einsum("...gt,...t->...g", f, w)
+    T = f.shape[-1]
+    n = T // min(_INTEGRATE_SLICES, T)
+    parts = [f[..., i : i + n] * w[i : i + n] for i in range(0, T - n + 1, n)]
+    if T % n:  # the last T mod n points, padded to a slice
+        rest = f[..., T - T % n :] * w[T - T % n :]
+        parts.append(jnp.pad(rest, [(0, 0)] * (rest.ndim - 1) + [(0, n - T % n)]))
+    acc = parts[0]
+    for part in parts[1:]:
+        acc = acc + part
+    return jnp.einsum("...gt,t->...g", acc, jnp.ones(n, acc.dtype))
+
+
+def _slots(x: Array, axis: int) -> list[Array]:
+    """The slices of ``x`` along ``axis`` (at most 8 goal slots), for elementwise folds."""
+    return [jax.lax.index_in_dim(x, k, axis, keepdims=True) for k in range(x.shape[axis])]
 
 
 def _masked_softmax(s: Array, mask: Array, axis: int) -> Array:
-    """Softmax over ``axis`` restricted to ``mask``; exact zeros elsewhere (log-sum-exp form)."""
+    """Softmax over ``axis`` restricted to ``mask``; exact zeros elsewhere (log-sum-exp form).
+
+    The max and the sum over the (at most 8) slots are elementwise folds, which XLA
+    fuses into one loop (a reduction over a short axis is much slower on a CPU).
+    """
     s = jnp.where(mask, s, -jnp.inf)
-    e = jnp.exp(s - jnp.max(s, axis=axis, keepdims=True))
-    return e / jnp.sum(e, axis=axis, keepdims=True)
+    e = jnp.exp(s - functools.reduce(jnp.maximum, _slots(s, axis)))
+    return e / functools.reduce(jnp.add, _slots(e, axis))
 
 
 def _dragan_core(d: Array, d0: Array, mask: Array, beta, c: Array) -> Array:
@@ -185,40 +218,43 @@ def _dragan_core(d: Array, d0: Array, mask: Array, beta, c: Array) -> Array:
     return _integrate(e, c / jnp.sum(e, axis=-2))
 
 
-# Bound on |logit| under which exp needs no shift in float32: exp(±64) and a sum of
+# Bound on |logit| under which exp needs no max shift in float32: exp(±64) and a sum of
 # eight such terms stay far from overflow (exp(88.7)) and from subnormals (exp(-87.3)).
 _EXP_BOUND = 64.0
 
 
-def _dragan_unshifted(d: Array, d0: Array, mask: Array, beta, c: Array) -> Array:
-    """:func:`_dragan_core` without the per-point max shift, for bounded logits.
+def _dragan_referenced(d: Array, d0: Array, mask: Array, beta, c: Array) -> Array:
+    """:func:`_dragan_core` with the logits shifted by those of goal slot 0, not by their max.
 
-    By the triangle inequality ``|d0_k − d_k(i)| <= ‖p_i − S‖``, so every logit lies in
-    ``±β max_i ‖p_i − S‖``; while that is at most ``_EXP_BOUND`` the exponentials
-    need no shift (softmax is shift-invariant, so the labels are the same). The exp
-    then fuses into the distance loop, and ``Z`` is a contraction instead of a
-    reduction over the goal axis.
+    Softmax is shift-invariant, so the labels are the same. By the triangle inequality
+    ``|d_k(i) − d_0(i)| <= ‖g_k − g_0‖``, so every shifted logit lies in
+    ``±2β ‖g_k − g_0‖``: bounded by the goals alone (see :func:`_goal_spread`), whatever
+    the trajectory. Within ``_EXP_BOUND`` the exponentials need no max over the goals:
+    the exp fuses into the distance loop and ``Z`` is a contraction, not a reduction.
+    Slot 0 may be padding (its label is still 0); only its position enters.
     """
-    e = jnp.where(mask[..., :, None], jnp.exp(beta * (d0 - d)), 0.0)
+    logits = beta * ((d0 - d0[..., :1, :]) + (d[..., :1, :] - d))
+    e = jnp.where(mask[..., :, None], jnp.exp(logits), 0.0)
     z = jnp.einsum("...gt,...g->...t", e, jnp.ones(e.shape[:-1], e.dtype))
     return _integrate(e, c / z)
 
 
-def _reach(points: Float[Array, "... T D"]) -> Array:
-    """``max ‖points_i − points_0‖`` over all points and leading dimensions (a scalar)."""
-    sq = sum((points[..., j] - points[..., :1, j]) ** 2 for j in range(points.shape[-1]))
-    return jnp.sqrt(jnp.max(sq))
+def _goal_spread(goals: Float[Array, "... G D"], mask: Array) -> Array:
+    """``max ‖g_k − g_0‖`` over the real goals k and all leading dimensions (a scalar)."""
+    sq = sum((goals[..., :, j] - goals[..., :1, j]) ** 2 for j in range(goals.shape[-1]))
+    return jnp.sqrt(jnp.max(jnp.where(mask, sq, 0.0)))
 
 
-def _dragan_chunk(d: Array, d0: Array, mask: Array, beta, c: Array, points: Array) -> Array:
-    """:func:`_dragan_core` for a batch of trajectories ``points (..., T, D)``.
+def _dragan_chunk(d: Array, d0: Array, mask: Array, beta, c: Array, goals: Array) -> Array:
+    """:func:`_dragan_core` for a batch of trajectories, with goal positions ``goals``
+    (in the space of ``d``).
 
-    Takes :func:`_dragan_unshifted` when ``β max ‖p_i − S‖ <= _EXP_BOUND`` over the
+    Takes :func:`_dragan_referenced` when ``2β max ‖g_k − g_0‖ <= _EXP_BOUND`` over the
     whole batch (one branch runs, chosen on the device), the max-shifted form otherwise
-    (large β, far-flung points, or NaN).
+    (large β or far-flung goals).
     """
-    fits = beta * _reach(points) <= _EXP_BOUND
-    return jax.lax.cond(fits, _dragan_unshifted, _dragan_core, d, d0, mask, beta, c)
+    fits = 2.0 * beta * _goal_spread(goals, mask) <= _EXP_BOUND
+    return jax.lax.cond(fits, _dragan_referenced, _dragan_core, d, d0, mask, beta, c)
 
 
 def _effdist_core(d: Array, mask: Array, beta, w: Array) -> Array:
@@ -231,49 +267,56 @@ def _fastapp_core(d: Array, mask: Array, beta, a: Array) -> Array:
     return _masked_softmax(beta * _integrate(d, a), mask, axis=-1)
 
 
-def _image(points: Float[Array, "... 3"], pos, rot, eps) -> tuple[Array, Array]:
-    """:func:`slotv_jax.scene.project` with the division guarded where depth <= eps.
+def _image(pts: Float[Array, "... 3 T"], pos, rot, eps) -> tuple[Array, Array]:
+    """:func:`slotv_jax.scene.project` of coordinate-major points, with the division
+    guarded where depth <= eps.
 
-    Returns the image points (u, v) and ``ok = depth > eps``; where not ok, (u, v) is
-    the finite ``(p_c.x, p_c.y)`` so that neither values nor gradients become NaN.
-    The rotation ``p_c = Rᵀ (p − c)`` is written out per coordinate (3×3 is too small
-    for a matrix kernel to pay off).
+    Returns the image points ``(..., 2, T)`` and ``ok = depth > eps`` ``(..., T)``;
+    where not ok, (u, v) is the finite ``(p_c.x, p_c.y)`` so that neither values nor
+    gradients become NaN. The rotation ``p_c = Rᵀ (p − c)`` is written out per
+    coordinate (3×3 is too small for a matrix kernel to pay off).
     """
-    rel = points - pos
-    pc = [sum(rel[..., k] * rot[k, j] for k in range(3)) for j in range(3)]
+    rel = [pts[..., k, :] - pos[k] for k in range(3)]
+    pc = [sum(rel[k] * rot[k, j] for k in range(3)) for j in range(3)]
     depth = -pc[2]
     ok = depth > eps
     inv = 1.0 / jnp.where(ok, depth, 1.0)
-    return jnp.stack([pc[0] * inv, pc[1] * inv], axis=-1), ok
+    return jnp.stack([pc[0] * inv, pc[1] * inv], axis=-2), ok
 
 
-def _nikolaidis_parts(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS, chunk=False):
+def _nikolaidis_parts(pts, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS, chunk=False):
     """SPEC §4.2 labels plus the per-trajectory depth-validity of the points and real goals.
 
-    ``chunk=True`` labels the image points with :func:`_dragan_chunk` (bulk labelling).
+    ``pts (..., 3, T)``; ``chunk=True`` labels the image points with
+    :func:`_dragan_chunk` (bulk labelling).
     """
-    uv, ok_p = _image(xyz, pos, rot, eps)
-    uv_g, ok_g = _image(goals, pos, rot, eps)
-    d, d0 = _distances(uv, uv_g), _distances(uv[..., :1, :], uv_g)
+    uv, ok_p = _image(pts, pos, rot, eps)
+    uv_g, ok_g = _image(jnp.swapaxes(goals, -1, -2), pos, rot, eps)
+    uv_g = jnp.swapaxes(uv_g, -1, -2)  # (..., G, 2)
+    d, d0 = _distances(uv, uv_g), _distances(uv[..., :1], uv_g)
     if chunk:
-        y = _dragan_chunk(d, d0, mask, beta, c, uv)
+        y = _dragan_chunk(d, d0, mask, beta, c, uv_g)
     else:
         y = _dragan_core(d, d0, mask, beta, c)
-    ok_p, ok_g = jnp.all(ok_p, axis=-1), jnp.all(ok_g | ~mask, axis=-1)
+    # Count the points behind the camera with a contraction (faster than a reduction).
+    behind = jnp.where(ok_p, 0.0, 1.0).astype(uv.dtype)
+    ok_p = behind @ jnp.ones(behind.shape[-1], behind.dtype) == 0
+    ok_g = ~functools.reduce(jnp.logical_or, _slots(~ok_g & mask, -1))[..., 0]
     uniform = mask / jnp.sum(mask, axis=-1, keepdims=True)
     return jnp.where((ok_p & ok_g)[..., None], y, uniform.astype(y.dtype)), ok_p, ok_g
 
 
-def _nikolaidis_core(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS) -> Array:
+def _nikolaidis_core(pts, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS) -> Array:
     """SPEC §4.2: Dragan legibility of the image-plane points; uniform if any depth is invalid."""
-    return _nikolaidis_parts(xyz, goals, mask, pos, rot, beta, c, eps)[0]
+    return _nikolaidis_parts(pts, goals, mask, pos, rot, beta, c, eps)[0]
 
 
 # ------------------------------------------------------------ public labelers
 
 
 def _prepare(xyz, goals, goal_mask, beta, t, beta_name="beta"):
-    """Boundary checks shared by the four labelers; returns arrays and time weights."""
+    """Boundary checks shared by the four labelers; returns the points coordinate-major
+    ``(3, T)``, the goals, the mask and the time weights."""
     validation.check_array("xyz", xyz, (None, 3))
     T = int(np.shape(xyz)[0])
     if T < 2:
@@ -287,7 +330,7 @@ def _prepare(xyz, goals, goal_mask, beta, t, beta_name="beta"):
         xyz = xyz.astype(jnp.result_type(float))
     goals = jnp.asarray(goals, xyz.dtype)
     mask = jnp.asarray(goal_mask).astype(bool)
-    return xyz, goals, mask, _time_weights(t, T, xyz.dtype)
+    return jnp.swapaxes(xyz, -1, -2), goals, mask, _time_weights(t, T, xyz.dtype)
 
 
 def _check_times(name: str, t, shape) -> None:
@@ -334,9 +377,9 @@ def dragan(
     >>> bool(y[0] > 0.5), round(float(y[0] + y[1]), 6)
     (True, 1.0)
     """
-    xyz, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
-    d0 = _distances(xyz[..., :1, :], goals)
-    return _dragan_core(_distances(xyz, goals), d0, mask, beta, tw.dragan)
+    pts, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
+    d0 = _distances(pts[..., :1], goals)
+    return _dragan_core(_distances(pts, goals), d0, mask, beta, tw.dragan)
 
 
 def effdist(
@@ -372,8 +415,8 @@ def effdist(
     >>> round(float(y[0]), 4)  # softmax(0, −5·0.4) = 1 / (1 + e^−2)
     0.8808
     """
-    xyz, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
-    return _effdist_core(_distances(xyz, goals), mask, beta, tw.effdist)
+    pts, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
+    return _effdist_core(_distances(pts, goals), mask, beta, tw.effdist)
 
 
 def fastapp(
@@ -408,8 +451,8 @@ def fastapp(
     >>> round(float(y[0]), 4)  # softmax(0.5, 0.5 − √0.5)
     0.6698
     """
-    xyz, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
-    return _fastapp_core(_distances(xyz, goals), mask, beta, tw.fastapp)
+    pts, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
+    return _fastapp_core(_distances(pts, goals), mask, beta, tw.fastapp)
 
 
 def _as_camera(cam) -> Camera:
@@ -461,8 +504,8 @@ def depth_ok(
     """
     cam = _as_camera(camera)
     mask = jnp.asarray(goal_mask).astype(bool)
-    _, ok_p = _image(jnp.asarray(xyz), cam.pos, cam.rot, DEPTH_EPS)
-    _, ok_g = _image(jnp.asarray(goals), cam.pos, cam.rot, DEPTH_EPS)
+    _, ok_p = _image(jnp.swapaxes(jnp.asarray(xyz), -1, -2), cam.pos, cam.rot, DEPTH_EPS)
+    _, ok_g = _image(jnp.swapaxes(jnp.asarray(goals), -1, -2), cam.pos, cam.rot, DEPTH_EPS)
     return jnp.all(ok_p) & jnp.all(ok_g | ~mask)
 
 
@@ -509,10 +552,11 @@ def nikolaidis(
     True
     """
     cam = _as_camera(camera)
-    xyz, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
+    pts, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
     _check_depth(xyz, goals, mask, cam)
+    dt = pts.dtype
     return _nikolaidis_core(
-        xyz, goals, mask, cam.pos.astype(xyz.dtype), cam.rot.astype(xyz.dtype), beta, tw.dragan
+        pts, goals, mask, cam.pos.astype(dt), cam.rot.astype(dt), beta, tw.dragan
     )
 
 
@@ -539,55 +583,61 @@ _FLAG_ERRORS = {  # bit i of the kernel's `bad` output, in this order
 }
 
 
-def _label_chunk(xyz, goals, mask, t, pos, rot, betas, names: tuple[str, ...]):
+def _label_chunk(pts, goals, mask, t, pos, rot, betas, names: tuple[str, ...], span: int):
     """Labels ``(C, len(names), 8)`` and a validity bitmask ``(C,)`` for one chunk.
 
-    The one compiled kernel of :func:`label_all`; ``betas`` is ``(len(names),)``.
+    The one compiled kernel of :func:`label_all`. ``pts (C, 3, T)`` holds the
+    trajectories coordinate-major; ``betas`` is ``(len(names),)``. Only the first
+    ``span`` goal slots are labelled (every real goal lies in them); the slots after
+    it are padding and get exact zeros. The validity flags cover all eight slots.
     """
     _TRACES["label_chunk"] += 1
-    T = xyz.shape[-2]
-    tw = _time_weights(t, T, xyz.dtype)
+    T = pts.shape[-1]
+    tw = _time_weights(t, T, pts.dtype)
     beta = dict(zip(names, betas, strict=True))
+    # Per-trajectory validity, so that label_all can reject bad input without an extra
+    # pass over the data on the host. A sum is non-finite if any term is NaN/inf (or if
+    # it overflows float32, at magnitudes no distance computation survives either). The
+    # sum over points is a contraction; the checks over goal slots are elementwise folds.
+    flat = pts.reshape(*pts.shape[:-2], -1)
+    g = [goals[..., k, j] for k in range(G_MAX) for j in range(3)]
+    ok = {
+        "xyz_finite": jnp.isfinite(flat @ jnp.ones(flat.shape[-1], flat.dtype)),
+        "goals_finite": jnp.isfinite(functools.reduce(jnp.add, g)),
+    }
+    goals, mask = goals[..., :span, :], mask[..., :span]
+    same = [
+        mask[..., k]
+        & mask[..., l]
+        & (sum((g[3 * k + j] - g[3 * l + j]) ** 2 for j in range(3)) < 1e-18)
+        for k in range(span)
+        for l in range(k)
+    ]
+    ok["goals_distinct"] = ~functools.reduce(jnp.logical_or, same, jnp.zeros(mask.shape[:-1], bool))
     out = {}
     if {"dragan", "effdist", "fastapp"} & set(names):
-        d = _distances(xyz, goals)  # shared by the three world-space labelers
+        d = _distances(pts, goals)  # shared by the three world-space labelers
         if "dragan" in names:
-            d0 = _distances(xyz[..., :1, :], goals)
-            out["dragan"] = _dragan_chunk(d, d0, mask, beta["dragan"], tw.dragan, xyz)
+            d0 = _distances(pts[..., :1], goals)
+            out["dragan"] = _dragan_chunk(d, d0, mask, beta["dragan"], tw.dragan, goals)
         if "effdist" in names:
             out["effdist"] = _effdist_core(d, mask, beta["effdist"], tw.effdist)
         if "fastapp" in names:
             out["fastapp"] = _fastapp_core(d, mask, beta["fastapp"], tw.fastapp)
-    # Per-trajectory validity, so that label_all can reject bad input without an extra
-    # pass over the data on the host. A sum is non-finite if any term is NaN/inf (or if
-    # it overflows float32, at magnitudes no distance computation survives either).
-    real = mask[..., :, None] & mask[..., None, :] & ~jnp.eye(G_MAX, dtype=bool)
-    gd = sum((goals[..., :, None, j] - goals[..., None, :, j]) ** 2 for j in range(3))
-    ok = {
-        "xyz_finite": jnp.isfinite(jnp.sum(xyz, axis=(-2, -1))),
-        "goals_finite": jnp.isfinite(jnp.sum(goals, axis=(-2, -1))),
-        "goals_distinct": ~jnp.any(real & (gd < 1e-18), axis=(-2, -1)),
-    }
     if "nikolaidis" in names:
         out["nikolaidis"], ok["xyz_depth"], ok["goals_depth"] = _nikolaidis_parts(
-            xyz, goals, mask, pos, rot, beta["nikolaidis"], tw.dragan, chunk=True
+            pts, goals, mask, pos, rot, beta["nikolaidis"], tw.dragan, chunk=True
         )
     bad = sum(
         jnp.where(ok[k], 0, 1 << bit).astype(jnp.int32)
         for bit, k in enumerate(_FLAG_ERRORS)
         if k in ok
     )
-    return jnp.stack([out[k] for k in names], axis=-2), bad
+    y = jnp.stack([out[k] for k in names], axis=-2)
+    return jnp.pad(y, [(0, 0)] * (y.ndim - 1) + [(0, G_MAX - span)]), bad
 
 
-_label_chunk_jit = jax.jit(_label_chunk, static_argnames=("names",))
-
-
-def _pad_rows(a: np.ndarray, n: int) -> np.ndarray:
-    """Pad axis 0 to ``n`` rows by repeating the last row (padded rows stay valid)."""
-    if a.shape[0] == n:
-        return a
-    return np.concatenate([a, np.repeat(a[-1:], n - a.shape[0], axis=0)])
+_label_chunk_jit = jax.jit(_label_chunk, static_argnames=("names", "span"))
 
 
 def label_all(
@@ -646,7 +696,8 @@ def label_all(
     if unknown or not names:
         raise ValueError(f"labelers: expected a non-empty subset of {LABELER_NAMES}, got {names}")
     validation.check_shape("xyz", xyz, (None, None, 3))
-    N, T = int(np.shape(xyz)[0]), int(np.shape(xyz)[1])
+    xyz = np.asarray(xyz)
+    N, T = xyz.shape[:2]
     if T < 2:
         raise ValueError(f"xyz: expected at least 2 trajectory points (T >= 2), got T = {T}")
     goals = np.asarray(goals)
@@ -688,17 +739,20 @@ def label_all(
     if N == 0:
         return out
     C = min(chunk_size, N)
+    # Goal slots after the last real one of every trajectory are not labelled (zeros).
+    span = int(G_MAX - np.argmax(goal_mask[:, ::-1], axis=1).min())
+    stages = [_Stage(C, xyz, goals, goal_mask, t) for _ in range(2)]
 
-    def submit(start):
+    def submit(start, stage):
         stop = min(start + C, N)
-        x = _pad_rows(np.asarray(xyz[start:stop], np.float32), C)
-        g = _pad_rows(np.asarray(goals[start:stop], np.float32), C)
-        m = _pad_rows(goal_mask[start:stop], C)
-        tt = t if t is None or t.ndim == 1 else _pad_rows(t[start:stop], C)
-        return start, stop, _label_chunk_jit(x, g, m, tt, pos, rot, beta_arr, names=names)
+        x, g, m, tt = stage.fill(start, stop)
+        y, bad = _label_chunk_jit(
+            x, g, m, t if tt is None else tt, pos, rot, beta_arr, names=names, span=span
+        )
+        return start, stop, y, bad
 
     def collect(job):
-        start, stop, (labels, bad) = job
+        start, stop, labels, bad = job
         n = stop - start
         bad = np.asarray(bad)[:n]
         if bad.any():
@@ -711,8 +765,10 @@ def label_all(
 
     with tqdm(total=N, unit="traj", desc="labelling", disable=not progress) as bar:
         pending = None
-        for start in range(0, N, C):
-            job = submit(start)  # dispatch the next chunk before waiting on the previous
+        for k, start in enumerate(range(0, N, C)):
+            # Dispatch the next chunk before waiting on the previous one. Its staging
+            # buffers were last read by the chunk before the previous one, collected.
+            job = submit(start, stages[k % 2])
             if pending is not None:
                 collect(pending)
                 bar.update(pending[1] - pending[0])
@@ -720,6 +776,47 @@ def label_all(
         collect(pending)
         bar.update(pending[1] - pending[0])
     return out
+
+
+class _Stage:
+    """Host buffers that one chunk of :func:`label_all` is copied into.
+
+    The trajectories are stored coordinate-major, ``(C, 3, T)``, the kernel's layout.
+    The buffers are 64-byte aligned, so that on the CPU the jitted kernel reads them in
+    place, without another copy: a buffer must not be refilled before the kernel that
+    reads it has finished.
+    """
+
+    def __init__(self, C: int, xyz, goals, goal_mask, t):
+        self.src = [xyz, goals, goal_mask, t if t is not None and t.ndim == 2 else None]
+        T = xyz.shape[1]
+        shapes = [(C, 3, T), (C, G_MAX, 3), (C, G_MAX), (C, T)]
+        dtypes = [np.float32, np.float32, bool, np.float32]
+        self.buf = [
+            None if a is None else _aligned_empty(shape, dt)
+            for a, shape, dt in zip(self.src, shapes, dtypes, strict=True)
+        ]
+
+    def fill(self, start: int, stop: int) -> list:
+        """Copy rows ``start:stop`` of every source into the buffers, repeating the last
+        row to fill them; None where there is no source."""
+        n = stop - start
+        out = []
+        for k, (a, buf) in enumerate(zip(self.src, self.buf, strict=True)):
+            if a is not None:
+                rows = a[start:stop]
+                buf[:n] = rows.transpose(0, 2, 1) if k == 0 else rows
+                buf[n:] = buf[n - 1]
+            out.append(buf)
+        return out
+
+
+def _aligned_empty(shape: tuple[int, ...], dtype) -> np.ndarray:
+    """``np.empty(shape, dtype)`` whose data starts on a 64-byte boundary."""
+    nbytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
+    raw = np.empty(nbytes + 64, np.uint8)
+    offset = -raw.ctypes.data % 64
+    return raw[offset : offset + nbytes].view(dtype).reshape(shape)
 
 
 # ------------------------------------------------------------------ command line

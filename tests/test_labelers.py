@@ -372,7 +372,8 @@ def test_camera_matches_mujoco_c(name, mj_cameras):
         uv, d = scene.project(jnp.asarray(p, jnp.float32), cam)
         np.testing.assert_allclose(np.asarray(uv), 0.0, atol=1e-6)
         assert abs(float(d) - depth) < 1e-5
-        uv_l, ok = L._image(jnp.asarray(p, jnp.float32), cam.pos, cam.rot, L.DEPTH_EPS)
+        pt = jnp.asarray(p, jnp.float32)[:, None]  # coordinate-major, one point
+        uv_l, ok = L._image(pt, cam.pos, cam.rot, L.DEPTH_EPS)
         np.testing.assert_allclose(np.asarray(uv_l), 0.0, atol=1e-6)
         assert bool(ok)
 
@@ -527,35 +528,53 @@ def test_label_all_matches_per_trajectory_labelers_and_compiles_once():
     )
 
 
-def test_bulk_dragan_without_shift_matches_the_shifted_form_up_to_the_bound():
+def spread(goals, mask):
+    """float64 max ‖g_k − g_0‖ over the real goals k (the bound of L._goal_spread)."""
+    return np.where(mask, np.linalg.norm(goals - goals[..., :1, :], axis=-1), 0.0).max()
+
+
+def test_goal_spread_hand_computed():
+    goals = np.zeros((2, 8, 3))
+    goals[0, :3] = [[0.5, 0.0, 0.0], [0.5, 0.3, 0.0], [0.5, 0.0, 0.4]]
+    goals[1, :2] = [[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]]
+    goals[1, 5] = [9.0, 9.0, 9.0]  # padding: ignored
+    mask = np.zeros((2, 8), bool)
+    mask[0, :3] = mask[1, :2] = True
+    got = float(L._goal_spread(jnp.asarray(goals, jnp.float32), jnp.asarray(mask)))
+    assert abs(got - 0.4) < 1e-6
+
+
+@pytest.mark.parametrize("contiguous", [True, False])
+def test_bulk_dragan_referenced_matches_the_shifted_form_up_to_the_bound(contiguous):
     rng = np.random.default_rng(18)
     for _ in range(6):
-        xyz, goals, mask = random_case(rng)
-        reach = np.linalg.norm(xyz - xyz[0], axis=-1).max()
+        xyz, goals, mask = random_case(rng, contiguous=contiguous)
         c = L._uniform_weights(len(xyz), jnp.float32).dragan
         x, g, m = jnp.asarray(xyz, jnp.float32), jnp.asarray(goals, jnp.float32), jnp.asarray(mask)
-        d, d0 = L._distances(x, g), L._distances(x[:1], g)
-        for beta in (5.0, 0.999 * L._EXP_BOUND / reach):  # the default and at the bound
-            y = np.asarray(L._dragan_unshifted(d, d0, m, beta, c))
+        d, d0 = L._distances(x.T, g), L._distances(x[:1].T, g)
+        at_bound = 0.999 * L._EXP_BOUND / (2 * spread(goals, mask))
+        for beta in (5.0, at_bound):
+            if 2 * beta * spread(goals, mask) > L._EXP_BOUND:
+                continue
+            y = np.asarray(L._dragan_referenced(d, d0, m, beta, c))
             assert np.all(np.isfinite(y)) and np.all(y[~mask] == 0.0)
             y_shifted = np.asarray(L._dragan_core(d, d0, m, beta, c))
             np.testing.assert_allclose(y, y_shifted, rtol=0, atol=1e-6)
-        y = np.asarray(L._dragan_unshifted(d, d0, m, 5.0, c))
-        np.testing.assert_allclose(y, ref.dragan(xyz, goals, mask), rtol=0, atol=REF_TOL)
+            if beta == 5.0:
+                np.testing.assert_allclose(y, ref.dragan(xyz, goals, mask), rtol=0, atol=REF_TOL)
 
 
 def test_label_all_chooses_the_shift_per_chunk():
     rng = np.random.default_rng(19)
-    cases = [random_case(rng) for _ in range(6)]
+    cases = [random_case(rng, contiguous=True) for _ in range(6)]
     xyz, goals, mask = (np.stack(c) for c in zip(*cases, strict=True))
-    # The first chunk fits dragan's unshifted bound at β = 40, the second does not (a
-    # point far along the observer's line of sight to the start); β = 1e4 needs the
-    # shifted form everywhere.
-    pos = np.asarray(OBSERVER.pos, np.float64)
-    xyz[4, 50] = pos + 6.0 * (xyz[4, 0] - pos)
-    reach = np.linalg.norm(xyz - xyz[:, :1], axis=-1).max(axis=1)
-    assert 40.0 * reach[:3].max() <= L._EXP_BOUND < 40.0 * reach[3:].max()
-    for beta in (40.0, 1e4):
+    goals[4, 1] = [-2.0, 0.0, 0.025]  # a real goal far from the others, in the second chunk
+    # At this β the first chunk fits dragan's referenced bound and the second does not;
+    # β = 1e4 needs the max-shifted form everywhere.
+    spreads = np.array([spread(g, m) for g, m in zip(goals, mask, strict=True)])
+    beta_fit = 0.99 * L._EXP_BOUND / (2 * spreads[:3].max())
+    assert 2 * beta_fit * spreads[3:].max() > L._EXP_BOUND
+    for beta in (beta_fit, 1e4):
         y = L.label_all(
             xyz,
             goals,
