@@ -40,6 +40,7 @@ Command line (label user trajectories from an ``.npz`` holding ``xyz (N, T, 3)``
 from __future__ import annotations
 
 import argparse
+import collections
 import functools
 import sys
 from collections.abc import Callable, Sequence
@@ -569,6 +570,7 @@ LABELERS: dict[str, Callable[..., Array]] = {
 
 # ------------------------------------------------------------ bulk labelling
 
+_IN_FLIGHT = 3  # chunks dispatched ahead of the one label_all waits on
 _TRACES = {"label_chunk": 0}  # traces of the bulk kernel (tests check it compiles once)
 
 
@@ -741,7 +743,7 @@ def label_all(
     C = min(chunk_size, N)
     # Goal slots after the last real one of every trajectory are not labelled (zeros).
     span = int(G_MAX - np.argmax(goal_mask[:, ::-1], axis=1).min())
-    stages = [_Stage(C, xyz, goals, goal_mask, t) for _ in range(2)]
+    stages = [_Stage(C, xyz, goals, goal_mask, t) for _ in range(_IN_FLIGHT + 1)]
 
     def submit(start, stage):
         stop = min(start + C, N)
@@ -764,17 +766,18 @@ def label_all(
             out[k][start:stop] = labels[:n, j]
 
     with tqdm(total=N, unit="traj", desc="labelling", disable=not progress) as bar:
-        pending = None
+        # Keep _IN_FLIGHT chunks dispatched while the host waits on the oldest. A chunk's
+        # staging buffers were last read by the chunk _IN_FLIGHT + 1 before it, collected.
+        pending = collections.deque()
         for k, start in enumerate(range(0, N, C)):
-            # Dispatch the next chunk before waiting on the previous one. Its staging
-            # buffers were last read by the chunk before the previous one, collected.
-            job = submit(start, stages[k % 2])
-            if pending is not None:
-                collect(pending)
-                bar.update(pending[1] - pending[0])
-            pending = job
-        collect(pending)
-        bar.update(pending[1] - pending[0])
+            pending.append(submit(start, stages[k % len(stages)]))
+            if len(pending) > _IN_FLIGHT:
+                job = pending.popleft()
+                collect(job)
+                bar.update(job[1] - job[0])
+        for job in pending:
+            collect(job)
+            bar.update(job[1] - job[0])
     return out
 
 
