@@ -1,6 +1,6 @@
 """Labelling throughput: a per-trajectory NumPy loop against batched, jitted JAX on the CPU.
 
-    python -m slotv_jax.benchmarks.labeling [--n 160000] [--numpy-n 1000] [--repeats 3]
+    python -m slotv_jax.benchmarks.labeling [--n 160000] [--numpy-n 1000] [--repeats 5]
 
 For each labeler, in one run on the same synthetic trajectories:
 
@@ -119,7 +119,7 @@ def main(argv=None) -> int:
     p.add_argument("--T", type=int, default=100, help="points per trajectory")
     p.add_argument("--numpy-n", type=int, default=1000, help="trajectories for the NumPy loop")
     p.add_argument("--chunk-size", type=int, default=L.DEFAULT_CHUNK)
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--repeats", type=int, default=5)
     args = p.parse_args(argv)
 
     import jax
@@ -148,15 +148,21 @@ def main(argv=None) -> int:
     x64, g64 = xyz[:m].astype(np.float64), goals[:m].astype(np.float64)
     warm = (xyz[: 2 * args.chunk_size], goals[: 2 * args.chunk_size], mask[: 2 * args.chunk_size])
 
-    def measure(f):
-        """Best and median wall time, and best process CPU time, over the repeats."""
-        walls, cpus = [], []
+    def measure(*fs):
+        """Best and median wall time and best process CPU time of each of ``fs``, over the
+        repeats. The functions take turns within each repeat, so that a change in the
+        machine's speed during the run (other jobs on the host) reaches all of them."""
+        walls, cpus, outs = [[] for _ in fs], [[] for _ in fs], [None] * len(fs)
         for _ in range(args.repeats):
-            w0, c0 = time.perf_counter(), time.process_time()
-            out = f()
-            walls.append(time.perf_counter() - w0)
-            cpus.append(time.process_time() - c0)
-        return out, min(walls), float(np.median(walls)), min(cpus)
+            for i, f in enumerate(fs):
+                w0, c0 = time.perf_counter(), time.process_time()
+                outs[i] = f()
+                walls[i].append(time.perf_counter() - w0)
+                cpus[i].append(time.process_time() - c0)
+        return [
+            (out, min(w), float(np.median(w)), min(c))
+            for out, w, c in zip(outs, walls, cpus, strict=True)
+        ]
 
     print(
         "\nthroughput in trajectories per second: wall clock (best of the repeats) and per "
@@ -169,12 +175,10 @@ def main(argv=None) -> int:
     ratios = {}
     for name in L.LABELER_NAMES:
         f_np = numpy_fns[name]
-        y_np, np_wall, _, np_cpu = measure(
-            lambda f=f_np: np.stack([f(x64[i], g64[i], mask[i]) for i in range(m)])
-        )
         L.label_all(*warm, labelers=(name,), **kw)  # compile
-        _, wall, wall_med, cpu = measure(
-            lambda n=name: L.label_all(xyz, goals, mask, labelers=(n,), **kw)
+        (y_np, np_wall, _, np_cpu), (_, wall, wall_med, cpu) = measure(
+            lambda f=f_np: np.stack([f(x64[i], g64[i], mask[i]) for i in range(m)]),
+            lambda n=name: L.label_all(xyz, goals, mask, labelers=(n,), **kw),
         )
         y_jax = L.label_all(xyz[:m], goals[:m], mask[:m], labelers=(name,), **kw)[name]
         r_wall = (args.n / wall) / (m / np_wall)
@@ -188,7 +192,7 @@ def main(argv=None) -> int:
         )
 
     L.label_all(*warm, **kw)  # compile the four-label kernel
-    _, wall, wall_med, cpu = measure(lambda: L.label_all(xyz, goals, mask, **kw))
+    ((_, wall, wall_med, cpu),) = measure(lambda: L.label_all(xyz, goals, mask, **kw))
     print(
         f"\nall four labelers, {args.n:,} trajectories of {args.T} points (after compilation): "
         f"{wall:.3f} s best, {wall_med:.3f} s median wall, {cpu:.3f} s CPU "
