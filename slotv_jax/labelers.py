@@ -211,12 +211,12 @@ def _dragan_core(d: Array, d0: Array, mask: Array, beta, c: Array) -> Array:
     """SPEC §4.1 from distances ``d (..., G, T)``, start distances ``d0 (..., G, 1)`` and
     integration weights ``c (..., T)``.
 
-    ``y_k = Σ_i c_i e_k(i) / Z(i)`` with ``e = exp(logits − max)``, ``Z = Σ_k e_k``: the
-    per-point normalisation is folded into the weights (one pass fewer than forming P).
+    ``y_k = Σ_i c_i P_k(i)`` with ``P_k(i) = e_k(i) / Z(i)``, ``e = exp(logits − max)`` and
+    ``Z = Σ_k e_k``. The max and the sum over goals are elementwise folds over the slots.
     """
     logits = jnp.where(mask[..., :, None], beta * (d0 - d), -jnp.inf)  # β(‖S − g_k‖ − d_k(i))
-    e = jnp.exp(logits - jnp.max(logits, axis=-2, keepdims=True))  # exactly 0 on padding
-    return _integrate(e, c / jnp.sum(e, axis=-2))
+    e = jnp.exp(logits - functools.reduce(jnp.maximum, _slots(logits, -2)))  # 0 on padding
+    return _integrate(e / functools.reduce(jnp.add, _slots(e, -2)), c)
 
 
 # Bound on |logit| under which exp needs no max shift in float32: exp(±64) and a sum of
@@ -230,14 +230,13 @@ def _dragan_referenced(d: Array, d0: Array, mask: Array, beta, c: Array) -> Arra
     Softmax is shift-invariant, so the labels are the same. By the triangle inequality
     ``|d_k(i) − d_0(i)| <= ‖g_k − g_0‖``, so every shifted logit lies in
     ``±2β ‖g_k − g_0‖``: bounded by the goals alone (see :func:`_goal_spread`), whatever
-    the trajectory. Within ``_EXP_BOUND`` the exponentials need no max over the goals:
-    the exp fuses into the distance loop and ``Z`` is a contraction, not a reduction.
-    Slot 0 may be padding (its label is still 0); only its position enters.
+    the trajectory. Within ``_EXP_BOUND`` the exponentials need no max over the goals,
+    which saves a pass over the (goal, point) array. Slot 0 may be padding (its label
+    is still 0); only its position enters.
     """
     logits = beta * ((d0 - d0[..., :1, :]) + (d[..., :1, :] - d))
-    e = jnp.where(mask[..., :, None], jnp.exp(logits), 0.0)
-    z = jnp.einsum("...gt,...g->...t", e, jnp.ones(e.shape[:-1], e.dtype))
-    return _integrate(e, c / z)
+    e = jnp.exp(jnp.where(mask[..., :, None], logits, -jnp.inf))  # exactly 0 on padding
+    return _integrate(e / functools.reduce(jnp.add, _slots(e, -2)), c)
 
 
 def _goal_spread(goals: Float[Array, "... G D"], mask: Array) -> Array:
