@@ -43,6 +43,7 @@ import argparse
 import collections
 import functools
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import NamedTuple
@@ -573,7 +574,8 @@ LABELERS: dict[str, Callable[..., Array]] = {
 
 # ------------------------------------------------------------ bulk labelling
 
-_IN_FLIGHT = 3  # chunks dispatched ahead of the one label_all waits on
+_IN_FLIGHT = 2  # chunks each label_all thread dispatches ahead of the one it waits on
+_THREADS = 2  # label_all threads that stage and dispatch chunks
 _TRACES = {"label_chunk": 0}  # traces of the bulk kernel (tests check it compiles once)
 
 
@@ -746,41 +748,69 @@ def label_all(
     C = min(chunk_size, N)
     # Goal slots after the last real one of every trajectory are not labelled (zeros).
     span = int(G_MAX - np.argmax(goal_mask[:, ::-1], axis=1).min())
-    stages = [_Stage(C, xyz, goals, goal_mask, t) for _ in range(_IN_FLIGHT + 1)]
+    n_chunks = -(-N // C)
+    flags: list[np.ndarray | None] = [None] * n_chunks  # validity bitmask per chunk
+    first_bad = [n_chunks]  # smallest chunk index seen with a bad trajectory
+    errors: list[BaseException] = []
+    lock = threading.Lock()
 
-    def submit(start, stage):
-        stop = min(start + C, N)
-        x, g, m, tt = stage.fill(start, stop)
-        y, bad = _label_chunk_jit(
-            x, g, m, t if tt is None else tt, pos, rot, beta_arr, names=names, span=span
-        )
-        return start, stop, y, bad
+    def run(chunks: Sequence[int], bar) -> None:
+        """Label ``chunks`` in order, keeping _IN_FLIGHT of them dispatched ahead of the
+        one waited on. A chunk's staging buffers were last read by the chunk
+        _IN_FLIGHT + 1 before it, already collected. Stops past a bad chunk."""
+        stages = [_Stage(C, xyz, goals, goal_mask, t) for _ in range(_IN_FLIGHT + 1)]
+        pending = collections.deque()
 
-    def collect(job):
-        start, stop, labels, bad = job
-        n = stop - start
-        bad = np.asarray(bad)[:n]
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            bit = (int(bad[i]) & -int(bad[i])).bit_length() - 1  # lowest set bit
-            raise ValueError(list(_FLAG_ERRORS.values())[bit].format(i=start + i, eps=DEPTH_EPS))
-        labels = np.asarray(labels)
-        for j, k in enumerate(names):
-            out[k][start:stop] = labels[:n, j]
+        def collect() -> None:
+            k, labels, bad = pending.popleft()
+            start, stop = k * C, min(k * C + C, N)
+            flags[k] = bad = np.asarray(bad)[: stop - start]
+            labels = np.asarray(labels)
+            for j, name in enumerate(names):
+                out[name][start:stop] = labels[: stop - start, j]
+            with lock:
+                if bad.any():
+                    first_bad[0] = min(first_bad[0], k)
+                bar.update(stop - start)
+
+        try:
+            for i, k in enumerate(chunks):
+                if k > first_bad[0] or errors:
+                    break
+                x, g, m, tt = stages[i % len(stages)].fill(k * C, min(k * C + C, N))
+                labels, bad = _label_chunk_jit(
+                    x, g, m, t if tt is None else tt, pos, rot, beta_arr, names=names, span=span
+                )
+                pending.append((k, labels, bad))
+                if len(pending) > _IN_FLIGHT:
+                    collect()
+            while pending:
+                collect()
+        except BaseException as e:  # re-raised by the calling thread
+            with lock:
+                errors.append(e)
 
     with tqdm(total=N, unit="traj", desc="labelling", disable=not progress) as bar:
-        # Keep _IN_FLIGHT chunks dispatched while the host waits on the oldest. A chunk's
-        # staging buffers were last read by the chunk _IN_FLIGHT + 1 before it, collected.
-        pending = collections.deque()
-        for k, start in enumerate(range(0, N, C)):
-            pending.append(submit(start, stages[k % len(stages)]))
-            if len(pending) > _IN_FLIGHT:
-                job = pending.popleft()
-                collect(job)
-                bar.update(job[1] - job[0])
-        for job in pending:
-            collect(job)
-            bar.update(job[1] - job[0])
+        run([0], bar)  # compiles the kernel (once), in this thread
+        # The other chunks in _THREADS threads, chunk k in thread k mod _THREADS: XLA runs
+        # kernels called from different threads side by side, which keeps both cores of
+        # a small machine busier than one stream of calls does.
+        threads = [
+            threading.Thread(target=run, args=(range(1 + i, n_chunks, _THREADS), bar))
+            for i in range(_THREADS)
+        ]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+    if errors:
+        raise errors[0]
+    if first_bad[0] < n_chunks:  # every chunk before it was labelled and checked
+        k = first_bad[0]
+        bad = flags[k]
+        i = int(np.flatnonzero(bad)[0])
+        bit = (int(bad[i]) & -int(bad[i])).bit_length() - 1  # lowest set bit
+        raise ValueError(list(_FLAG_ERRORS.values())[bit].format(i=k * C + i, eps=DEPTH_EPS))
     return out
 
 
