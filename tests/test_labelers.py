@@ -492,6 +492,23 @@ def test_label_all_bad_inputs_raise():
         scene.camera("nope")
 
 
+def test_label_all_reports_the_first_bad_trajectory_in_input_order():
+    # Chunks of 2 go to two threads, several chunks ahead each: the error must still
+    # name the first bad trajectory, whichever thread met its chunk first.
+    rng = np.random.default_rng(21)
+    cases = [random_case(rng, n_goals=3, contiguous=True) for _ in range(24)]
+    xyz, goals, mask = (np.stack(c) for c in zip(*cases, strict=True))
+    xyz[21, 5, 2] = np.inf
+    goals[13, 0] = np.nan
+    xyz[9, 0, 0] = np.nan
+    for labelers in (("effdist",), ("dragan", "nikolaidis")):
+        with pytest.raises(ValueError, match=r"xyz.*trajectory 9\b"):
+            L.label_all(xyz, goals, mask, chunk_size=2, labelers=labelers, progress=False)
+    xyz[9, 0, 0] = 0.5
+    with pytest.raises(ValueError, match=r"goals.*trajectory 13\b"):
+        L.label_all(xyz, goals, mask, chunk_size=2, progress=False)
+
+
 # ------------------------------------------------------------- bulk labelling
 
 
