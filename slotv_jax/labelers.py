@@ -665,9 +665,12 @@ def label_all(
     """Label many trajectories with the four labelers, in fixed-size compiled chunks.
 
     The trajectories go through one jitted kernel in chunks of ``chunk_size`` (the last
-    chunk padded), so the kernel is compiled once per (chunk_size, T, labelers) and
-    memory stays bounded by the chunk. The distances to the goals are computed once
-    and shared by dragan, effdist and fastapp. Labels are float32.
+    chunk padded), so the kernel is compiled once per (chunk_size, T, labelers, number
+    of goal slots up to the last real one) and memory stays bounded by a few chunks.
+    Each chunk is copied into aligned buffers in the kernel's coordinate-major layout;
+    two threads stage and dispatch chunks so that the copies overlap the kernels. The
+    distances to the goals are computed once and shared by dragan, effdist and
+    fastapp. Labels are float32.
 
     Args:
       xyz: ``(N, T, 3)`` trajectories (m), T >= 2.
