@@ -580,7 +580,8 @@ _TRACES = {"label_chunk": 0}  # traces of the bulk kernel (tests check it compil
 
 
 _FLAG_ERRORS = {  # bit i of the kernel's `bad` output, in this order
-    "xyz_finite": "xyz: expected finite values; trajectory {i} holds NaN/inf",
+    "xyz_finite": "xyz: expected finite values; trajectory {i} holds NaN/inf (or "
+    "coordinates so large that float32 distances overflow)",
     "goals_finite": "goals: expected finite values; trajectory {i} holds NaN/inf",
     "goals_distinct": "goals: two real goals share the same position (trajectory {i})",
     "xyz_depth": "xyz: trajectory {i} has point(s) at camera depth <= {eps} m "
@@ -604,14 +605,9 @@ def _label_chunk(pts, goals, mask, t, pos, rot, betas, names: tuple[str, ...], s
     beta = dict(zip(names, betas, strict=True))
     # Per-trajectory validity, so that label_all can reject bad input without an extra
     # pass over the data on the host. A sum is non-finite if any term is NaN/inf (or if
-    # it overflows float32, at magnitudes no distance computation survives either). The
-    # sum over points is a contraction; the checks over goal slots are elementwise folds.
-    flat = pts.reshape(*pts.shape[:-2], -1)
+    # it overflows float32). The checks over goal slots are elementwise folds.
     g = [goals[..., k, j] for k in range(G_MAX) for j in range(3)]
-    ok = {
-        "xyz_finite": jnp.isfinite(flat @ jnp.ones(flat.shape[-1], flat.dtype)),
-        "goals_finite": jnp.isfinite(functools.reduce(jnp.add, g)),
-    }
+    ok = {"goals_finite": jnp.isfinite(functools.reduce(jnp.add, g))}
     goals, mask = goals[..., :span, :], mask[..., :span]
     same = [
         mask[..., k]
@@ -622,7 +618,8 @@ def _label_chunk(pts, goals, mask, t, pos, rot, betas, names: tuple[str, ...], s
     ]
     ok["goals_distinct"] = ~functools.reduce(jnp.logical_or, same, jnp.zeros(mask.shape[:-1], bool))
     out = {}
-    if {"dragan", "effdist", "fastapp"} & set(names):
+    world = [n for n in ("dragan", "effdist", "fastapp") if n in names]
+    if world:
         d = _distances(pts, goals)  # shared by the three world-space labelers
         if "dragan" in names:
             d0 = _distances(pts[..., :1], goals)
@@ -631,6 +628,14 @@ def _label_chunk(pts, goals, mask, t, pos, rot, betas, names: tuple[str, ...], s
             out["effdist"] = _effdist_core(d, mask, beta["effdist"], tw.effdist)
         if "fastapp" in names:
             out["fastapp"] = _fastapp_core(d, mask, beta["fastapp"], tw.fastapp)
+        # A NaN/inf coordinate makes that point's distance to every goal NaN/inf, and
+        # every label of these labelers takes every point's distances into a sum (with a
+        # weight, maybe 0: 0·inf is NaN too), so all its labels are NaN. With finite
+        # goals, finite labels therefore mean finite points; this check costs nothing.
+        ok["xyz_finite"] = jnp.isfinite(out[world[0]][..., 0]) | ~ok["goals_finite"]
+    else:  # a contraction over the points: faster than a reduction
+        flat = pts.reshape(*pts.shape[:-2], -1)
+        ok["xyz_finite"] = jnp.isfinite(flat @ jnp.ones(flat.shape[-1], flat.dtype))
     if "nikolaidis" in names:
         out["nikolaidis"], ok["xyz_depth"], ok["goals_depth"] = _nikolaidis_parts(
             pts, goals, mask, pos, rot, beta["nikolaidis"], tw.dragan, chunk=True

@@ -492,6 +492,30 @@ def test_label_all_bad_inputs_raise():
         scene.camera("nope")
 
 
+@pytest.mark.parametrize("labelers", [(n,) for n in ALL] + [ALL])
+def test_label_all_catches_every_non_finite_point(labelers):
+    # NaN or ±inf in any coordinate of the first, a middle or the last point (the last
+    # point has weight 0 in dragan and fastapp) must raise, never give NaN labels.
+    rng = np.random.default_rng(22)
+    cases = [random_case(rng, n_goals=4, contiguous=True) for _ in range(4)]
+    xyz, goals, mask = (np.stack(c) for c in zip(*cases, strict=True))
+    for value in (np.nan, np.inf, -np.inf):
+        for point in (0, 37, xyz.shape[1] - 1):
+            for coord in range(3):
+                bad = xyz.copy()
+                bad[2, point, coord] = value
+                with pytest.raises(ValueError, match=r"xyz: expected finite.*trajectory 2\b"):
+                    L.label_all(bad, goals, mask, chunk_size=2, labelers=labelers, progress=False)
+    huge = xyz.copy()
+    huge[1, 5, 0] = 3e19  # finite, but its squared distances overflow float32
+    with pytest.raises(ValueError, match=r"xyz.*trajectory 1\b"):
+        L.label_all(huge, goals, mask, chunk_size=2, labelers=labelers, progress=False)
+    bad_goal = goals.copy()
+    bad_goal[3, 1, 2] = np.nan  # a real goal
+    with pytest.raises(ValueError, match=r"goals: expected finite.*trajectory 3\b"):
+        L.label_all(xyz, bad_goal, mask, chunk_size=2, labelers=labelers, progress=False)
+
+
 def test_label_all_reports_the_first_bad_trajectory_in_input_order():
     # Chunks of 2 go to two threads, several chunks ahead each: the error must still
     # name the first bad trajectory, whichever thread met its chunk first.
