@@ -757,8 +757,7 @@ def label_all(
     # Goal slots after the last real one of every trajectory are not labelled (zeros).
     span = int(G_MAX - np.argmax(goal_mask[:, ::-1], axis=1).min())
     n_chunks = -(-N // C)
-    flags: list[np.ndarray | None] = [None] * n_chunks  # validity bitmask per chunk
-    first_bad = [n_chunks]  # smallest chunk index seen with a bad trajectory
+    first_bad: list = [n_chunks, None]  # the first chunk with a bad trajectory, its flags
     errors: list[BaseException] = []
     lock = threading.Lock()
 
@@ -766,26 +765,27 @@ def label_all(
         """Label ``chunks`` in order, keeping _IN_FLIGHT of them dispatched ahead of the
         one waited on. A chunk's staging buffers were last read by the chunk
         _IN_FLIGHT + 1 before it, already collected. Stops past a bad chunk."""
-        stages = [_Stage(C, xyz, goals, goal_mask, t) for _ in range(_IN_FLIGHT + 1)]
+        n_stages = min(len(chunks), _IN_FLIGHT + 1)
+        stages = [_Stage(C, xyz, goals, goal_mask, t) for _ in range(n_stages)]
         pending = collections.deque()
 
         def collect() -> None:
             k, labels, bad = pending.popleft()
             start, stop = k * C, min(k * C + C, N)
-            flags[k] = bad = np.asarray(bad)[: stop - start]
+            bad = np.asarray(bad)[: stop - start]
             labels = np.asarray(labels)
             for j, name in enumerate(names):
                 out[name][start:stop] = labels[: stop - start, j]
             with lock:
-                if bad.any():
-                    first_bad[0] = min(first_bad[0], k)
+                if bad.any() and k < first_bad[0]:
+                    first_bad[:] = [k, bad]
                 bar.update(stop - start)
 
         try:
             for i, k in enumerate(chunks):
                 if k > first_bad[0] or errors:
                     break
-                x, g, m, tt = stages[i % len(stages)].fill(k * C, min(k * C + C, N))
+                x, g, m, tt = stages[i % n_stages].fill(k * C, min(k * C + C, N))
                 labels, bad = _label_chunk_jit(
                     x, g, m, t if tt is None else tt, pos, rot, beta_arr, names=names, span=span
                 )
@@ -813,9 +813,8 @@ def label_all(
             thread.join()
     if errors:
         raise errors[0]
-    if first_bad[0] < n_chunks:  # every chunk before it was labelled and checked
-        k = first_bad[0]
-        bad = flags[k]
+    if first_bad[1] is not None:  # every chunk before it was labelled and checked
+        k, bad = first_bad
         i = int(np.flatnonzero(bad)[0])
         bit = (int(bad[i]) & -int(bad[i])).bit_length() - 1  # lowest set bit
         raise ValueError(list(_FLAG_ERRORS.values())[bit].format(i=k * C + i, eps=DEPTH_EPS))
@@ -832,13 +831,18 @@ class _Stage:
     """
 
     def __init__(self, C: int, xyz, goals, goal_mask, t):
-        self.src = [xyz, goals, goal_mask, t if t is not None and t.ndim == 2 else None]
         T = xyz.shape[1]
-        shapes = [(C, 3, T), (C, G_MAX, 3), (C, G_MAX), (C, T)]
-        dtypes = [np.float32, np.float32, bool, np.float32]
-        self.buf = [
-            None if a is None else _aligned_empty(shape, dt)
-            for a, shape, dt in zip(self.src, shapes, dtypes, strict=True)
+        per_row_t = t if t is not None and t.ndim == 2 else None
+        # (source, its rows' axes in the buffer, buffer shape, dtype); None: no source
+        parts = [
+            (xyz, (0, 2, 1), (C, 3, T), np.float32),
+            (goals, None, (C, G_MAX, 3), np.float32),
+            (goal_mask, None, (C, G_MAX), bool),
+            (per_row_t, None, (C, T), np.float32),
+        ]
+        self.parts = [
+            None if a is None else (a, axes, _aligned_empty(shape, dt))
+            for a, axes, shape, dt in parts
         ]
 
     def fill(self, start: int, stop: int) -> list:
@@ -846,11 +850,14 @@ class _Stage:
         row to fill them; None where there is no source."""
         n = stop - start
         out = []
-        for k, (a, buf) in enumerate(zip(self.src, self.buf, strict=True)):
-            if a is not None:
-                rows = a[start:stop]
-                buf[:n] = rows.transpose(0, 2, 1) if k == 0 else rows
-                buf[n:] = buf[n - 1]
+        for part in self.parts:
+            if part is None:
+                out.append(None)
+                continue
+            a, axes, buf = part
+            rows = a[start:stop]
+            buf[:n] = rows if axes is None else rows.transpose(axes)
+            buf[n:] = buf[n - 1]
             out.append(buf)
         return out
 

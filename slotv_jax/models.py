@@ -303,9 +303,9 @@ def goal_relative_features(
     dtype=None,
     fused_backward: bool = False,
 ) -> Float[Array, "... T G H"]:
-    """First hidden layer on every (point, goal) pair: relu(W_1 (p_t − g_k) + b_1),
-    evaluated as relu(W_1 p_t − (W_1 g_k − b_1)) in the parameters' precision (float32,
-    highest matmul precision), then cast to ``dtype`` (None: keep).
+    """First hidden layer on every (point, goal) pair: relu(W_1 (p_t − g_k) + b_1), in the
+    parameters' precision (float32; evaluated in the form :data:`first_layer_form` picks),
+    then cast to ``dtype`` (None: keep).
 
     With ``fused_backward`` the gradient is a custom VJP that recomputes the
     pre-activation instead of storing a mask, and gets ∂L/∂W_1 = Σ_{t,k} (p_t − g_k) ⊗ δ_{tk}
