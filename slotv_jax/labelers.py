@@ -286,7 +286,8 @@ def _image(pts: Float[Array, "... 3 T"], pos, rot, eps) -> tuple[Array, Array]:
 
 
 def _nikolaidis_parts(pts, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS, chunk=False):
-    """SPEC §4.2 labels plus the per-trajectory depth-validity of the points and real goals.
+    """SPEC §4.2 labels, the per-trajectory depth-validity of the points and of the real
+    goals, and the image-plane Dragan labels before invalid depths make them uniform.
 
     ``pts (..., 3, T)``; ``chunk=True`` labels the image points with
     :func:`_dragan_chunk` (bulk labelling).
@@ -308,7 +309,7 @@ def _nikolaidis_parts(pts, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS, chunk=
     ok_p = behind @ jnp.ones(behind.shape[-1], behind.dtype) == 0
     ok_g = ~functools.reduce(jnp.logical_or, _slots(~ok_g & mask, -1))[..., 0]
     uniform = mask / jnp.sum(mask, axis=-1, keepdims=True)
-    return jnp.where((ok_p & ok_g)[..., None], y, uniform.astype(y.dtype)), ok_p, ok_g
+    return jnp.where((ok_p & ok_g)[..., None], y, uniform.astype(y.dtype)), ok_p, ok_g, y
 
 
 def _nikolaidis_core(pts, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS) -> Array:
@@ -576,6 +577,7 @@ LABELERS: dict[str, Callable[..., Array]] = {
 
 _IN_FLIGHT = 2  # chunks each label_all thread dispatches ahead of the one it waits on
 _THREADS = 2  # label_all threads that stage and dispatch chunks
+_ALIGN = 64  # bytes: XLA:CPU reads host buffers aligned so in place, and copies others
 _TRACES = {"label_chunk": 0}  # traces of the bulk kernel (tests check it compiles once)
 
 
@@ -591,16 +593,23 @@ _FLAG_ERRORS = {  # bit i of the kernel's `bad` output, in this order
 }
 
 
-def _label_chunk(pts, goals, mask, t, pos, rot, betas, names: tuple[str, ...], span: int):
+def _label_chunk(
+    xyz, goals, mask, t, pos, rot, betas, names: tuple[str, ...], span: int, offset: int
+):
     """Labels ``(C, len(names), 8)`` and a validity bitmask ``(C,)`` for one chunk.
 
-    The one compiled kernel of :func:`label_all`. ``pts (C, 3, T)`` holds the
-    trajectories coordinate-major; ``betas`` is ``(len(names),)``. Only the first
-    ``span`` goal slots are labelled (every real goal lies in them); the slots after
-    it are padding and get exact zeros. The validity flags cover all eight slots.
+    The one compiled kernel of :func:`label_all`. ``xyz`` is flat, ``(offset + C·T·3,)``:
+    ``offset`` values to skip, then the chunk's ``(C, T, 3)`` trajectories in row-major
+    order (see :func:`label_all` for why). ``betas`` is ``(len(names),)``. Only the first
+    ``span`` goal slots are labelled (every real goal lies in them); the slots after it
+    are padding and get exact zeros. The validity flags cover all eight slots.
     """
     _TRACES["label_chunk"] += 1
-    T = pts.shape[-1]
+    C = goals.shape[0]
+    T = (xyz.shape[0] - offset) // (3 * C)
+    # Coordinate-major, (C, 3, T), stored once: left to itself, XLA would fuse the
+    # transpose into every loop that reads the points, whose loads then lose unit stride.
+    pts = jax.lax.optimization_barrier(jnp.swapaxes(xyz[offset:].reshape(C, T, 3), -1, -2))
     tw = _time_weights(t, T, pts.dtype)
     beta = dict(zip(names, betas, strict=True))
     # Per-trajectory validity, so that label_all can reject bad input without an extra
@@ -628,18 +637,20 @@ def _label_chunk(pts, goals, mask, t, pos, rot, betas, names: tuple[str, ...], s
             out["effdist"] = _effdist_core(d, mask, beta["effdist"], tw.effdist)
         if "fastapp" in names:
             out["fastapp"] = _fastapp_core(d, mask, beta["fastapp"], tw.fastapp)
-        # A NaN/inf coordinate makes that point's distance to every goal NaN/inf, and
-        # every label of these labelers takes every point's distances into a sum (with a
-        # weight, maybe 0: 0·inf is NaN too), so all its labels are NaN. With finite
-        # goals, finite labels therefore mean finite points; this check costs nothing.
-        ok["xyz_finite"] = jnp.isfinite(out[world[0]][..., 0]) | ~ok["goals_finite"]
-    else:  # a contraction over the points: faster than a reduction
-        flat = pts.reshape(*pts.shape[:-2], -1)
-        ok["xyz_finite"] = jnp.isfinite(flat @ jnp.ones(flat.shape[-1], flat.dtype))
     if "nikolaidis" in names:
-        out["nikolaidis"], ok["xyz_depth"], ok["goals_depth"] = _nikolaidis_parts(
+        out["nikolaidis"], ok["xyz_depth"], ok["goals_depth"], image = _nikolaidis_parts(
             pts, goals, mask, pos, rot, beta["nikolaidis"], tw.dragan, chunk=True
         )
+    # A NaN/inf coordinate makes that point's distance to every goal NaN/inf, and every
+    # label takes every point's distances into a sum (with a weight, maybe 0: 0·inf is
+    # NaN too), so all its labels are NaN. With finite goals, finite labels therefore
+    # mean finite points; this check costs nothing. It holds in the image plane too
+    # (the image-plane Dragan labels, before an invalid depth makes them uniform): a
+    # non-finite coordinate makes p_c.x and p_c.y NaN or ±inf (inf·0 is NaN, should a
+    # rotation entry be 0), and so (u, v): they are p_c.x, p_c.y times 1/depth (0 for
+    # an infinite depth, and inf·0 is NaN again) or times 1 where the depth is invalid.
+    first = out[world[0]] if world else image
+    ok["xyz_finite"] = jnp.isfinite(first[..., 0]) | ~ok["goals_finite"]
     bad = sum(
         jnp.where(ok[k], 0, 1 << bit).astype(jnp.int32)
         for bit, k in enumerate(_FLAG_ERRORS)
@@ -649,7 +660,7 @@ def _label_chunk(pts, goals, mask, t, pos, rot, betas, names: tuple[str, ...], s
     return jnp.pad(y, [(0, 0)] * (y.ndim - 1) + [(0, G_MAX - span)]), bad
 
 
-_label_chunk_jit = jax.jit(_label_chunk, static_argnames=("names", "span"))
+_label_chunk_jit = jax.jit(_label_chunk, static_argnames=("names", "span", "offset"))
 
 
 def label_all(
@@ -755,7 +766,17 @@ def label_all(
         return out
     C = min(chunk_size, N)
     # Goal slots after the last real one of every trajectory are not labelled (zeros).
-    span = int(G_MAX - np.argmax(goal_mask[:, ::-1], axis=1).min())
+    span = 1 + max(k for k in range(G_MAX) if goal_mask[:, k].any())
+    # XLA on the CPU reads a host buffer in place if it starts on a 64-byte boundary and
+    # copies it otherwise. A C-contiguous float32 xyz is therefore passed chunk by chunk
+    # as flat views that start `offset` values before the chunk, on such a boundary (the
+    # kernel skips them): the trajectories are read where they lie, without a copy. The
+    # chunks this cannot cover (the first if offset > 0, a short last one, or every
+    # chunk of an xyz of another dtype or layout) are copied into aligned buffers with
+    # the same layout.
+    flat, offset = None, 0
+    if xyz.dtype == np.float32 and xyz.flags.c_contiguous and xyz.ctypes.data % 4 == 0:
+        flat, offset = xyz.reshape(-1), xyz.ctypes.data % _ALIGN // 4
     n_chunks = -(-N // C)
     first_bad: list = [n_chunks, None]  # the first chunk with a bad trajectory, its flags
     errors: list[BaseException] = []
@@ -766,7 +787,7 @@ def label_all(
         one waited on. A chunk's staging buffers were last read by the chunk
         _IN_FLIGHT + 1 before it, already collected. Stops past a bad chunk."""
         n_stages = min(len(chunks), _IN_FLIGHT + 1)
-        stages = [_Stage(C, xyz, goals, goal_mask, t) for _ in range(n_stages)]
+        stages = [_Stage(C, offset, xyz, goals, goal_mask, t) for _ in range(n_stages)]
         pending = collections.deque()
 
         def collect() -> None:
@@ -785,9 +806,22 @@ def label_all(
             for i, k in enumerate(chunks):
                 if k > first_bad[0] or errors:
                     break
-                x, g, m, tt = stages[i % n_stages].fill(k * C, min(k * C + C, N))
+                start, stop = k * C, min(k * C + C, N)
+                in_place = flat is not None and stop - start == C and start * T * 3 >= offset
+                x, g, m, tt = stages[i % n_stages].fill(start, stop, xyz=not in_place)
+                if in_place:
+                    x = flat[start * T * 3 - offset : stop * T * 3]
                 labels, bad = _label_chunk_jit(
-                    x, g, m, t if tt is None else tt, pos, rot, beta_arr, names=names, span=span
+                    x,
+                    g,
+                    m,
+                    t if tt is None else tt,
+                    pos,
+                    rot,
+                    beta_arr,
+                    names=names,
+                    span=span,
+                    offset=offset,
                 )
                 pending.append((k, labels, bad))
                 if len(pending) > _IN_FLIGHT:
@@ -824,49 +858,50 @@ def label_all(
 class _Stage:
     """Host buffers that one chunk of :func:`label_all` is copied into.
 
-    The trajectories are stored coordinate-major, ``(C, 3, T)``, the kernel's layout.
-    The buffers are 64-byte aligned, so that on the CPU the jitted kernel reads them in
-    place, without another copy: a buffer must not be refilled before the kernel that
-    reads it has finished.
+    The trajectories are stored flat, ``(offset + C·T·3,)``, as the kernel takes them:
+    ``offset`` unused values, then the ``(C, T, 3)`` chunk. The buffers are 64-byte
+    aligned, so that on the CPU the jitted kernel reads them in place, without another
+    copy: a buffer must not be refilled before the kernel that reads it has finished.
     """
 
-    def __init__(self, C: int, xyz, goals, goal_mask, t):
+    def __init__(self, C: int, offset: int, xyz, goals, goal_mask, t):
         T = xyz.shape[1]
         per_row_t = t if t is not None and t.ndim == 2 else None
-        # (source, its rows' axes in the buffer, buffer shape, dtype); None: no source
+        # (source, buffer shape, dtype); None: no source
         parts = [
-            (xyz, (0, 2, 1), (C, 3, T), np.float32),
-            (goals, None, (C, G_MAX, 3), np.float32),
-            (goal_mask, None, (C, G_MAX), bool),
-            (per_row_t, None, (C, T), np.float32),
+            (xyz, (offset + C * T * 3,), np.float32),
+            (goals, (C, G_MAX, 3), np.float32),
+            (goal_mask, (C, G_MAX), bool),
+            (per_row_t, (C, T), np.float32),
         ]
         self.parts = [
-            None if a is None else (a, axes, _aligned_empty(shape, dt))
-            for a, axes, shape, dt in parts
+            None if a is None else (a, _aligned_empty(shape, dt)) for a, shape, dt in parts
         ]
+        self.offset = offset
 
-    def fill(self, start: int, stop: int) -> list:
-        """Copy rows ``start:stop`` of every source into the buffers, repeating the last
-        row to fill them; None where there is no source."""
+    def fill(self, start: int, stop: int, xyz: bool = True) -> list:
+        """Copy rows ``start:stop`` of every source (of all but ``xyz`` if it is False)
+        into the buffers, repeating the last row to fill them; None where there is no
+        source or nothing was copied."""
         n = stop - start
         out = []
-        for part in self.parts:
-            if part is None:
+        for i, part in enumerate(self.parts):
+            if part is None or (i == 0 and not xyz):
                 out.append(None)
                 continue
-            a, axes, buf = part
-            rows = a[start:stop]
-            buf[:n] = rows if axes is None else rows.transpose(axes)
-            buf[n:] = buf[n - 1]
+            a, buf = part
+            rows = buf[self.offset :].reshape(-1, *a.shape[1:]) if i == 0 else buf
+            rows[:n] = a[start:stop]
+            rows[n:] = rows[n - 1]
             out.append(buf)
         return out
 
 
 def _aligned_empty(shape: tuple[int, ...], dtype) -> np.ndarray:
-    """``np.empty(shape, dtype)`` whose data starts on a 64-byte boundary."""
+    """``np.empty(shape, dtype)`` whose data starts on a ``_ALIGN``-byte boundary."""
     nbytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
-    raw = np.empty(nbytes + 64, np.uint8)
-    offset = -raw.ctypes.data % 64
+    raw = np.empty(nbytes + _ALIGN, np.uint8)
+    offset = -raw.ctypes.data % _ALIGN
     return raw[offset : offset + nbytes].view(dtype).reshape(shape)
 
 

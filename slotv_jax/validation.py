@@ -8,6 +8,7 @@ concrete arrays, so the same public functions stay usable under ``jit`` and
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import jax
@@ -64,8 +65,8 @@ def check_goal_mask(name: str, goal_mask, *, batch_shape: tuple[int, ...] = ()) 
         if not np.all((m == 0) | (m == 1)):
             raise ValueError(f"{name}: expected booleans (or 0/1), got dtype {m.dtype}")
         m = m.astype(bool)
-    counts = m.sum(-1)
-    if np.any(counts < 1):
+    # An elementwise fold over the slots: much faster than a reduction over a short axis.
+    if not functools.reduce(np.logical_or, [m[..., k] for k in range(G_MAX)]).all():
         raise ValueError(f"{name}: expected 1..{G_MAX} real goals, found a mask with none")
 
 
