@@ -607,9 +607,8 @@ def _label_chunk(
     _TRACES["label_chunk"] += 1
     C = goals.shape[0]
     T = (xyz.shape[0] - offset) // (3 * C)
-    # Coordinate-major, (C, 3, T), stored once: left to itself, XLA would fuse the
-    # transpose into every loop that reads the points, whose loads then lose unit stride.
-    pts = jax.lax.optimization_barrier(jnp.swapaxes(xyz[offset:].reshape(C, T, 3), -1, -2))
+    # Coordinate-major, (C, 3, T); XLA fuses the transpose into the loops that read it.
+    pts = jnp.swapaxes(xyz[offset:].reshape(C, T, 3), -1, -2)
     tw = _time_weights(t, T, pts.dtype)
     beta = dict(zip(names, betas, strict=True))
     # Per-trajectory validity, so that label_all can reject bad input without an extra
