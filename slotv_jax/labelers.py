@@ -576,7 +576,7 @@ LABELERS: dict[str, Callable[..., Array]] = {
 # ------------------------------------------------------------ bulk labelling
 
 _IN_FLIGHT = 2  # chunks each label_all thread dispatches ahead of the one it waits on
-_THREADS = 2  # label_all threads that stage and dispatch chunks
+_THREADS = 2  # label_all threads that dispatch chunks
 _ALIGN = 64  # bytes: XLA:CPU reads host buffers aligned so in place, and copies others
 _TRACES = {"label_chunk": 0}  # traces of the bulk kernel (tests check it compiles once)
 
@@ -682,10 +682,10 @@ def label_all(
     The trajectories go through one jitted kernel in chunks of ``chunk_size`` (the last
     chunk padded), so the kernel is compiled once per (chunk_size, T, labelers, number
     of goal slots up to the last real one) and memory stays bounded by a few chunks.
-    Each chunk is copied into aligned buffers in the kernel's coordinate-major layout;
-    two threads stage and dispatch chunks so that the copies overlap the kernels. The
-    distances to the goals are computed once and shared by dragan, effdist and
-    fastapp. Labels are float32.
+    A C-contiguous float32 ``xyz`` is read in place; any other is converted chunk by
+    chunk into aligned buffers. Two threads dispatch chunks, which keeps both cores of
+    a small machine busy. The distances to the goals are computed once and shared by
+    dragan, effdist and fastapp. Labels are float32.
 
     Args:
       xyz: ``(N, T, 3)`` trajectories (m), T >= 2.

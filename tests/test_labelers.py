@@ -569,6 +569,36 @@ def test_label_all_matches_per_trajectory_labelers_and_compiles_once():
     )
 
 
+def test_label_all_reads_float32_chunks_in_place_at_any_alignment(monkeypatch):
+    # A C-contiguous float32 xyz is read where it lies: the kernel gets flat views that
+    # start on a 64-byte boundary up to 15 values before the chunk. Every start offset
+    # must give the labels of the copying path (a float64 xyz, converted chunk by
+    # chunk), and every full chunk that has such a boundary before it is read in place.
+    rng = np.random.default_rng(23)
+    N, T, chunk = 11, 50, 4  # chunks of 4, 4 and 3 trajectories
+    cases = [random_case(rng, T=T, contiguous=True) for _ in range(N)]
+    xyz, goals, mask = (np.stack(c) for c in zip(*cases, strict=True))
+    xyz = xyz.astype(np.float32)
+    expect = L.label_all(xyz.astype(np.float64), goals, mask, chunk_size=chunk, progress=False)
+    kernel, in_place = L._label_chunk_jit, []
+    buf = L._aligned_empty((16 + xyz.size,), np.float32)
+    for offset in range(16):
+        view = buf[offset : offset + xyz.size].reshape(xyz.shape)
+        view[:] = xyz
+
+        def spy(x, *args, view=view, **kw):
+            in_place.append(np.shares_memory(x, view))
+            return kernel(x, *args, **kw)
+
+        monkeypatch.setattr(L, "_label_chunk_jit", spy)
+        in_place.clear()
+        y = L.label_all(view, goals, mask, chunk_size=chunk, progress=False)
+        for name in ALL:
+            np.testing.assert_array_equal(y[name], expect[name], err_msg=f"offset {offset}")
+        # chunk 0 needs the boundary at the array's start; the short last chunk is copied
+        assert sorted(in_place) == [False] * (1 + (offset > 0)) + [True] * (1 + (offset == 0))
+
+
 def spread(goals, mask):
     """float64 max ‖g_k − g_0‖ over the real goals k (the bound of L._goal_spread)."""
     return np.where(mask, np.linalg.norm(goals - goals[..., :1, :], axis=-1), 0.0).max()
