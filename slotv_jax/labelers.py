@@ -578,6 +578,7 @@ LABELERS: dict[str, Callable[..., Array]] = {
 _IN_FLIGHT = 2  # chunks each label_all thread dispatches ahead of the one it waits on
 _THREADS = 2  # label_all threads that dispatch chunks
 _ALIGN = 64  # bytes: XLA:CPU reads host buffers aligned so in place, and copies others
+_SLACK = _ALIGN // 4 - 1  # float32 values a view of xyz may start before its chunk
 _TRACES = {"label_chunk": 0}  # traces of the bulk kernel (tests check it compiles once)
 
 
@@ -593,22 +594,22 @@ _FLAG_ERRORS = {  # bit i of the kernel's `bad` output, in this order
 }
 
 
-def _label_chunk(
-    xyz, goals, mask, t, pos, rot, betas, names: tuple[str, ...], span: int, offset: int
-):
+def _label_chunk(xyz, offset, goals, mask, t, pos, rot, betas, names: tuple[str, ...], span: int):
     """Labels ``(C, len(names), 8)`` and a validity bitmask ``(C,)`` for one chunk.
 
-    The one compiled kernel of :func:`label_all`. ``xyz`` is flat, ``(offset + C·T·3,)``:
-    ``offset`` values to skip, then the chunk's ``(C, T, 3)`` trajectories in row-major
-    order (see :func:`label_all` for why). ``betas`` is ``(len(names),)``. Only the first
-    ``span`` goal slots are labelled (every real goal lies in them); the slots after it
-    are padding and get exact zeros. The validity flags cover all eight slots.
+    The one compiled kernel of :func:`label_all`. ``xyz`` is flat, ``(C·T·3 + _SLACK,)``:
+    the chunk's ``(C, T, 3)`` trajectories in row-major order start ``offset``
+    (``0 <= offset <= _SLACK``, an int32 scalar) values into it (see :func:`label_all`
+    for why). ``betas`` is ``(len(names),)``. Only the first ``span`` goal slots are
+    labelled (every real goal lies in them); the slots after it are padding and get exact
+    zeros. The validity flags cover all eight slots.
     """
     _TRACES["label_chunk"] += 1
     C = goals.shape[0]
-    T = (xyz.shape[0] - offset) // (3 * C)
+    T = (xyz.shape[0] - _SLACK) // (3 * C)
+    rows = jax.lax.dynamic_slice_in_dim(xyz, offset, C * T * 3)
     # Coordinate-major, (C, 3, T); XLA fuses the transpose into the loops that read it.
-    pts = jnp.swapaxes(xyz[offset:].reshape(C, T, 3), -1, -2)
+    pts = jnp.swapaxes(rows.reshape(C, T, 3), -1, -2)
     tw = _time_weights(t, T, pts.dtype)
     beta = dict(zip(names, betas, strict=True))
     # Per-trajectory validity, so that label_all can reject bad input without an extra
@@ -659,7 +660,7 @@ def _label_chunk(
     return jnp.pad(y, [(0, 0)] * (y.ndim - 1) + [(0, G_MAX - span)]), bad
 
 
-_label_chunk_jit = jax.jit(_label_chunk, static_argnames=("names", "span", "offset"))
+_label_chunk_jit = jax.jit(_label_chunk, static_argnames=("names", "span"))
 
 
 def label_all(
@@ -768,14 +769,17 @@ def label_all(
     span = 1 + max(k for k in range(G_MAX) if goal_mask[:, k].any())
     # XLA on the CPU reads a host buffer in place if it starts on a 64-byte boundary and
     # copies it otherwise. A C-contiguous float32 xyz is therefore passed chunk by chunk
-    # as flat views that start `offset` values before the chunk, on such a boundary (the
-    # kernel skips them): the trajectories are read where they lie, without a copy. The
-    # chunks this cannot cover (the first if offset > 0, a short last one, or every
-    # chunk of an xyz of another dtype or layout) are copied into aligned buffers with
-    # the same layout.
+    # as flat views of C·T·3 + _SLACK values that start `offset` values before the chunk,
+    # on such a boundary; the kernel skips them (a traced offset: one compilation for
+    # every alignment). The trajectories are read where they lie, without a copy. The
+    # chunks this cannot cover (the first if offset > 0, a short chunk, the last full
+    # one if its view would run past the array, every chunk of an xyz of another dtype or
+    # layout) are copied into aligned buffers, at offset 0.
     flat, offset = None, 0
     if xyz.dtype == np.float32 and xyz.flags.c_contiguous and xyz.ctypes.data % 4 == 0:
         flat, offset = xyz.reshape(-1), xyz.ctypes.data % _ALIGN // 4
+    offsets = {o: jnp.asarray(o, jnp.int32) for o in {0, offset}}  # put on the device once
+    view = C * T * 3 + _SLACK
     n_chunks = -(-N // C)
     first_bad: list = [n_chunks, None]  # the first chunk with a bad trajectory, its flags
     errors: list[BaseException] = []
@@ -786,7 +790,7 @@ def label_all(
         one waited on. A chunk's staging buffers were last read by the chunk
         _IN_FLIGHT + 1 before it, already collected. Stops past a bad chunk."""
         n_stages = min(len(chunks), _IN_FLIGHT + 1)
-        stages = [_Stage(C, offset, xyz, goals, goal_mask, t) for _ in range(n_stages)]
+        stages = [_Stage(C, xyz, goals, goal_mask, t) for _ in range(n_stages)]
         pending = collections.deque()
 
         def collect() -> None:
@@ -806,12 +810,14 @@ def label_all(
                 if k > first_bad[0] or errors:
                     break
                 start, stop = k * C, min(k * C + C, N)
-                in_place = flat is not None and stop - start == C and start * T * 3 >= offset
+                a = start * T * 3 - offset  # where the view would start
+                in_place = flat is not None and stop - start == C and 0 <= a <= flat.size - view
                 x, g, m, tt = stages[i % n_stages].fill(start, stop, xyz=not in_place)
                 if in_place:
-                    x = flat[start * T * 3 - offset : stop * T * 3]
+                    x = flat[a : a + view]
                 labels, bad = _label_chunk_jit(
                     x,
+                    offsets[offset if in_place else 0],
                     g,
                     m,
                     t if tt is None else tt,
@@ -820,7 +826,6 @@ def label_all(
                     beta_arr,
                     names=names,
                     span=span,
-                    offset=offset,
                 )
                 pending.append((k, labels, bad))
                 if len(pending) > _IN_FLIGHT:
@@ -857,18 +862,19 @@ def label_all(
 class _Stage:
     """Host buffers that one chunk of :func:`label_all` is copied into.
 
-    The trajectories are stored flat, ``(offset + C·T·3,)``, as the kernel takes them:
-    ``offset`` unused values, then the ``(C, T, 3)`` chunk. The buffers are 64-byte
-    aligned, so that on the CPU the jitted kernel reads them in place, without another
-    copy: a buffer must not be refilled before the kernel that reads it has finished.
+    The trajectories are stored flat, ``(C·T·3 + _SLACK,)`` as the kernel takes them,
+    with the ``(C, T, 3)`` chunk at offset 0 and ``_SLACK`` unused values after it. The
+    buffers are 64-byte aligned, so that on the CPU the jitted kernel reads them in
+    place, without another copy: a buffer must not be refilled before the kernel that
+    reads it has finished.
     """
 
-    def __init__(self, C: int, offset: int, xyz, goals, goal_mask, t):
+    def __init__(self, C: int, xyz, goals, goal_mask, t):
         T = xyz.shape[1]
         per_row_t = t if t is not None and t.ndim == 2 else None
         # (source, buffer shape, dtype); None: no source
         parts = [
-            (xyz, (offset + C * T * 3,), np.float32),
+            (xyz, (C * T * 3 + _SLACK,), np.float32),
             (goals, (C, G_MAX, 3), np.float32),
             (goal_mask, (C, G_MAX), bool),
             (per_row_t, (C, T), np.float32),
@@ -876,7 +882,6 @@ class _Stage:
         self.parts = [
             None if a is None else (a, _aligned_empty(shape, dt)) for a, shape, dt in parts
         ]
-        self.offset = offset
 
     def fill(self, start: int, stop: int, xyz: bool = True) -> list:
         """Copy rows ``start:stop`` of every source (of all but ``xyz`` if it is False)
@@ -889,7 +894,7 @@ class _Stage:
                 out.append(None)
                 continue
             a, buf = part
-            rows = buf[self.offset :].reshape(-1, *a.shape[1:]) if i == 0 else buf
+            rows = buf[: buf.size - _SLACK].reshape(-1, *a.shape[1:]) if i == 0 else buf
             rows[:n] = a[start:stop]
             rows[n:] = rows[n - 1]
             out.append(buf)

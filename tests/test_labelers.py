@@ -569,19 +569,22 @@ def test_label_all_matches_per_trajectory_labelers_and_compiles_once():
     )
 
 
-def test_label_all_reads_float32_chunks_in_place_at_any_alignment(monkeypatch):
-    # A C-contiguous float32 xyz is read where it lies: the kernel gets flat views that
-    # start on a 64-byte boundary up to 15 values before the chunk. Every start offset
-    # must give the labels of the copying path (a float64 xyz, converted chunk by
-    # chunk), and every full chunk that has such a boundary before it is read in place.
+@pytest.mark.parametrize("N", [11, 12])
+def test_label_all_reads_float32_chunks_in_place_at_any_alignment(monkeypatch, N):
+    # A C-contiguous float32 xyz is read where it lies: the kernel gets flat views of
+    # C·T·3 + 15 values that start on a 64-byte boundary up to 15 values before their
+    # chunk and lie within the array. Every start offset must give the labels of the
+    # copying path (a float64 xyz, converted chunk by chunk), read in place every full
+    # chunk that has such a view, and compile the kernel once for all offsets.
     rng = np.random.default_rng(23)
-    N, T, chunk = 11, 50, 4  # chunks of 4, 4 and 3 trajectories
+    T, chunk = 50, 4  # N = 11: chunks of 4, 4 and 3; N = 12: three full chunks
     cases = [random_case(rng, T=T, contiguous=True) for _ in range(N)]
     xyz, goals, mask = (np.stack(c) for c in zip(*cases, strict=True))
     xyz = xyz.astype(np.float32)
     expect = L.label_all(xyz.astype(np.float64), goals, mask, chunk_size=chunk, progress=False)
-    kernel, in_place = L._label_chunk_jit, []
+    kernel, in_place, traces = L._label_chunk_jit, [], L._TRACES["label_chunk"]
     buf = L._aligned_empty((16 + xyz.size,), np.float32)
+    size = chunk * T * 3  # values per chunk
     for offset in range(16):
         view = buf[offset : offset + xyz.size].reshape(xyz.shape)
         view[:] = xyz
@@ -595,8 +598,13 @@ def test_label_all_reads_float32_chunks_in_place_at_any_alignment(monkeypatch):
         y = L.label_all(view, goals, mask, chunk_size=chunk, progress=False)
         for name in ALL:
             np.testing.assert_array_equal(y[name], expect[name], err_msg=f"offset {offset}")
-        # chunk 0 needs the boundary at the array's start; the short last chunk is copied
-        assert sorted(in_place) == [False] * (1 + (offset > 0)) + [True] * (1 + (offset == 0))
+        starts = [k * size - offset for k in range(N // chunk)]  # full chunks' views
+        fits = [0 <= a and a + size + 15 <= xyz.size for a in starts]
+        if offset in (0, 15):  # by hand: the first view needs offset 0; a last full
+            # chunk's view (N = 12) runs 15 - offset values past the array
+            assert fits == {0: [True, True, False], 15: [False, True, True]}[offset][: N // chunk]
+        assert sorted(in_place) == sorted(fits + [False] * (N % chunk > 0)), offset
+    assert L._TRACES["label_chunk"] == traces  # the copying path's compilation serves all
 
 
 def spread(goals, mask):
