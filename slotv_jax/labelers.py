@@ -217,6 +217,11 @@ def _dragan_core(d: Array, d0: Array, mask: Array, beta, c: Array) -> Array:
     """
     logits = jnp.where(mask[..., :, None], beta * (d0 - d), -jnp.inf)  # β(‖S − g_k‖ − d_k(i))
     e = jnp.exp(logits - functools.reduce(jnp.maximum, _slots(logits, -2)))  # 0 on padding
+    return _normalised_integral(e, c)
+
+
+def _normalised_integral(e: Float[Array, "... G T"], c: Float[Array, "... T"]) -> Array:
+    """``Σ_i c_i e_k(i) / Z(i)`` with ``Z = Σ_k e_k`` (a fold over the goal slots)."""
     return _integrate(e / functools.reduce(jnp.add, _slots(e, -2)), c)
 
 
@@ -237,7 +242,7 @@ def _dragan_referenced(d: Array, d0: Array, mask: Array, beta, c: Array) -> Arra
     """
     logits = beta * ((d0 - d0[..., :1, :]) + (d[..., :1, :] - d))
     e = jnp.exp(jnp.where(mask[..., :, None], logits, -jnp.inf))  # exactly 0 on padding
-    return _integrate(e / functools.reduce(jnp.add, _slots(e, -2)), c)
+    return _normalised_integral(e, c)
 
 
 def _goal_spread(goals: Float[Array, "... G D"], mask: Array) -> Array:
@@ -813,8 +818,7 @@ def label_all(
                 a = start * T * 3 - offset  # where the view would start
                 in_place = flat is not None and stop - start == C and 0 <= a <= flat.size - view
                 x, g, m, tt = stages[i % n_stages].fill(start, stop, xyz=not in_place)
-                if in_place:
-                    x = flat[a : a + view]
+                x = flat[a : a + view] if in_place else x
                 labels, bad = _label_chunk_jit(
                     x,
                     offsets[offset if in_place else 0],
@@ -872,33 +876,29 @@ class _Stage:
     def __init__(self, C: int, xyz, goals, goal_mask, t):
         T = xyz.shape[1]
         per_row_t = t if t is not None and t.ndim == 2 else None
-        # (source, buffer shape, dtype); None: no source
-        parts = [
-            (xyz, (C * T * 3 + _SLACK,), np.float32),
+        x = _aligned_empty((C * T * 3 + _SLACK,), np.float32)
+        # (source, buffer, the buffer's view in the source's row layout), xyz first
+        self.parts = [(xyz, x, x[: C * T * 3].reshape(C, T, 3))]
+        for a, shape, dt in [
             (goals, (C, G_MAX, 3), np.float32),
             (goal_mask, (C, G_MAX), bool),
             (per_row_t, (C, T), np.float32),
-        ]
-        self.parts = [
-            None if a is None else (a, _aligned_empty(shape, dt)) for a, shape, dt in parts
-        ]
+        ]:
+            buf = None if a is None else _aligned_empty(shape, dt)
+            self.parts.append((a, buf, buf))
 
     def fill(self, start: int, stop: int, xyz: bool = True) -> list:
         """Copy rows ``start:stop`` of every source (of all but ``xyz`` if it is False)
-        into the buffers, repeating the last row to fill them; None where there is no
-        source or nothing was copied."""
+        into the buffers, repeating the last row to fill them; the buffers, None where
+        there is no source or nothing was copied."""
         n = stop - start
         out = []
-        for i, part in enumerate(self.parts):
-            if part is None or (i == 0 and not xyz):
-                out.append(None)
-                continue
-            a, buf = part
-            rows = buf[: buf.size - _SLACK].reshape(-1, *a.shape[1:]) if i == 0 else buf
-            rows[:n] = a[start:stop]
-            rows[n:] = rows[n - 1]
+        for a, buf, rows in self.parts[0 if xyz else 1 :]:
+            if a is not None:
+                rows[:n] = a[start:stop]
+                rows[n:] = rows[n - 1]
             out.append(buf)
-        return out
+        return out if xyz else [None, *out]
 
 
 def _aligned_empty(shape: tuple[int, ...], dtype) -> np.ndarray:
