@@ -53,7 +53,13 @@ import slotv_jax
 from slotv_jax import kinematics, validation
 from slotv_jax.fileio import atomic_write
 from slotv_jax.scene import Scene, SceneConfig, check_scene, sample_goal_count, sample_scene
-from slotv_jax.trajectories import TrajectoryConfig, plan_path, straight_path
+from slotv_jax.trajectories import (
+    DISTRIBUTIONS,
+    TrajectoryConfig,
+    distribution,
+    plan_path,
+    straight_path,
+)
 from slotv_jax.validation import G_MAX
 
 SPLITS = (
@@ -68,8 +74,9 @@ SPLITS = (
 LABELER_NAMES = ("dragan", "nikolaidis", "effdist", "fastapp")
 FORMAT_VERSION = 1
 # Bump when generation code changes what a config produces, so cached datasets are not reused.
-GENERATOR_VERSION = 4  # 2: IK locks joints at their limits; 3: home TCP by one compiled call;
-# 4: labels from the coordinate-major labelling kernel (equal up to float32 rounding)
+GENERATOR_VERSION = 5  # 2: IK locks joints at their limits; 3: home TCP by one compiled call;
+# 4: labels from the coordinate-major labelling kernel (equal up to float32 rounding);
+# 5: the trajectory distribution chosen by the fidelity ablation (trajectories.DISTRIBUTIONS)
 
 # Arrays stored per split: name -> (dtype, shape with "N", "S", "T" symbols).
 _TRAJ_ARRAYS = {
@@ -634,6 +641,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--n-eval", type=int, help="override the preset's val/test size")
     p.add_argument("--chunk-size", type=int, help="trajectories per compiled call")
     p.add_argument(
+        "--trajectories",
+        choices=sorted(DISTRIBUTIONS),
+        default="default",
+        help="named trajectory distribution (slotv_jax.trajectories.DISTRIBUTIONS)",
+    )
+    p.add_argument(
         "--relabel", action="store_true", help="recompute the labels of existing splits only"
     )
     for n in LABELER_NAMES:
@@ -657,7 +670,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{name}: relabelled with {dataclasses.asdict(labels)}")
         return 0
 
-    overrides = {"seed": args.seed}
+    overrides = {"seed": args.seed, "trajectory": distribution(args.trajectories)}
     if args.n_train is not None:
         overrides["n_train"] = args.n_train
     if args.n_eval is not None:
