@@ -13,11 +13,12 @@ one factor at a time from a base setting and records, for each setting:
   the others.
 
 The factors (base: one via point, equal arc-length spacing, the SPEC's via box,
-β 5 (Dragan) and 7.5 (Nikolaidis)):
+the first version's β: 5 (Dragan, EffDist, FastApp) and 7.5 (Nikolaidis)):
 
 ==========  ==============================================================
 via         via-point counts 0, 1, 2, 3, {1, 2, 3} and {3, 4, 5}
-beta        (β_Dragan, β_Nikolaidis) = (5, 7.5) and (20, 30)
+beta        all four β at ×1 and ×4 the first version's (Dragan 5,
+            Nikolaidis 7.5, EffDist 5, FastApp 5)
 box         the SPEC's via box, and a tighter one over the goal table
 timing      equal arc length, or equal time per segment (as the first
             author's public ``legibility`` code samples its 100 points)
@@ -70,14 +71,14 @@ from slotv_jax.trajectories import TrajectoryConfig
 FACTORS = ("via", "beta", "box", "timing")
 FACTOR_TITLES = {
     "via": "via-point count",
-    "beta": "label temperature (β Dragan, β Nikolaidis)",
+    "beta": "label temperature (× first version's β)",
     "box": "via-point box",
     "timing": "time parameterisation",
 }
 TIGHT_BOX = ((0.30, -0.45, 0.10), (0.70, 0.45, 0.25))  # over the goal table's cube region (m)
 VIA_COUNTS = ((0,), (1,), (2,), (3,), (1, 2, 3), (3, 4, 5))
-BETAS = ((5.0, 7.5), (20.0, 30.0))
-KEY_SETTINGS = ("via=1", "via=3-5", "via=1-3", "timing=segment")
+BETA_SCALES = (1.0, 4.0)  # × the first version's β (Dragan 5, Nikolaidis 7.5, EffDist 5, FastApp 5)
+KEY_SETTINGS = ("via=1", "via=3-5", "via=1-3")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,7 +118,7 @@ class FidelityConfig:
 
 
 def _base_data(d: data_lib.DataConfig) -> data_lib.DataConfig:
-    """The base setting: one via point, arc length, the SPEC's box, β 5 / 7.5."""
+    """The base setting: one via point, arc length, the SPEC's box, the first version's β."""
     traj = dataclasses.replace(
         d.trajectory,
         via_counts=(1,),
@@ -125,8 +126,7 @@ def _base_data(d: data_lib.DataConfig) -> data_lib.DataConfig:
         via_low=TrajectoryConfig.via_low,
         via_high=TrajectoryConfig.via_high,
     )
-    labels = dataclasses.replace(d.labels, beta_dragan=5.0, beta_nikolaidis=7.5)
-    return dataclasses.replace(d, trajectory=traj, labels=labels)
+    return dataclasses.replace(d, trajectory=traj, labels=data_lib.LABELS_V1)
 
 
 def quick() -> FidelityConfig:
@@ -169,10 +169,13 @@ def settings(cfg: FidelityConfig) -> list[Setting]:
     for counts in VIA_COUNTS:
         value = "{" + ", ".join(map(str, counts)) + "}" if len(counts) > 1 else str(counts[0])
         out.append((f"via={_counts_name(counts)}", "via", value, traj(via_counts=counts)))
-    for bd, bn in BETAS:
-        labels = dataclasses.replace(base.labels, beta_dragan=bd, beta_nikolaidis=bn)
-        d = dataclasses.replace(base, labels=labels)
-        out.append((f"beta={bd:g},{bn:g}", "beta", f"{bd:g}, {bn:g}", d))
+    for k in BETA_SCALES:
+        v1 = data_lib.LABELS_V1
+        labels = dataclasses.replace(
+            base.labels,
+            **{f"beta_{n}": k * getattr(v1, f"beta_{n}") for n in data_lib.LABELER_NAMES},
+        )
+        out.append((f"beta=x{k:g}", "beta", f"×{k:g}", dataclasses.replace(base, labels=labels)))
     out.append(("box=spec", "box", "SPEC", base))
     out.append(("box=tight", "box", "tight", traj(via_low=TIGHT_BOX[0], via_high=TIGHT_BOX[1])))
     out.append(("timing=arc", "timing", "arc length", base))
@@ -186,7 +189,7 @@ def settings(cfg: FidelityConfig) -> list[Setting]:
 def unique_runs(all_settings: Sequence[Setting]) -> dict[str, Setting]:
     """Map each setting's name to the setting whose directory holds its results.
 
-    Settings with equal dataset configs (``via=1``, ``beta=5,7.5``, ``box=spec`` and
+    Settings with equal dataset configs (``via=1``, ``beta=x1``, ``box=spec`` and
     ``timing=arc`` all equal the base) share one run: the first of them, with the largest
     trial count of the group.
     """
@@ -313,7 +316,8 @@ def render_markdown(doc: dict, *, command: str = "", wall_s: float | None = None
         f"# Fidelity ablation ({doc['preset']} preset)",
         "",
         "One factor at a time from the base setting (1 via point, equal arc-length spacing, "
-        "the SPEC's via box, β 5 for Dragan and 7.5 for Nikolaidis). Accuracy is Table 1's "
+        "the SPEC's via box, the first version's β: 5 for Dragan, EffDist and FastApp, 7.5 for "
+        "Nikolaidis). Accuracy is Table 1's "
         "(SPEC §8), mean ± SD over trials; label statistics are means over the four Table 1 "
         "splits. `python -m slotv_jax.experiments.fidelity` made it.",
         "",

@@ -30,7 +30,6 @@ import slotv_jax
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
 from slotv_jax.fileio import write_text
-from slotv_jax.trajectories import DISTRIBUTIONS, distribution
 
 LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
 METHODS = ("slotv", "trex")
@@ -371,11 +370,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="results directory (default: runs/table1_<preset>)")
     p.add_argument("--cache", type=Path, default=Path("data"), help="dataset cache directory")
     p.add_argument(
-        "--trajectories",
-        choices=sorted(DISTRIBUTIONS),
+        "--distribution",
+        choices=sorted(data_lib.DATA_DISTRIBUTIONS),
         default="default",
-        help="named trajectory distribution of the dataset (default: the evidence-based one; "
-        "spec_v1: the first version's 3-5 via points)",
+        help="dataset distribution: trajectories and label temperatures (default: chosen by "
+        "the fidelity ablation; spec_v1: the first version's 3-5 via points and β)",
     )
     p.add_argument(
         "--compute-dtype",
@@ -397,9 +396,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = dataclasses.replace(cfg, trials=args.trials)
     if args.compute_dtype is not None:
         cfg = with_compute_dtype(cfg, args.compute_dtype)
-    if args.trajectories != "default":
-        data = dataclasses.replace(cfg.data, trajectory=distribution(args.trajectories))
-        cfg = dataclasses.replace(cfg, data=data)
+    if args.distribution != "default":
+        cfg = dataclasses.replace(cfg, data=data_lib.with_distribution(cfg.data, args.distribution))
     out = args.out or Path("runs") / f"table1_{args.preset}"
     t0 = time.perf_counter()
     doc = run(
