@@ -1,5 +1,7 @@
 """Trajectories: path construction, arc-length resampling, IK and executed path (SPEC §3)."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -58,26 +60,102 @@ def test_resample_polyline_hand_case():
     np.testing.assert_allclose(p, [[0, 0, 0], [0.5, 0, 0], [1, 0, 0], [1, 0.5, 0], [1, 1, 0]])
 
 
-def test_plan_path_structure(tiny_data):
-    scene_goals = tiny_data["train"].scene_goals
-    scene_mask = tiny_data["train"].scene_mask
+def _scene(split, i=0):
     from slotv_jax.scene import Scene
 
-    s = Scene(
-        goals=jnp.asarray(scene_goals[0]),
-        goal_mask=jnp.asarray(scene_mask[0]),
-        n_goals=jnp.int32(scene_mask[0].sum()),
+    return Scene(
+        goals=jnp.asarray(split.scene_goals[i]),
+        goal_mask=jnp.asarray(split.scene_mask[i]),
+        n_goals=jnp.int32(split.scene_mask[i].sum()),
     )
-    plan = jax.jit(jax.vmap(lambda k: T.plan_path(k, s)))
-    target, n_via, way, path = jax.tree.map(
-        np.asarray, plan(jax.random.split(jax.random.key(0), 512))
-    )
+
+
+def _plans(scene, cfg, n=512, seed=0):
+    plan = jax.jit(jax.vmap(lambda k: T.plan_path(k, scene, cfg)))
+    return jax.tree.map(np.asarray, plan(jax.random.split(jax.random.key(seed), n)))
+
+
+@pytest.mark.parametrize("counts", [(0,), (1,), (2,), (3,), (1, 2, 3), (3, 4, 5)])
+def test_plan_path_structure(tiny_data, counts):
+    """Every via count, 0 included: the counts drawn, targets, endpoints, equal arc spacing."""
+    scene_goals = tiny_data["train"].scene_goals
+    scene_mask = tiny_data["train"].scene_mask
+    cfg = T.TrajectoryConfig(via_counts=counts)
+    target, n_via, way, path = _plans(_scene(tiny_data["train"]), cfg)
     assert path.shape == (512, 100, 3)
-    assert set(np.unique(n_via)) == {3, 4, 5}
+    assert way.shape == (512, max(counts) + 2, 3)
+    assert set(np.unique(n_via)) == set(counts)
     assert set(np.unique(target)) == set(range(int(scene_mask[0].sum())))
     np.testing.assert_allclose(path[:, 0], np.broadcast_to(K.home_tcp(), (512, 3)), atol=1e-6)
     np.testing.assert_allclose(path[:, -1], scene_goals[0][target], atol=1e-6)
     assert max(_spacing_spread(path[i], way[i]) for i in range(0, 512, 8)) < SPACING_SPREAD
+    # Unused via slots collapse onto the goal; used ones lie in the via box.
+    slot = np.arange(max(counts))[None, :]
+    used = slot < n_via[:, None]
+    via = way[:, 1:-1]
+    goal = scene_goals[0][target]
+    np.testing.assert_array_equal(via[~used], np.broadcast_to(goal[:, None], via.shape)[~used])
+    assert np.all(via[used] >= np.asarray(cfg.via_low) - 1e-7)
+    assert np.all(via[used] <= np.asarray(cfg.via_high) + 1e-7)
+    if counts == (0,):  # straight from the start to the goal
+        line = np.linspace(0, 1, 100)[None, :, None]
+        start = np.asarray(K.home_tcp())[None, None]
+        np.testing.assert_allclose(path, start + line * (goal[:, None] - start), atol=2e-6)
+
+
+def test_default_and_named_distributions():
+    assert T.TrajectoryConfig() == T.DISTRIBUTIONS["default"] == T.distribution("default")
+    v1 = T.distribution("spec_v1")
+    assert v1.via_counts == (3, 4, 5) and v1.timing == "arc_length"
+    assert T.distribution("spec_v1", timing="segment").timing == "segment"
+    with pytest.raises(ValueError, match="distribution"):
+        T.distribution("paper_v0")
+
+
+def test_resample_segments_hand_case():
+    # Segments of length 1 and 3 get equal time: 5 points at u = 0, .5, 1, 1.5, 2.
+    w = jnp.array([[0.0, 0, 0], [1, 0, 0], [1, 3, 0], [1, 3, 0]])  # last: a collapsed slot
+    p = np.asarray(T.resample_segments(w, jnp.int32(2), 5))
+    np.testing.assert_allclose(p, [[0, 0, 0], [0.5, 0, 0], [1, 0, 0], [1, 1.5, 0], [1, 3, 0]])
+    # One segment: equal spacing along the line, the same as arc length.
+    q = np.asarray(T.resample_segments(w, jnp.int32(1), 3))
+    np.testing.assert_allclose(q, [[0, 0, 0], [0.5, 0, 0], [1, 0, 0]])
+
+
+@pytest.mark.parametrize("counts", [(1,), (3, 4, 5)])
+def test_segment_timing_spends_equal_time_per_segment(tiny_data, counts):
+    """Equal time per segment: each of the n_via + 1 segments holds 99 / (n_via + 1) steps,
+    spaced evenly within the segment (checked against a float64 re-derivation)."""
+    cfg = T.TrajectoryConfig(via_counts=counts, timing="segment")
+    target, n_via, way, path = _plans(_scene(tiny_data["train"], 2), cfg, n=64, seed=3)
+    for i in range(64):
+        k = int(n_via[i]) + 1
+        u = np.linspace(0.0, 1.0, 100) * k
+        seg = np.minimum(np.floor(u).astype(int), k - 1)
+        w = way[i].astype(np.float64)
+        ref = w[seg] + (u - seg)[:, None] * (w[seg + 1] - w[seg])
+        np.testing.assert_allclose(path[i], ref, atol=2e-6)
+        np.testing.assert_allclose(path[i, 0], w[0], atol=1e-6)
+        np.testing.assert_allclose(path[i, -1], w[k], atol=1e-6)
+    # Same draws as arc-length timing: the timing changes only where the points sit.
+    t2, n2, w2, _ = _plans(
+        _scene(tiny_data["train"], 2), dataclasses.replace(cfg, timing="arc_length"), n=64, seed=3
+    )
+    np.testing.assert_array_equal(target, t2)
+    np.testing.assert_array_equal(n_via, n2)
+    np.testing.assert_array_equal(way, w2)
+
+
+def test_sample_trajectory_deterministic_with_new_options(tiny_data):
+    """0 via points and equal time per segment (arc length: the test above)."""
+    cfg = T.TrajectoryConfig(via_counts=(0, 2), timing="segment")
+    f = jax.jit(jax.vmap(lambda k: T.sample_trajectory(k, _scene(tiny_data["train"], 1), cfg)))
+    keys = jax.random.split(jax.random.key(9), 16)
+    a, b = f(keys), f(keys)
+    np.testing.assert_array_equal(a.xyz, b.xyz)
+    np.testing.assert_array_equal(a.q, b.q)
+    assert set(np.unique(np.asarray(a.n_via))) <= {0, 2}
+    assert float(jnp.max(a.residual)) <= MAX_RESIDUAL
 
 
 def test_dataset_trajectories_are_executed_paths(tiny_data):
@@ -125,6 +203,9 @@ def test_sample_trajectory_deterministic_and_tool_down(tiny_data):
     [
         {"n_points": 1},
         {"via_counts": ()},
+        {"via_counts": (1, -1)},
+        {"via_counts": (1.5,)},
+        {"timing": "equal_time"},
         {"via_low": (0.7, 0.0, 0.1), "via_high": (0.25, 0.5, 0.4)},
         {"max_residual": 0.0},
     ],
