@@ -425,9 +425,13 @@ def plot(doc: dict, path: Path) -> None:
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("accuracy, mean of the 4 Table 1 splits")
-    axes[-1].legend(fontsize=7, loc="lower right", title="dotted: paper", title_fontsize=7)
-    fig.suptitle(f"Fidelity ablation ({doc['preset']} preset)", fontsize=10)
-    fig.tight_layout()
+    handles, names = axes[0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="lower center", ncol=len(series), fontsize=7, frameon=False)
+    fig.suptitle(
+        f"Fidelity ablation ({doc['preset']} preset); dotted lines: the paper's values",
+        fontsize=10,
+    )
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     try:
         save_figure(fig, path)
     finally:
