@@ -327,6 +327,7 @@ def map_on_devices(
     width: int,
     *,
     devices: Sequence[jax.Device] | None = None,
+    keep_going: Callable[[], bool] = lambda: True,
 ) -> Iterator[tuple[U, np.ndarray]]:
     """Run ``start(job, device)`` for each job, one job per device, and yield (job, result).
 
@@ -336,6 +337,8 @@ def map_on_devices(
     usually still being computed. The next round is dispatched before the current one is
     read back, so the host traces and compiles round r + 1 while the devices run round r.
     Results come back in job order, a round at a time, gathered to every process.
+    ``keep_going()`` is asked before each round is dispatched (process 0's answer counts);
+    after a False no more rounds start, and the ones in flight are still returned.
     """
     devices = list(jax.devices() if devices is None else devices)
     me = jax.process_index()
@@ -361,11 +364,15 @@ def map_on_devices(
         every = np.asarray(multihost_utils.process_allgather(rows))  # (processes, jobs, width)
         return [every[devices[j].process_index, j] for j in range(len(handles))]
 
-    handles = dispatch(rounds[0]) if rounds else []
-    for r, round_jobs in enumerate(rounds):
-        following = dispatch(rounds[r + 1]) if r + 1 < len(rounds) else []
-        yield from zip(round_jobs, collect(handles), strict=True)
-        handles = following
+    def more(r: int) -> bool:
+        return r < len(rounds) and bool(broadcast(np.array(keep_going())))
+
+    handles = dispatch(rounds[0]) if more(0) else None
+    r = 0
+    while handles is not None:
+        following = dispatch(rounds[r + 1]) if more(r + 1) else None
+        yield from zip(rounds[r], collect(handles), strict=True)
+        handles, r = following, r + 1
 
 
 def seeds_array(seeds: Sequence[int]) -> Int[np.ndarray, " U"]:
