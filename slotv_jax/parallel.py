@@ -223,14 +223,17 @@ def train_group(
     Run i is ``trainer.train(jax.random.key(seeds[i]), data_i, val)`` of
     :func:`slotv_jax.train.train_trials`, with ``data_i`` = ``data`` whose labels are
     ``labels[i]`` when given (several labelers' runs in one group: the trajectories are
-    shared). Up to t = mesh.shape["trial"] seeds; fewer are padded (the padding runs repeat
-    the last seed and are dropped). Returns states and metrics with a leading axis of
-    ``len(seeds)``, sharded over "trial" (one run per device when the data axis is 1).
+    shared). The run axis is padded to a multiple of t = mesh.shape["trial"] (the padding
+    runs repeat the last seed and are dropped), so each device row holds the same number of
+    runs (:func:`plan`'s groups: one). Returns states and metrics with that padded leading
+    axis, sharded over "trial": entry i < len(seeds) is run i. (Cutting the padding off
+    on the device would move data between devices, and between hosts under
+    ``jax.distributed``; callers cut it after :func:`fetch`.)
     """
     t = int(mesh.shape[TRIAL])
     k = len(seeds)
-    if not 1 <= k <= t:
-        raise ValueError(f"seeds: expected 1 to {t} seeds for this mesh, got {k}")
+    if k < 1:
+        raise ValueError("seeds: expected at least one seed")
     if labels is not None and len(labels) != k:
         raise ValueError(f"labels: expected one (N, 8) array per seed ({k}), got {len(labels)}")
     n_used = cfg.n_used(data.xyz.shape[0])
@@ -248,20 +251,20 @@ def train_group(
         ev = jax.device_put(
             trainer.eval_data(train.trim_goals(train.subset(val, cfg.eval_size))), rep
         )
-    if t == 1:  # one run over all devices of the mesh: the batch-parallel path
+    if k == 1 and t == 1:  # one run over all devices of the mesh: the batch-parallel path
         if labels is not None:
             data = data._replace(labels=labels[0])
         out = _jit_group(trainer, False, False)(int(seeds[0]), jax.device_put(data, rep), ev)
         return jax.tree.map(lambda x: x[None], out)
     by_run = NamedSharding(mesh, P(TRIAL))
+    size = -(-k // t) * t
     if labels is not None:
-        data = data._replace(labels=jax.device_put(_pad(labels, t), by_run))
+        data = data._replace(labels=jax.device_put(_pad(labels, size), by_run))
     shared = train.TrainData(*(jax.device_put(x, rep) for x in data[:3]), data.labels)
     if labels is None:
         shared = shared._replace(labels=jax.device_put(data.labels, rep))
     f = _jit_group(trainer, labels is not None, True)
-    out = f(jax.device_put(_pad(seeds, t), by_run), shared, ev)
-    return out if k == t else jax.tree.map(lambda x: x[:k], out)
+    return f(jax.device_put(_pad(seeds, size), by_run), shared, ev)
 
 
 @functools.cache
@@ -286,9 +289,10 @@ def group_accuracy(
     """SPEC §8 accuracy of each run of a :func:`train_group` result on one split, evaluated
     where the run's parameters live (each device scores its own run on the whole split).
 
-    ``labels[i]`` replaces ``data.labels`` for run i when given. Returns the exact
-    fractions (float64, :func:`slotv_jax.evaluate.exact_fraction`) of the k runs, gathered
-    to every process.
+    ``labels[i]`` replaces ``data.labels`` for run i when given (fewer label sets than
+    runs: the last one is repeated for the padding runs). Returns the exact fractions
+    (float64, :func:`slotv_jax.evaluate.exact_fraction`) of every run of ``params``,
+    padding included, gathered to every process.
     """
     t = int(mesh.shape[TRIAL])
     k = len(jax.tree.leaves(params)[0])
@@ -302,20 +306,18 @@ def group_accuracy(
     ev = jax.device_put(ev, rep)
     ul = None
     if labels is not None:
-        lab = np.asarray(labels)[:, :n, :g]
+        lab = _pad(np.asarray(labels)[:, :n, :g], k)
         lab = np.concatenate([lab, np.repeat(lab[:, :1], m * c - n, axis=1)], axis=1)
         ul = lab.reshape(k, m, c, g)
-    if t == 1:
+    if k == 1 and t == 1:
         out = _jit_group_accuracy(trainer, False, False)(
             jax.tree.map(lambda x: x[0], params), ev, None if ul is None else ul[0]
         )
         return evaluate.exact_fraction(fetch(out)[None], n)
-    if k < t:  # the group's padded runs were dropped: pad again (their scores are dropped)
-        params = jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], t - k, 0)]), params)
     if ul is not None:
-        ul = jax.device_put(_pad(ul, t), NamedSharding(mesh, P(TRIAL)))
+        ul = jax.device_put(ul, NamedSharding(mesh, P(TRIAL)))
     out = _jit_group_accuracy(trainer, ul is not None, True)(params, ev, ul)
-    return evaluate.exact_fraction(fetch(out)[:k], n)
+    return evaluate.exact_fraction(fetch(out), n)
 
 
 # ---------------------------------------------------------------- one unit per device

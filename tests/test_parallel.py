@@ -95,7 +95,7 @@ FOUR_DEVICES = textwrap.dedent(
                         split.goal_mask, beta=b).astype(np.float32) for b in (2.0, 5.0, 20.0)}}
     labels = np.stack([y[20.0], y[2.0], y[5.0]])
     state, _ = parallel.train_group(cfg, data, [7, 8, 9], parallel.unit_mesh(4, 16), labels=labels)
-    assert jax.tree.leaves(state.params)[0].shape[0] == 3
+    assert jax.tree.leaves(state.params)[0].shape[0] == 4  # padded: run 3 repeats run 2
     acc = parallel.group_accuracy(cfg, state.params, data, parallel.unit_mesh(4, 16), labels=labels)
     for i, (seed, b) in enumerate(zip([7, 8, 9], [20.0, 2.0, 5.0])):
         d = data._replace(labels=jnp.asarray(y[b]))
@@ -109,6 +109,18 @@ FOUR_DEVICES = textwrap.dedent(
     state, _ = parallel.train_group(cfg, data, [3], mesh)
     assert len(jax.tree.leaves(state.params)[1].sharding.device_set) == 4
     check_same(cfg, state.params, sequential(cfg, [3]))
+
+    # Six runs with in-loop validation (sample efficiency): padded to 8, two per device.
+    cfg = small_cfg("slotv", eval_every=4, eval_size=64, epochs=1, train_size=128)
+    state, metrics = parallel.train_group(cfg, data, range(6), parallel.unit_mesh(4, 16), val=data)
+    assert metrics.eval_accuracy.shape[0] == 8
+    assert all(s.data.shape[0] == 2 for s in metrics.eval_accuracy.addressable_shards)
+    ref_state, ref = train.train_trials(cfg, data, range(6), val=data, progress=False,
+                                        mesh=train.make_mesh(16, one))
+    assert ref.eval_accuracy.shape == (6, 1, 2)
+    np.testing.assert_allclose(np.asarray(metrics.eval_accuracy)[:6], ref.eval_accuracy,
+                               rtol=0, atol=2 / 64)  # a near tie may flip
+    check_same(cfg, jax.tree.map(lambda x: x[:6], state.params), ref_state.params)
 
     # One job per device, dispatched asynchronously, results in job order.
     def start(job, device):

@@ -148,10 +148,11 @@ def run(
 
 def train_repeats(cfg, tdata, vdata, repeats: int, *, progress: bool = True):
     """The metrics (as NumPy, leading axis: repeat r, trained with seed r) of ``repeats``
-    runs with in-loop validation. One device: all repeats in one vmapped call
-    (:func:`slotv_jax.train.train_trials`). Several devices (every process's): the repeat
-    axis sharded over them, one repeat per device, in the groups of
-    :func:`slotv_jax.parallel.groups` (the repeats share every shape)."""
+    runs with in-loop validation, all in one vmapped call: on one device
+    :func:`slotv_jax.train.train_trials`; on several (every process's) the repeat axis,
+    padded to a multiple of the device count, sharded over them
+    (:func:`slotv_jax.parallel.train_group`; the repeats share every shape, and vmapping
+    them keeps the small in-loop validations batched, as on one device)."""
     import jax
 
     from slotv_jax import train
@@ -160,13 +161,10 @@ def train_repeats(cfg, tdata, vdata, repeats: int, *, progress: bool = True):
     if n_dev == 1:
         _, m = train.train_trials(cfg, tdata, list(range(repeats)), val=vdata, progress=progress)
         return jax.tree.map(np.asarray, m)
-    parts = []
-    for seeds, t in parallel.groups(list(range(repeats)), n_dev):
-        mesh = parallel.unit_mesh(t, cfg.batch_size)
-        show = progress and jax.process_count() == 1
-        _, m = parallel.train_group(cfg, tdata, seeds, mesh, val=vdata, progress=show)
-        parts.append(jax.tree.map(parallel.fetch, m))
-    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+    mesh = parallel.unit_mesh(n_dev, cfg.batch_size)
+    show = progress and jax.process_count() == 1
+    _, m = parallel.train_group(cfg, tdata, range(repeats), mesh, val=vdata, progress=show)
+    return jax.tree.map(lambda x: parallel.fetch(x)[:repeats], m)
 
 
 def _csv(rows: list[dict]) -> str:

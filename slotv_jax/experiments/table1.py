@@ -401,7 +401,7 @@ def _device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_dev: in
                 for split in SPLITS:
                     d, lab_arr = arrays(split, labs, used.get(split))
                     accs[split] = parallel.group_accuracy(tc, state.params, d, mesh, labels=lab_arr)
-                loss = parallel.fetch(metrics.loss)
+                loss = parallel.fetch(metrics.loss)  # (padded runs, E, K): the first are ours
                 t_total = time.perf_counter() - t_cell
                 times = {"prepare_s": t_prep, "train_s": t_train, "total_s": t_total}
                 return accs, loss, times
