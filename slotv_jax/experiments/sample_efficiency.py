@@ -61,7 +61,7 @@ def run(
     compute_dtype: str | None = None,
 ) -> dict:
     """Run the protocol for each method and write the CSV, JSON and PNG."""
-    from slotv_jax import train
+    from slotv_jax import evaluate, train
 
     if preset not in table1.PRESETS:
         raise ValueError(f"preset: expected one of {sorted(table1.PRESETS)}, got {preset!r}")
@@ -101,6 +101,9 @@ def run(
         acc = np.concatenate(
             [metrics.start_accuracy[:, None], metrics.eval_accuracy[:, 0]], axis=1
         )  # (repeats, V + 1)
+        # The exact fractions correct / val_size: the float32 ratio's last bit depends on
+        # how XLA compiled the division (one device or several).
+        acc = evaluate.exact_fraction(acc, val_size)
         examples = upd * cfg.batch_size
         for r in range(repeats):
             for u, x, a in zip(upd, examples, acc[r], strict=True):
