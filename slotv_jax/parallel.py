@@ -199,13 +199,13 @@ def _pad(x, t: int):
 
 @functools.cache
 def _jit_group(trainer: train.Trainer, per_unit_labels: bool, vmapped: bool):
-    def one(seed, data, val):
+    def train_run(seed, data, val):
         return trainer.train(jax.random.key(seed), data, val)
 
     if not vmapped:
-        return jax.jit(one)
+        return jax.jit(train_run)
     data_axes = train.TrainData(None, None, None, 0 if per_unit_labels else None)
-    return jax.jit(jax.vmap(one, in_axes=(0, data_axes, None), spmd_axis_name=TRIAL))
+    return jax.jit(jax.vmap(train_run, in_axes=(0, data_axes, None), spmd_axis_name=TRIAL))
 
 
 def train_group(
