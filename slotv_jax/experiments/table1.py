@@ -11,6 +11,13 @@ finishes. A rerun with the same ``--out`` skips finished cells, so an
 interrupted run loses at most the cell in flight. The end of the run prints
 the table in the paper's layout (mean ± SD over trials, the paper's values and
 the difference) and writes ``OUT/table1.md``.
+
+On several devices (and hosts, with ``--coordinator``/``--num-processes``/
+``--process-id`` or ``--distributed``) the pending trials of each method, all
+labelers together, train side by side, one per device
+(:mod:`slotv_jax.parallel`); each group is written as it finishes.
+``--time-limit SECONDS`` stops before a group that would end later; the same
+command resumes.
 """
 
 from __future__ import annotations
