@@ -282,6 +282,7 @@ def run(
             "rollouts_run": len(todo) - left,
             "rollouts_left": left,
             "devices": [str(d) for d in devices],
+            "device_kind": devices[0].device_kind,
             "processes": jax.process_count(),
         }
     )
@@ -305,7 +306,8 @@ def _header(doc: dict) -> list[str]:
             *[
                 f"  - `{r['command'] or '(library call)'}`: {r['date']}, {r['wall_s']:.0f} s "
                 f"({r['rollouts_run']} rollouts run, {r['rollouts_left']} left), "
-                f"{r['processes']} process(es), devices {', '.join(r['devices'])}"
+                f"{r['processes']} process(es), devices {', '.join(r['devices'])} "
+                f"({r.get('device_kind', '?')})"
                 for r in runs
             ],
             "",
