@@ -143,8 +143,17 @@ def accuracy(cfg, params, data, labeler: str | None = None, *, mesh=None) -> np.
     :func:`slotv_jax.train.train_trials`): then the result has shape (n_trials,), else it is
     a scalar array. The result is the exact fraction correct / N in float64: the kernel's
     float32 ratio, whose last bit depends on how XLA compiled the division, is rounded back
-    to its count.
+    to its count (:func:`exact_fraction`).
     """
+    return exact_fraction(*start_accuracy(cfg, params, data, labeler, mesh=mesh))
+
+
+def start_accuracy(
+    cfg, params, data, labeler: str | None = None, *, mesh=None
+) -> tuple[jax.Array, int]:
+    """:func:`accuracy` without waiting for the device: the float32 ratio as a (possibly
+    still running) device array, and N. Lets a caller dispatch work to several devices
+    before reading any result back (:func:`exact_fraction` finishes it)."""
     from slotv_jax import train as train_lib
 
     if labeler is not None:
@@ -154,11 +163,16 @@ def accuracy(cfg, params, data, labeler: str | None = None, *, mesh=None) -> np.
     ev = trainer.replicate(trainer.eval_data(train_lib.trim_goals(data), size=n))
     batched = _batched(trainer, params)
     if batched and jax.tree.leaves(params)[0].shape[0] == 1:  # one trial: no vmap
-        ratio = np.asarray(_jit_accuracy(trainer, False)(jax.tree.map(lambda x: x[0], params), ev))
-        ratio = ratio[None]
+        ratio = _jit_accuracy(trainer, False)(jax.tree.map(lambda x: x[0], params), ev)[None]
     else:
-        ratio = np.asarray(_jit_accuracy(trainer, batched)(params, ev))
-    return np.round(ratio.astype(np.float64) * n) / n
+        ratio = _jit_accuracy(trainer, batched)(params, ev)
+    return ratio, n
+
+
+def exact_fraction(ratio, n: int) -> np.ndarray:
+    """The float32 ratio correct / ``n`` of a compiled accuracy, rounded back to its count
+    and returned as the exact fraction in float64 (waits for ``ratio``)."""
+    return np.round(np.asarray(ratio).astype(np.float64) * n) / n
 
 
 def split_accuracies(

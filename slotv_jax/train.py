@@ -320,6 +320,12 @@ class Trainer:
         return self.mesh.devices.flat[0].platform
 
     @property
+    def n_data(self) -> int:
+        """Devices the batch axis is split over: the mesh's "data" axis (a mesh may also
+        have a "trial" axis for independent runs, :mod:`slotv_jax.parallel`)."""
+        return int(self.mesh.shape["data"])
+
+    @property
     def packs(self) -> bool:
         """Whether :func:`train_trials` packs this trainer's updates to the real pairs."""
         return self.cfg.method == "slotv" and packs_updates(self.platform)
@@ -382,7 +388,7 @@ class Trainer:
         """Pairs per update that make packed SLOT-V updates exact for these runs: the largest
         number of real (trajectory, goal) pairs in any batch of the given ``epochs`` of any
         run (``state_keys``: the TrainState keys, stacked), rounded up to a multiple of 8
-        and of the mesh size; 0 when that is no fewer than all B·G slots."""
+        and of the data-axis size; 0 when that is no fewer than all B·G slots."""
         mask = jnp.asarray(goal_mask)
         n, g = mask.shape
         n = self.cfg.n_used(n)
@@ -396,7 +402,7 @@ class Trainer:
 
         grid = jax.vmap(jax.vmap(most, in_axes=(None, 0)), in_axes=(0, None))  # (runs, epochs)
         m = int(jax.jit(grid)(jnp.reshape(state_keys, (-1,)), ep).max())
-        step = int(np.lcm(8, self.mesh.size))
+        step = int(np.lcm(8, self.n_data))
         cap = -(-m // step) * step
         return 0 if cap >= self.cfg.batch_size * g else cap
 
@@ -418,9 +424,9 @@ class Trainer:
         """The fixed validation subset (first ``size`` or ``cfg.eval_size``), chunked."""
         n = self.cfg.eval_size if size is None else size
         chunk = self.cfg.eval_chunk_size(
-            self.mesh.size, data.goals.shape[-2], data.xyz.shape[1], self.platform
+            self.n_data, data.goals.shape[-2], data.xyz.shape[1], self.platform
         )
-        return evaluate.chunk(subset(data, n), min(chunk, _round_up(n, self.mesh.size)))
+        return evaluate.chunk(subset(data, n), min(chunk, _round_up(n, self.n_data)))
 
     # ---- the compiled loop
     def run(

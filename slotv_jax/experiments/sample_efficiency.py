@@ -33,6 +33,7 @@ import numpy as np
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax import parallel
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
 from slotv_jax.fileio import save_figure, write_text
@@ -60,18 +61,27 @@ def run(
     compute_dtype: str | None = None,
 ) -> dict:
     """Run the protocol for each method and write the CSV, JSON and PNG."""
-    from slotv_jax import train
+    from slotv_jax import evaluate, train
 
-    out.mkdir(parents=True, exist_ok=True)
     if preset not in table1.PRESETS:
         raise ValueError(f"preset: expected one of {sorted(table1.PRESETS)}, got {preset!r}")
     t1 = table1.PRESETS[preset]()
     if compute_dtype is not None:
         t1 = table1.with_compute_dtype(t1, compute_dtype)
     dcfg = t1.data
+    writer = parallel.is_writer()
+    if writer:
+        out.mkdir(parents=True, exist_ok=True)
+    else:  # process 0 generates (or loads) first: on a shared disk, once
+        parallel.barrier("sample_efficiency dataset")
     dataset = data_lib.generate_dataset(
-        dcfg, dataset_dir(cache, dcfg), splits=["train", "trajectory_val"], progress=progress
+        dcfg,
+        dataset_dir(cache, dcfg),
+        splits=["train", "trajectory_val"],
+        progress=progress and writer,
     )
+    if writer:
+        parallel.barrier("sample_efficiency dataset")
     tdata = train.prepare(dataset["train"], LABELER)
     vdata = train.prepare(dataset["trajectory_val"], LABELER)
     val_size = min(val_size, len(dataset["trajectory_val"]))
@@ -85,15 +95,15 @@ def run(
         )
         configs[method] = cfg.to_dict()
         t0 = time.perf_counter()
-        _, metrics = train.train_trials(
-            cfg, tdata, list(range(repeats)), val=vdata, progress=progress
-        )
+        metrics = train_repeats(cfg, tdata, vdata, repeats, progress=progress)
         elapsed = time.perf_counter() - t0
-        upd = np.concatenate([[0], np.asarray(metrics.eval_updates)[0, 0]])
+        upd = np.concatenate([[0], metrics.eval_updates[0, 0]])
         acc = np.concatenate(
-            [np.asarray(metrics.start_accuracy)[:, None], np.asarray(metrics.eval_accuracy)[:, 0]],
-            axis=1,
+            [metrics.start_accuracy[:, None], metrics.eval_accuracy[:, 0]], axis=1
         )  # (repeats, V + 1)
+        # The exact fractions correct / val_size: the float32 ratio's last bit depends on
+        # how XLA compiled the division (one device or several).
+        acc = evaluate.exact_fraction(acc, val_size)
         examples = upd * cfg.batch_size
         for r in range(repeats):
             for u, x, a in zip(upd, examples, acc[r], strict=True):
@@ -132,10 +142,32 @@ def run(
         "summary": summary,
         "environment": data_lib.environment(),
     }
-    write_text(out / "sample_efficiency.csv", _csv(rows))
-    write_text(out / "sample_efficiency.json", json.dumps(doc, indent=1))
-    plot(rows, summary, doc, out / "sample_efficiency.png")
+    if parallel.is_writer():
+        write_text(out / "sample_efficiency.csv", _csv(rows))
+        write_text(out / "sample_efficiency.json", json.dumps(doc, indent=1))
+        plot(rows, summary, doc, out / "sample_efficiency.png")
     return doc
+
+
+def train_repeats(cfg, tdata, vdata, repeats: int, *, progress: bool = True):
+    """The metrics (as NumPy, leading axis: repeat r, trained with seed r) of ``repeats``
+    runs with in-loop validation, all in one vmapped call: on one device
+    :func:`slotv_jax.train.train_trials`; on several (every process's) the repeat axis,
+    padded to a multiple of the device count, sharded over them
+    (:func:`slotv_jax.parallel.train_group`; the repeats share every shape, and vmapping
+    them keeps the small in-loop validations batched, as on one device)."""
+    import jax
+
+    from slotv_jax import train
+
+    n_dev = jax.device_count()
+    if n_dev == 1:
+        _, m = train.train_trials(cfg, tdata, list(range(repeats)), val=vdata, progress=progress)
+        return jax.tree.map(np.asarray, m)
+    mesh = parallel.unit_mesh(n_dev, cfg.batch_size)
+    show = progress and jax.process_count() == 1
+    _, m = parallel.train_group(cfg, tdata, range(repeats), mesh, val=vdata, progress=show)
+    return jax.tree.map(lambda x: parallel.fetch(x)[:repeats], m)
 
 
 def _csv(rows: list[dict]) -> str:
@@ -214,6 +246,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--cache", type=Path, default=Path("data"))
     p.add_argument("--compute-dtype", choices=("float32", "bfloat16"))
     p.add_argument("--replot", action="store_true", help="only redraw the PNG of --out")
+    parallel.add_cli_args(p)
     args = p.parse_args(argv)
     if args.replot:
         if args.out is None:
@@ -221,7 +254,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         replot(args.out)
         print(f"wrote {args.out}/sample_efficiency.png")
         return 0
+    parallel.init_from_args(args)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
+    t0 = time.perf_counter()
     repeats = args.repeats or (10 if args.preset == "paper" else 3)
     for name in ("repeats", "every", "val_size"):
         v = repeats if name == "repeats" else getattr(args, name)
@@ -239,6 +274,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         cache=args.cache,
         compute_dtype=args.compute_dtype,
     )
+    if not parallel.is_writer():
+        return 0
     for method, s in doc["summary"].items():
         hit = s["examples_to_threshold_mean_curve"]
         print(
@@ -247,7 +284,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{'never' if hit is None else f'{hit:,.0f}'} examples "
             f"(of {s['examples_per_epoch']:,} in the epoch)"
         )
-    print(f"wrote {out}/sample_efficiency.{{csv,json,png}}")
+    print(f"wrote {out}/sample_efficiency.{{csv,json,png}}; "
+          f"this run took {time.perf_counter() - t0:.0f} s")  # fmt: skip
     return 0
 
 

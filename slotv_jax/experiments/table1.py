@@ -11,6 +11,13 @@ finishes. A rerun with the same ``--out`` skips finished cells, so an
 interrupted run loses at most the cell in flight. The end of the run prints
 the table in the paper's layout (mean ± SD over trials, the paper's values and
 the difference) and writes ``OUT/table1.md``.
+
+On several devices (and hosts, with ``--coordinator``/``--num-processes``/
+``--process-id`` or ``--distributed``) the pending trials of each method, all
+labelers together, train side by side, one per device
+(:mod:`slotv_jax.parallel`); each group is written as it finishes.
+``--time-limit SECONDS`` stops before a group that would end later; the same
+command resumes.
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ from tqdm.auto import tqdm
 import slotv_jax
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
+from slotv_jax import parallel
 from slotv_jax.fileio import write_text
 
 LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
@@ -208,41 +216,51 @@ def run(
     progress: bool = True,
     vmap_trials: bool = False,
     precompile: bool | None = None,
+    time_limit_s: float | None = None,
 ) -> dict:
     """Run (or resume) Table 1 and return the results document.
 
-    With ``vmap_trials`` the pending trials of each (labeler, method) train together in one
-    compiled, vmapped call (faster on a GPU); they are then written, and lost to an
-    interruption, together. With ``precompile`` (default: on accelerators, where compiling
-    the paper-size training takes seconds and the CPU is otherwise idle) each pending
-    method's training function is compiled in a background thread while the dataset is
-    generated (:func:`slotv_jax.train.precompile`).
+    On one device each trial trains on its own (or, with ``vmap_trials``, the pending trials
+    of each (labeler, method) together in one vmapped call; they are then written, and lost
+    to an interruption, together). On several devices (every process's, under
+    ``jax.distributed``) the pending trials of each method, all labelers together, train in
+    groups side by side, one per device (:mod:`slotv_jax.parallel`: the trial axis sharded
+    over the devices; a last group smaller than the device count pads or, for one trial,
+    splits the batch over the devices). A group's trials are written as soon as it
+    finishes; only process 0 writes.
+
+    With ``precompile`` (default: on accelerators, where compiling the paper-size training
+    takes seconds and the CPU is otherwise idle) each pending method's training function is
+    compiled in a background thread while the dataset is generated. With ``time_limit_s``
+    the run stops before a unit (or group) that would end after that many seconds, judged by
+    the last one of the same method; a rerun continues.
     """
     import jax
 
-    from slotv_jax import evaluate, train
-
     t_start = time.perf_counter()
-    out.mkdir(parents=True, exist_ok=True)
+    writer = parallel.is_writer()
+    if writer:
+        out.mkdir(parents=True, exist_ok=True)
     doc = load_results(out, cfg)
     doc["environment"] = data_lib.environment()
 
-    done = {(c["labeler"], c["method"], c["trial"]) for c in doc["cells"]}
-    todo = [
-        (lab, meth, t)
-        for lab in labelers
-        for meth in methods
-        for t in range(cfg.trials)
-        if (lab, meth, t) not in done
-    ]
+    everything = [(lab, meth, t) for lab in labelers for meth in methods for t in range(cfg.trials)]
+    finished = {(c["labeler"], c["method"], c["trial"]) for c in doc["cells"]}
+    done_mask = parallel.broadcast(np.array([u in finished for u in everything]))
+    todo = [u for u, d in zip(everything, done_mask, strict=True) if not d]
+    n_dev = jax.device_count()
     if precompile is None:
         precompile = jax.default_backend() != "cpu"
     pending = [] if vmap_trials or not precompile else sorted({m for _, m, _ in todo})
-    compiling = _precompile_in_background(cfg, pending)
+    compiling = _precompile_in_background(cfg, pending, n_dev)
 
     t0 = time.perf_counter()
     ddir = dataset_dir(cache, cfg.data)
-    dataset = data_lib.generate_dataset(cfg.data, ddir, progress=progress)
+    if not writer:  # process 0 generates (or loads) first: on a shared disk, once
+        parallel.barrier("table1 dataset")
+    dataset = data_lib.generate_dataset(cfg.data, ddir, progress=progress and writer)
+    if writer:
+        parallel.barrier("table1 dataset")
     doc["timing"]["data_s"] = time.perf_counter() - t0
     doc["dataset"] = str(ddir)
     for meth, job in compiling.items():
@@ -251,7 +269,62 @@ def run(
         except Exception as e:  # an optimisation only: training compiles as usual
             print(f"table1: ahead-of-time compilation of {meth} failed ({e!r})", file=sys.stderr)
     doc["timing"]["precompile_wait_s"] = time.perf_counter() - t0 - doc["timing"]["data_s"]
-    # Units of work: one trial, or (vmap_trials) all pending trials of a (labeler, method).
+
+    def save():
+        doc["summary"] = summarise(doc["cells"])
+        if writer:
+            write_text(out / "results.json", json.dumps(doc, indent=1))
+
+    def record(lab, meth, trial, accs, i, times, final_loss, together):
+        doc["cells"].extend(
+            {"labeler": lab, "method": meth, "split": split, "trial": trial,
+             "accuracy": float(accs[split][i])}
+            for split in SPLITS
+        )  # fmt: skip
+        doc["timing"]["cells"].append(
+            {"labeler": lab, "method": meth, "trial": trial,
+             **{k: v / together for k, v in times.items()},
+             "trained_together": together, "final_loss": final_loss}
+        )  # fmt: skip
+
+    bar = tqdm(total=len(todo), desc="table1 cells", unit="cell", disable=not (progress and writer))
+    steps = _device_steps if n_dev > 1 else _single_device_steps
+    last: dict[str, float] = {}
+    left = len(todo)
+    for meth, units, run_step in steps(cfg, dataset, todo, vmap_trials, n_dev):
+        expect = last.get(meth, 0.0)
+        stop = time_limit_s is not None and time.perf_counter() - t_start + expect > time_limit_s
+        if parallel.broadcast(np.array(stop)):
+            doc["timing"]["stopped_by_time_limit"] = True
+            print(f"table1: stopping at the time limit ({time_limit_s:.0f} s); "
+                  f"{left} cells left, rerun to continue", file=sys.stderr)  # fmt: skip
+            break
+        bar.set_postfix_str(f"{meth}: {', '.join(f'{lab}/{t}' for lab, t in units)}")
+        t_unit = time.perf_counter()
+        accs, loss, times = run_step()
+        last[meth] = time.perf_counter() - t_unit
+        for i, (lab, trial) in enumerate(units):
+            record(lab, meth, trial, accs, i, times, float(loss[i, -1].mean()), len(units))
+        save()
+        left -= len(units)
+        bar.update(len(units))
+    bar.close()
+
+    doc["timing"]["last_run_total_s"] = time.perf_counter() - t_start
+    save()
+    if writer:
+        write_text(out / "table1.md", report(doc))
+    return doc
+
+
+def _single_device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_dev: int):
+    """One device: yield (method, [(labeler, trial)], step) per trial (or, ``vmap_trials``,
+    per (labeler, method)); ``step()`` trains and evaluates, returning (accuracies per
+    split, losses, times)."""
+    import jax
+
+    from slotv_jax import evaluate, train
+
     units: list[tuple[str, str, list[int]]] = []
     for lab, meth, trial in todo:
         if vmap_trials and units and units[-1][:2] == (lab, meth):
@@ -269,59 +342,85 @@ def run(
         data = prepared[(lab, split)]
         return data if size is None else train.subset(data, size)
 
-    bar = tqdm(total=len(todo), desc="table1 cells", unit="cell", disable=not progress)
     for lab, meth, trials in units:
-        bar.set_postfix_str(f"{lab}/{meth}/trials {trials}")
-        tc = cfg.train[meth]
-        t_cell = time.perf_counter()
-        tdata = split_data(lab, "train")
-        t_prep = time.perf_counter() - t_cell
-        state, metrics = train.train_trials(tc, tdata, trials, progress=False)
-        jax.block_until_ready((state, metrics))
-        t_train = time.perf_counter() - t_cell - t_prep
-        # "train" is scored on the trajectories the model trained on (the first train_size).
-        used = {"train": tc.n_used(len(tdata.xyz))}
-        accs = {
-            split: np.asarray(
-                evaluate.accuracy(tc, state.params, split_data(lab, split, used.get(split)))
-            ).reshape(-1)
-            for split in SPLITS
-        }
-        loss = np.asarray(metrics.loss)
-        t_total = time.perf_counter() - t_cell
-        for i, trial in enumerate(trials):
-            doc["cells"].extend(
-                {"labeler": lab, "method": meth, "split": split, "trial": trial,
-                 "accuracy": float(accs[split][i])}
+
+        def step(lab=lab, meth=meth, trials=trials):
+            tc = cfg.train[meth]
+            t_cell = time.perf_counter()
+            tdata = split_data(lab, "train")
+            t_prep = time.perf_counter() - t_cell
+            state, metrics = train.train_trials(tc, tdata, trials, progress=False)
+            jax.block_until_ready((state, metrics))
+            t_train = time.perf_counter() - t_cell - t_prep
+            # "train" is scored on the trajectories the model trained on (the first train_size).
+            used = {"train": tc.n_used(len(tdata.xyz))}
+            accs = {
+                split: np.asarray(
+                    evaluate.accuracy(tc, state.params, split_data(lab, split, used.get(split)))
+                ).reshape(-1)
                 for split in SPLITS
-            )  # fmt: skip
-            doc["timing"]["cells"].append(
-                {
-                    "labeler": lab,
-                    "method": meth,
-                    "trial": trial,
-                    "prepare_s": t_prep / len(trials),
-                    "train_s": t_train / len(trials),
-                    "total_s": t_total / len(trials),
-                    "trained_together": len(trials),
-                    "final_loss": float(loss[i, -1].mean()),
-                }
-            )
-        doc["summary"] = summarise(doc["cells"])
-        write_text(out / "results.json", json.dumps(doc, indent=1))
-        bar.update(len(trials))
-    bar.close()
+            }
+            t_total = time.perf_counter() - t_cell
+            times = {"prepare_s": t_prep, "train_s": t_train, "total_s": t_total}
+            return accs, np.asarray(metrics.loss), times
 
-    doc["summary"] = summarise(doc["cells"])
-    doc["timing"]["last_run_total_s"] = time.perf_counter() - t_start
-    write_text(out / "results.json", json.dumps(doc, indent=1))
-    write_text(out / "table1.md", report(doc))
-    return doc
+        yield meth, [(lab, t) for t in trials], step
 
 
-def _precompile_in_background(cfg: Table1Config, methods: Sequence[str]) -> dict:
-    """Start :func:`slotv_jax.train.precompile` for each method, for the shape the training
-    split will have (its size, points, and largest goal count); returns the futures."""
+def _device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_dev: int):
+    """Several devices: per method, the pending (labeler, trial) units in the groups of
+    :func:`slotv_jax.parallel.groups`, each trained side by side and evaluated where it
+    trained. The trajectories are shared and each unit has its labeler's labels."""
+    import jax
+
+    from slotv_jax import train
+
+    shared: dict[str, train.TrainData] = {}
+    labels: dict[tuple[str, str], np.ndarray] = {}
+
+    def arrays(split: str, labs: Sequence[str], size: int | None = None):
+        for lab in labs:
+            if (lab, split) not in labels:
+                d = train.prepare(dataset[split], lab)  # validates this labeler's labels
+                labels[(lab, split)] = np.asarray(d.labels)
+                shared.setdefault(split, d)
+        d = shared[split] if size is None else train.subset(shared[split], size)
+        n = d.xyz.shape[0]
+        return d, np.stack([labels[(lab, split)][:n] for lab in labs])
+
+    for meth in dict.fromkeys(m for _, m, _ in todo):
+        units = [(lab, t) for lab, m, t in todo if m == meth]
+        tc = cfg.train[meth]
+        for group, t in parallel.groups(units, n_dev):
+
+            def step(group=group, t=t, tc=tc):
+                labs = [lab for lab, _ in group]
+                mesh = parallel.unit_mesh(t, tc.batch_size)
+                t_cell = time.perf_counter()
+                tdata, tlabels = arrays("train", labs)
+                t_prep = time.perf_counter() - t_cell
+                seeds = [trial for _, trial in group]
+                state, metrics = parallel.train_group(tc, tdata, seeds, mesh, labels=tlabels)
+                jax.block_until_ready((state, metrics))
+                t_train = time.perf_counter() - t_cell - t_prep
+                used = {"train": tc.n_used(len(tdata.xyz))}
+                accs = {}
+                for split in SPLITS:
+                    d, lab_arr = arrays(split, labs, used.get(split))
+                    accs[split] = parallel.group_accuracy(tc, state.params, d, mesh, labels=lab_arr)
+                loss = parallel.fetch(metrics.loss)  # (padded runs, E, K): the first are ours
+                t_total = time.perf_counter() - t_cell
+                times = {"prepare_s": t_prep, "train_s": t_train, "total_s": t_total}
+                return accs, loss, times
+
+            yield meth, group, step
+
+
+def _precompile_in_background(cfg: Table1Config, methods: Sequence[str], n_dev: int = 1) -> dict:
+    """Start the ahead-of-time compilation of each method's training function, for the
+    shape the training split will have (its size, points, and largest goal count): on one
+    device :func:`slotv_jax.train.precompile`, on several the full group of
+    :func:`slotv_jax.parallel.precompile_group`. Returns the futures."""
     from concurrent.futures import ThreadPoolExecutor
 
     from slotv_jax import train
@@ -331,7 +430,18 @@ def _precompile_in_background(cfg: Table1Config, methods: Sequence[str]) -> dict
     d = cfg.data
     shape = (d.n_train, d.trajectory.n_points, max(d.train_goal_counts))
     pool = ThreadPoolExecutor(max_workers=len(methods), thread_name_prefix="precompile")
-    jobs = {m: pool.submit(train.precompile, cfg.train[m], *shape) for m in methods}
+    if n_dev == 1:
+        jobs = {m: pool.submit(train.precompile, cfg.train[m], *shape) for m in methods}
+    else:
+        jobs = {
+            m: pool.submit(
+                parallel.precompile_group,
+                cfg.train[m],
+                *shape,
+                parallel.unit_mesh(n_dev, cfg.train[m].batch_size),
+            )
+            for m in methods
+        }
     pool.shutdown(wait=False)
     return jobs
 
@@ -427,7 +537,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="only merge the results.json of these run directories (same configuration, "
         "e.g. one per GPU) into --out, and render the table",
     )
+    p.add_argument(
+        "--time-limit",
+        type=float,
+        metavar="SECONDS",
+        help="stop before a trial (group) that would end after this many seconds; "
+        "rerun the same command to continue",
+    )
+    parallel.add_cli_args(p)
     args = p.parse_args(argv)
+    parallel.init_from_args(args)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     if args.merge:
         if args.out is None:
@@ -451,6 +570,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = with_compute_dtype(cfg, args.compute_dtype)
     if args.distribution != "default":
         cfg = dataclasses.replace(cfg, data=data_lib.with_distribution(cfg.data, args.distribution))
+    if args.time_limit is not None and not args.time_limit >= 0:
+        p.error("--time-limit: expected a number of seconds >= 0")
     out = args.out or Path("runs") / f"table1_{args.preset}"
     t0 = time.perf_counter()
     doc = run(
@@ -460,7 +581,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         methods=args.methods,
         cache=args.cache,
         vmap_trials=args.vmap_trials,
+        time_limit_s=args.time_limit,
     )
+    if not parallel.is_writer():
+        return 0
     print()
     print(render_table(doc["summary"]))
     print(
