@@ -3,18 +3,30 @@
 For a scene and a key:
 
 1. the target is uniform among the scene's real goals;
-2. the number of via points is uniform in ``{3, 4, 5}``;
+2. the number of via points is uniform in ``via_counts`` (default ``{1}``; see below);
 3. via points are uniform in the box x ∈ [0.25, 0.70], y ∈ [−0.50, 0.50],
    z ∈ [0.10, 0.40];
 4. the Cartesian path is TCP(q_home) → via_1 → … → via_N → target, piecewise linear;
-5. it is resampled to 100 points equally spaced by arc length (t_i = i / 99);
+5. it is resampled to 100 points (t_i = i / 99), equally spaced by arc length
+   (``timing="arc_length"``) or with equal time on every segment
+   (``timing="segment"``: each of the N + 1 segments gets 99 / (N + 1) of the steps);
 6. joint configurations come from warm-started, position-only IK (MJX FK and
    Jacobian; soft terms in the null space), starting from ``Q_HOME``;
 7. the stored path is the executed one, FK(q_i). A draw whose worst position
    residual exceeds 2 mm is rejected by the caller (see :mod:`slotv_jax.data`).
 
 Shapes are fixed: unused via-point slots are collapsed onto the goal, adding
-zero-length segments that the arc-length resampling skips.
+zero-length segments that the resampling skips.
+
+The distribution of the paper is not fully stated: its text reads "Sample
+N_control ∈ [3, 5] control points … adding the starting position and the position
+of the chosen goal to the list of control points", which counts 3–5 via points if
+the start and goal come on top, or 1–3 if they are among the 3–5; the first
+author's public generator used one via point and equal time per segment. The
+ablation ``python -m slotv_jax.experiments.fidelity`` (``experiments/fidelity.md``)
+measures what each reading does to Table 1. :data:`DISTRIBUTIONS` names the
+choices: ``"default"`` (the evidence-based default) and ``"spec_v1"`` (the first
+version: 3–5 via points, arc length).
 
 >>> import jax
 >>> from slotv_jax.scene import sample_scene
@@ -37,13 +49,16 @@ from jaxtyping import Array, Float, Int
 from slotv_jax import kinematics, validation
 from slotv_jax.scene import Scene
 
+TIMINGS = ("arc_length", "segment")
+
 
 @dataclasses.dataclass(frozen=True)
 class TrajectoryConfig:
     """How random trajectories are drawn."""
 
-    n_points: int = 100  # samples along the path, equally spaced by arc length
-    via_counts: tuple[int, ...] = (3, 4, 5)  # allowed numbers of via points
+    n_points: int = 100  # samples along the path (t_i = i / (n_points - 1))
+    via_counts: tuple[int, ...] = (1,)  # allowed numbers of via points, drawn uniformly
+    timing: str = "arc_length"  # "arc_length": equal spacing; "segment": equal time per segment
     via_low: tuple[float, float, float] = (0.25, -0.50, 0.10)  # via-point box, lower corner (m)
     via_high: tuple[float, float, float] = (0.70, 0.50, 0.40)  # via-point box, upper corner (m)
     max_residual: float = 2e-3  # reject draws whose IK misses any point by more (m)
@@ -54,9 +69,15 @@ class TrajectoryConfig:
     def __post_init__(self):
         if int(self.n_points) < 2:
             raise ValueError(f"TrajectoryConfig.n_points: expected >= 2, got {self.n_points}")
-        if not self.via_counts or min(self.via_counts) < 0:
+        counts = tuple(self.via_counts)
+        if not counts or any(not isinstance(c, int | np.integer) or c < 0 for c in counts):
             raise ValueError(
-                f"TrajectoryConfig.via_counts: expected non-negative counts, got {self.via_counts}"
+                f"TrajectoryConfig.via_counts: expected non-negative int counts, got {counts}"
+            )
+        object.__setattr__(self, "via_counts", tuple(int(c) for c in counts))
+        if self.timing not in TIMINGS:
+            raise ValueError(
+                f"TrajectoryConfig.timing: expected one of {TIMINGS}, got {self.timing!r}"
             )
         lo, hi = np.asarray(self.via_low), np.asarray(self.via_high)
         if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
@@ -97,13 +118,32 @@ def resample_polyline(waypoints: Float[Array, "W 3"], n: int) -> Float[Array, "n
     return waypoints[idx] + frac[:, None] * (waypoints[idx + 1] - waypoints[idx])
 
 
+def resample_segments(
+    waypoints: Float[Array, "W 3"], n_segments: Int[Array, ""], n: int
+) -> Float[Array, "n 3"]:
+    """``n`` points with equal time on each of the first ``n_segments`` segments, ends included.
+
+    Point i sits at segment time u_i = (i / (n − 1)) · n_segments: on segment ⌊u_i⌋, a
+    fraction u_i − ⌊u_i⌋ of the way along it. Segments after the first ``n_segments`` are
+    never visited (they are the collapsed via slots).
+
+    >>> w = jnp.array([[0.0, 0, 0], [1, 0, 0], [1, 3, 0]])
+    >>> resample_segments(w, jnp.int32(2), 5)[:, :2].tolist()
+    [[0.0, 0.0], [0.5, 0.0], [1.0, 0.0], [1.0, 1.5], [1.0, 3.0]]
+    """
+    u = jnp.linspace(0.0, 1.0, n, dtype=waypoints.dtype) * n_segments
+    idx = jnp.clip(jnp.floor(u).astype(jnp.int32), 0, jnp.maximum(n_segments - 1, 0))
+    frac = jnp.clip(u - idx, 0.0, 1.0)
+    return waypoints[idx] + frac[:, None] * (waypoints[idx + 1] - waypoints[idx])
+
+
 class Plan(NamedTuple):
     """A planned Cartesian path (steps 1–5 of SPEC §3)."""
 
     target: Int[Array, ""]  # goal slot
     n_via: Int[Array, ""]  # via points used
     waypoints: Float[Array, "W 3"]  # start, via points (unused ones collapsed onto the goal), goal
-    path: Float[Array, "n 3"]  # resampled path, equally spaced by arc length (m)
+    path: Float[Array, "n 3"]  # resampled path (m), spaced as ``cfg.timing`` says
 
 
 def plan_path(key: jax.Array, scene: Scene, cfg: TrajectoryConfig = TrajectoryConfig()) -> Plan:
@@ -120,7 +160,27 @@ def plan_path(key: jax.Array, scene: Scene, cfg: TrajectoryConfig = TrajectoryCo
     via = jnp.where((jnp.arange(cfg.max_via) < n_via)[:, None], via, goal)
     start = jnp.asarray(kinematics.home_tcp(), via.dtype)
     waypoints = jnp.concatenate([start[None], via, goal[None]], axis=0)
-    return Plan(target, n_via, waypoints, resample_polyline(waypoints, cfg.n_points))
+    if cfg.timing == "segment":
+        path = resample_segments(waypoints, n_via + 1, cfg.n_points)
+    else:
+        path = resample_polyline(waypoints, cfg.n_points)
+    return Plan(target, n_via, waypoints, path)
+
+
+#: Named trajectory distributions (SPEC §3). ``default`` is the distribution chosen on the
+#: evidence of the fidelity ablation (experiments/fidelity.md); ``spec_v1`` is the first
+#: version's (3–5 via points, equal arc-length spacing).
+DISTRIBUTIONS: dict[str, TrajectoryConfig] = {
+    "default": TrajectoryConfig(),
+    "spec_v1": TrajectoryConfig(via_counts=(3, 4, 5), timing="arc_length"),
+}
+
+
+def distribution(name: str, **overrides) -> TrajectoryConfig:
+    """The named trajectory distribution of :data:`DISTRIBUTIONS`, with field overrides."""
+    if name not in DISTRIBUTIONS:
+        raise ValueError(f"distribution: expected one of {tuple(DISTRIBUTIONS)}, got {name!r}")
+    return dataclasses.replace(DISTRIBUTIONS[name], **overrides)
 
 
 def straight_path(goal: Float[Array, "3"], n: int = 100) -> Float[Array, "n 3"]:

@@ -336,6 +336,39 @@ def _precompile_in_background(cfg: Table1Config, methods: Sequence[str]) -> dict
     return jobs
 
 
+def merge(docs: Sequence[dict]) -> dict:
+    """One results document from several runs of the same configuration (for example one
+    per GPU or machine, each given other ``--labelers``): the union of their cells.
+
+    Raises ValueError if the configurations differ or two runs disagree on a cell.
+    """
+    if not docs:
+        raise ValueError("merge: expected at least one results document")
+    first = docs[0]
+    key = (first["config"].get("data_digest"), first["config"].get("train"))
+    cells: dict[tuple, dict] = {}
+    timing: dict[tuple, dict] = {}
+    for i, doc in enumerate(docs):
+        if (doc["config"].get("data_digest"), doc["config"].get("train")) != key:
+            raise ValueError(f"merge: document {i} holds results of another configuration")
+        for c in doc["cells"]:
+            k = (c["labeler"], c["method"], c["split"], c["trial"])
+            if k in cells and cells[k]["accuracy"] != c["accuracy"]:
+                raise ValueError(f"merge: documents disagree on cell {k}")
+            cells[k] = c
+        for t in doc["timing"]["cells"]:
+            timing.setdefault((t["labeler"], t["method"], t["trial"]), t)
+    out = json.loads(json.dumps(first))
+    out["config"]["trials"] = max(d["config"]["trials"] for d in docs)
+    out["cells"] = [cells[k] for k in sorted(cells)]
+    out["summary"] = summarise(out["cells"])
+    out["timing"] = {
+        "cells": [timing[k] for k in sorted(timing)],
+        "runs": [{k: v for k, v in d["timing"].items() if k != "cells"} for d in docs],
+    }
+    return out
+
+
 def report(doc: dict) -> str:
     """The Markdown report: how it was made and the table."""
     env = doc["environment"]
@@ -370,6 +403,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="results directory (default: runs/table1_<preset>)")
     p.add_argument("--cache", type=Path, default=Path("data"), help="dataset cache directory")
     p.add_argument(
+        "--distribution",
+        choices=sorted(data_lib.DATA_DISTRIBUTIONS),
+        default="default",
+        help="dataset distribution: trajectories and label temperatures (default: chosen by "
+        "the fidelity ablation; spec_v1: the first version's 3-5 via points and β)",
+    )
+    p.add_argument(
         "--compute-dtype",
         choices=("float32", "bfloat16"),
         help="matmul dtype of the hidden layers (default: the preset's, float32)",
@@ -379,8 +419,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="train the trials of each (labeler, method) together in one vmapped call",
     )
+    p.add_argument(
+        "--merge",
+        nargs="+",
+        type=Path,
+        metavar="DIR",
+        help="only merge the results.json of these run directories (same configuration, "
+        "e.g. one per GPU) into --out, and render the table",
+    )
     args = p.parse_args(argv)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
+    if args.merge:
+        if args.out is None:
+            p.error("--merge needs --out")
+        try:
+            doc = merge([json.loads((d / "results.json").read_text()) for d in args.merge])
+        except (OSError, ValueError, KeyError) as e:
+            p.error(f"--merge: {e}")
+        args.out.mkdir(parents=True, exist_ok=True)
+        write_text(args.out / "results.json", json.dumps(doc, indent=1))
+        write_text(args.out / "table1.md", report(doc))
+        print(render_table(doc["summary"]))
+        return 0
 
     cfg = PRESETS[args.preset]()
     if args.trials is not None:
@@ -389,6 +449,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = dataclasses.replace(cfg, trials=args.trials)
     if args.compute_dtype is not None:
         cfg = with_compute_dtype(cfg, args.compute_dtype)
+    if args.distribution != "default":
+        cfg = dataclasses.replace(cfg, data=data_lib.with_distribution(cfg.data, args.distribution))
     out = args.out or Path("runs") / f"table1_{args.preset}"
     t0 = time.perf_counter()
     doc = run(

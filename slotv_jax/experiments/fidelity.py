@@ -1,0 +1,513 @@
+"""Fidelity ablation: what the paper's unreported choices do to Table 1 (SPEC §3, §4, §8).
+
+The paper does not state every choice its datasets rest on. This experiment varies
+one factor at a time from a base setting and records, for each setting:
+
+- the **label statistics** of the four labelers on the four Table 1 splits
+  (:func:`slotv_jax.experiments.label_report.split_stats`): label entropy over the
+  uniform entropy, the top-1/top-2 margin, how often ``argmax y`` is the true target,
+  and how often all four labelers agree;
+- **SLOT-V and T-REX accuracy** on the four Table 1 splits for the trained labelers
+  (Dragan and Nikolaidis by default: the cells furthest from the paper), with
+  ``key_trials`` trials for the settings the conclusions rest on and ``trials`` for
+  the others.
+
+The factors (base: one via point, equal arc-length spacing, the SPEC's via box,
+the first version's β: 5 (Dragan, EffDist, FastApp) and 7.5 (Nikolaidis)):
+
+==========  ==============================================================
+via         via-point counts 0, 1, 2, 3, {1, 2, 3} and {3, 4, 5}
+beta        all four β at ×1 and ×4 the first version's (Dragan 5,
+            Nikolaidis 7.5, EffDist 5, FastApp 5)
+box         the SPEC's via box, and a tighter one over the goal table
+timing      equal arc length, or equal time per segment (as the first
+            author's public ``legibility`` code samples its 100 points)
+==========  ==============================================================
+
+Each setting is a Table 1 run (:func:`slotv_jax.experiments.table1.run`) in its own
+directory ``OUT/<setting>/``: datasets are cached by config digest and finished cells
+resume. Then ``OUT/results.json`` collects everything, and the report (tables and
+``fidelity.png``: accuracy against each factor, the paper's values as reference lines)
+is written.
+
+    python -m slotv_jax.experiments.fidelity                          # quick preset (CPU)
+    python -m slotv_jax.experiments.fidelity --preset paper --compute-dtype bfloat16
+    python -m slotv_jax.experiments.fidelity --settings via=1 via=3-5 # a subset
+    python -m slotv_jax.experiments.fidelity --report-only --out DIR  # re-render
+
+The report goes to ``experiments/fidelity.md`` (and ``.png``) for the paper preset and to
+``OUT/fidelity.md`` otherwise; ``--doc`` chooses another path.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import shlex
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+import slotv_jax
+from slotv_jax import config as train_config
+from slotv_jax import data as data_lib
+from slotv_jax.experiments import label_report, table1
+from slotv_jax.experiments.table1 import (
+    LABELER_TITLES,
+    METHOD_TITLES,
+    PAPER_TABLE,
+    SPLIT_TITLES,
+    SPLITS,
+)
+from slotv_jax.fileio import save_figure, write_text
+from slotv_jax.trajectories import TrajectoryConfig
+
+FACTORS = ("via", "beta", "box", "timing")
+FACTOR_TITLES = {
+    "via": "via-point count",
+    "beta": "label temperature (× first version's β)",
+    "box": "via-point box",
+    "timing": "time parameterisation",
+}
+TIGHT_BOX = ((0.30, -0.45, 0.10), (0.70, 0.45, 0.25))  # over the goal table's cube region (m)
+VIA_COUNTS = ((0,), (1,), (2,), (3,), (1, 2, 3), (3, 4, 5))
+BETA_SCALES = (1.0, 4.0)  # × the first version's β (Dragan 5, Nikolaidis 7.5, EffDist 5, FastApp 5)
+KEY_SETTINGS = ("via=1", "via=3-5", "via=1-3")
+
+
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    """One point of the ablation: a dataset config and how many trials to train on it."""
+
+    name: str  # short id, also the directory name, e.g. "via=1-3"
+    factor: str  # one of FACTORS
+    value: str  # the factor's value in words, e.g. "{1, 2, 3}"
+    data: data_lib.DataConfig
+    trials: int
+
+
+@dataclasses.dataclass(frozen=True)
+class FidelityConfig:
+    """What one ablation run does."""
+
+    preset: str
+    base: data_lib.DataConfig  # the base setting every factor varies from
+    train: dict[str, train_config.TrainConfig]  # method -> training config
+    labelers: tuple[str, ...] = ("dragan", "nikolaidis")  # labelers trained per setting
+    methods: tuple[str, ...] = table1.METHODS
+    trials: int = 1  # trials of an ordinary setting
+    key_trials: int = 3  # trials of the settings in KEY_SETTINGS
+
+    def to_json(self) -> dict:
+        return {
+            "preset": self.preset,
+            "base": self.base.to_json(),
+            "train": {m: c.to_dict() for m, c in self.train.items()},
+            "labelers": list(self.labelers),
+            "methods": list(self.methods),
+            "trials": self.trials,
+            "key_trials": self.key_trials,
+            "key_settings": list(KEY_SETTINGS),
+        }
+
+
+def _base_data(d: data_lib.DataConfig) -> data_lib.DataConfig:
+    """The base setting: one via point, arc length, the SPEC's box, the first version's β."""
+    traj = dataclasses.replace(
+        d.trajectory,
+        via_counts=(1,),
+        timing="arc_length",
+        via_low=TrajectoryConfig.via_low,
+        via_high=TrajectoryConfig.via_high,
+    )
+    return dataclasses.replace(d, trajectory=traj, labels=data_lib.LABELS_V1)
+
+
+def quick() -> FidelityConfig:
+    """CPU preset: the quick networks on 4,000 training and 1,000 evaluation trajectories."""
+    base = _base_data(data_lib.quick(n_train=4000, n_eval=1000))
+    return FidelityConfig("quick", base, {m: train_config.quick(m) for m in table1.METHODS})
+
+
+def paper() -> FidelityConfig:
+    """The paper's dataset sizes and training hyperparameters."""
+    base = _base_data(data_lib.paper())
+    return FidelityConfig("paper", base, {m: train_config.paper(m) for m in table1.METHODS})
+
+
+def tiny() -> FidelityConfig:
+    """Seconds-scale preset for tests (not a result)."""
+    t1 = table1.tiny()
+    return FidelityConfig("tiny", _base_data(t1.data), t1.train, key_trials=1)
+
+
+PRESETS = {"quick": quick, "paper": paper, "tiny": tiny}
+
+
+def _counts_name(counts: tuple[int, ...]) -> str:
+    if len(counts) == 1:
+        return str(counts[0])
+    if counts == tuple(range(counts[0], counts[-1] + 1)):
+        return f"{counts[0]}-{counts[-1]}"
+    return ",".join(map(str, counts))
+
+
+def settings(cfg: FidelityConfig) -> list[Setting]:
+    """Every setting of the ablation, base first; each varies one factor from ``cfg.base``."""
+    base = cfg.base
+    out: list[tuple[str, str, str, data_lib.DataConfig]] = []
+
+    def traj(**kw) -> data_lib.DataConfig:
+        return dataclasses.replace(base, trajectory=dataclasses.replace(base.trajectory, **kw))
+
+    for counts in VIA_COUNTS:
+        value = "{" + ", ".join(map(str, counts)) + "}" if len(counts) > 1 else str(counts[0])
+        out.append((f"via={_counts_name(counts)}", "via", value, traj(via_counts=counts)))
+    for k in BETA_SCALES:
+        v1 = data_lib.LABELS_V1
+        labels = dataclasses.replace(
+            base.labels,
+            **{f"beta_{n}": k * getattr(v1, f"beta_{n}") for n in data_lib.LABELER_NAMES},
+        )
+        out.append((f"beta=x{k:g}", "beta", f"×{k:g}", dataclasses.replace(base, labels=labels)))
+    out.append(("box=spec", "box", "SPEC", base))
+    out.append(("box=tight", "box", "tight", traj(via_low=TIGHT_BOX[0], via_high=TIGHT_BOX[1])))
+    out.append(("timing=arc", "timing", "arc length", base))
+    out.append(("timing=segment", "timing", "per segment", traj(timing="segment")))
+    return [
+        Setting(n, f, v, d, cfg.key_trials if n in KEY_SETTINGS else cfg.trials)
+        for n, f, v, d in out
+    ]
+
+
+def unique_runs(all_settings: Sequence[Setting]) -> dict[str, Setting]:
+    """Map each setting's name to the setting whose directory holds its results.
+
+    Settings with equal dataset configs (``via=1``, ``beta=x1``, ``box=spec`` and
+    ``timing=arc`` all equal the base) share one run: the first of them, with the largest
+    trial count of the group.
+    """
+    groups: dict[str, list[Setting]] = {}
+    for s in all_settings:
+        groups.setdefault(s.data.digest(), []).append(s)
+    owner = {}
+    for group in groups.values():
+        run = dataclasses.replace(group[0], trials=max(s.trials for s in group))
+        owner.update({s.name: run for s in group})
+    return owner
+
+
+# ----------------------------------------------------------------------- run
+
+
+def _label_stats(ddir: Path) -> dict:
+    """:func:`label_report.split_stats` of the four Table 1 splits, plus their mean."""
+    per = {name: label_report.split_stats(data_lib.load_split(ddir, name)) for name in SPLITS}
+    mean = {
+        lab: {
+            k: float(np.mean([per[s]["labelers"][lab][k] for s in SPLITS]))
+            for k in ("entropy_ratio", "margin", "near_tie", "target_agreement", "chance")
+        }
+        for lab in label_report.LABELERS
+    }
+    all_agree = float(np.mean([per[s]["all_agree"] for s in SPLITS]))
+    return {"splits": per, "mean": mean, "all_agree": all_agree}
+
+
+def run_setting(
+    cfg: FidelityConfig, s: Setting, out: Path, *, cache: Path, progress: bool = True
+) -> dict:
+    """Train and evaluate one setting (resuming), and collect its label statistics."""
+    t0 = time.perf_counter()
+    t1 = table1.Table1Config(cfg.preset, s.trials, s.data, cfg.train)
+    doc = table1.run(
+        t1, out / s.name, labelers=cfg.labelers, methods=cfg.methods, cache=cache, progress=progress
+    )
+    stats_path = out / s.name / "label_stats.json"
+    if stats_path.exists():
+        stats = json.loads(stats_path.read_text())
+    else:
+        stats = _label_stats(Path(doc["dataset"]))
+        write_text(stats_path, json.dumps(stats, indent=1))
+    return {"doc": doc, "label_stats": stats, "time_s": time.perf_counter() - t0}
+
+
+def collect(cfg: FidelityConfig, out: Path) -> dict:
+    """``OUT/results.json``: every setting with its label statistics and accuracy summary,
+    read from the setting directories that exist."""
+    owner = unique_runs(settings(cfg))
+    rows = []
+    env = {}
+    for s in settings(cfg):
+        d = out / owner[s.name].name
+        if not (d / "results.json").exists() or not (d / "label_stats.json").exists():
+            continue
+        doc = json.loads((d / "results.json").read_text())
+        env = env or doc.get("environment", {})
+        rows.append(
+            {
+                "name": s.name,
+                "factor": s.factor,
+                "value": s.value,
+                "run": owner[s.name].name,
+                "data_digest": s.data.digest(),
+                "trajectory": dataclasses.asdict(s.data.trajectory),
+                "labels": dataclasses.asdict(s.data.labels),
+                "label_stats": json.loads((d / "label_stats.json").read_text()),
+                "summary": doc["summary"],
+                "cells": doc["cells"],
+                "timing": doc["timing"],
+            }
+        )
+    return {
+        "preset": cfg.preset,
+        "config": cfg.to_json(),
+        "environment": env,
+        "settings": rows,
+    }
+
+
+def run(
+    cfg: FidelityConfig,
+    out: Path,
+    *,
+    only: Sequence[str] | None = None,
+    cache: Path = Path("data"),
+    progress: bool = True,
+) -> dict:
+    """Run (or resume) the ablation; ``only`` restricts it to the named settings."""
+    out.mkdir(parents=True, exist_ok=True)
+    all_settings = settings(cfg)
+    names = [s.name for s in all_settings]
+    unknown = sorted(set(only or ()) - set(names))
+    if unknown:
+        raise ValueError(f"settings: unknown {unknown}; expected names from {names}")
+    owner = unique_runs(all_settings)
+    runs = {owner[n].name: owner[n] for n in (only or names)}
+    for s in tqdm(runs.values(), desc="fidelity settings", unit="setting", disable=not progress):
+        run_setting(cfg, s, out, cache=cache, progress=progress)
+    doc = collect(cfg, out)
+    write_text(out / "results.json", json.dumps(doc, indent=1))
+    return doc
+
+
+# -------------------------------------------------------------------- report
+
+
+def _acc(row: dict, labeler: str, method: str, split: str) -> tuple[float, float, int] | None:
+    for s in row["summary"]:
+        if (s["labeler"], s["method"], s["split"]) == (labeler, method, split):
+            return s["mean"], s["sd"], s["n"]
+    return None
+
+
+def render_markdown(doc: dict, *, command: str = "", wall_s: float | None = None) -> str:
+    """The ablation's tables: label statistics and accuracy per setting, grouped by factor."""
+    cfg = doc["config"]
+    env = doc.get("environment", {})
+    labs = cfg["labelers"]
+    lines = [
+        f"# Fidelity ablation ({doc['preset']} preset)",
+        "",
+        "One factor at a time from the base setting (1 via point, equal arc-length spacing, "
+        "the SPEC's via box, the first version's β: 5 for Dragan, EffDist and FastApp, 7.5 for "
+        "Nikolaidis). Accuracy is Table 1's "
+        "(SPEC §8), mean ± SD over trials; label statistics are means over the four Table 1 "
+        "splits. `python -m slotv_jax.experiments.fidelity` made it.",
+        "",
+    ]
+    if command:
+        lines += [f"Command: `{command}`", ""]
+    date = datetime.date.today().isoformat()
+    lines += [
+        f"Run: {date}; jax {env.get('jax')}, flax {env.get('flax')}, mujoco {env.get('mujoco')}, "
+        f"devices {env.get('devices')}"
+        + (f"; wall time of this invocation {wall_s / 60:.1f} min." if wall_s else "."),
+        "",
+        "## Label statistics",
+        "",
+        "Entropy ratio: label entropy / uniform entropy over the same goals (1 = uniform). "
+        "Margin: mean gap between the two largest probabilities. Target: how often "
+        "argmax y is the true target (chance ≈ 0.27). Agree: all four labelers' argmaxes equal.",
+        "",
+        "| factor | setting | Dragan entropy / margin / target | Nikolaidis entropy / margin "
+        "/ target | EffDist target | FastApp target | agree |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    rows = doc["settings"]
+    for r in rows:
+        m = r["label_stats"]["mean"]
+
+        def st(lab, m=m):
+            return (
+                f"{m[lab]['entropy_ratio']:.3f} / {m[lab]['margin']:.3f} / "
+                f"{m[lab]['target_agreement']:.3f}"
+            )
+
+        lines.append(
+            f"| {r['factor']} | {r['value']} | {st('dragan')} | {st('nikolaidis')} | "
+            f"{m['effdist']['target_agreement']:.3f} | {m['fastapp']['target_agreement']:.3f} | "
+            f"{r['label_stats']['all_agree']:.3f} |"
+        )
+    lines += ["", "## Accuracy", ""]
+    split_hdr = " / ".join(SPLIT_TITLES[s] for s in SPLITS)
+    lines.append(f"Each cell: {split_hdr}, mean over trials (n trials).")
+    lines.append("")
+    hdr = "| factor | setting | " + " | ".join(
+        f"{METHOD_TITLES[m]} {LABELER_TITLES[lab]}" for lab in labs for m in cfg["methods"]
+    )
+    lines += [hdr + " |", "|---|---|" + "---|" * (len(labs) * len(cfg["methods"]))]
+    paper_row = "| paper | | " + " | ".join(
+        " / ".join(f"{PAPER_TABLE[(lab, m, s)][0]:.2f}" for s in SPLITS)
+        for lab in labs
+        for m in cfg["methods"]
+    )
+    lines.append(paper_row + " |")
+    for r in rows:
+        cells = []
+        for lab in labs:
+            for m in cfg["methods"]:
+                a = [_acc(r, lab, m, s) for s in SPLITS]
+                if any(x is None for x in a):
+                    cells.append("—")
+                else:
+                    sds = max(x[1] for x in a)
+                    cells.append(
+                        " / ".join(f"{x[0]:.2f}" for x in a) + f" (n={a[0][2]}, SD≤{sds:.2f})"
+                    )
+        lines.append(f"| {r['factor']} | {r['value']} | " + " | ".join(cells) + " |")
+    lines += ["", "![accuracy against each factor](fidelity.png)", ""]
+    return "\n".join(lines)
+
+
+def plot(doc: dict, path: Path) -> None:
+    """Accuracy (mean over the four splits, ± SD over trials) against each factor, one panel
+    per factor; the paper's values (mean over its four splits) as dashed reference lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cfg = doc["config"]
+    labs, methods = cfg["labelers"], cfg["methods"]
+    fig, axes = plt.subplots(1, len(FACTORS), figsize=(4.2 * len(FACTORS), 4), dpi=130)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    series = [(lab, m) for lab in labs for m in methods]
+    for ax, factor in zip(axes, FACTORS, strict=True):
+        rows = [r for r in doc["settings"] if r["factor"] == factor]
+        x = np.arange(len(rows))
+        for i, (lab, m) in enumerate(series):
+            c = colors[i % len(colors)]
+            means, sds = [], []
+            for r in rows:
+                trials = {}
+                for cell in r["cells"]:
+                    if (cell["labeler"], cell["method"]) == (lab, m):
+                        trials.setdefault(cell["trial"], []).append(cell["accuracy"])
+                per_trial = np.array([np.mean(v) for v in trials.values()]) if trials else None
+                means.append(np.nan if per_trial is None else per_trial.mean())
+                sds.append(
+                    0.0 if per_trial is None or per_trial.size < 2 else per_trial.std(ddof=1)
+                )
+            style = "-o" if m == "slotv" else "--s"
+            ax.errorbar(x, means, yerr=sds, fmt=style, color=c, capsize=3, ms=4,
+                        label=f"{METHOD_TITLES[m]} {LABELER_TITLES[lab]}")  # fmt: skip
+            ref = np.mean([PAPER_TABLE[(lab, m, s)][0] for s in SPLITS])
+            ax.axhline(ref, color=c, linestyle=":", linewidth=1)
+        ax.set_xticks(x, [r["value"] for r in rows], rotation=30, ha="right")
+        ax.set_title(FACTOR_TITLES[factor], fontsize=9)
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("accuracy, mean of the 4 Table 1 splits")
+    axes[-1].legend(fontsize=7, loc="lower right", title="dotted: paper", title_fontsize=7)
+    fig.suptitle(f"Fidelity ablation ({doc['preset']} preset)", fontsize=10)
+    fig.tight_layout()
+    try:
+        save_figure(fig, path)
+    finally:
+        plt.close(fig)
+
+
+def write_report(doc: dict, doc_path: Path, *, command: str = "", wall_s: float | None = None):
+    """Write the Markdown report and, beside it, ``fidelity.png``."""
+    doc_path.parent.mkdir(parents=True, exist_ok=True)
+    png = doc_path.with_suffix(".png")
+    text = render_markdown(doc, command=command, wall_s=wall_s)
+    write_text(doc_path, text.replace("(fidelity.png)", f"({png.name})"))
+    if doc["settings"]:
+        plot(doc, png)
+
+
+# ----------------------------------------------------------------------- CLI
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m slotv_jax.experiments.fidelity",
+        description="Ablation of the paper's unreported dataset choices (SPEC §3, §4).",
+    )
+    p.add_argument("--preset", choices=sorted(PRESETS), default="quick")
+    p.add_argument("--out", type=Path, help="results directory (default: runs/fidelity_<preset>)")
+    p.add_argument("--cache", type=Path, default=Path("data"), help="dataset cache directory")
+    p.add_argument("--settings", nargs="+", help="run only these settings (default: all)")
+    p.add_argument("--labelers", nargs="+", choices=table1.LABELERS, help="labelers to train")
+    p.add_argument("--trials", type=int, help="trials of an ordinary setting")
+    p.add_argument("--key-trials", type=int, help=f"trials of {', '.join(KEY_SETTINGS)}")
+    p.add_argument("--compute-dtype", choices=("float32", "bfloat16"))
+    p.add_argument("--doc", type=Path, help="report path (default: see the module docstring)")
+    p.add_argument("--report-only", action="store_true", help="only collect and re-render")
+    p.add_argument("--list", action="store_true", help="list the settings and exit")
+    args = p.parse_args(argv)
+    print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
+
+    cfg = PRESETS[args.preset]()
+    kw = {}
+    if args.labelers:
+        kw["labelers"] = tuple(args.labelers)
+    for name in ("trials", "key_trials"):
+        v = getattr(args, name)
+        if v is not None:
+            if v < 1:
+                p.error(f"--{name.replace('_', '-')}: expected an integer >= 1")
+            kw[name] = v
+    if args.compute_dtype:
+        kw["train"] = {
+            m: dataclasses.replace(c, compute_dtype=args.compute_dtype)
+            for m, c in cfg.train.items()
+        }
+    cfg = dataclasses.replace(cfg, **kw)
+    if args.list:
+        for s in settings(cfg):
+            print(f"{s.name:>16s}  {s.factor:>6s}  {s.value:<12s} trials {s.trials}")
+        return 0
+    out = args.out or Path("runs") / f"fidelity_{args.preset}"
+    t0 = time.perf_counter()
+    if args.report_only:
+        doc = collect(cfg, out)
+        write_text(out / "results.json", json.dumps(doc, indent=1))
+    else:
+        try:
+            doc = run(cfg, out, only=args.settings, cache=args.cache)
+        except ValueError as e:
+            p.error(str(e))
+    wall = None if args.report_only else time.perf_counter() - t0
+    doc_path = args.doc or (
+        Path("experiments") / "fidelity.md" if args.preset == "paper" else out / "fidelity.md"
+    )
+    command = "python -m slotv_jax.experiments.fidelity " + shlex.join(
+        sys.argv[1:] if argv is None else list(argv)
+    )
+    write_report(doc, doc_path, command=command.strip(), wall_s=wall)
+    print(render_markdown(doc))
+    print(f"\nresults in {out / 'results.json'}; report in {doc_path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
