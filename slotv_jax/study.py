@@ -1096,7 +1096,9 @@ def train_study(
     data = study_data(study) if isinstance(study, Study) else study
     data = trainer.base.replicate(data)
     state = trainer.init(key) if state is None else state
-    run = _jit_run(trainer, 1)
+    # one compiled call per epoch when the caller looks at every epoch, else one for all
+    chunk = 1 if on_epoch is not None else max(cfg.epochs - int(state.epoch), 1)
+    run = _jit_run(trainer, chunk)
     bar = tqdm(
         total=cfg.epochs, initial=int(state.epoch), desc=f"{cfg.method} (study)", unit="epoch",
         disable=not progress, leave=False, file=sys.stderr,
@@ -1106,7 +1108,7 @@ def train_study(
         loss = float(losses[-1])
         if not math.isfinite(loss):
             raise ValueError(f"study training: the loss became {loss} at epoch {int(state.epoch)}")
-        bar.update(1)
+        bar.update(chunk)
         bar.set_postfix(loss=f"{loss:.4f}")
         if on_epoch is not None:
             on_epoch(state, loss)
@@ -1341,6 +1343,95 @@ def cv_table(cv: Mapping[str, Any]) -> str:
 # ============================================================== simulation
 
 
+def prefix_labels(
+    xyz: Float[np.ndarray, "N T 3"],
+    goals: Float[np.ndarray, "N 8 3"],
+    goal_mask: Bool[np.ndarray, "N 8"],
+    taus: Sequence[float],
+    *,
+    labeler: str = "dragan",
+    beta: float | None = None,
+    camera: str = "observer",
+) -> Float[np.ndarray, "N K 8"]:
+    """The labeler's distribution of each trajectory seen up to each normalised time τ
+    (``taus``, K of them, in (0, 1]): :func:`labeler_probs` on every (trajectory, τ)."""
+    taus = check_taus(taus)
+    n = np.shape(xyz)[0]
+    grid = make_study(
+        xyz, goals, goal_mask, np.repeat(np.arange(n), taus.size),
+        np.repeat(np.eye(G_MAX)[[0]], n * taus.size, axis=0),
+        answer_tau=np.tile(taus, n), source="prefix_labels",
+    )  # fmt: skip
+    y = labeler_probs(grid, labeler, beta=beta, camera=camera)
+    return y.reshape(n, taus.size, G_MAX)
+
+
+def check_taus(taus) -> np.ndarray:
+    taus = np.asarray(sorted({float(x) for x in taus}), np.float64)
+    if taus.size == 0 or not (taus.min() > 0 and taus.max() <= 1):
+        raise ValueError(f"taus: expected normalised times in (0, 1], got {taus.tolist()}")
+    return taus
+
+
+def simulate_guesses(
+    key: jax.Array,
+    probs: Float[np.ndarray, "N K 8"],
+    goal_mask: Bool[np.ndarray, "N 8"],
+    participants: int,
+    *,
+    lapse: float = 0.0,
+) -> tuple[Int[np.ndarray, "N P"], Int[np.ndarray, "N P"]]:
+    """Simulated participants: participant j sees trajectory n at a τ drawn uniformly from
+    the K of ``probs`` and guesses a goal from
+
+        p = (1 − λ) · probs[n, τ] + λ · uniform over the real goals   (lapse rate λ).
+
+    Returns ``(which_tau, guess)``, each (N, P). Participant j's draws come from
+    ``fold_in(key, j)`` alone: the first P participants of a larger simulation are the
+    participants of a smaller one.
+    """
+    if not (isinstance(participants, int | np.integer) and participants >= 1):
+        raise ValueError(f"participants: expected an int >= 1, got {participants!r}")
+    if not 0.0 <= lapse <= 1.0:
+        raise ValueError(f"lapse: expected a rate in [0, 1], got {lapse!r}")
+    probs = np.asarray(probs, np.float64)
+    goal_mask = np.asarray(goal_mask, bool)
+    n, k = probs.shape[:2]
+    uniform = goal_mask / goal_mask.sum(-1, keepdims=True)
+    p = (1 - lapse) * probs + lapse * uniform[:, None, :]
+    which = np.zeros((n, participants), np.int64)
+    u = np.zeros((n, participants))
+    for j in range(participants):
+        k_tau, k_guess = jax.random.split(jax.random.fold_in(key, j))
+        which[:, j] = np.asarray(jax.random.randint(k_tau, (n,), 0, k))
+        u[:, j] = np.asarray(jax.random.uniform(k_guess, (n,)), np.float64)
+    cdf = np.cumsum(p[np.arange(n)[:, None], which], -1)  # (N, P, 8)
+    real = goal_mask.sum(-1)[:, None]
+    guess = np.minimum((u[..., None] >= cdf).sum(-1), real - 1)
+    return which, guess
+
+
+def study_from_guesses(
+    xyz: Float[np.ndarray, "N T 3"],
+    goals: Float[np.ndarray, "N 8 3"],
+    goal_mask: Bool[np.ndarray, "N 8"],
+    taus: Sequence[float],
+    which_tau: Int[np.ndarray, "N P"],
+    guess: Int[np.ndarray, "N P"],
+) -> Study:
+    """Aggregate per-participant guesses into a :class:`Study` (one row per seen (n, τ))."""
+    taus = check_taus(taus)
+    n = np.shape(xyz)[0]
+    counts = np.zeros((n, taus.size, G_MAX))
+    np.add.at(counts, (np.arange(n)[:, None], which_tau, guess), 1.0)
+    has = counts.sum(-1) > 0
+    rows = np.argwhere(has)
+    return make_study(
+        xyz, goals, goal_mask, rows[:, 0], counts[has], answer_tau=taus[rows[:, 1]],
+        source="simulated study",
+    )  # fmt: skip
+
+
 def simulate_study(
     key: jax.Array,
     xyz: Float[np.ndarray, "N T 3"],
@@ -1354,56 +1445,12 @@ def simulate_study(
     lapse: float = 0.0,
     camera: str = "observer",
 ) -> Study:
-    """Simulated participants: each of ``participants`` people sees every trajectory up to a
-    normalised time τ drawn uniformly from ``taus`` and guesses a goal from
-
-        p = (1 − λ) · y_labeler(seen points) + λ · uniform over the real goals,
-
-    with lapse rate λ = ``lapse``. Answers are aggregated per (trajectory, τ) into a
-    :class:`Study`. Participant j's draws do not depend on ``participants``: a study with
-    fewer participants holds the answers of the first ones of a larger one (same key).
-    """
-    if participants < 1:
-        raise ValueError(f"participants: expected an int >= 1, got {participants!r}")
-    if not 0.0 <= lapse <= 1.0:
-        raise ValueError(f"lapse: expected a rate in [0, 1], got {lapse!r}")
-    taus = np.asarray(sorted(set(float(x) for x in taus)), np.float64)
-    if taus.size == 0 or taus.min() <= 0 or taus.max() > 1:
-        raise ValueError(f"taus: expected normalised times in (0, 1], got {taus.tolist()}")
-    xyz = np.asarray(xyz, np.float32)
-    n = xyz.shape[0]
-    goal_mask = np.asarray(goal_mask, bool)
-    # every (trajectory, τ) as a row, to get the labeler's distribution of each prefix
-    grid = make_study(
-        xyz, goals, goal_mask, np.repeat(np.arange(n), taus.size),
-        np.repeat(np.eye(G_MAX)[[0]], n * taus.size, axis=0),
-        answer_tau=np.tile(taus, n), source="simulate_study",
-    )  # fmt: skip
-    y = labeler_probs(grid, labeler, beta=beta, camera=camera).reshape(n, taus.size, G_MAX)
-    uniform = goal_mask / goal_mask.sum(-1, keepdims=True)
-    p = (1 - lapse) * y + lapse * uniform[:, None, :]
-    k_tau, k_guess = jax.random.split(key)
-    # participant j's draws: fold_in(key, j), so the first P of a bigger study are the same
-    which = np.stack(
-        [np.asarray(jax.random.randint(jax.random.fold_in(k_tau, j), (n,), 0, taus.size))
-         for j in range(participants)], axis=1,
-    )  # fmt: skip
-    u = np.stack(
-        [np.asarray(jax.random.uniform(jax.random.fold_in(k_guess, j), (n,)), np.float64)
-         for j in range(participants)], axis=1,
-    )  # fmt: skip
-    cdf = np.cumsum(p, -1)  # (N, τ, 8)
-    cdf_j = cdf[np.arange(n)[:, None], which]  # (N, P, 8)
-    real = goal_mask.sum(-1)[:, None]
-    guess = np.minimum((u[..., None] >= cdf_j).sum(-1), real - 1)  # (N, P)
-    counts = np.zeros((n, taus.size, G_MAX))
-    np.add.at(counts, (np.arange(n)[:, None], which, guess), 1.0)
-    has = counts.sum(-1) > 0
-    rows = np.argwhere(has)
-    return make_study(
-        xyz, goals, goal_mask, rows[:, 0], counts[has], answer_tau=taus[rows[:, 1]],
-        source="simulate_study",
-    )  # fmt: skip
+    """A simulated study: :func:`prefix_labels`, :func:`simulate_guesses` (P =
+    ``participants`` per trajectory, each seeing it up to one τ of ``taus``), then
+    :func:`study_from_guesses`."""
+    probs = prefix_labels(xyz, goals, goal_mask, taus, labeler=labeler, beta=beta, camera=camera)
+    which, guess = simulate_guesses(key, probs, goal_mask, participants, lapse=lapse)
+    return study_from_guesses(xyz, goals, goal_mask, taus, which, guess)
 
 
 # ===================================================================== CLI
