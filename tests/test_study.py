@@ -326,7 +326,7 @@ def test_count_loss_matches_float64_reference(small, method):
     tr = np.asarray(d.row_trajectory)
     args = (d.xyz[tr], d.goals[tr], d.goal_mask[tr], d.row_seen, d.counts)
     n_bar = float(np.asarray(d.counts).sum() / len(tr))
-    got = float(jax.jit(study.study_loss)(model, *args, n_bar))
+    got = float(nnx.jit(study.study_loss)(model, *args, n_bar))
     params = _plain(nnx.split(model)[1])
     want = _np_loss(params, method, *(np.asarray(a) for a in args), n_bar)
     assert abs(got - want) <= REL_TOL * abs(want)

@@ -356,8 +356,8 @@ def plot(doc: dict, path: Path) -> None:
             n = np.array([r["n"] for r in rows])
             mu, sd = np.array([r["mean"] for r in rows]), np.array([r["sd"] for r in rows])
             style = {"ls": "--", "color": "k"} if p == INF else {"marker": "o"}
-            ax.plot(n, mu, label=f"P = {p_name(p)}", **style)
-            ax.fill_between(n, mu - sd, mu + sd, alpha=0.15, color=style.get("color"))
+            (line,) = ax.plot(n, mu, label=f"P = {p_name(p)}", **style)
+            ax.fill_between(n, mu - sd, mu + sd, alpha=0.15, color=line.get_color())
         ax.axhline(cfg["threshold"], color="grey", lw=0.8, ls=":")
         ax.set_xscale("log")
         ax.set_xlabel("training trajectories N")
