@@ -695,8 +695,13 @@ def _parse_args(argv):
         prog="python -m slotv_jax.train",
         description="Train one SLOT-V or T-REX model on a generated dataset and save a checkpoint.",
     )
-    ap.add_argument("--data", required=True, help="dataset directory (python -m slotv_jax.data)")
-    ap.add_argument("--labeler", required=True, choices=LABELERS)
+    ap.add_argument("--data", help="dataset directory (python -m slotv_jax.data)")
+    ap.add_argument("--labeler", choices=LABELERS)
+    ap.add_argument(
+        "--study", help="train on a study file instead (.npz, python -m slotv_jax.study import)"
+    )
+    ap.add_argument("--condition", default=None, help="--study: use this condition's answers")
+    ap.add_argument("--cv", type=int, default=0, help="--study: also run K-fold cross-validation")
     ap.add_argument("--method", required=True, choices=config_lib.METHODS)
     ap.add_argument("--preset", default="quick", choices=tuple(config_lib.PRESETS))
     ap.add_argument("--out", required=True, help="checkpoint directory to write")
@@ -709,7 +714,12 @@ def _parse_args(argv):
     )  # fmt: skip
     ap.add_argument("--resume", action="store_true", help="continue from --out if it exists")
     ap.add_argument("--no-progress", action="store_true")
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    if args.study is None and (args.data is None or args.labeler is None):
+        ap.error("give --data and --labeler (a generated dataset), or --study FILE")
+    if args.study is not None and (args.data is not None or args.labeler is not None):
+        ap.error("--study replaces --data and --labeler; give one or the other")
+    return args
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -725,6 +735,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.compute_dtype is not None:
         cfg = dataclasses.replace(cfg, compute_dtype=args.compute_dtype)
     cfg = config_lib.apply_overrides(cfg, args.set)
+    if args.study is not None:
+        from slotv_jax import study
+
+        return study.train_main(cfg, args)
     out = Path(args.out)
 
     train_split = data_lib.load_split(args.data, "train")

@@ -1,0 +1,527 @@
+"""Simulated studies: how many trajectories × participants does a learned observer need?
+
+The paper names the number of labels as SLOT-V's main limitation (about 10,000 labelled
+examples for 80 %) and human data as the next step (§VI). A study is planned in
+trajectories N and participants per trajectory P, and a participant gives one guess, not
+a distribution. This experiment simulates such studies:
+
+1. N training trajectories of the generated ``train`` split (the first N; SPEC §7);
+2. P simulated participants per trajectory: each sees it up to a normalised time τ drawn
+   from ``taus`` (default: the whole motion) and guesses a goal by sampling the labeler's
+   distribution of what they saw, with lapse rate λ (a uniform guess with probability λ),
+   :func:`slotv_jax.study.simulate_study`, with the dataset's β for the labeler;
+3. SLOT-V and T-REX trained on the counts (multinomial likelihood,
+   :mod:`slotv_jax.study`);
+4. accuracy against the noise-free labeler on held-out scenes (``position_test``, whole
+   motions, SPEC §8 accuracy).
+
+``P = ∞`` (written "labels") trains on the labeler's distributions themselves: the
+paper's setting, the limit of infinitely many participants. Participants and trajectories
+are nested: the P participants of a cell are the first P of the largest P, and its N
+trajectories the first N, so the curves differ by data, not by draws. Each trial draws
+new participants and a new initialisation.
+
+Training length: a small study gives few updates per epoch, so each cell trains
+``max(epochs, ⌈min_updates / steps per epoch⌉)`` epochs **[choice]**.
+
+    python -m slotv_jax.experiments.study_size                  # quick (CPU, minutes)
+    python -m slotv_jax.experiments.study_size --preset paper    # paper sizes (GPU)
+
+Writes ``OUT/study_size{,_paper}.json`` (config, every cell, summary, what 80 % needs,
+timings; a rerun resumes), ``.md`` and ``.png`` (accuracy against N, one curve per P,
+one panel per method). The quick preset also times SLOT-V (quick preset, 3 epochs) on a
+2,000-trajectory study of 20 participants per trajectory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import math
+import platform
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+import slotv_jax
+from slotv_jax import config as config_lib
+from slotv_jax import data as data_lib
+from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
+from slotv_jax.fileio import save_figure, write_text
+
+INF = 0  # the "participants" value of the P = ∞ curve (train on the labeler's distribution)
+
+
+@dataclasses.dataclass(frozen=True)
+class StudySizeConfig:
+    """One simulated-study experiment."""
+
+    preset: str
+    data: data_lib.DataConfig
+    n_grid: tuple[int, ...]  # training trajectories N
+    participants: tuple[int, ...]  # participants per trajectory P (0: P = ∞, the labels)
+    trials: int
+    train_preset: str  # slotv_jax.config preset of both methods
+    min_updates: int  # each cell trains at least this many updates
+    labeler: str = "dragan"
+    taus: tuple[float, ...] = (1.0,)  # normalised times the motion may stop at
+    lapse: float = 0.0
+    threshold: float = 0.8
+    eval_split: str = "position_test"
+    seed: int = 0
+    overrides: tuple[str, ...] = ()  # TrainConfig key=value overrides for both methods
+
+    def train_config(self, method: str) -> config_lib.TrainConfig:
+        cfg = config_lib.preset(self.train_preset, method, train_size=None)
+        return config_lib.apply_overrides(cfg, self.overrides)
+
+    def beta(self) -> float:
+        return float(getattr(self.data.labels, f"beta_{self.labeler}"))
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["train"] = {m: self.train_config(m).to_dict() for m in METHODS}
+        return d
+
+
+def quick(**overrides) -> StudySizeConfig:
+    """CPU preset: the quick dataset and networks; N up to 10,000, P in {1, 5, 20, ∞}."""
+    base = StudySizeConfig(
+        preset="quick",
+        data=data_lib.quick(),
+        n_grid=(100, 300, 1000, 3000, 10000),
+        participants=(1, 5, 20, INF),
+        trials=2,
+        train_preset="quick",
+        min_updates=300,
+    )
+    return dataclasses.replace(base, **overrides)
+
+
+def paper(**overrides) -> StudySizeConfig:
+    """GPU preset: the paper's dataset and networks; N up to 100,000, P up to 30 and ∞."""
+    base = StudySizeConfig(
+        preset="paper",
+        data=data_lib.paper(),
+        n_grid=(300, 1000, 3000, 10000, 30000, 100000),
+        participants=(1, 3, 10, 30, INF),
+        trials=3,
+        train_preset="paper",
+        min_updates=1000,
+    )
+    return dataclasses.replace(base, **overrides)
+
+
+PRESETS = {"quick": quick, "paper": paper}
+
+
+def p_name(p: int) -> str:
+    return "∞ (labels)" if p == INF else str(p)
+
+
+# ------------------------------------------------------------------- running
+
+
+def _cell_key(c: dict) -> tuple:
+    return (c["method"], c["participants"], c["n"], c["trial"])
+
+
+def run(cfg: StudySizeConfig, out: Path, *, cache: Path = Path("data"), progress: bool = True):
+    """Run (or resume) every cell; returns the results document (also written to ``out``)."""
+    import jax
+    from tqdm.auto import tqdm
+
+    from slotv_jax import evaluate, study, train
+
+    stem = "study_size" if cfg.preset == "quick" else f"study_size_{cfg.preset}"
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{stem}.json"
+    conf = json.loads(json.dumps(cfg.to_json()))
+    doc = json.loads(path.read_text()) if path.exists() else {}
+    if doc.get("config") != conf:
+        doc = {"preset": cfg.preset, "config": conf, "cells": [], "timing": {}}
+    doc["environment"] = data_lib.environment()
+    doc["xla"] = slotv_jax.XLA_CONFIG.summary()
+    t_start = t0 = time.perf_counter()
+    ddir = dataset_dir(cache, cfg.data)
+    splits = data_lib.generate_dataset(
+        cfg.data, ddir, splits=("train", cfg.eval_split), progress=progress
+    )
+    doc["dataset"] = str(ddir)
+    doc["timing"]["data_s"] = time.perf_counter() - t0
+    tr = splits["train"]
+    n_max = max(cfg.n_grid)
+    if n_max > len(tr):
+        raise ValueError(f"n_grid: {n_max} trajectories asked, the train split has {len(tr)}")
+    xyz, goals, mask = tr.xyz[:n_max], tr.goals[:n_max], tr.goal_mask[:n_max]
+    t0 = time.perf_counter()
+    probs = study.prefix_labels(xyz, goals, mask, cfg.taus, labeler=cfg.labeler, beta=cfg.beta())
+    doc["timing"]["labels_s"] = time.perf_counter() - t0
+    ev = train.prepare(splits[cfg.eval_split], cfg.labeler)
+    done = {_cell_key(c) for c in doc["cells"]}
+    todo = [
+        (m, p, n, t)
+        for m in METHODS
+        for p in cfg.participants
+        for n in cfg.n_grid
+        for t in range(cfg.trials)
+        if (m, p, n, t) not in done
+    ]
+    p_max = max(cfg.participants)
+    sims: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    bar = tqdm(total=len(todo), desc="study_size cells", unit="cell", disable=not progress)
+    for m, p, n, t in todo:
+        bar.set_postfix_str(f"{m} P={p_name(p)} N={n} trial {t}")
+        tc = cfg.train_config(m)
+        if p == INF:
+            k = len(cfg.taus)
+            s = study.make_study(
+                xyz[:n],
+                goals[:n],
+                mask[:n],
+                np.repeat(np.arange(n), k),
+                probs=probs[:n].reshape(n * k, -1),
+                n_answers=np.ones(n * k),
+                answer_tau=np.tile(study.check_taus(cfg.taus), n),
+                source="labels",
+            )
+        else:
+            if t not in sims:
+                key = jax.random.fold_in(jax.random.key(cfg.seed), t)
+                sims[t] = study.simulate_guesses(key, probs, mask, p_max, lapse=cfg.lapse)
+            which, guess = sims[t]
+            s = study.study_from_guesses(
+                xyz[:n], goals[:n], mask[:n], cfg.taus, which[:n, :p], guess[:n, :p]
+            )
+        steps = s.n_rows // tc.batch_size
+        epochs = max(tc.epochs, math.ceil(cfg.min_updates / max(steps, 1)))
+        tc = dataclasses.replace(tc, epochs=epochs)
+        t1 = time.perf_counter()
+        state = study.train_study(tc, s, jax.random.key(1000 * cfg.seed + t), progress=False)
+        jax.block_until_ready(state.params)
+        train_s = time.perf_counter() - t1
+        acc = float(evaluate.accuracy(tc, state.params, ev))
+        doc["cells"].append(
+            {
+                "method": m,
+                "participants": p,
+                "n": n,
+                "trial": t,
+                "accuracy": acc,
+                "rows": s.n_rows,
+                "answers": s.n_answers,
+                "epochs": epochs,
+                "updates": epochs * steps,
+                "train_s": round(train_s, 3),
+            }
+        )
+        bar.update(1)
+        _write(doc, cfg, out, stem)
+    bar.close()
+    if cfg.preset == "quick" and "measure" not in doc:
+        doc["measure"] = measure(splits["train"], cfg, progress=progress)
+    doc["timing"]["total_s"] = doc["timing"].get("total_s", 0.0) + time.perf_counter() - t_start
+    _write(doc, cfg, out, stem)
+    return doc
+
+
+def measure(tr, cfg: StudySizeConfig, *, n: int = 2000, participants: int = 20, progress=True):
+    """Wall time of SLOT-V (quick preset, as the CLI trains it) on an N × P simulated study,
+    whole motions and prefixes (τ ∈ {0.25, 0.5, 0.75, 1}); two runs each, the first
+    including compilation."""
+    import jax
+
+    from slotv_jax import study
+
+    out = {}
+    for name, taus in (("whole motions", (1.0,)), ("prefixes", (0.25, 0.5, 0.75, 1.0))):
+        s = study.simulate_study(
+            jax.random.key(cfg.seed + 7),
+            tr.xyz[:n],
+            tr.goals[:n],
+            tr.goal_mask[:n],
+            participants,
+            labeler=cfg.labeler,
+            beta=cfg.beta(),
+            taus=taus,
+            lapse=cfg.lapse,
+        )
+        tc = config_lib.quick("slotv", train_size=None)
+        runs = []
+        for seed in range(2):
+            t0 = time.perf_counter()
+            state = study.train_study(tc, s, jax.random.key(seed), progress=progress)
+            jax.block_until_ready(state.params)
+            runs.append(round(time.perf_counter() - t0, 2))
+        out[name] = {
+            "n": n,
+            "participants": participants,
+            "rows": s.n_rows,
+            "answers": s.n_answers,
+            "epochs": tc.epochs,
+            "updates": tc.epochs * (s.n_rows // tc.batch_size),
+            "seconds": runs,
+        }
+    return out
+
+
+# ------------------------------------------------------------------ summaries
+
+
+def summarise(doc: dict) -> list[dict]:
+    """Mean and SD of accuracy over trials per (method, P, N)."""
+    groups: dict[tuple, list[float]] = {}
+    for c in doc["cells"]:
+        groups.setdefault((c["method"], c["participants"], c["n"]), []).append(c["accuracy"])
+    rows = []
+    for (m, p, n), acc in sorted(groups.items()):
+        a = np.asarray(acc)
+        rows.append(
+            {
+                "method": m,
+                "participants": p,
+                "n": n,
+                "mean": float(a.mean()),
+                "sd": float(a.std(ddof=1)) if a.size > 1 else 0.0,
+                "trials": int(a.size),
+            }
+        )
+    return rows
+
+
+def needed(summary: list[dict], threshold: float) -> list[dict]:
+    """Per (method, P): the smallest N whose mean accuracy reaches ``threshold``,
+    interpolated linearly in log N between the grid points around the crossing."""
+    out = []
+    for m in sorted({r["method"] for r in summary}):
+        for p in sorted({r["participants"] for r in summary if r["method"] == m}):
+            pts = sorted(
+                (r["n"], r["mean"]) for r in summary if (r["method"], r["participants"]) == (m, p)
+            )
+            ns, acc = np.array([a for a, _ in pts], float), np.array([b for _, b in pts])
+            hit = np.flatnonzero(acc >= threshold)
+            rec = {
+                "method": m,
+                "participants": p,
+                "best": float(acc.max()),
+                "best_n": int(ns[acc.argmax()]),
+            }
+            if hit.size == 0:
+                rec["n"] = None
+            elif hit[0] == 0:
+                rec["n"] = float(ns[0])
+                rec["at_most"] = True
+            else:
+                i = hit[0]
+                f = (threshold - acc[i - 1]) / (acc[i] - acc[i - 1])
+                rec["n"] = float(
+                    np.exp(np.log(ns[i - 1]) + f * (np.log(ns[i]) - np.log(ns[i - 1])))
+                )
+            if rec["n"] is not None and p != 0:
+                rec["answers"] = rec["n"] * p
+            out.append(rec)
+    return out
+
+
+def _write(doc: dict, cfg: StudySizeConfig, out: Path, stem: str) -> None:
+    doc["summary"] = summarise(doc)
+    doc["needed"] = needed(doc["summary"], cfg.threshold)
+    write_text(out / f"{stem}.json", json.dumps(doc, indent=1))
+
+
+def plot(doc: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cfg = doc["config"]
+    methods = [m for m in METHODS if any(r["method"] == m for r in doc["summary"])]
+    fig, axes = plt.subplots(
+        1, len(methods), figsize=(5.2 * len(methods), 4.0), sharey=True, squeeze=False
+    )
+    for ax, m in zip(axes[0], methods, strict=True):
+        for p in cfg["participants"]:
+            rows = sorted(
+                (r for r in doc["summary"] if (r["method"], r["participants"]) == (m, p)),
+                key=lambda r: r["n"],
+            )
+            if not rows:
+                continue
+            n = np.array([r["n"] for r in rows])
+            mu, sd = np.array([r["mean"] for r in rows]), np.array([r["sd"] for r in rows])
+            style = {"ls": "--", "color": "k"} if p == INF else {"marker": "o"}
+            (line,) = ax.plot(n, mu, label=f"P = {p_name(p)}", **style)
+            ax.fill_between(n, mu - sd, mu + sd, alpha=0.15, color=line.get_color())
+        ax.axhline(cfg["threshold"], color="grey", lw=0.8, ls=":")
+        ax.set_xscale("log")
+        ax.set_xlabel("training trajectories N")
+        ax.set_title(f"{METHOD_TITLES[m]}, {cfg['train_preset']} networks")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel(f"accuracy vs. noise-free {cfg['labeler']} ({cfg['eval_split']})")
+    axes[0][-1].legend(title="participants / trajectory", fontsize=8)
+    taus = cfg["taus"]
+    seen = "whole motions" if list(taus) == [1.0] else f"stopped at τ ∈ {taus}"
+    fig.suptitle(
+        f"Simulated studies ({seen}, lapse {cfg['lapse']}); mean ± SD of {cfg['trials']} trials",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    save_figure(fig, path, dpi=120)
+    plt.close(fig)
+
+
+def report(doc: dict, stem: str, command: str) -> str:
+    cfg = doc["config"]
+    env = doc["environment"]
+    tcs = cfg["train"]
+    lines = [
+        "# Simulated studies: trajectories × participants for a learned observer "
+        f"({doc['preset']})",
+        "",
+        "```bash",
+        command,
+        "```",
+        "",
+        f"- Date: {datetime.date.today().isoformat()}; "
+        f"machine: {platform.processor() or platform.machine()}"
+        f", devices {env.get('devices')}; versions: "
+        + ", ".join(
+            f"{k} {v}" for k, v in env.items() if k in ("jax", "flax", "optax", "numpy", "python")
+        ),
+        f"- XLA: {doc.get('xla')}",
+        f"- Scale: dataset preset `{cfg['data']['preset']}` (cached in `{doc['dataset']}`); "
+        f"N ∈ {cfg['n_grid']} training trajectories, P ∈ "
+        f"{[p_name(p) for p in cfg['participants']]} participants per trajectory, "
+        f"{cfg['trials']} trials per cell; evaluation on all of `{cfg['eval_split']}` (held-out "
+        "scenes) against the noise-free labeler.",
+        f"- Participants: guess by sampling the {cfg['labeler']} labeler (β = "
+        f"{cfg['data']['labels']['beta_' + cfg['labeler']]}, the dataset's) of what they saw; "
+        f"stops τ ∈ {cfg['taus']}; lapse rate {cfg['lapse']}.",
+        f"- Networks (`{cfg['train_preset']}` preset): SLOT-V hidden {tcs['slotv']['hidden']}, "
+        f"{tcs['slotv']['optimizer']} lr {tcs['slotv']['learning_rate']}, batch "
+        f"{tcs['slotv']['batch_size']}; T-REX hidden {tcs['trex']['hidden']}, "
+        f"{tcs['trex']['optimizer']} lr {tcs['trex']['learning_rate']}, batch "
+        f"{tcs['trex']['batch_size']}; each cell trains max(preset epochs, ⌈{cfg['min_updates']} / "
+        "steps per epoch⌉) epochs on the multinomial likelihood of the counts.",
+        f"- Time: data {doc['timing'].get('data_s', 0):.0f} s, cells "
+        f"{sum(c['train_s'] for c in doc['cells']):.0f} s of training in all "
+        f"({len(doc['cells'])} cells).",
+        "",
+        f"![accuracy against N]({stem}.png)",
+        "",
+        f"## What {cfg['threshold']:.0%} needs",
+        "",
+        "| method | participants P | trajectories N for "
+        f"{cfg['threshold']:.0%} | answers N × P | best accuracy (at N) |",
+        "|---|---|---|---|---|",
+    ]
+    for r in doc["needed"]:
+        if r["n"] is None:
+            n, ans = f"not reached by N = {max(cfg['n_grid']):,}", "—"
+        else:
+            n = f"{'≤ ' if r.get('at_most') else '≈ '}{r['n']:,.0f}"
+            ans = "—" if r["participants"] == INF else f"≈ {r['answers']:,.0f}"
+        lines.append(
+            f"| {METHOD_TITLES[r['method']]} | {p_name(r['participants'])} | {n} | "
+            f"{ans} | {r['best']:.3f} ({r['best_n']:,}) |"
+        )
+    lines += [
+        "",
+        "N is interpolated linearly in log N between the two grid points around the crossing "
+        "of the mean curve; '≤' means the smallest N of the grid already reaches it.",
+        "",
+        "## Accuracy (mean ± SD over trials)",
+        "",
+        "| method | P | " + " | ".join(f"N = {n:,}" for n in cfg["n_grid"]) + " |",
+        "|---|---|" + "---|" * len(cfg["n_grid"]),
+    ]
+    for m in METHODS:
+        for p in cfg["participants"]:
+            cells = {
+                r["n"]: r for r in doc["summary"] if (r["method"], r["participants"]) == (m, p)
+            }
+            if not cells:
+                continue
+            vals = [
+                f"{cells[n]['mean']:.3f} ± {cells[n]['sd']:.3f}" if n in cells else "—"
+                for n in cfg["n_grid"]
+            ]
+            lines.append(f"| {METHOD_TITLES[m]} | {p_name(p)} | " + " | ".join(vals) + " |")
+    if "measure" in doc:
+        lines += ["", "## Training time (acceptance: ≤ 60 s)", ""]
+        for name, r in doc["measure"].items():
+            lines.append(
+                f"- SLOT-V, quick preset ({r['epochs']} epochs, {r['updates']} updates), "
+                f"{r['n']:,} trajectories × {r['participants']} participants, {name}: "
+                f"{r['rows']:,} answer rows, {r['answers']:,.0f} answers: "
+                f"**{r['seconds'][0]:.1f} s** with compilation, {r['seconds'][1]:.1f} s again."
+            )
+    return "\n".join(lines) + "\n"
+
+
+def _parse_args(argv):
+    ap = argparse.ArgumentParser(
+        prog="python -m slotv_jax.experiments.study_size", description=__doc__.split("\n\n")[0]
+    )
+    ap.add_argument("--preset", default="quick", choices=tuple(PRESETS))
+    ap.add_argument("--out", default="experiments", help="output folder (default: experiments)")
+    ap.add_argument("--cache", default="data", help="dataset cache folder")
+    ap.add_argument("--n-grid", default=None, help="comma-separated N, e.g. 100,1000")
+    ap.add_argument("--participants", default=None, help="comma-separated P; 0 means ∞")
+    ap.add_argument("--trials", type=int, default=None)
+    ap.add_argument("--taus", default=None, help="stop times, e.g. 0.25,0.5,0.75,1")
+    ap.add_argument("--lapse", type=float, default=None)
+    ap.add_argument("--labeler", default=None, choices=data_lib.LABELER_NAMES)
+    ap.add_argument("--min-updates", type=int, default=None)
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="TrainConfig override (both methods), e.g. --set compute_dtype=bfloat16",
+    )
+    ap.add_argument("--no-progress", action="store_true")
+    return ap.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parse_args(argv)
+    print(slotv_jax.XLA_CONFIG.summary(), flush=True)
+    kw: dict = {}
+    if args.n_grid:
+        kw["n_grid"] = tuple(int(v) for v in args.n_grid.split(","))
+    if args.participants:
+        kw["participants"] = tuple(int(v) for v in args.participants.split(","))
+    if args.taus:
+        kw["taus"] = tuple(float(v) for v in args.taus.split(","))
+    for name in ("trials", "lapse", "labeler"):
+        if getattr(args, name) is not None:
+            kw[name] = getattr(args, name)
+    if args.min_updates is not None:
+        kw["min_updates"] = args.min_updates
+    if args.set:
+        kw["overrides"] = tuple(args.set)
+    cfg = PRESETS[args.preset](**kw)
+    out = Path(args.out)
+    doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress)
+    stem = "study_size" if cfg.preset == "quick" else f"study_size_{cfg.preset}"
+    plot(doc, out / f"{stem}.png")
+    command = "python -m slotv_jax.experiments.study_size " + " ".join(
+        sys.argv[1:] if argv is None else list(argv)
+    )
+    write_text(out / f"{stem}.md", report(doc, stem, command.strip()))
+    for r in doc["needed"]:
+        got = "not reached" if r["n"] is None else f"N ≈ {r['n']:,.0f}"
+        print(f"{r['method']} P={p_name(r['participants'])}: {got} (best {r['best']:.3f})")
+    print(f"wrote {out / (stem + '.md')}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
