@@ -33,6 +33,7 @@ import numpy as np
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.config import MODELS
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
 from slotv_jax.fileio import save_figure, write_text
@@ -58,8 +59,14 @@ def run(
     cache: Path = Path("data"),
     progress: bool = True,
     compute_dtype: str | None = None,
+    model: str = "mlp",
+    labeler: str = LABELER,
 ) -> dict:
-    """Run the protocol for each method and write the CSV, JSON and PNG."""
+    """Run the protocol for each method and write the CSV, JSON and PNG.
+
+    ``model`` replaces SLOT-V's network by an observer archetype (SPEC §10,
+    :func:`slotv_jax.experiments.table1.with_model`); ``labeler`` trains and validates on
+    another labeler's labels than the paper's Dragan."""
     from slotv_jax import train
 
     out.mkdir(parents=True, exist_ok=True)
@@ -68,12 +75,13 @@ def run(
     t1 = table1.PRESETS[preset]()
     if compute_dtype is not None:
         t1 = table1.with_compute_dtype(t1, compute_dtype)
+    t1 = table1.with_model(t1, model)
     dcfg = t1.data
     dataset = data_lib.generate_dataset(
         dcfg, dataset_dir(cache, dcfg), splits=["train", "trajectory_val"], progress=progress
     )
-    tdata = train.prepare(dataset["train"], LABELER)
-    vdata = train.prepare(dataset["trajectory_val"], LABELER)
+    tdata = train.prepare(dataset["train"], labeler)
+    vdata = train.prepare(dataset["trajectory_val"], labeler)
     val_size = min(val_size, len(dataset["trajectory_val"]))
     rows: list[dict] = []
     summary: dict[str, dict] = {}
@@ -118,7 +126,8 @@ def run(
         }
     doc = {
         "preset": preset,
-        "labeler": LABELER,
+        "labeler": labeler,
+        "model": model,
         "protocol": {
             "epochs": 1,
             "evaluate_every_updates": every,
@@ -164,7 +173,10 @@ def plot(rows: list[dict], summary: dict, doc: dict, path: Path) -> None:
             ]
         )
         m, s = acc.mean(0), acc.std(0, ddof=1) if len(acc) > 1 else np.zeros(acc.shape[1])
-        ax.plot(x, m, color=color, label=f"{METHOD_TITLES[method]} (n={len(acc)})")
+        title = METHOD_TITLES[method]
+        if method == "slotv" and doc.get("model", "mlp") != "mlp":
+            title = f"{doc['model']} archetype"
+        ax.plot(x, m, color=color, label=f"{title} (n={len(acc)})")
         ax.fill_between(x, m - s, m + s, color=color, alpha=0.25, linewidth=0)
         hit = summary[method]["examples_to_threshold_mean_curve"]
         if hit is not None:
@@ -177,7 +189,8 @@ def plot(rows: list[dict], summary: dict, doc: dict, path: Path) -> None:
     ax.set_xlabel("training examples seen (SLOT-V: trajectories, T-REX: pairs)")
     ax.set_ylabel("validation accuracy (trajectory_val)")
     ax.set_ylim(0, 1)
-    ax.set_title(f"Sample efficiency on Dragan labels ({doc['preset']} preset, one epoch)")
+    lab = doc.get("labeler", LABELER).capitalize()
+    ax.set_title(f"Sample efficiency on {lab} labels ({doc['preset']} preset, one epoch)")
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right")
     fig.tight_layout()
@@ -213,6 +226,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="default: runs/sample_efficiency_<preset>")
     p.add_argument("--cache", type=Path, default=Path("data"))
     p.add_argument("--compute-dtype", choices=("float32", "bfloat16"))
+    p.add_argument(
+        "--model",
+        choices=MODELS,
+        default="mlp",
+        help="observer trained with SLOT-V's loss: the paper's network (mlp) or a parametric "
+        "archetype (SPEC §10); T-REX keeps its network",
+    )
     p.add_argument("--replot", action="store_true", help="only redraw the PNG of --out")
     args = p.parse_args(argv)
     if args.replot:
@@ -227,7 +247,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         v = repeats if name == "repeats" else getattr(args, name)
         if v < 1:
             p.error(f"--{name.replace('_', '-')}: expected an integer >= 1")
-    out = args.out or Path("runs") / f"sample_efficiency_{args.preset}"
+    suffix = "" if args.model == "mlp" else f"_{args.model}"
+    out = args.out or Path("runs") / f"sample_efficiency_{args.preset}{suffix}"
     doc = run(
         args.preset,
         out,
@@ -238,6 +259,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         methods=args.methods,
         cache=args.cache,
         compute_dtype=args.compute_dtype,
+        model=args.model,
     )
     for method, s in doc["summary"].items():
         hit = s["examples_to_threshold_mean_curve"]
