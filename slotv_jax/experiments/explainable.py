@@ -387,6 +387,7 @@ def plot(doc: dict, out: Path, path: Path) -> None:
                 ax.axvline(hit, color=colors[m], linestyle=":", linewidth=1)
         ax.axhline(0.8, color="grey", linestyle="--", linewidth=0.8)
         ax.set_xscale("symlog", linthresh=32)
+        ax.set_xlim(0, max(r["examples_per_epoch"] for r in runs.values()) * 1.05)
         ax.set_ylim(0, 1)
         ax.set_xlabel("training trajectories seen")
         ax.set_ylabel("validation accuracy (trajectory_val)")
