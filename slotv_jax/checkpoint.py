@@ -159,8 +159,9 @@ def _mismatch(what: str, want: dict, got: dict, cfg: TrainConfig) -> str:
             lines.append("  ...")
             break
     return (
-        f"checkpoint {what} does not fit the model of its config (method={cfg.method}, "
-        f"hidden={cfg.hidden}, optimizer={cfg.optimizer}):\n" + "\n".join(lines)
+        f"checkpoint {what} does not fit the model of its config (model={cfg.model}, "
+        f"method={cfg.method}, hidden={cfg.hidden}, optimizer={cfg.optimizer}):\n"
+        + "\n".join(lines)
     )
 
 
@@ -181,6 +182,8 @@ def restore(path: str | os.PathLike, cfg: TrainConfig | None = None):
     path = Path(path).absolute()
     doc = _read_doc(path)
     saved = TrainConfig.from_dict(doc["config"])
+    if cfg is not None and cfg.model != saved.model:
+        raise ValueError(_wrong_model(path, saved.model, cfg.model))
     if cfg is not None:
         free = {"epochs", "eval_every", "eval_size", "eval_chunk", "log_every"}
         a, b = saved.to_dict(), cfg.to_dict()
@@ -217,6 +220,13 @@ def restore(path: str | os.PathLike, cfg: TrainConfig | None = None):
     return use, state, doc.get("meta", {})
 
 
+def _wrong_model(path, saved: str, requested: str) -> str:
+    return (
+        f"checkpoint {path}: it holds a {saved!r} observer, not the requested {requested!r} "
+        f"(its config says model={saved!r}); load it without a model, or as {saved!r}"
+    )
+
+
 def make_observer(cfg: TrainConfig, params) -> Callable:
     """The pure function ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
 
@@ -235,15 +245,25 @@ def make_observer(cfg: TrainConfig, params) -> Callable:
         return model(jnp.asarray(xyz), jnp.asarray(goals), jnp.asarray(goal_mask, bool))
 
     observer.config = cfg  # type: ignore[attr-defined]
+    if cfg.model != "mlp":  # an archetype explains itself: its fitted parameters
+        fitted = nnx.merge(graphdef, params)
+        observer.describe = fitted.describe  # type: ignore[attr-defined]
+        observer.parameters = fitted.parameters  # type: ignore[attr-defined]
     return observer
 
 
-def load_observer(path: str | os.PathLike) -> Callable:
+def load_observer(path: str | os.PathLike, model: str | None = None) -> Callable:
     """Load a checkpoint as ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
 
     The logits are SLOT-V's observer scores (softmax gives P(goal | trajectory)) or
     T-REX's per-goal returns; padded goals are −∞. The function is pure: use it under
     ``jit``, ``vmap`` (batch the arguments) and ``grad`` with respect to ``xyz``.
+
+    ``model`` (optional: "mlp", "dragan", "viewpoint", "mixture") is the observer the
+    caller expects; a checkpoint of another one raises ValueError. An archetype's
+    observer also has ``describe()`` and ``parameters()`` (its fitted values, SPEC §10).
     """
     cfg, state, _ = restore(path)
+    if model is not None and model != cfg.model:
+        raise ValueError(_wrong_model(Path(path), cfg.model, model))
     return make_observer(cfg, state.params)

@@ -29,6 +29,12 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 METHODS = ("slotv", "trex")
+# Observer models: "mlp" is the paper's network (SPEC §5); the others are the parametric
+# archetypes of slotv_jax.parametric, trained with SLOT-V's loss (SPEC §10).
+MODELS = ("mlp", "dragan", "viewpoint", "mixture")
+# Activation elements per (point, goal) pair an archetype holds, standing in for
+# hidden[0] when the evaluation chunk is sized (a handful of values per pair).
+ARCHETYPE_WIDTH = 8
 OPTIMIZERS = ("rmsprop", "adam")
 COMPUTE_DTYPES = ("float32", "bfloat16")
 # Elements of the first hidden activation (rows × width) one evaluation chunk may hold:
@@ -45,6 +51,7 @@ class TrainConfig:
     """
 
     method: str = "slotv"  # "slotv" (SPEC §5) or "trex" (SPEC §6)
+    model: str = "mlp"  # observer: the MLP, or an archetype of slotv_jax.parametric (SPEC §10)
     hidden: tuple[int, ...] = (1536, 768)  # hidden widths after the r − g layer
     compute_dtype: str = "float32"  # matmul dtype of the hidden layers; params stay float32
     optimizer: str = "rmsprop"  # "rmsprop" or "adam"
@@ -65,6 +72,13 @@ class TrainConfig:
     def __post_init__(self):
         if self.method not in METHODS:
             raise ValueError(f"TrainConfig.method: expected one of {METHODS}, got {self.method!r}")
+        if self.model not in MODELS:
+            raise ValueError(f"TrainConfig.model: expected one of {MODELS}, got {self.model!r}")
+        if self.model != "mlp" and self.method != "slotv":
+            raise ValueError(
+                f"TrainConfig.model: the {self.model!r} archetype trains with SLOT-V's loss "
+                f"(method='slotv'); T-REX trains only the MLP, got method={self.method!r}"
+            )
         if self.optimizer not in OPTIMIZERS:
             raise ValueError(
                 f"TrainConfig.optimizer: expected one of {OPTIMIZERS}, got {self.optimizer!r}"
@@ -132,14 +146,16 @@ class TrainConfig:
         self, n_devices: int = 1, n_goals: int = 8, n_points: int = 100, platform: str = "cpu"
     ) -> int:
         """Trajectories per evaluation chunk: ``eval_chunk`` or the largest power of two whose
-        first hidden activation (chunk · T · G · H1 elements, all devices together) fits
+        first hidden activation (chunk · T · G · H1 elements, all devices together; H1 is
+        ARCHETYPE_WIDTH for an archetype) fits
         EVAL_CHUNK_BUDGET of the platform, rounded up to a multiple of ``n_devices``."""
         if self.eval_chunk is not None:
             c = self.eval_chunk
         else:
             budget = EVAL_CHUNK_BUDGET["cpu" if platform == "cpu" else "accelerator"]
             budget *= n_devices
-            per = n_points * n_goals * self.hidden[0]
+            width = self.hidden[0] if self.model == "mlp" else ARCHETYPE_WIDTH
+            per = n_points * n_goals * width
             c = 1
             while 2 * c * per <= budget and c < 8192:
                 c *= 2
@@ -225,10 +241,38 @@ def quick(method: str, **overrides: Any) -> TrainConfig:
 PRESETS = {"quick": quick, "paper": paper}
 
 
-def preset(name: str, method: str, **overrides: Any) -> TrainConfig:
-    """``PRESETS[name](method, **overrides)`` with a clear error for an unknown preset."""
+def archetype(name: str, model: str, **overrides: Any) -> TrainConfig:
+    """Preset ``name`` ("quick" or "paper") for an observer archetype (SPEC §10) **[choice]**.
+
+    An archetype has 4-6 parameters, so it takes the same SLOT-V loss with Adam at a much
+    larger learning rate, lr 0.1, batch 32. Quick: 2 epochs of the first 4,000 training
+    trajectories (as the quick MLP; 250 updates); paper: one epoch of all of them.
+    Measured on the quick data (experiments/explainable.md): the parameters settle within
+    about 200 updates at lr 0.1; 0.05 is still short of them after 250.
+    """
+    if model not in MODELS or model == "mlp":
+        raise ValueError(f"model: expected one of {MODELS[1:]}, got {model!r}")
     if name not in PRESETS:
         raise ValueError(f"preset: expected one of {tuple(PRESETS)}, got {name!r}")
+    base = paper("slotv", model=model, optimizer="adam", learning_rate=0.1, epochs=1)
+    if name == "quick":
+        base = dataclasses.replace(base, train_size=4000, epochs=2)
+    return dataclasses.replace(base, **overrides)
+
+
+def preset(name: str, method: str, model: str = "mlp", **overrides: Any) -> TrainConfig:
+    """``PRESETS[name](method, **overrides)`` for the MLP, :func:`archetype` for the other
+    ``model`` values (``method`` must then be "slotv"), with a clear error for an unknown
+    preset."""
+    if name not in PRESETS:
+        raise ValueError(f"preset: expected one of {tuple(PRESETS)}, got {name!r}")
+    if model != "mlp":
+        if method != "slotv":
+            raise ValueError(
+                f"method: the {model!r} archetype trains with SLOT-V's loss ('slotv'); "
+                f"T-REX trains only the MLP, got {method!r}"
+            )
+        return archetype(name, model, **overrides)
     return PRESETS[name](method, **overrides)
 
 

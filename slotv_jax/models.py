@@ -45,7 +45,7 @@ import jax.numpy as jnp
 from flax import nnx
 from jaxtyping import Array, Bool, Float
 
-from slotv_jax import validation
+from slotv_jax import parametric, validation
 from slotv_jax.validation import G_MAX
 
 _DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
@@ -372,7 +372,12 @@ Model = SlotV | TRex
 
 
 def make_model(cfg, rngs: nnx.Rngs | jax.Array | int) -> Model:
-    """Build the model a :class:`slotv_jax.config.TrainConfig` describes."""
+    """Build the model a :class:`slotv_jax.config.TrainConfig` describes: its ``model``
+    archetype of :mod:`slotv_jax.parametric` (deterministic, ``rngs`` unused), or for the
+    MLP (``model="mlp"``) SLOT-V's or T-REX's network."""
+    model = getattr(cfg, "model", "mlp")
+    if model != "mlp":
+        return parametric.make_archetype(model)
     if not isinstance(rngs, nnx.Rngs):
         rngs = nnx.Rngs(rngs)
     cls = {"slotv": SlotV, "trex": TRex}.get(cfg.method)

@@ -205,6 +205,13 @@ def slotv_loss(
     return _cross_entropy(model.scores(xyz, goals, backward=backward), goal_mask, labels)
 
 
+def observer_loss(model, xyz, goals, goal_mask, labels) -> Float[Array, ""]:
+    """SPEC §5's cross-entropy for any observer with ``scores(xyz, goals, goal_mask)``
+    (finite per-goal scores, e.g. the archetypes of :mod:`slotv_jax.parametric`): batch mean
+    of −Σ_k y_k log softmax_k(s) over the real goals."""
+    return _cross_entropy(model.scores(xyz, goals, goal_mask), goal_mask, labels)
+
+
 def _cross_entropy(s, goal_mask, labels) -> Float[Array, ""]:
     """Batch mean of −Σ_k y_k log softmax_k(s) over the real goals of (B, G) scores."""
     lse = jax.nn.logsumexp(models.mask_logits(s, goal_mask), axis=-1, keepdims=True)
@@ -328,7 +335,9 @@ class Trainer:
     @property
     def packs(self) -> bool:
         """Whether :func:`train_trials` packs this trainer's updates to the real pairs."""
-        return self.cfg.method == "slotv" and packs_updates(self.platform)
+        return (
+            self.cfg.method == "slotv" and self.cfg.model == "mlp" and packs_updates(self.platform)
+        )
 
     def replicate(self, tree):
         """Place arrays (e.g. a TrainData) on every device of the mesh."""
@@ -366,6 +375,8 @@ class Trainer:
     def _slotv_step(self, data: TrainData, carry, idx):
         idx = self._shard_batch(idx)
         batch = [self._shard_batch(x[idx]) for x in data]
+        if self.cfg.model != "mlp":
+            return self._update(carry, observer_loss, *batch)
         if self.packed_pairs:
             loss = functools.partial(
                 slotv_loss_packed,
@@ -704,6 +715,11 @@ def _parse_args(argv):
     ap.add_argument("--cv", type=int, default=0, help="--study: also run K-fold cross-validation")
     ap.add_argument("--method", required=True, choices=config_lib.METHODS)
     ap.add_argument("--preset", default="quick", choices=tuple(config_lib.PRESETS))
+    ap.add_argument(
+        "--model", default="mlp", choices=config_lib.MODELS,
+        help="observer: the paper's network (mlp) or a parametric archetype (SPEC §10; "
+        "needs --method slotv; its preset is config.archetype)",
+    )  # fmt: skip
     ap.add_argument("--out", required=True, help="checkpoint directory to write")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--epochs", type=int, default=None, help="override the preset's epochs")
@@ -729,7 +745,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     args = _parse_args(argv)
     print(XLA_CONFIG.summary(), flush=True)
-    cfg = config_lib.preset(args.preset, args.method)
+    try:
+        cfg = config_lib.preset(args.preset, args.method, model=args.model)
+    except ValueError as e:
+        raise SystemExit(f"python -m slotv_jax.train: {e}") from e
     if args.epochs is not None:
         cfg = dataclasses.replace(cfg, epochs=args.epochs)
     if args.compute_dtype is not None:
@@ -774,6 +793,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         print(f"accuracy {name}: {acc[name]:.4f}", flush=True)
     meta = {**meta, "accuracy": acc, "train_seconds": round(train_s, 2)}
+    if cfg.model != "mlp":  # the fitted parameters, in the checkpoint and in words
+        fitted = trainer.model(state.params)
+        meta["parameters"] = fitted.parameters()
+        print(fitted.describe(), flush=True)
     checkpoint.save(out, cfg, state, meta=meta)
     print(json.dumps({"checkpoint": str(out), "accuracy": acc}, indent=2))
     return 0

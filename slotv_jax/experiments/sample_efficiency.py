@@ -34,6 +34,7 @@ import numpy as np
 import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax import parallel
+from slotv_jax.config import MODELS
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
 from slotv_jax.fileio import save_figure, write_text
@@ -59,8 +60,14 @@ def run(
     cache: Path = Path("data"),
     progress: bool = True,
     compute_dtype: str | None = None,
+    model: str = "mlp",
+    labeler: str = LABELER,
 ) -> dict:
-    """Run the protocol for each method and write the CSV, JSON and PNG."""
+    """Run the protocol for each method and write the CSV, JSON and PNG.
+
+    ``model`` replaces SLOT-V's network by an observer archetype (SPEC §10,
+    :func:`slotv_jax.experiments.table1.with_model`); ``labeler`` trains and validates on
+    another labeler's labels than the paper's Dragan."""
     from slotv_jax import evaluate, train
 
     if preset not in table1.PRESETS:
@@ -68,6 +75,7 @@ def run(
     t1 = table1.PRESETS[preset]()
     if compute_dtype is not None:
         t1 = table1.with_compute_dtype(t1, compute_dtype)
+    t1 = table1.with_model(t1, model)
     dcfg = t1.data
     writer = parallel.is_writer()
     if writer:
@@ -82,8 +90,8 @@ def run(
     )
     if writer:
         parallel.barrier("sample_efficiency dataset")
-    tdata = train.prepare(dataset["train"], LABELER)
-    vdata = train.prepare(dataset["trajectory_val"], LABELER)
+    tdata = train.prepare(dataset["train"], labeler)
+    vdata = train.prepare(dataset["trajectory_val"], labeler)
     val_size = min(val_size, len(dataset["trajectory_val"]))
     rows: list[dict] = []
     summary: dict[str, dict] = {}
@@ -128,7 +136,8 @@ def run(
         }
     doc = {
         "preset": preset,
-        "labeler": LABELER,
+        "labeler": labeler,
+        "model": model,
         "protocol": {
             "epochs": 1,
             "evaluate_every_updates": every,
@@ -196,7 +205,10 @@ def plot(rows: list[dict], summary: dict, doc: dict, path: Path) -> None:
             ]
         )
         m, s = acc.mean(0), acc.std(0, ddof=1) if len(acc) > 1 else np.zeros(acc.shape[1])
-        ax.plot(x, m, color=color, label=f"{METHOD_TITLES[method]} (n={len(acc)})")
+        title = METHOD_TITLES[method]
+        if method == "slotv" and doc.get("model", "mlp") != "mlp":
+            title = f"{doc['model']} archetype"
+        ax.plot(x, m, color=color, label=f"{title} (n={len(acc)})")
         ax.fill_between(x, m - s, m + s, color=color, alpha=0.25, linewidth=0)
         hit = summary[method]["examples_to_threshold_mean_curve"]
         if hit is not None:
@@ -209,7 +221,8 @@ def plot(rows: list[dict], summary: dict, doc: dict, path: Path) -> None:
     ax.set_xlabel("training examples seen (SLOT-V: trajectories, T-REX: pairs)")
     ax.set_ylabel("validation accuracy (trajectory_val)")
     ax.set_ylim(0, 1)
-    ax.set_title(f"Sample efficiency on Dragan labels ({doc['preset']} preset, one epoch)")
+    lab = doc.get("labeler", LABELER).capitalize()
+    ax.set_title(f"Sample efficiency on {lab} labels ({doc['preset']} preset, one epoch)")
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right")
     fig.tight_layout()
@@ -245,6 +258,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="default: runs/sample_efficiency_<preset>")
     p.add_argument("--cache", type=Path, default=Path("data"))
     p.add_argument("--compute-dtype", choices=("float32", "bfloat16"))
+    p.add_argument(
+        "--model",
+        choices=MODELS,
+        default="mlp",
+        help="observer trained with SLOT-V's loss: the paper's network (mlp) or a parametric "
+        "archetype (SPEC §10); T-REX keeps its network",
+    )
     p.add_argument("--replot", action="store_true", help="only redraw the PNG of --out")
     parallel.add_cli_args(p)
     args = p.parse_args(argv)
@@ -262,7 +282,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         v = repeats if name == "repeats" else getattr(args, name)
         if v < 1:
             p.error(f"--{name.replace('_', '-')}: expected an integer >= 1")
-    out = args.out or Path("runs") / f"sample_efficiency_{args.preset}"
+    suffix = "" if args.model == "mlp" else f"_{args.model}"
+    out = args.out or Path("runs") / f"sample_efficiency_{args.preset}{suffix}"
     doc = run(
         args.preset,
         out,
@@ -273,6 +294,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         methods=args.methods,
         cache=args.cache,
         compute_dtype=args.compute_dtype,
+        model=args.model,
     )
     if not parallel.is_writer():
         return 0

@@ -118,6 +118,28 @@ def tiny() -> Table1Config:
 PRESETS = {"quick": quick, "paper": paper, "tiny": tiny}
 
 
+def with_model(cfg: Table1Config, model: str) -> Table1Config:
+    """The same run with SLOT-V's network replaced by an observer archetype (SPEC §10,
+    :func:`slotv_jax.config.archetype` of the matching preset; the tiny preset trains it
+    2 epochs on all its data, as its MLP). T-REX keeps its network. ``"mlp"``: ``cfg``."""
+    if model == "mlp":
+        return cfg
+    if cfg.preset == "tiny":
+        tc = train_config.archetype("quick", model, epochs=2, train_size=None)
+    else:
+        tc = train_config.archetype("paper" if cfg.preset == "paper" else "quick", model)
+    return dataclasses.replace(cfg, train={**cfg.train, "slotv": tc})
+
+
+def _train_key(config_doc: dict) -> dict:
+    """The training configs of a results document, rebuilt through TrainConfig (so that
+    documents written before a field existed compare equal to their defaults)."""
+    return {
+        m: train_config.TrainConfig.from_dict(c).to_dict()
+        for m, c in config_doc.get("train", {}).items()
+    }
+
+
 def with_compute_dtype(cfg: Table1Config, dtype: str) -> Table1Config:
     """The same run with the hidden matmuls in ``dtype`` (parameters stay float32)."""
     train = {m: dataclasses.replace(c, compute_dtype=dtype) for m, c in cfg.train.items()}
@@ -145,7 +167,7 @@ def load_results(out: Path, cfg: Table1Config) -> dict:
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: corrupt results file ({e}); move it away to start over") from e
     old = doc.get("config", {})
-    if (old.get("data_digest"), old.get("train")) != (cfg.data.digest(), cfg.to_json()["train"]):
+    if (old.get("data_digest"), _train_key(old)) != (cfg.data.digest(), _train_key(cfg.to_json())):
         raise ValueError(
             f"{path}: holds results of another configuration; use another --out to start anew"
         )
@@ -455,11 +477,11 @@ def merge(docs: Sequence[dict]) -> dict:
     if not docs:
         raise ValueError("merge: expected at least one results document")
     first = docs[0]
-    key = (first["config"].get("data_digest"), first["config"].get("train"))
+    key = (first["config"].get("data_digest"), _train_key(first["config"]))
     cells: dict[tuple, dict] = {}
     timing: dict[tuple, dict] = {}
     for i, doc in enumerate(docs):
-        if (doc["config"].get("data_digest"), doc["config"].get("train")) != key:
+        if (doc["config"].get("data_digest"), _train_key(doc["config"])) != key:
             raise ValueError(f"merge: document {i} holds results of another configuration")
         for c in doc["cells"]:
             k = (c["labeler"], c["method"], c["split"], c["trial"])
@@ -484,10 +506,21 @@ def report(doc: dict) -> str:
     env = doc["environment"]
     cells = doc["timing"]["cells"]
     per_cell = np.mean([c["total_s"] for c in cells]) if cells else float("nan")
+    model = doc["config"].get("train", {}).get("slotv", {}).get("model", "mlp")
+    note = (
+        []
+        if model == "mlp"
+        else [
+            f"The SLOT-V columns are the `{model}` observer archetype (slotv_jax.parametric), "
+            "trained with SLOT-V's loss; the paper's SLOT-V is its network. T-REX is the MLP.",
+            "",
+        ]
+    )
     return "\n".join(
         [
             f"# Table 1 ({doc['preset']} preset)",
             "",
+            *note,
             f"Accuracy (SPEC §8) as mean ± SD over trials; the paper's values (10 trials) "
             f"in parentheses. {len(doc['cells']) // len(SPLITS)} trained models, "
             f"{per_cell:.1f} s per cell on average (training and evaluation).",
@@ -523,6 +556,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--compute-dtype",
         choices=("float32", "bfloat16"),
         help="matmul dtype of the hidden layers (default: the preset's, float32)",
+    )
+    p.add_argument(
+        "--model",
+        choices=train_config.MODELS,
+        default="mlp",
+        help="observer trained with SLOT-V's loss: the paper's network (mlp, default) or a "
+        "parametric archetype (SPEC §10); T-REX keeps its network",
     )
     p.add_argument(
         "--vmap-trials",
@@ -572,7 +612,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = dataclasses.replace(cfg, data=data_lib.with_distribution(cfg.data, args.distribution))
     if args.time_limit is not None and not args.time_limit >= 0:
         p.error("--time-limit: expected a number of seconds >= 0")
-    out = args.out or Path("runs") / f"table1_{args.preset}"
+    cfg = with_model(cfg, args.model)
+    suffix = "" if args.model == "mlp" else f"_{args.model}"
+    out = args.out or Path("runs") / f"table1_{args.preset}{suffix}"
     t0 = time.perf_counter()
     doc = run(
         cfg,
