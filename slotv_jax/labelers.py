@@ -546,9 +546,14 @@ def _label_chunk(xyz, goals, mask, t, betas, camera, names):
             else LABELERS[n](x, g, m, beta=betas[n], t=tt)
             for n in names
         }
-        sq = jnp.sum((g[:, None] - g[None]) ** 2, axis=-1)
-        same = m[:, None] & m[None] & (sq < 1e-18) & ~jnp.eye(G_MAX, dtype=bool)
-        ok = [jnp.bool_(True), jnp.bool_(True), ~jnp.any(same)]
+        # Pairs written out: XLA fuses them into one loop (reductions over axes of 3
+        # and 8 slots would cost more than labelling with effdist).
+        same = [
+            m[k] & m[l] & (sum((g[k, j] - g[l, j]) ** 2 for j in range(3)) < 1e-18)
+            for k in range(G_MAX)
+            for l in range(k)
+        ]
+        ok = [jnp.bool_(True), jnp.bool_(True), ~functools.reduce(jnp.logical_or, same)]
         if "nikolaidis" in names:
             ok[0] = jnp.all(jnp.isfinite(x))
             ok += _depth_flags(x, g, m, camera.pos, camera.rot)
@@ -561,6 +566,8 @@ def _label_chunk(xyz, goals, mask, t, betas, camera, names):
 def _rows(a: np.ndarray, start: int, size: int) -> np.ndarray:
     """Rows ``start:start + size`` of ``a``, the last row repeated to fill ``size``."""
     rows = a[start : start + size]
+    if len(rows) == size:
+        return rows
     return np.pad(rows, [(0, size - len(rows))] + [(0, 0)] * (a.ndim - 1), mode="edge")
 
 
