@@ -8,7 +8,9 @@ For each labeler, in one run on the same synthetic trajectories, side by side:
   vectorised over points and goals within the trajectory (float64), timed on the
   first ``--numpy-n`` trajectories and reported per trajectory;
 - **public**: ``jax.jit(jax.vmap(labeler))`` called on all ``--n`` trajectories at once,
-  host NumPy arrays in and out, as a user writes it;
+  as a user writes it, on JAX arrays (put on the device once, before timing), labels
+  back as NumPy; and, as *public, numpy in*, on the host NumPy arrays (the call then
+  copies 190 MB of trajectories into a new XLA buffer each time);
 - **label_all**: :func:`slotv_jax.labelers.label_all` with that one labeler (chunks,
   validation and copies back included);
 
@@ -167,27 +169,33 @@ def main(argv=None) -> int:
                 cpus[i].append(time.process_time() - c0)
         return [(o, min(w), min(c)) for o, w, c in zip(outs, walls, cpus, strict=True)]
 
-    def host(f):
-        """``f`` on the host arrays, labels back as NumPy (what a user gets)."""
-        return lambda: jax.tree.map(np.asarray, f(xyz, goals, mask))
+    dev = [jax.numpy.asarray(a) for a in (xyz, goals, mask)]
+
+    def host(f, arrays=(xyz, goals, mask)):
+        """``f`` on ``arrays`` (default: the host arrays), labels back as NumPy."""
+        return lambda: jax.tree.map(np.asarray, f(*arrays))
 
     print("\nthroughput in trajectories per second (wall clock, best of the repeats)")
     print(
         f"{'labeler':<11} {'numpy':>8} {'public':>10} {'ratio':>6} {'label_all':>10} "
-        f"{'ratio':>6} {'label_all/public':>16} {'max |Δy|':>9}   by CPU time: public, label_all"
+        f"{'ratio':>6} {'label_all/public':>16} {'max |Δy|':>9}   {'numpy in':>10} {'ratio':>6}"
+        "   by CPU time: public, label_all"
     )
     ratios = {}
     for name in L.LABELER_NAMES:
         f_np, f_pub = numpy_fns[name], jax.jit(jax.vmap(public[name]))
         f_pub(xyz[:8], goals[:8], mask[:8])  # compile for a small batch: traces only
-        run_pub = host(f_pub)
+        run_pub, run_pub_np = host(f_pub, dev), host(f_pub)
         run_pub()  # compile for N
         L.label_all(*warm, labelers=(name,), **kw)
-        (y_np, np_wall, np_cpu), (y_pub, pub_wall, pub_cpu), (y_all, all_wall, all_cpu) = measure(
+        results = measure(
             lambda f=f_np: np.stack([f(x64[i], g64[i], mask[i]) for i in range(m)]),
             run_pub,
+            run_pub_np,
             lambda n=name: L.label_all(xyz, goals, mask, labelers=(n,), **kw),
         )
+        (y_np, np_wall, np_cpu), (y_pub, pub_wall, pub_cpu), (_, np_in_wall, _) = results[:3]
+        y_all, all_wall, all_cpu = results[3]
         np_rate, pub_rate, all_rate = m / np_wall, args.n / pub_wall, args.n / all_wall
         np_n_cpu = np_cpu / m * args.n  # CPU time of the NumPy loop for all n
         ratios[name] = (pub_rate / np_rate, all_rate / np_rate)
@@ -195,18 +203,19 @@ def main(argv=None) -> int:
         print(
             f"{name:<11} {np_rate:>8,.0f} {pub_rate:>10,.0f} {pub_rate / np_rate:>5.0f}x "
             f"{all_rate:>10,.0f} {all_rate / np_rate:>5.0f}x {all_wall / pub_wall:>15.2f}x "
-            f"{diff:>9.1e}   {np_n_cpu / pub_cpu:>5.0f}x {np_n_cpu / all_cpu:>5.0f}x",
+            f"{diff:>9.1e}   {args.n / np_in_wall:>10,.0f} {args.n / np_in_wall / np_rate:>5.0f}x"
+            f"   {np_n_cpu / pub_cpu:>5.0f}x {np_n_cpu / all_cpu:>5.0f}x",
             flush=True,
         )
 
     four = jax.jit(jax.vmap(lambda x, g, m_: {n: f(x, g, m_) for n, f in public.items()}))
-    host(four)()  # compile
+    host(four, dev)()  # compile
     L.label_all(*warm, **kw)
-    each = [host(jax.jit(jax.vmap(f))) for f in public.values()]
+    each = [host(jax.jit(jax.vmap(f)), dev) for f in public.values()]
     for f in each:
         f()  # compile
     (_, four_wall, four_cpu), (_, each_wall, each_cpu), (_, all_wall, all_cpu) = measure(
-        host(four), lambda: [f() for f in each], lambda: L.label_all(xyz, goals, mask, **kw)
+        host(four, dev), lambda: [f() for f in each], lambda: L.label_all(xyz, goals, mask, **kw)
     )
     print(
         f"\nall four labelers, {args.n:,} trajectories of {args.T} points (after compilation), "
