@@ -6,8 +6,9 @@ Each labeler maps one trajectory to a probability vector over the goal slots::
 
 with ``y >= 0``, ``sum(y[goal_mask]) == 1`` and ``y[~goal_mask] == 0`` exactly. They
 are pure JAX functions: batch them with ``jax.vmap``, compile them with ``jax.jit``
-and differentiate them with ``jax.grad``. Nothing here is jitted except the bulk
-labeller :func:`label_all` and the command line.
+and differentiate them with ``jax.grad``. ``jax.jit(jax.vmap(dragan))`` is the fast
+way to label many trajectories (see the note above the cores); :func:`label_all` is
+that, chunk by chunk, with validation. Nothing else here is jitted.
 
 Notation (SPEC §4): ``S = xyz[0]``, ``p_i = xyz[i]``, ``d_k(i) = ‖p_i − g_k‖`` (m), and
 softmax is taken over the real goals only (log-sum-exp form, padded slots at −∞).
@@ -534,7 +535,8 @@ _ERRORS = (  # what label_all reports for a bad trajectory, first applicable fir
 @functools.partial(jax.jit, static_argnames="names")
 def _label_chunk(xyz, goals, mask, t, betas, camera, names):
     """``jit(vmap)`` of the public labelers ``names`` over one chunk, and per trajectory
-    the checks that cannot raise inside, ``(C, 5)`` in the order of ``_ERRORS``. NaN
+    the checks that cannot raise inside, ``(C, 3)`` (``(C, 5)`` with nikolaidis) in the
+    order of ``_ERRORS``. NaN
     labels (checked by the caller) flag non-finite points; nikolaidis hides them behind
     a uniform label when a depth is invalid, so with it the points are checked too."""
     _TRACES["label_chunk"] += 1
