@@ -41,6 +41,16 @@ def check_finite(name: str, x) -> None:
             raise ValueError(f"{name}: expected finite values, found {bad} NaN/inf entries")
 
 
+def check_finite_result(name: str, y, why: str) -> None:
+    """Raise, naming the input ``name``, if a concrete result ``y`` holds NaN or ±inf.
+
+    For finite inputs whose result still overflows (``why`` says how); under
+    ``jit``/``vmap`` (a traced ``y``) nothing is checked.
+    """
+    if is_concrete(y) and not np.all(np.isfinite(np.asarray(y))):
+        raise ValueError(f"{name}: {why}")
+
+
 def check_array(name: str, x, shape: Sequence[int | None]) -> None:
     """Shape check plus finiteness check."""
     check_shape(name, x, shape)
