@@ -349,12 +349,11 @@ def straight_line(
     dtype = goals.dtype
     goal = goals[target]
     q_home = jnp.asarray(kinematics.Q_HOME, dtype)
-    if start is None:
-        start = jnp.asarray(kinematics.home_tcp(), dtype)
-        q_start = q_home
-    else:
-        start = jnp.asarray(start, dtype)
-        q_start, _ = kinematics.solve_ik(start, q_home)
+    home = jnp.asarray(kinematics.home_tcp(), dtype)
+    start = home if start is None else jnp.asarray(start, dtype)
+    # The home TCP starts from Q_HOME itself; another start from its IK solution.
+    q_ik, _ = kinematics.solve_ik(start, q_home)
+    q_start = jnp.where(jnp.all(start == home), q_home, q_ik)
     path = resample_polyline(jnp.stack([start, goal]), cfg.n_points)
     ik = kinematics.solve_path_ik(path, q_start, cfg.ik)
     q_end, _ = kinematics.solve_ik(goal, ik.q[-1])
@@ -515,8 +514,9 @@ def make_planner(
     real goal; a start or target that IK cannot reach within 2 mm; an unknown observer
     name. (The budget is checked by :class:`PlannerConfig`.)
 
-    ``planner.straight_line(goals, goal_mask, target)`` gives the straight-line problems
-    (batched) and ``planner.plan_problems(problems, observer=None)`` plans them.
+    ``planner.straight_line(goals, goal_mask, target, start=None)`` gives the straight-line
+    problems (batched; one compiled function for every start) and
+    ``planner.plan_problems(problems, observer=None)`` plans them.
     """
     if not isinstance(cfg, PlannerConfig):
         raise ValueError(f"cfg: expected a PlannerConfig, got {type(cfg).__name__}")
@@ -537,7 +537,6 @@ def make_planner(
         return lambda xyz, g, m: jax.lax.switch(index, branches, xyz, g, m)
 
     straight = jax.jit(jax.vmap(functools.partial(straight_line, cfg=cfg)))
-    straight_home = jax.jit(jax.vmap(lambda g, m, t: straight_line(g, m, t, None, cfg)))
     run = jax.jit(
         lambda problems, index: jax.vmap(lambda p: plan(switched(index), p, cfg))(problems)
     )
@@ -559,10 +558,9 @@ def make_planner(
         goals32 = jnp.asarray(goals, jnp.float32)
         mask = jnp.asarray(goal_mask).astype(bool)
         if start is None:
-            problems = straight_home(goals32, mask, t)
-        else:
-            validation.check_array("start", start, (n, 3))
-            problems = straight(goals32, mask, t, jnp.asarray(start, jnp.float32))
+            start = np.broadcast_to(kinematics.home_tcp(), (n, 3))
+        validation.check_array("start", start, (n, 3))
+        problems = straight(goals32, mask, t, jnp.asarray(start, jnp.float32))
         check_problems(problems)
         return problems
 
