@@ -168,17 +168,23 @@ def test_deterministic_and_traces_once(planner, solved, counter):
 
 @pytest.mark.slow
 def test_vmap_equals_loop(solved):
-    straight, res = solved
-    one = jax.jit(lambda p: planning.plan(planning.labeler_observer("dragan"), p))
-    for i in (3, 100):
-        r = one(jax.tree.map(lambda a, i=i: a[i], straight))
-        np.testing.assert_allclose(r.xyz, res.xyz[i], atol=1e-5)
-        np.testing.assert_allclose(r.q, res.q[i], atol=1e-5)
-        # The batched and the single program round differently in float32 (~1e-7 per
-        # operation); 50 nonlinear steps amplify that to ~3e-5 in log P by the end.
-        obj, ref = r.diagnostics.objective, res.diagnostics.objective[i]
-        np.testing.assert_allclose(obj[:5], ref[:5], atol=1e-6)
-        np.testing.assert_allclose(obj, ref, atol=1e-4)
+    # Few iterations: the batched and the single program round differently in float32
+    # (~1e-7 per operation), and many nonlinear steps with normalised lengths amplify
+    # that (to ~1e-4 m after 50 steps); over 3 steps the results must agree to rounding.
+    straight, _ = solved
+    cfg = planning.PlannerConfig(iters=3)
+    obs = planning.labeler_observer("dragan")
+    batch = jax.tree.map(lambda a: a[:4], straight)
+    many = jax.jit(jax.vmap(lambda p: planning.plan(obs, p, cfg)))(batch)
+    one = jax.jit(lambda p: planning.plan(obs, p, cfg))
+    for i in range(4):
+        r = one(jax.tree.map(lambda a, i=i: a[i], batch))
+        np.testing.assert_allclose(r.xyz, many.xyz[i], atol=1e-6)
+        np.testing.assert_allclose(r.q, many.q[i], atol=1e-6)
+        np.testing.assert_allclose(
+            r.diagnostics.objective, many.diagnostics.objective[i], atol=1e-6
+        )
+        assert int(r.diagnostics.best_iter) == int(many.diagnostics.best_iter[i])
 
 
 # ----------------------------------------------------------------- gradient
