@@ -1,0 +1,334 @@
+"""The legible planner (slotv_jax.planning) against independent references.
+
+- gradient: float64 central finite differences of the planner's objective (MJX in float64);
+- constraints: re-checked on the returned plans with MuJoCo C forward kinematics (float64)
+  and NumPy: endpoints, joint limits, table clearance, the trust region;
+- the oracle test: the true Dragan y_target (the float64 NumPy reference labeler of
+  tests/ref_labelers.py) rises above the straight line's on >= 95 % of 200 problems.
+
+One compiled planner (200 problems, the default PlannerConfig) serves most tests: the
+planner's compilation dominates their time.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+import ref_labelers
+
+from slotv_jax import kinematics, labelers, planning, scene
+
+REPO = Path(__file__).resolve().parent.parent
+N_PROBLEMS = 200
+GOAL_COUNTS = (
+    2,
+    3,
+    4,
+    5,
+    6,
+    8,
+)  # the held-out splits' counts (position {2,3,5,6}, goal count {4,8})
+RISE_RATE = 0.95  # issue 14: the oracle beats the straight line on >= 95 % of problems
+FK_TOL = 1e-5  # m: MJX (float32) vs MuJoCo C (float64), as in test_kinematics
+COST_TOL = 1e-5  # m²: float32 rounding of C (a sum of 99 terms of ~1e-3 m² · 99)
+FD_TOL = 1e-6  # relative: float64 central differences vs autodiff
+
+
+def sample_problems(n: int, seed: int = 0):
+    """Scenes with the held-out goal counts and a uniform real target (quick-preset-like)."""
+    k_count, k_scene, k_target = jax.random.split(jax.random.key(seed), 3)
+    counts = jax.vmap(lambda k: scene.sample_goal_count(k, GOAL_COUNTS))(
+        jax.random.split(k_count, n)
+    )
+    s = jax.jit(jax.vmap(scene.sample_scene))(jax.random.split(k_scene, n), counts)
+    target = jax.vmap(lambda k, c: jax.random.randint(k, (), 0, c))(
+        jax.random.split(k_target, n), counts
+    )
+    return np.asarray(s.goals), np.asarray(s.goal_mask), np.asarray(target)
+
+
+class Counter:
+    """An observer that counts how often it is traced (Dragan underneath)."""
+
+    def __init__(self):
+        self.calls = 0
+        self.inner = planning.labeler_observer("dragan")
+
+    def __call__(self, xyz, goals, goal_mask):
+        self.calls += 1
+        return self.inner(xyz, goals, goal_mask)
+
+
+@pytest.fixture(scope="module")
+def counter():
+    return Counter()
+
+
+@pytest.fixture(scope="module")
+def planner(counter):
+    observers = {"dragan": planning.labeler_observer("dragan"), "counted": counter}
+    return planning.make_planner(observers, planning.PlannerConfig())
+
+
+@pytest.fixture(scope="module")
+def problems():
+    return sample_problems(N_PROBLEMS)
+
+
+@pytest.fixture(scope="module")
+def solved(planner, problems):
+    straight = planner.straight_line(*problems)
+    return straight, jax.device_get(planner.plan_problems(straight, observer="dragan"))
+
+
+def mj_fk(q: np.ndarray) -> np.ndarray:
+    """TCP positions from MuJoCo C ``mj_kinematics`` in float64."""
+    m = kinematics.mj_model()
+    d = mujoco.MjData(m)
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, kinematics.TCP_SITE)
+    out = np.empty((len(q), 3))
+    for i, qi in enumerate(np.asarray(q, np.float64)):
+        d.qpos[:] = qi
+        mujoco.mj_kinematics(m, d)
+        out[i] = d.site_xpos[site]
+    return out
+
+
+def cost64(xyz) -> np.ndarray:
+    x = np.asarray(xyz, np.float64)
+    return 0.5 * (x.shape[-2] - 1) * np.sum(np.diff(x, axis=-2) ** 2, axis=(-2, -1))
+
+
+# ----------------------------------------------------------------- the oracle
+
+
+@pytest.mark.slow
+def test_oracle_raises_true_legibility_within_budget(problems, solved):
+    goals, mask, target = problems
+    straight, res = solved
+    cfg = planning.PlannerConfig()
+    y_plan = np.array([ref_labelers.dragan(res.xyz[i], goals[i], mask[i])[target[i]]
+                       for i in range(N_PROBLEMS)])  # fmt: skip
+    y_line = np.array([ref_labelers.dragan(straight.xyz[i], goals[i], mask[i])[target[i]]
+                       for i in range(N_PROBLEMS)])  # fmt: skip
+    rate = np.mean(y_plan > y_line)
+    assert rate >= RISE_RATE, rate
+    # Within the budget, recomputed in float64 from the returned paths.
+    assert np.all(cost64(res.xyz) <= cost64(straight.xyz) + cfg.budget + COST_TOL)
+    assert np.all(res.diagnostics.feasible)
+
+
+# ------------------------------------------------------------- constraints
+
+
+def test_endpoints_limits_table(problems, solved):
+    goals, _, target = problems
+    straight, res = solved
+    cfg = planning.PlannerConfig()
+    q, xyz = np.asarray(res.q), np.asarray(res.xyz)
+    # The start configuration is Q_HOME exactly and the last one is the straight line's IK.
+    np.testing.assert_array_equal(
+        q[:, 0], np.broadcast_to(np.float32(kinematics.Q_HOME), (N_PROBLEMS, 7))
+    )
+    np.testing.assert_array_equal(q[:, -1], np.asarray(straight.q)[:, -1])
+    # The path is the arm's: MuJoCo C FK of the joints, for a few problems.
+    for i in (0, 57, 199):
+        np.testing.assert_allclose(mj_fk(q[i]), xyz[i], atol=FK_TOL)
+    goal = goals[np.arange(N_PROBLEMS), target]
+    assert np.all(np.linalg.norm(mj_fk(q[:, -1]) - goal, axis=-1) <= 2e-3)
+    assert np.all(np.linalg.norm(xyz[:, 0] - kinematics.home_tcp(), axis=-1) <= 2e-3)
+    # Joint limits, table clearance outside the exempt radius.
+    assert np.all(q >= kinematics.Q_MIN) and np.all(q <= kinematics.Q_MAX)
+    far = np.linalg.norm(xyz - goal[:, None], axis=-1) >= cfg.exempt_radius
+    assert np.all(xyz[..., 2][far] >= cfg.clearance)
+    d = res.diagnostics
+    np.testing.assert_allclose(d.joint_margin, np.minimum(q - kinematics.Q_MIN,
+                               kinematics.Q_MAX - q).min(axis=(1, 2)), atol=1e-6)  # fmt: skip
+    assert np.all(d.table_clearance >= 0)
+    assert d.objective.shape == (N_PROBLEMS, cfg.iters + 1)
+
+
+def test_deterministic_and_traces_once(planner, solved, counter):
+    straight, res = solved
+    traced = counter.calls
+    assert traced >= 1  # the switch traced every observer once, at the first compilation
+    again = jax.device_get(planner.plan_problems(straight, observer="dragan"))
+    jax.tree.map(np.testing.assert_array_equal, again, res)
+    # Other values (the other goals moved), the other observer: the same compiled program.
+    shifted = straight._replace(goals=straight.goals * np.float32(1.01))
+    planner.plan_problems(shifted, observer="counted")
+    assert counter.calls == traced
+
+
+@pytest.mark.slow
+def test_vmap_equals_loop(solved):
+    # Few iterations: the batched and the single program round differently in float32
+    # (~1e-7 per operation), and many nonlinear steps with normalised lengths amplify
+    # that (to ~1e-4 m after 50 steps); over 3 steps the results must agree to rounding.
+    straight, _ = solved
+    cfg = planning.PlannerConfig(iters=3)
+    obs = planning.labeler_observer("dragan")
+    batch = jax.tree.map(lambda a: a[:4], straight)
+    many = jax.jit(jax.vmap(lambda p: planning.plan(obs, p, cfg)))(batch)
+    one = jax.jit(lambda p: planning.plan(obs, p, cfg))
+    for i in range(4):
+        r = one(jax.tree.map(lambda a, i=i: a[i], batch))
+        np.testing.assert_allclose(r.xyz, many.xyz[i], atol=1e-6)
+        np.testing.assert_allclose(r.q, many.q[i], atol=1e-6)
+        np.testing.assert_allclose(
+            r.diagnostics.objective, many.diagnostics.objective[i], atol=1e-6
+        )
+        assert int(r.diagnostics.best_iter) == int(many.diagnostics.best_iter[i])
+
+
+# ----------------------------------------------------------------- gradient
+
+
+def test_gradient_matches_finite_differences_float64(solved, problems):
+    straight, _ = solved
+    i = 7
+    with jax.enable_x64(True):
+        kinematics._mjx_panda.cache_clear()  # a float64 MJX model inside this block
+        try:
+            p64 = jax.tree.map(
+                lambda a: jnp.asarray(a[i], jnp.float64) if a.dtype == np.float32 else a[i],
+                straight,
+            )
+            cfg = planning.PlannerConfig()
+            obs = planning.labeler_observer("dragan")
+            f = jax.jit(jax.value_and_grad(lambda z: planning.objective(obs, p64, z, cfg)))
+            z0 = planning._initial_z(p64.q)
+            rng = np.random.default_rng(0)
+            t = np.linspace(0, np.pi, z0.shape[0])[:, None]
+            # At the straight line, and bent so far that the table penalty is active.
+            bend = np.sin(t) * np.array([0.0, 0.6, 0.0, -0.8, 0.0, 0.9, 0.0])
+            for z in (z0, z0 + bend):
+                _, g = f(z)
+                assert g.dtype == np.float64 and np.all(np.isfinite(np.asarray(g)))
+                for _ in range(3):
+                    v = rng.normal(size=z0.shape)
+                    v /= np.linalg.norm(v)
+                    h = 1e-6
+                    fd = (f(z + h * v)[0] - f(z - h * v)[0]) / (2 * h)
+                    assert float(fd) == pytest.approx(float(jnp.sum(g * v)), rel=FD_TOL, abs=1e-9)
+            xyz = planning._fk(planning._joints(z0 + bend, p64.q[0], p64.q[-1]))
+            assert planning._table_penalty(xyz, p64, cfg) > 0  # the penalty term was tested
+        finally:
+            kinematics._mjx_panda.cache_clear()
+
+
+def test_predictability_cost_and_metric():
+    # C = ½ ℓ² for a straight line at constant speed; A⁻¹ is the inverse of tridiag(−1, 2, −1).
+    line = np.linspace([0.0, 0.0, 0.0], [0.3, 0.4, 0.0], 50)
+    assert float(planning.predictability_cost(jnp.asarray(line))) == pytest.approx(0.125, rel=1e-6)
+    n = 9
+    a = 2 * np.eye(n) - np.eye(n, k=1) - np.eye(n, k=-1)
+    np.testing.assert_allclose(planning.metric_inverse(n) @ a, np.eye(n), atol=1e-12)
+
+
+def test_labeler_observer_is_log_y():
+    goals, mask, target = sample_problems(1, seed=3)
+    xyz = np.linspace(kinematics.home_tcp(), goals[0, target[0]], 100)
+    for name in ("dragan", "nikolaidis"):
+        logits = planning.labeler_observer(name)(xyz, goals[0], mask[0])
+        y = labelers.LABELERS[name](xyz, goals[0], mask[0], **({"camera": scene.camera()}
+                                     if name == "nikolaidis" else {}))  # fmt: skip
+        np.testing.assert_allclose(jax.nn.softmax(logits), y, atol=1e-6)
+        assert np.all(np.isneginf(np.asarray(logits)[~mask[0]]))
+
+
+# --------------------------------------------------------------- bad input
+
+
+def test_bad_input(planner, problems):
+    goals, mask, target = (np.array(a) for a in problems)
+    obs = planning.labeler_observer("dragan")
+    with pytest.raises(ValueError, match="budget"):
+        planning.PlannerConfig(budget=0.0)
+    with pytest.raises(ValueError, match="budget"):
+        planning.PlannerConfig(budget=-0.1)
+    with pytest.raises(ValueError, match="observer"):
+        planning.make_planner(lambda x, g, m: jnp.zeros(5))
+    with pytest.raises(ValueError, match="observer"):
+        planning.make_planner(lambda x, g, m: jnp.zeros((2, 8)))
+    bad_t = target.copy()
+    bad_t[4] = mask[4].sum()  # a padded slot
+    with pytest.raises(ValueError, match="target: problem 4"):
+        planner(goals, mask, bad_t)
+    with pytest.raises(ValueError, match="target"):
+        planner(goals, mask, np.full_like(target, 9))
+    nan = goals.copy()
+    nan[2, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="goals: expected finite"):
+        planner(nan, mask, target)
+    with pytest.raises(ValueError, match="observer"):
+        planner(goals, mask, target, observer="nobody")
+    far = goals.copy()
+    far[5, target[5]] = [1.6, 0.0, 0.025]  # beyond the Panda's reach (~0.855 m + links)
+    with pytest.raises(ValueError, match=r"target: problem 5 .* out of reach"):
+        planner(far, mask, target)
+    start = np.broadcast_to(kinematics.home_tcp(), (N_PROBLEMS, 3)).copy()
+    start[8] = [0.0, 0.0, 1.6]
+    with pytest.raises(ValueError, match=r"start: problem 8 .* out of reach"):
+        planner(goals, mask, target, start=start)
+    start[8] = np.nan
+    with pytest.raises(ValueError, match="start: expected finite"):
+        planner(goals, mask, target, start=start)
+    del obs
+
+
+# ------------------------------------------------------------------- README
+
+
+@pytest.mark.slow
+def test_readme_example(tmp_path, monkeypatch, tiny_data):
+    """Runs the README's planning block verbatim, with a tiny observer at ckpt/dragan."""
+    from slotv_jax import checkpoint, config, train
+
+    text = (REPO / "README.md").read_text()
+    block = re.search(
+        r"<!-- planning-example:start -->\s*```python\n(.*?)```\s*<!-- planning-example:end -->",
+        text,
+        re.S,
+    )
+    assert block, "README.md: the planning example block is missing"
+    cfg = config.quick("slotv", hidden=(16, 8), epochs=1, train_size=None)
+    state, _ = train.train_trials(cfg, train.prepare(tiny_data["train"], "dragan"), [0],
+                                  progress=False)  # fmt: skip
+    monkeypatch.chdir(tmp_path)
+    checkpoint.save(tmp_path / "ckpt" / "dragan", cfg, train.select_trial(state, 0))
+    env: dict = {}
+    exec(compile(block.group(1), "README.md", "exec"), env)
+    res = env["result"]
+    assert res.xyz.shape == (4, 100, 3) and bool(np.all(res.feasible))
+    assert np.all(np.isfinite(env["y"]))
+
+
+# --------------------------------------------------------------- experiment
+
+
+def test_experiment_problems_from_held_out_scenes(tiny_cfg, tiny_data):
+    """Extended held-out scene sets start with the stored scenes; problems are every
+    (scene, real goal) pair."""
+    from slotv_jax.experiments import planning as exp
+
+    cfg = exp.PlanningConfig("tiny", tiny_cfg, {}, planning.PlannerConfig(), n_scenes=6)
+    scenes = exp.held_out_scenes(cfg, tiny_data)
+    for s in exp.SPLITS:
+        goals, mask = scenes[s]
+        k = tiny_cfg.n_new_scenes
+        assert goals.shape == (6, 8, 3)
+        np.testing.assert_array_equal(goals[:k], tiny_data[s].scene_goals)
+        np.testing.assert_array_equal(mask[:k], tiny_data[s].scene_mask)
+    p = exp.make_problems(scenes)
+    n = sum(int(scenes[s][1].sum()) for s in exp.SPLITS)
+    assert p["target"].shape == (n,)
+    assert np.all(p["goal_mask"][np.arange(n), p["target"]])
+    pairs = set(zip(p["split"].tolist(), p["scene"].tolist(), p["target"].tolist(), strict=True))
+    assert len(pairs) == n  # no duplicates
