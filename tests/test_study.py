@@ -471,3 +471,24 @@ def test_readme_example_runs(tmp_path):
     assert "wrote my_study.npz" in r.stdout
     probs = [float(v) for v in re.findall(r"P\(\w+ \| motion a\) = ([0-9.]+)", r.stdout)]
     assert len(probs) == 3 and abs(sum(probs) - 1) < 2e-3
+
+
+def test_study_trainer_matches_train_trials():
+    """One answer row per trajectory holding the labeler's distribution (P = ∞, whole
+    motions) is ordinary SLOT-V training: same initialisation, batches and loss, so
+    study.train_study and train.train_trials reach the same parameters (float32 rounding
+    only) and the same accuracy."""
+    xyz, goals, mask = synthetic(48, 20, seed=4)
+    rng = np.random.default_rng(5)
+    logits = np.where(mask, rng.normal(0.0, 2.0, mask.shape), -np.inf)
+    labels = np.exp(logits - logits.max(-1, keepdims=True))
+    labels = (labels / labels.sum(-1, keepdims=True)).astype(np.float32)
+    cfg = config.quick("slotv", hidden=(16, 8), batch_size=8, epochs=3, train_size=None)
+    data = train.make_data(xyz, goals, mask, labels)
+    st, _ = train.train_trials(cfg, data, [3], progress=False)
+    s = study.make_study(xyz, goals, mask, np.arange(48), probs=labels, n_answers=np.ones(48))
+    got = study.train_study(cfg, s, jax.random.key(3), progress=False)
+    want = jax.tree.map(lambda x: x[0], st.params)
+    for a, b in zip(jax.tree.leaves(got.params), jax.tree.leaves(want), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-5)
+    assert int(got.epoch) == 3
