@@ -492,3 +492,26 @@ def test_study_trainer_matches_train_trials():
     for a, b in zip(jax.tree.leaves(got.params), jax.tree.leaves(want), strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-5)
     assert int(got.epoch) == 3
+
+
+def test_study_size_budget_and_needed():
+    """Every cell gets the same update budget (at least ``updates``, less than one more
+    epoch), both methods share the quick preset's batch and lr, and the N for 80 % is
+    interpolated in log N (hand-computed: halfway between 1,000 and 10,000 is √10⁷)."""
+    from slotv_jax.experiments import study_size
+
+    cfg = study_size.quick()
+    for steps in (1, 3, 31, 312, 5000):
+        e = cfg.epochs_for(steps)
+        assert e * steps >= cfg.updates and (e - 1) * steps < cfg.updates
+    tcs = {m: cfg.train_config(m) for m in ("slotv", "trex")}
+    assert tcs["slotv"].batch_size == tcs["trex"].batch_size == 32
+    assert tcs["slotv"].learning_rate == tcs["trex"].learning_rate == 0.005
+    summary = [
+        {"method": "slotv", "participants": 5, "n": n, "mean": a}
+        for n, a in ((100, 0.5), (1000, 0.7), (10000, 0.9))
+    ] + [{"method": "trex", "participants": 0, "n": n, "mean": 0.85} for n in (100, 1000)]
+    got = {r["method"]: r for r in study_size.needed(summary, 0.8)}
+    assert got["slotv"]["n"] == pytest.approx(np.sqrt(1e7), rel=1e-9)
+    assert got["slotv"]["answers"] == pytest.approx(5 * np.sqrt(1e7), rel=1e-9)
+    assert got["trex"]["n"] == 100 and got["trex"]["at_most"]
