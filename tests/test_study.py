@@ -515,3 +515,6 @@ def test_study_size_budget_and_needed():
     assert got["slotv"]["n"] == pytest.approx(np.sqrt(1e7), rel=1e-9)
     assert got["slotv"]["answers"] == pytest.approx(5 * np.sqrt(1e7), rel=1e-9)
     assert got["trex"]["n"] == 100 and got["trex"]["at_most"]
+    assert not got["slotv"]["falls_back"] and not got["trex"]["falls_back"]
+    summary[-1]["mean"] = 0.75  # T-REX at N = 1,000 back below 80 %
+    assert study_size.needed(summary, 0.8)[1]["falls_back"]
