@@ -471,3 +471,50 @@ def test_readme_example_runs(tmp_path):
     assert "wrote my_study.npz" in r.stdout
     probs = [float(v) for v in re.findall(r"P\(\w+ \| motion a\) = ([0-9.]+)", r.stdout)]
     assert len(probs) == 3 and abs(sum(probs) - 1) < 2e-3
+
+
+def test_study_trainer_matches_train_trials():
+    """One answer row per trajectory holding the labeler's distribution (P = ∞, whole
+    motions) is ordinary SLOT-V training: same initialisation, batches and loss, so
+    study.train_study and train.train_trials reach the same parameters (float32 rounding
+    only) and the same accuracy."""
+    xyz, goals, mask = synthetic(48, 20, seed=4)
+    rng = np.random.default_rng(5)
+    logits = np.where(mask, rng.normal(0.0, 2.0, mask.shape), -np.inf)
+    labels = np.exp(logits - logits.max(-1, keepdims=True))
+    labels = (labels / labels.sum(-1, keepdims=True)).astype(np.float32)
+    cfg = config.quick("slotv", hidden=(16, 8), batch_size=8, epochs=3, train_size=None)
+    data = train.make_data(xyz, goals, mask, labels)
+    st, _ = train.train_trials(cfg, data, [3], progress=False)
+    s = study.make_study(xyz, goals, mask, np.arange(48), probs=labels, n_answers=np.ones(48))
+    got = study.train_study(cfg, s, jax.random.key(3), progress=False)
+    want = jax.tree.map(lambda x: x[0], st.params)
+    for a, b in zip(jax.tree.leaves(got.params), jax.tree.leaves(want), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-5)
+    assert int(got.epoch) == 3
+
+
+def test_study_size_budget_and_needed():
+    """Every cell gets the same update budget (at least ``updates``, less than one more
+    epoch), both methods share the quick preset's batch and lr, and the N for 80 % is
+    interpolated in log N (hand-computed: halfway between 1,000 and 10,000 is √10⁷)."""
+    from slotv_jax.experiments import study_size
+
+    cfg = study_size.quick()
+    for steps in (1, 3, 31, 312, 5000):
+        e = cfg.epochs_for(steps)
+        assert e * steps >= cfg.updates and (e - 1) * steps < cfg.updates
+    tcs = {m: cfg.train_config(m) for m in ("slotv", "trex")}
+    assert tcs["slotv"].batch_size == tcs["trex"].batch_size == 32
+    assert tcs["slotv"].learning_rate == tcs["trex"].learning_rate == 0.005
+    summary = [
+        {"method": "slotv", "participants": 5, "n": n, "mean": a}
+        for n, a in ((100, 0.5), (1000, 0.7), (10000, 0.9))
+    ] + [{"method": "trex", "participants": 0, "n": n, "mean": 0.85} for n in (100, 1000)]
+    got = {r["method"]: r for r in study_size.needed(summary, 0.8)}
+    assert got["slotv"]["n"] == pytest.approx(np.sqrt(1e7), rel=1e-9)
+    assert got["slotv"]["answers"] == pytest.approx(5 * np.sqrt(1e7), rel=1e-9)
+    assert got["trex"]["n"] == 100 and got["trex"]["at_most"]
+    assert not got["slotv"]["falls_back"] and not got["trex"]["falls_back"]
+    summary[-1]["mean"] = 0.75  # T-REX at N = 1,000 back below 80 %
+    assert study_size.needed(summary, 0.8)[1]["falls_back"]
