@@ -38,7 +38,13 @@ def test_settings_vary_one_factor_at_a_time():
     assert {s.factor for s in settings} == set(fidelity.FACTORS)
     counts = [s.data.trajectory.via_counts for s in settings if s.factor == "via"]
     assert counts == [(0,), (1,), (2,), (3,), (1, 2, 3), (3, 4, 5)]
+    x4_data = next(s for s in settings if s.name == "beta=x4").data
     for s in settings:
+        if s.factor == "defaults":  # the second stage varies one choice from the defaults
+            allowed_here = {"labels.beta_nikolaidis", "trajectory.via_low", "trajectory.via_high"}
+            assert len(_differences(x4_data, s.data)) <= 2, s.name
+            assert _differences(x4_data, s.data) <= allowed_here, s.name
+            continue
         assert _differences(base, s.data) <= allowed[s.factor], s.name
         assert s.trials == (cfg.key_trials if s.name in fidelity.KEY_SETTINGS else cfg.trials)
     x4 = next(s for s in settings if s.name == "beta=x4").data.labels
@@ -53,7 +59,10 @@ def test_settings_vary_one_factor_at_a_time():
     shared = {n for n in owner if owner[n].name == "via=1"}
     assert shared == {"via=1", "beta=x1", "box=spec", "timing=arc"}
     assert owner["via=1"].trials == cfg.key_trials
-    assert len({o.name for o in owner.values()}) == len(settings) - 3
+    assert owner["default"].name == "beta=x4"  # the defaults are the β×4 setting's run
+    nik = [s.data.labels for s in settings if s.name.startswith("default+nik")]
+    assert [(la.beta_nikolaidis, la.beta_dragan) for la in nik] == [(60.0, 20.0), (120.0, 20.0)]
+    assert len({o.name for o in owner.values()}) == len(settings) - 4
 
 
 def test_the_chosen_defaults_are_an_ablation_setting():
@@ -71,7 +80,8 @@ def test_fidelity_run_resumes_and_reports(cache, tmp_path):  # noqa: F811
     out = tmp_path / "fid"
     doc = fidelity.run(cfg, out, only=["beta=x4"], cache=cache, progress=False)
     rows = {r["name"]: r for r in doc["settings"]}
-    assert set(rows) == {"beta=x4"}  # only the settings that ran are collected
+    # Only the settings that ran are collected ("default" is the β×4 run, shared).
+    assert set(rows) == {"beta=x4", "default"}
     row = rows["beta=x4"]
     assert len(row["cells"]) == cfg.trials * len(table1.SPLITS)
     stats = row["label_stats"]
@@ -87,6 +97,11 @@ def test_fidelity_run_resumes_and_reports(cache, tmp_path):  # noqa: F811
     assert again["settings"][0]["summary"] == row["summary"]
     with pytest.raises(ValueError, match="unknown"):
         fidelity.run(cfg, out, only=["via=7"], cache=cache, progress=False)
+    # An earlier results.json supplies the runs this directory lacks, never the ones it has.
+    earlier = {"settings": [{**row, "run": "via=0", "name": "via=0"}, {**row, "cells": []}]}
+    merged = {r["name"]: r for r in fidelity.collect(cfg, out, earlier)["settings"]}
+    assert set(merged) == {"via=0", "beta=x4", "default"}
+    assert merged["via=0"]["cells"] == row["cells"] and merged["beta=x4"]["cells"] == row["cells"]
 
     md = tmp_path / "doc" / "fidelity.md"
     fidelity.write_report(again, md, command="python -m slotv_jax.experiments.fidelity")

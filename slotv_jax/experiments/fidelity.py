@@ -22,7 +22,14 @@ beta        all four β at ×1 and ×4 the first version's (Dragan 5,
 box         the SPEC's via box, and a tighter one over the goal table
 timing      equal arc length, or equal time per segment (as the first
             author's public ``legibility`` code samples its 100 points)
+defaults    around the chosen defaults (one via point, β ×4): Nikolaidis'
+            β alone at ×8 and ×16 (the others stay ×4), and the tighter
+            via box
 ==========  ==============================================================
+
+The last factor is a second stage: the first four vary one choice from the first
+version's base, ``defaults`` asks what the choices left open after that (a temperature
+per labeler, the box) would add to the defaults they picked.
 
 Each setting is a Table 1 run (:func:`slotv_jax.experiments.table1.run`) in its own
 directory ``OUT/<setting>/``: datasets are cached by config digest and finished cells
@@ -68,16 +75,18 @@ from slotv_jax.experiments.table1 import (
 from slotv_jax.fileio import save_figure, write_text
 from slotv_jax.trajectories import TrajectoryConfig
 
-FACTORS = ("via", "beta", "box", "timing")
+FACTORS = ("via", "beta", "box", "timing", "defaults")
 FACTOR_TITLES = {
     "via": "via-point count",
     "beta": "label temperature (× first version's β)",
     "box": "via-point box",
     "timing": "time parameterisation",
+    "defaults": "around the defaults (β ×4)",
 }
 TIGHT_BOX = ((0.30, -0.45, 0.10), (0.70, 0.45, 0.25))  # over the goal table's cube region (m)
 VIA_COUNTS = ((0,), (1,), (2,), (3,), (1, 2, 3), (3, 4, 5))
 BETA_SCALES = (1.0, 4.0)  # × the first version's β (Dragan 5, Nikolaidis 7.5, EffDist 5, FastApp 5)
+NIKOLAIDIS_SCALES = (8.0, 16.0)  # Nikolaidis' β alone, × the first version's, at the defaults
 KEY_SETTINGS = ("via=1", "via=3-5", "via=1-3")
 
 
@@ -180,6 +189,17 @@ def settings(cfg: FidelityConfig) -> list[Setting]:
     out.append(("box=tight", "box", "tight", traj(via_low=TIGHT_BOX[0], via_high=TIGHT_BOX[1])))
     out.append(("timing=arc", "timing", "arc length", base))
     out.append(("timing=segment", "timing", "per segment", traj(timing="segment")))
+    # Second stage, around the chosen defaults (β ×4 for all four labelers).
+    x4 = next(d for n, _, _, d in out if n == "beta=x4")
+    out.append(("default", "defaults", "defaults", x4))
+    for k in NIKOLAIDIS_SCALES:
+        beta = k * data_lib.LABELS_V1.beta_nikolaidis
+        labels = dataclasses.replace(x4.labels, beta_nikolaidis=beta)
+        out.append((f"default+nik=x{k:g}", "defaults", f"Nik. β ×{k:g}",
+                    dataclasses.replace(x4, labels=labels)))  # fmt: skip
+    tight = dataclasses.replace(x4.trajectory, via_low=TIGHT_BOX[0], via_high=TIGHT_BOX[1])
+    out.append(("default+box=tight", "defaults", "tight box",
+                dataclasses.replace(x4, trajectory=tight)))  # fmt: skip
     return [
         Setting(n, f, v, d, cfg.key_trials if n in KEY_SETTINGS else cfg.trials)
         for n, f, v, d in out
@@ -238,33 +258,47 @@ def run_setting(
     return {"doc": doc, "label_stats": stats, "time_s": time.perf_counter() - t0}
 
 
-def collect(cfg: FidelityConfig, out: Path) -> dict:
+def collect(cfg: FidelityConfig, out: Path, previous: dict | None = None) -> dict:
     """``OUT/results.json``: every setting with its label statistics and accuracy summary,
-    read from the setting directories that exist."""
+    read from the setting directories that exist.
+
+    ``previous`` (an earlier ``results.json``, e.g. ``experiments/fidelity_results.json``)
+    supplies the settings whose directories are not in ``out``: runs made on other
+    machines join the report. A setting found in both comes from ``out``.
+    """
     owner = unique_runs(settings(cfg))
+    earlier = {r["run"]: r for r in (previous or {}).get("settings", [])}
     rows = []
     env = {}
     for s in settings(cfg):
-        d = out / owner[s.name].name
-        if not (d / "results.json").exists() or not (d / "label_stats.json").exists():
-            continue
-        doc = json.loads((d / "results.json").read_text())
-        env = env or doc.get("environment", {})
-        rows.append(
-            {
-                "name": s.name,
-                "factor": s.factor,
-                "value": s.value,
-                "run": owner[s.name].name,
-                "data_digest": s.data.digest(),
-                "trajectory": dataclasses.asdict(s.data.trajectory),
-                "labels": dataclasses.asdict(s.data.labels),
+        run_name = owner[s.name].name
+        d = out / run_name
+        if (d / "results.json").exists() and (d / "label_stats.json").exists():
+            doc = json.loads((d / "results.json").read_text())
+            env = env or doc.get("environment", {})
+            found = {
                 "label_stats": json.loads((d / "label_stats.json").read_text()),
                 "summary": doc["summary"],
                 "cells": doc["cells"],
                 "timing": doc["timing"],
             }
+        elif run_name in earlier:
+            found = {k: earlier[run_name][k] for k in ("label_stats", "summary", "cells", "timing")}
+        else:
+            continue
+        rows.append(
+            {
+                "name": s.name,
+                "factor": s.factor,
+                "value": s.value,
+                "run": run_name,
+                "data_digest": s.data.digest(),
+                "trajectory": dataclasses.asdict(s.data.trajectory),
+                "labels": dataclasses.asdict(s.data.labels),
+                **found,
+            }
         )
+    env = env or (previous or {}).get("environment", {})
     return {
         "preset": cfg.preset,
         "config": cfg.to_json(),
@@ -466,6 +500,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--compute-dtype", choices=("float32", "bfloat16"))
     p.add_argument("--doc", type=Path, help="report path (default: see the module docstring)")
     p.add_argument("--report-only", action="store_true", help="only collect and re-render")
+    p.add_argument(
+        "--previous",
+        type=Path,
+        help="an earlier results.json whose settings join the report where OUT lacks them",
+    )
     p.add_argument("--list", action="store_true", help="list the settings and exit")
     args = p.parse_args(argv)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
@@ -492,14 +531,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     out = args.out or Path("runs") / f"fidelity_{args.preset}"
     t0 = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    previous = None
+    if args.previous:
+        try:
+            previous = json.loads(args.previous.read_text())
+        except (OSError, ValueError) as e:
+            p.error(f"--previous: cannot read {args.previous} as JSON ({e})")
     if args.report_only:
-        doc = collect(cfg, out)
+        doc = collect(cfg, out, previous)
         write_text(out / "results.json", json.dumps(doc, indent=1))
     else:
         try:
             doc = run(cfg, out, only=args.settings, cache=args.cache)
         except ValueError as e:
             p.error(str(e))
+        if previous:
+            doc = collect(cfg, out, previous)
+            write_text(out / "results.json", json.dumps(doc, indent=1))
     wall = None if args.report_only else time.perf_counter() - t0
     doc_path = args.doc or (
         Path("experiments") / "fidelity.md" if args.preset == "paper" else out / "fidelity.md"
