@@ -4,8 +4,10 @@ For a scene and a key:
 
 1. the target is uniform among the scene's real goals;
 2. the number of via points is uniform in ``via_counts`` (default ``{1}``; see below);
-3. via points are uniform in the box x ∈ [0.25, 0.70], y ∈ [−0.50, 0.50],
-   z ∈ [0.10, 0.40];
+3. via points are uniform in a box: by default :data:`TABLE_VIA_BOX`, over the goal
+   table's cube region (x ∈ [0.30, 0.70], y ∈ [−0.45, 0.45], z ∈ [0.10, 0.25]);
+   the first version drew them in the SPEC's larger box :data:`SPEC_VIA_BOX`
+   (x ∈ [0.25, 0.70], y ∈ [−0.50, 0.50], z ∈ [0.10, 0.40]);
 4. the Cartesian path is TCP(q_home) → via_1 → … → via_N → target, piecewise linear;
 5. it is resampled to 100 points (t_i = i / 99), equally spaced by arc length
    (``timing="arc_length"``) or with equal time on every segment
@@ -25,8 +27,9 @@ the start and goal come on top, or 1–3 if they are among the 3–5; the first
 author's public generator used one via point and equal time per segment. The
 ablation ``python -m slotv_jax.experiments.fidelity`` (``experiments/fidelity.md``)
 measures what each reading does to Table 1. :data:`DISTRIBUTIONS` names the
-choices: ``"default"`` (the evidence-based default) and ``"spec_v1"`` (the first
-version: 3–5 via points, arc length).
+choices: ``"default"`` (the evidence-based default: one via point in the table box,
+arc length) and ``"spec_v1"`` (the first version: 3–5 via points in the SPEC's box,
+arc length).
 
 >>> import jax
 >>> from slotv_jax.scene import sample_scene
@@ -50,6 +53,11 @@ from slotv_jax import kinematics, validation
 from slotv_jax.scene import Scene
 
 TIMINGS = ("arc_length", "segment")
+# Via-point boxes (m), (lower corner, upper corner). SPEC §3's [choice] spans the reachable
+# workspace in front of the robot; the table box lies over the goal table's cube region
+# (SPEC §2), lower down. The fidelity ablation chose the table box (experiments/fidelity.md).
+SPEC_VIA_BOX = ((0.25, -0.50, 0.10), (0.70, 0.50, 0.40))
+TABLE_VIA_BOX = ((0.30, -0.45, 0.10), (0.70, 0.45, 0.25))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,8 +67,8 @@ class TrajectoryConfig:
     n_points: int = 100  # samples along the path (t_i = i / (n_points - 1))
     via_counts: tuple[int, ...] = (1,)  # allowed numbers of via points, drawn uniformly
     timing: str = "arc_length"  # "arc_length": equal spacing; "segment": equal time per segment
-    via_low: tuple[float, float, float] = (0.25, -0.50, 0.10)  # via-point box, lower corner (m)
-    via_high: tuple[float, float, float] = (0.70, 0.50, 0.40)  # via-point box, upper corner (m)
+    via_low: tuple[float, float, float] = TABLE_VIA_BOX[0]  # via-point box, lower corner (m)
+    via_high: tuple[float, float, float] = TABLE_VIA_BOX[1]  # via-point box, upper corner (m)
     max_residual: float = 2e-3  # reject draws whose IK misses any point by more (m)
     ik: kinematics.IKConfig = dataclasses.field(  # iterations per path point
         default_factory=lambda: kinematics.IKConfig(iters=2, refine_iters=1)
@@ -169,10 +177,12 @@ def plan_path(key: jax.Array, scene: Scene, cfg: TrajectoryConfig = TrajectoryCo
 
 #: Named trajectory distributions (SPEC §3). ``default`` is the distribution chosen on the
 #: evidence of the fidelity ablation (experiments/fidelity.md); ``spec_v1`` is the first
-#: version's (3–5 via points, equal arc-length spacing).
+#: version's (3–5 via points in the SPEC's box, equal arc-length spacing).
 DISTRIBUTIONS: dict[str, TrajectoryConfig] = {
     "default": TrajectoryConfig(),
-    "spec_v1": TrajectoryConfig(via_counts=(3, 4, 5), timing="arc_length"),
+    "spec_v1": TrajectoryConfig(
+        via_counts=(3, 4, 5), timing="arc_length", via_low=SPEC_VIA_BOX[0], via_high=SPEC_VIA_BOX[1]
+    ),
 }
 
 

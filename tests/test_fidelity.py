@@ -7,7 +7,7 @@ import json
 import pytest
 from test_experiments import cache  # noqa: F401  (the tiny dataset, cached as table1 finds it)
 
-from slotv_jax import data
+from slotv_jax import data, trajectories
 from slotv_jax.experiments import fidelity, table1
 
 
@@ -66,11 +66,14 @@ def test_settings_vary_one_factor_at_a_time():
 
 
 def test_the_chosen_defaults_are_an_ablation_setting():
-    """The default distribution is the β×4 setting: one via point, arc length, SPEC box."""
-    x4 = next(s for s in fidelity.settings(fidelity.paper()) if s.name == "beta=x4").data
-    assert x4 == data.paper()
+    """The default distribution is the second stage's table-box setting: one via point in
+    the table box, arc length, β ×4."""
+    named = {s.name: s.data for s in fidelity.settings(fidelity.paper())}
+    assert named["default+box=tight"] == data.paper()
+    assert named["beta=x4"] != data.paper()  # the first stage's pick, in the SPEC's box
     v1 = data.with_distribution(data.paper(), "spec_v1")
     assert v1.trajectory.via_counts == (3, 4, 5) and v1.labels == data.LABELS_V1
+    assert (v1.trajectory.via_low, v1.trajectory.via_high) == trajectories.SPEC_VIA_BOX
     with pytest.raises(ValueError, match="distribution"):
         data.with_distribution(data.paper(), "v0")
 

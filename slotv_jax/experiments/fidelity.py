@@ -22,14 +22,16 @@ beta        all four β at ×1 and ×4 the first version's (Dragan 5,
 box         the SPEC's via box, and a tighter one over the goal table
 timing      equal arc length, or equal time per segment (as the first
             author's public ``legibility`` code samples its 100 points)
-defaults    around the chosen defaults (one via point, β ×4): Nikolaidis'
-            β alone at ×8 and ×16 (the others stay ×4), and the tighter
-            via box
+defaults    around the first stage's defaults (one via point, β ×4, the
+            SPEC's box): Nikolaidis' β alone at ×8 and ×16 (the others stay
+            ×4), and the table box
 ==========  ==============================================================
 
 The last factor is a second stage: the first four vary one choice from the first
 version's base, ``defaults`` asks what the choices left open after that (a temperature
-per labeler, the box) would add to the defaults they picked.
+per labeler, the box) add to the defaults they picked. Its ``default+box=tight`` setting
+is the current default distribution (generator version 7): one via point in the table
+box, arc length, β ×4.
 
 Each setting is a Table 1 run (:func:`slotv_jax.experiments.table1.run`) in its own
 directory ``OUT/<setting>/``: datasets are cached by config digest and finished cells
@@ -73,7 +75,7 @@ from slotv_jax.experiments.table1 import (
     SPLITS,
 )
 from slotv_jax.fileio import save_figure, write_text
-from slotv_jax.trajectories import TrajectoryConfig
+from slotv_jax.trajectories import SPEC_VIA_BOX, TABLE_VIA_BOX
 
 FACTORS = ("via", "beta", "box", "timing", "defaults")
 FACTOR_TITLES = {
@@ -81,9 +83,9 @@ FACTOR_TITLES = {
     "beta": "label temperature (× first version's β)",
     "box": "via-point box",
     "timing": "time parameterisation",
-    "defaults": "around the defaults (β ×4)",
+    "defaults": "around the β ×4 defaults",
 }
-TIGHT_BOX = ((0.30, -0.45, 0.10), (0.70, 0.45, 0.25))  # over the goal table's cube region (m)
+TIGHT_BOX = TABLE_VIA_BOX  # over the goal table's cube region (m); the default since v7
 VIA_COUNTS = ((0,), (1,), (2,), (3,), (1, 2, 3), (3, 4, 5))
 BETA_SCALES = (1.0, 4.0)  # × the first version's β (Dragan 5, Nikolaidis 7.5, EffDist 5, FastApp 5)
 NIKOLAIDIS_SCALES = (8.0, 16.0)  # Nikolaidis' β alone, × the first version's, at the defaults
@@ -132,8 +134,8 @@ def _base_data(d: data_lib.DataConfig) -> data_lib.DataConfig:
         d.trajectory,
         via_counts=(1,),
         timing="arc_length",
-        via_low=TrajectoryConfig.via_low,
-        via_high=TrajectoryConfig.via_high,
+        via_low=SPEC_VIA_BOX[0],
+        via_high=SPEC_VIA_BOX[1],
     )
     return dataclasses.replace(d, trajectory=traj, labels=data_lib.LABELS_V1)
 
