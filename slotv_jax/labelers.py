@@ -588,9 +588,9 @@ _ERRORS = (  # what label_all reports for a bad trajectory, first applicable fir
 def _label_chunk(xyz, goals, mask, t, betas, camera, names):
     """``jit(vmap)`` of the public labelers ``names`` over one chunk, and per trajectory
     the checks that cannot raise inside, ``(C, 3)`` (``(C, 5)`` with nikolaidis) in the
-    order of ``_ERRORS``. NaN
-    labels (checked by the caller) flag non-finite points; nikolaidis hides them behind
-    a uniform label when a depth is invalid, so with it the points are checked too."""
+    order of ``_ERRORS``. NaN labels flag non-finite points (or an overflow); nikolaidis
+    hides them behind a uniform label when a depth is invalid, so with it the points
+    are checked too."""
     _TRACES["label_chunk"] += 1
 
     def one(x, g, m, tt):
@@ -607,22 +607,19 @@ def _label_chunk(xyz, goals, mask, t, betas, camera, names):
             for k in range(G_MAX)
             for l in range(k)
         ]
-        ok = [jnp.bool_(True), jnp.bool_(True), ~functools.reduce(jnp.logical_or, same)]
+        # A NaN/inf point (or an overflow) makes every label of its trajectory NaN.
+        finite = [jnp.all(jnp.isfinite(y)) for y in labels.values()]
+        goals_finite = jnp.all(jnp.isfinite(g))
+        ok = [functools.reduce(jnp.logical_and, finite), goals_finite]
+        ok.append(~functools.reduce(jnp.logical_or, same))
         if "nikolaidis" in names:
-            ok[0] = jnp.all(jnp.isfinite(x))
+            ok[0] &= jnp.all(jnp.isfinite(x))
             ok += _depth_flags(x, g, m, camera.pos, camera.rot)
+        ok[0] |= ~goals_finite  # non-finite goals are reported as such
         return labels, jnp.stack(ok)
 
     t_axis = None if t is None or t.ndim == 1 else 0
     return jax.vmap(one, in_axes=(0, 0, 0, t_axis))(xyz, goals, mask, t)
-
-
-def _rows(a: np.ndarray, start: int, size: int) -> np.ndarray:
-    """Rows ``start:start + size`` of ``a``, the last row repeated to fill ``size``."""
-    rows = a[start : start + size]
-    if len(rows) == size:
-        return rows
-    return np.pad(rows, [(0, size - len(rows))] + [(0, 0)] * (a.ndim - 1), mode="edge")
 
 
 def label_all(
@@ -641,7 +638,9 @@ def label_all(
     camera: Camera | str = "observer",
 ) -> dict[str, np.ndarray]:
     """Label many trajectories (float32): the public labelers under ``jit(vmap)``, chunk by
-    chunk. Chunks of ``chunk_size`` (the last one padded) go through one compiled function.
+    chunk. Chunks of ``chunk_size`` go through one compiled function (the last chunk
+    overlaps the one before). On the CPU a float32 JAX array is read in place; a NumPy
+    array is copied chunk by chunk (cheaper than one copy of the whole).
 
     Args: ``xyz (N, T, 3)`` (m, T >= 2); ``goals (N, 8, 3)`` and ``goal_mask (N, 8)``, or
     ``(8, 3)`` and ``(8,)`` shared by all; ``t`` optional time stamps, ``(T,)`` or
@@ -667,18 +666,14 @@ def label_all(
     ok = np.ones((N, len(_ERRORS)), bool)
     with tqdm(total=N, unit="traj", desc="labelling", disable=not progress) as bar:
         for start in range(0, N, C):
-            n = min(C, N - start)
-            rows = [_rows(a, start, C) for a in (xyz, goals, goal_mask)]
-            tt = _rows(t, start, C) if t is not None and t.ndim == 2 else t
+            lo = min(start, N - C)  # the last chunk overlaps the one before: no padding
+            rows = [a[lo : lo + C] for a in (xyz, goals, goal_mask)]
+            tt = t[lo : lo + C] if t is not None and t.ndim == 2 else t
             labels, flags = _label_chunk(*rows, tt, betas, cam, names=names)
             for name in names:
-                out[name][start : start + n] = np.asarray(labels[name])[:n]
-            ok[start : start + n, : flags.shape[-1]] = np.asarray(flags)[:n]
-            bar.update(n)
-    # A NaN/inf point (or an overflow) makes every label of its trajectory NaN.
-    ok[:, 1] = np.isfinite(goals).all(axis=(-2, -1))
-    ok[:, 0] &= np.logical_and.reduce([np.isfinite(y).all(-1) for y in out.values()])
-    ok[:, 0] |= ~ok[:, 1]
+                out[name][lo : lo + C] = np.asarray(labels[name])
+            ok[lo : lo + C, : flags.shape[-1]] = np.asarray(flags)
+            bar.update(min(C, N - start))
     if not ok.all():
         i = int(np.flatnonzero(~ok.all(-1))[0])
         raise ValueError(_ERRORS[int(np.argmin(ok[i]))].format(i=i, eps=DEPTH_EPS))
