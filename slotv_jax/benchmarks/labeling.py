@@ -12,7 +12,8 @@ For each labeler, in one run on the same synthetic trajectories, side by side:
   back as NumPy; and, as *public, numpy in*, on the host NumPy arrays (the call then
   copies 190 MB of trajectories into a new XLA buffer each time);
 - **label_all**: :func:`slotv_jax.labelers.label_all` with that one labeler (chunks,
-  validation and copies back included);
+  validation and copies back included), on the same JAX arrays and on the host NumPy
+  arrays, each compared with the public path given the same input (like for like);
 
 all after compilation, taking turns within each of ``--repeats`` repeats (so that all
 see the same machine state), best of the repeats. Then all four labelers together,
@@ -175,11 +176,14 @@ def main(argv=None) -> int:
         """``f`` on ``arrays`` (default: the host arrays), labels back as NumPy."""
         return lambda: jax.tree.map(np.asarray, f(*arrays))
 
-    print("\nthroughput in trajectories per second (wall clock, best of the repeats)")
     print(
-        f"{'labeler':<11} {'numpy':>8} {'public':>10} {'ratio':>6} {'label_all':>10} "
-        f"{'ratio':>6} {'label_all/public':>16} {'max |Δy|':>9}   {'numpy in':>10} {'ratio':>6}"
-        "   by CPU time: public, label_all"
+        "\nthroughput in trajectories per second (wall clock, best of the repeats); x: ratio to "
+        "the NumPy loop; la/pub: label_all time over public time, like for like"
+    )
+    print(
+        f"{'labeler':<11} {'numpy':>7} | {'JAX arrays in: public':>21} {'label_all':>15} "
+        f"{'la/pub':>6} | {'NumPy arrays in: public':>23} {'label_all':>15} {'la/pub':>6} | "
+        f"{'max |dy|':>8} | by CPU time: public, label_all (JAX in); la/pub (JAX, NumPy in)"
     )
     ratios = {}
     for name in L.LABELER_NAMES:
@@ -191,20 +195,25 @@ def main(argv=None) -> int:
         results = measure(
             lambda f=f_np: np.stack([f(x64[i], g64[i], mask[i]) for i in range(m)]),
             run_pub,
+            lambda n=name: L.label_all(*dev, labelers=(n,), **kw),
             run_pub_np,
             lambda n=name: L.label_all(xyz, goals, mask, labelers=(n,), **kw),
         )
-        (y_np, np_wall, np_cpu), (y_pub, pub_wall, pub_cpu), (_, np_in_wall, _) = results[:3]
-        y_all, all_wall, all_cpu = results[3]
-        np_rate, pub_rate, all_rate = m / np_wall, args.n / pub_wall, args.n / all_wall
+        (y_np, np_wall, np_cpu), (y_pub, pub_w, pub_c), (y_all, all_w, all_c) = results[:3]
+        (_, pub_np_w, pub_np_c), (_, all_np_w, all_np_c) = results[3:]
+        np_rate = m / np_wall
         np_n_cpu = np_cpu / m * args.n  # CPU time of the NumPy loop for all n
-        ratios[name] = (pub_rate / np_rate, all_rate / np_rate)
+
+        def rate(wall, np_rate=np_rate):
+            return f"{args.n / wall:>9,.0f} {args.n / wall / np_rate:>4.0f}x"
+
+        ratios[name] = (args.n / pub_w / np_rate, args.n / all_w / np_rate)
         diff = max(np.abs(y_pub[:m] - y_np).max(), np.abs(y_all[name][:m] - y_np).max())
         print(
-            f"{name:<11} {np_rate:>8,.0f} {pub_rate:>10,.0f} {pub_rate / np_rate:>5.0f}x "
-            f"{all_rate:>10,.0f} {all_rate / np_rate:>5.0f}x {all_wall / pub_wall:>15.2f}x "
-            f"{diff:>9.1e}   {args.n / np_in_wall:>10,.0f} {args.n / np_in_wall / np_rate:>5.0f}x"
-            f"   {np_n_cpu / pub_cpu:>5.0f}x {np_n_cpu / all_cpu:>5.0f}x",
+            f"{name:<11} {np_rate:>7,.0f} | {rate(pub_w):>21} {rate(all_w):>15} "
+            f"{all_w / pub_w:>5.2f}x | {rate(pub_np_w):>23} {rate(all_np_w):>15} "
+            f"{all_np_w / pub_np_w:>5.2f}x | {diff:>8.1e} | {np_n_cpu / pub_c:>4.0f}x "
+            f"{np_n_cpu / all_c:>4.0f}x; {all_c / pub_c:.2f}x {all_np_c / pub_np_c:.2f}x",
             flush=True,
         )
 
@@ -214,17 +223,21 @@ def main(argv=None) -> int:
     each = [host(jax.jit(jax.vmap(f)), dev) for f in public.values()]
     for f in each:
         f()  # compile
-    (_, four_wall, four_cpu), (_, each_wall, each_cpu), (_, all_wall, all_cpu) = measure(
-        host(four, dev), lambda: [f() for f in each], lambda: L.label_all(xyz, goals, mask, **kw)
+    (_, four_wall, four_cpu), (_, each_wall, each_cpu), (_, all_wall, all_cpu), all_np = measure(
+        host(four, dev),
+        lambda: [f() for f in each],
+        lambda: L.label_all(*dev, **kw),
+        lambda: L.label_all(xyz, goals, mask, **kw),
     )
     print(
         f"\nall four labelers, {args.n:,} trajectories of {args.T} points (after compilation), "
         "wall (CPU) seconds:\n"
         f"  public, one jit of the four: {four_wall:.3f} ({four_cpu:.3f})\n"
         f"  public, one jit each:        {each_wall:.3f} ({each_cpu:.3f})\n"
-        f"  label_all:                   {all_wall:.3f} ({all_cpu:.3f}), "
+        f"  label_all, JAX arrays in:    {all_wall:.3f} ({all_cpu:.3f}), "
         f"{all_wall / min(four_wall, each_wall):.2f}x the faster public way "
-        "(targets <= 1 s, <= 1.3x)"
+        "(targets <= 1 s, <= 1.3x)\n"
+        f"  label_all, NumPy arrays in:  {all_np[1]:.3f} ({all_np[2]:.3f})"
     )
     print(
         "ratio to the NumPy loop (public / label_all): "
