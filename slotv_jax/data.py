@@ -68,11 +68,12 @@ SPLITS = (
 LABELER_NAMES = ("dragan", "nikolaidis", "effdist", "fastapp")
 FORMAT_VERSION = 1
 # Bump when generation code changes what a config produces, so cached datasets are not reused.
-GENERATOR_VERSION = 7  # 2: IK locks joints at their limits; 3: home TCP by one compiled call;
+GENERATOR_VERSION = 8  # 2: IK locks joints at their limits; 3: home TCP by one compiled call;
 # 4: labels from the coordinate-major labelling kernel (equal up to float32 rounding);
 # 5: the trajectory distribution chosen by the fidelity ablation (trajectories.DISTRIBUTIONS);
 # 6: labels from the public per-trajectory labelers under vmap (equal up to float32 rounding);
-# 7: via points of the default distribution in the table box (trajectories.TABLE_VIA_BOX)
+# 7: via points of the default distribution in the table box (trajectories.TABLE_VIA_BOX);
+# 8: nikolaidis in homogeneous image coordinates (labels within 3e-7 of version 7's)
 
 # Arrays stored per split: name -> (dtype, shape with "N", "S", "T" symbols).
 _TRAJ_ARRAYS = {
