@@ -291,6 +291,7 @@ def run(
         except Exception as e:  # an optimisation only: training compiles as usual
             print(f"table1: ahead-of-time compilation of {meth} failed ({e!r})", file=sys.stderr)
     doc["timing"]["precompile_wait_s"] = time.perf_counter() - t0 - doc["timing"]["data_s"]
+    doc["timing"]["stopped_by_time_limit"] = False  # of this invocation (a resumed doc had one)
 
     def save():
         doc["summary"] = summarise(doc["cells"])
