@@ -57,7 +57,12 @@ def variants(backward: str, method: str) -> list[tuple[str, dict]]:
     out = [(f"backward={b}", {"backward": b}) for b in BACKWARDS if b != backward]
     out += [(f"first layer {f}", {"form": f}) for f in ("difference", "broadcast")]
     other = 4 if default_unroll(jax.default_backend()) == 1 else 1
-    return [*out, (f"backward={backward}, unroll {other}", {"backward": backward, "unroll": other})]
+    out += [(f"backward={backward}, unroll {other}", {"backward": backward, "unroll": other})]
+    out += [(f"sum as contraction={c}", {"contraction": c}) for c in (False, True)]
+    out += [("not packed", {"pairs": 0})] if method == "slotv" else []
+    simplest = {"backward": "autodiff", "unroll": 1, "form": "difference", "contraction": False}
+    return [*out, ("simplest: autodiff, unroll 1, difference, plain sum, not packed",
+                   {**simplest, "pairs": 0})]  # fmt: skip
 
 
 def forward_flops(hidden: tuple[int, ...], rows_per_traj: int, goals_per_traj: int) -> float:
@@ -106,17 +111,19 @@ def synthetic_data(n: int, seed: int = 0, trim: bool = True):
     return train.trim_goals(data) if trim else data
 
 
-def paper_pair_capacity(trials: int = 10) -> int:
-    """The packed SLOT-V pairs per update of a paper-preset run of ``trials`` trials
-    (seeds 0..trials−1, 15 epochs) on 100,000 synthetic training trajectories."""
+def paper_pair_capacity(trials: int = 10, preset: str = "paper") -> int:
+    """The packed SLOT-V pairs per update of a ``preset`` run of ``trials`` trials
+    (seeds 0..trials−1, the preset's epochs) on synthetic training trajectories (100,000
+    for the paper preset, the quick preset's ``train_size``)."""
     import jax
 
     from slotv_jax import config, train
 
-    cfg = config.paper("slotv")
+    cfg = config.PRESETS[preset]("slotv")
     trainer = train.make_train(cfg, progress=False)
     keys = jax.vmap(train.Trainer.state_key)(train.trial_keys(trials))
-    return trainer.pair_capacity(keys, synthetic_data(100_000).goal_mask, range(cfg.epochs))
+    n = cfg.train_size or 100_000
+    return trainer.pair_capacity(keys, synthetic_data(n).goal_mask, range(cfg.epochs))
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -160,72 +167,107 @@ class Row:
         return self.flops_per_s / self.peak
 
 
-def bench_train(
+def build_train(
     method: str,
     dtype: str,
     steps: int,
-    repeats: int,
     *,
     backward: str = "auto",
     unroll: int | str = "auto",
-    profile: str | None = None,
     trim: bool = True,
     form: str = "auto",
     trials: int = 1,
     pairs: int = 0,
-) -> tuple[float, float, float, object, float]:
-    """(seconds per update, FLOPs per update, compile seconds, cfg, goal slots per
-    trajectory computed) of the paper-size loop; with ``trials`` > 1, that many vmapped
-    trials per call (FLOPs and time of all of them together). ``form`` is
-    :data:`slotv_jax.models.first_layer_form`; ``pairs`` > 0 packs SLOT-V updates to that
-    many (trajectory, goal) pairs (:func:`slotv_jax.train.slotv_loss_packed`)."""
+    preset: str = "paper",
+    contraction: bool | None = None,
+):
+    """Compile one timed epoch of ``steps`` updates: (``once()``, which runs it, FLOPs per
+    update, compile seconds, cfg, goal slots per trajectory computed, compiled). With
+    ``trials`` > 1, that many vmapped trials per call (FLOPs of all of them together).
+    ``form`` is :data:`slotv_jax.models.first_layer_form`; ``pairs`` > 0 packs SLOT-V updates
+    to that many (trajectory, goal) pairs (:func:`slotv_jax.train.slotv_loss_packed`);
+    ``contraction`` forces the form of :func:`slotv_jax.models.sum_over_points`."""
     import jax
 
     from slotv_jax import config, models, train
 
     models.first_layer_form = form  # read when tracing, below
-
-    cfg = config.paper(method, compute_dtype=dtype, epochs=1, log_every=steps)
-    n = steps * cfg.batch_size
-    pairs = pairs if method == "slotv" else 0
-    trainer = train.make_train(
-        cfg, progress=False, backward=backward, unroll=unroll, packed_pairs=pairs
-    )
-    backward, unroll = trainer.backward, trainer.unroll
-    data = trainer.replicate(synthetic_data(n, trim=trim))
-    slots = pairs / cfg.batch_size if pairs else data.goals.shape[1]
-    run = functools.partial(trainer.run, epochs=1)
-    if trials > 1:
-        keys = jax.random.split(jax.random.key(0), trials)
-        state = trainer.replicate(jax.vmap(trainer.init)(keys))
-        run = jax.vmap(run, in_axes=(0, None))
-    else:
-        state = trainer.replicate(trainer.init(jax.random.key(0)))
-    epoch = jax.jit(run, donate_argnums=0)
-    t0 = time.perf_counter()
-    compiled = epoch.lower(state, data).compile()
-    compile_s = time.perf_counter() - t0
+    plain_sum = models.sum_over_points
+    if contraction is not None:
+        models.sum_over_points = functools.partial(plain_sum, contraction=contraction)
+    try:
+        cfg = config.PRESETS[preset](method, compute_dtype=dtype, epochs=1, log_every=steps)
+        cfg = dataclasses.replace(cfg, train_size=None)
+        n = steps * cfg.batch_size
+        pairs = pairs if method == "slotv" else 0
+        trainer = train.make_train(
+            cfg, progress=False, backward=backward, unroll=unroll, packed_pairs=pairs
+        )
+        data = trainer.replicate(synthetic_data(n, trim=trim))
+        slots = pairs / cfg.batch_size if pairs else data.goals.shape[1]
+        run = functools.partial(trainer.run, epochs=1)
+        if trials > 1:
+            keys = jax.random.split(jax.random.key(0), trials)
+            state = trainer.replicate(jax.vmap(trainer.init)(keys))
+            run = jax.vmap(run, in_axes=(0, None))
+        else:
+            state = trainer.replicate(trainer.init(jax.random.key(0)))
+        epoch = jax.jit(run, donate_argnums=0)
+        t0 = time.perf_counter()
+        compiled = epoch.lower(state, data).compile()
+        compile_s = time.perf_counter() - t0
+    finally:
+        models.first_layer_form = "auto"
+        models.sum_over_points = plain_sum
     holder = [compiled(state, data)[0]]  # warm-up
 
     def once():
         holder[0], m = compiled(holder[0], data)
         jax.block_until_ready(m)
 
+    flops, _ = update_flops(cfg, slots)
+    return once, flops * trials, compile_s, cfg, slots, compiled
+
+
+def interleaved(fns: list, repeats: int) -> list[float]:
+    """Median seconds of each of ``fns``, called round-robin ``repeats`` times (so that a
+    change of load on a shared machine hits every variant alike)."""
+    ts: list[list[float]] = [[] for _ in fns]
+    for _ in range(repeats):
+        for f, t in zip(fns, ts, strict=True):
+            t0 = time.perf_counter()
+            f()
+            t.append(time.perf_counter() - t0)
+    return [statistics.median(t) for t in ts]
+
+
+def bench_train(
+    method: str,
+    dtype: str,
+    steps: int,
+    repeats: int,
+    *,
+    profile: str | None = None,
+    **kw,
+) -> tuple[float, float, float, object, float]:
+    """(seconds per update, FLOPs per update, compile seconds, cfg, goal slots per
+    trajectory computed) of the loop built by :func:`build_train` (``kw``)."""
+    import jax
+
+    once, flops, compile_s, cfg, slots, compiled = build_train(method, dtype, steps, **kw)
     t = _median_time(once, repeats) / steps
     if profile:
         import pathlib
 
         d = pathlib.Path(profile)
         d.mkdir(parents=True, exist_ok=True)
-        tag = f"{method}_{dtype}_{backward}_unroll{unroll}_p{pairs}_{form}_x{trials}"
+        tag = f"{method}_{dtype}_" + "_".join(f"{k}{v}" for k, v in sorted(kw.items()))
         (d / f"{tag}.hlo.txt").write_text(compiled.as_text())
         with jax.profiler.trace(str(d / tag), create_perfetto_trace=True):
             for _ in range(2):
                 once()
         kernel_summary(d / tag, steps * 2)
-    models.first_layer_form = "auto"
-    flops, _ = update_flops(cfg, slots)
-    return t, flops * trials, compile_s, cfg, slots
+    return t, flops, compile_s, cfg, slots
 
 
 def kernel_summary(trace_dir, updates: int, top: int = 25) -> None:
@@ -257,27 +299,45 @@ def kernel_summary(trace_dir, updates: int, top: int = 25) -> None:
               f"x{cnt[name] / updates:.2f}  {name[:110]}")  # fmt: skip
 
 
-def bench_eval(
-    method: str, dtype: str, n: int, repeats: int, trim: bool = True
-) -> tuple[float, float, float]:
-    """(trajectories/s, FLOP/s, compile s) of chunked SPEC §8 accuracy at paper size."""
+def build_eval(
+    method: str, dtype: str, n: int, trim: bool = True, *,
+    preset: str = "paper", form: str = "auto", contraction: bool | None = None,
+):  # fmt: skip
+    """Compile chunked SPEC §8 accuracy over ``n`` trajectories: (``once()``, forward FLOPs
+    per call, compile seconds, cfg)."""
     import jax
 
-    from slotv_jax import config, train
+    from slotv_jax import config, models, train
 
-    cfg = config.paper(method, compute_dtype=dtype)
-    trainer = train.make_train(cfg, progress=False)
-    params = trainer.replicate(trainer.init(jax.random.key(0)).params)
-    data = synthetic_data(n, seed=1, trim=trim)
-    ev = trainer.replicate(trainer.eval_data(data, size=n))
-    f = jax.jit(trainer.accuracy)
-    t0 = time.perf_counter()
-    compiled = f.lower(params, ev).compile()
-    compile_s = time.perf_counter() - t0
+    models.first_layer_form = form
+    plain_sum = models.sum_over_points
+    if contraction is not None:
+        models.sum_over_points = functools.partial(plain_sum, contraction=contraction)
+    try:
+        cfg = config.PRESETS[preset](method, compute_dtype=dtype)
+        trainer = train.make_train(cfg, progress=False)
+        params = trainer.replicate(trainer.init(jax.random.key(0)).params)
+        data = synthetic_data(n, seed=1, trim=trim)
+        ev = trainer.replicate(trainer.eval_data(data, size=n))
+        f = jax.jit(trainer.accuracy)
+        t0 = time.perf_counter()
+        compiled = f.lower(params, ev).compile()
+        compile_s = time.perf_counter() - t0
+    finally:
+        models.first_layer_form = "auto"
+        models.sum_over_points = plain_sum
     jax.block_until_ready(compiled(params, ev))
-    t = _median_time(lambda: jax.block_until_ready(compiled(params, ev)), repeats)
     g = data.goals.shape[1]
     fl = forward_flops(cfg.hidden, T * g, g) * n
+    return (lambda: jax.block_until_ready(compiled(params, ev))), fl, compile_s, cfg
+
+
+def bench_eval(
+    method: str, dtype: str, n: int, repeats: int, trim: bool = True, **kw
+) -> tuple[float, float, float]:
+    """(trajectories/s, FLOP/s, compile s) of chunked SPEC §8 accuracy (:func:`build_eval`)."""
+    once, fl, compile_s, _ = build_eval(method, dtype, n, trim, **kw)
+    t = _median_time(once, repeats)
     return n / t, fl / t, compile_s
 
 
@@ -304,6 +364,8 @@ def environment() -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.training")
     ap.add_argument("--device-run", action="store_true", help="accelerator settings + variants")
+    ap.add_argument("--preset", default="paper", choices=("paper", "quick"), help="model sizes")
+    ap.add_argument("--eval-size", type=int, default=None, help="trajectories per eval call")
     ap.add_argument("--steps", type=int, default=None, help="updates per timed epoch")
     ap.add_argument("--repeats", type=int, default=None)
     ap.add_argument("--dtypes", default="float32,bfloat16")
@@ -344,7 +406,7 @@ def main(argv=None) -> int:
     steps = args.steps or (400 if gpu else 3)
     repeats = args.repeats or (5 if gpu else 2)
     n_peak = 8192 if gpu else 2048
-    n_eval = 16384 if gpu else 64
+    n_eval = args.eval_size or (16384 if gpu else 64)
     env = environment()
     print(slotv_jax.XLA_CONFIG.summary())
     print(json.dumps(env), flush=True)
@@ -354,10 +416,10 @@ def main(argv=None) -> int:
 
     pairs = 0
     if packs_updates(jax.default_backend()) and not (args.all_slots or args.dense):
-        pairs = paper_pair_capacity()
+        pairs = paper_pair_capacity(10 if args.preset == "paper" else 2, args.preset)
     if pairs:
         print(f"SLOT-V updates packed to {pairs} real (trajectory, goal) pairs of the 32 × 6 "
-              "slots (the most in any batch of a 10-trial paper run)", flush=True)  # fmt: skip
+              f"slots (the most in any batch of a {args.preset} run)", flush=True)  # fmt: skip
     rows: list[Row] = []
     extra: list[dict] = []
     for dtype in args.dtypes.split(","):
@@ -367,7 +429,7 @@ def main(argv=None) -> int:
             trim = not args.all_slots
             t, fl, cs, cfg, slots = bench_train(
                 method, dtype, steps, repeats, backward=args.backward, profile=args.profile,
-                trim=trim, pairs=pairs,
+                trim=trim, pairs=pairs, preset=args.preset,
             )  # fmt: skip
             _, traj = update_flops(cfg, slots)
             slot_note = ""
@@ -385,22 +447,32 @@ def main(argv=None) -> int:
                   f"(compile {cs:.1f} s)", flush=True)  # fmt: skip
             if method in args.variant_methods.split(","):
                 wanted = [w for w in args.variants.split(",") if w]
-                for label, kw in variants(args.backward, method):
-                    if wanted and not any(w in label for w in wanted):
-                        continue
-                    tv, flv, *_ = bench_train(
-                        method, dtype, steps, repeats, profile=args.profile, trim=trim,
-                        pairs=pairs, **kw,
-                    )  # fmt: skip
+                chosen = [(label, {"pairs": pairs, **kw}) for label, kw in
+                          variants(args.backward, method)
+                          if not wanted or any(w in label for w in wanted)]  # fmt: skip
+                base = {"backward": args.backward, "trim": trim, "pairs": pairs,
+                        "preset": args.preset}  # fmt: skip
+                built = [build_train(method, dtype, steps, **base)]
+                built += [build_train(method, dtype, steps, trim=trim, preset=args.preset, **kw)
+                          for _, kw in chosen]  # fmt: skip
+                times = interleaved([b[0] for b in built], repeats)
+                t0 = times[0] / steps
+                print(f"    interleaved, {repeats} rounds: default {t0 * 1e3:.3f} ms/update",
+                      flush=True)  # fmt: skip
+                for (label, _), b, tv in zip(chosen, built[1:], times[1:], strict=True):
+                    tv /= steps
+                    flv = b[1]
                     v = {"method": method, "variant": label, "dtype": dtype, "step_ms": tv * 1e3,
-                         "traj_per_s": traj / tv, "frac_peak": flv / tv / peak}  # fmt: skip
+                         "default_ms": t0 * 1e3, "ratio": tv / t0, "traj_per_s": traj / tv,
+                         "frac_peak": flv / tv / peak}  # fmt: skip
                     extra.append(v)
-                    print(f"    variant {label}: {tv * 1e3:.3f} ms/update, {traj / tv:,.0f} "
-                          f"traj/s, {100 * flv / tv / peak:.1f}% of peak", flush=True)  # fmt: skip
+                    print(f"    variant {label}: {tv * 1e3:.3f} ms/update ({tv / t0:.3f} × "
+                          f"default), {traj / tv:,.0f} traj/s, {100 * flv / tv / peak:.1f}% of "
+                          "peak", flush=True)  # fmt: skip
             for k in [int(x) for x in args.vmap_trials.split(",") if x]:
                 tv, flv, *_ = bench_train(
                     method, dtype, steps, repeats, backward=args.backward, trim=trim, trials=k,
-                    pairs=pairs,
+                    pairs=pairs, preset=args.preset,
                 )  # fmt: skip
                 v = {"method": method, "variant": f"{k} vmapped trials", "dtype": dtype,
                      "step_ms": tv * 1e3 / k, "traj_per_s": k * traj / tv,
@@ -410,11 +482,31 @@ def main(argv=None) -> int:
                       f"{k * traj / tv:,.0f} traj/s, {100 * flv / tv / peak:.1f}% of peak",
                       flush=True)  # fmt: skip
             if not args.no_eval:
-                tps, fps, ecs = bench_eval(method, dtype, n_eval, repeats, trim)
+                tps, fps, ecs = bench_eval(method, dtype, n_eval, repeats, trim, preset=args.preset)
                 rows.append(Row(f"{method} eval", dtype, n_eval, cfg.hidden, 1e3 * n_eval / tps,
                                 tps, fps, peak, ecs))  # fmt: skip
                 print(f"  {method} eval: {tps:,.0f} traj/s, {fps / 1e12:.2f} TFLOP/s = "
                       f"{100 * fps / peak:.1f}% of peak", flush=True)  # fmt: skip
+                if method in args.variant_methods.split(","):
+                    chosen = [("first layer difference", {"form": "difference"}),
+                              ("first layer broadcast", {"form": "broadcast"}),
+                              ("sum as contraction=False", {"contraction": False}),
+                              ("sum as contraction=True", {"contraction": True}),
+                              ("simplest: difference, plain sum",
+                               {"form": "difference", "contraction": False})]  # fmt: skip
+                    built = [build_eval(method, dtype, n_eval, trim, preset=args.preset)]
+                    built += [build_eval(method, dtype, n_eval, trim, preset=args.preset, **kw)
+                              for _, kw in chosen]  # fmt: skip
+                    times = interleaved([b[0] for b in built], repeats)
+                    print(f"    eval interleaved, {repeats} rounds: default "
+                          f"{n_eval / times[0]:,.0f} traj/s", flush=True)  # fmt: skip
+                    for (label, _), tv in zip(chosen, times[1:], strict=True):
+                        extra.append({"method": method, "variant": f"eval {label}",
+                                      "dtype": dtype, "step_ms": 1e3 * tv,
+                                      "default_ms": 1e3 * times[0], "ratio": tv / times[0],
+                                      "traj_per_s": n_eval / tv})  # fmt: skip
+                        print(f"    eval variant {label}: {n_eval / tv:,.0f} traj/s "
+                              f"({tv / times[0]:.3f} × default time)", flush=True)  # fmt: skip
 
     print()
     print(f"device: {env['device']}; jax {env['jax']}, flax {env['flax']}, {env['date']}")
