@@ -386,6 +386,13 @@ def make_model(cfg, rngs: nnx.Rngs | jax.Array | int) -> Model:
     return cls(cfg.hidden, compute_dtype=cfg.compute_dtype, rngs=rngs)
 
 
+@functools.cache
+def graphdef(cfg) -> nnx.GraphDef:
+    """The ``nnx`` graph definition of :func:`make_model`'s model for ``cfg`` (no parameters
+    are allocated): ``nnx.merge(graphdef(cfg), params)`` rebuilds the model."""
+    return nnx.split(nnx.eval_shape(lambda: make_model(cfg, nnx.Rngs(0))))[0]
+
+
 def check_observer_inputs(xyz, goals, goal_mask, *, batch_shape: tuple[int, ...] = ()) -> None:
     """Boundary checks for one trajectory (or a batch): shapes, finiteness, a real goal.
 

@@ -32,14 +32,27 @@ import argparse
 import dataclasses
 import datetime
 import functools
+import gzip
 import itertools
 import json
+import pathlib
 import platform
 import statistics
 import sys
 import time
+from collections import defaultdict
+
+import flax
+import jax
+import jax.numpy as jnp
+import jaxlib
+import numpy as np
+import optax
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
+from slotv_jax import config, models, train
+from slotv_jax.models import BACKWARDS
+from slotv_jax.train import default_backward, default_unroll, packs_updates
 
 T = 100
 G = 8
@@ -47,10 +60,6 @@ G = 8
 
 def variants(backward: str, method: str) -> list[tuple[str, dict]]:
     """Other implementations of the same update (Trainer.backward, Trainer.unroll)."""
-    import jax
-
-    from slotv_jax.models import BACKWARDS
-    from slotv_jax.train import default_backward, default_unroll
 
     if backward == "auto":
         backward = default_backward(jax.default_backend(), method)
@@ -87,9 +96,6 @@ def synthetic_data(n: int, seed: int = 0, trim: bool = True):
     """Random but valid trajectories, scenes (2, 3, 5 or 6 goals, as the training split) and
     label distributions (on the host); ``trim`` cuts the two slots no scene uses, as
     :func:`slotv_jax.train.train_trials` does."""
-    import numpy as np
-
-    from slotv_jax import train
 
     rng = np.random.default_rng(seed)
     counts = rng.choice([2, 3, 5, 6], n)
@@ -115,9 +121,6 @@ def paper_pair_capacity(trials: int = 10, preset: str = "paper") -> int:
     """The packed SLOT-V pairs per update of a ``preset`` run of ``trials`` trials
     (seeds 0..trials−1, the preset's epochs) on synthetic training trajectories (100,000
     for the paper preset, the quick preset's ``train_size``)."""
-    import jax
-
-    from slotv_jax import config, train
 
     cfg = config.PRESETS[preset]("slotv")
     trainer = train.make_train(cfg, progress=False)
@@ -137,8 +140,6 @@ def _median_time(fn, repeats: int) -> float:
 
 def matmul_peak(dtype: str, n: int, repeats: int) -> float:
     """FLOP/s of a jitted n×n×n ``jnp.dot`` in ``dtype`` on random data (median of calls)."""
-    import jax
-    import jax.numpy as jnp
 
     dt = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}[dtype]
     ka, kb = jax.random.split(jax.random.key(0))
@@ -187,9 +188,6 @@ def build_train(
     ``form`` is :data:`slotv_jax.models.first_layer_form`; ``pairs`` > 0 packs SLOT-V updates
     to that many (trajectory, goal) pairs (:func:`slotv_jax.train.slotv_loss_packed`);
     ``contraction`` forces the form of :func:`slotv_jax.models.sum_over_points`."""
-    import jax
-
-    from slotv_jax import config, models, train
 
     models.first_layer_form = form  # read when tracing, below
     plain_sum = models.sum_over_points
@@ -252,13 +250,10 @@ def bench_train(
 ) -> tuple[float, float, float, object, float]:
     """(seconds per update, FLOPs per update, compile seconds, cfg, goal slots per
     trajectory computed) of the loop built by :func:`build_train` (``kw``)."""
-    import jax
 
     once, flops, compile_s, cfg, slots, compiled = build_train(method, dtype, steps, **kw)
     t = _median_time(once, repeats) / steps
     if profile:
-        import pathlib
-
         d = pathlib.Path(profile)
         d.mkdir(parents=True, exist_ok=True)
         tag = f"{method}_{dtype}_" + "_".join(f"{k}{v}" for k, v in sorted(kw.items()))
@@ -272,9 +267,6 @@ def bench_train(
 
 def kernel_summary(trace_dir, updates: int, top: int = 25) -> None:
     """Print the device kernels of a profiler trace by total time (per update)."""
-    import gzip
-    import pathlib
-    from collections import defaultdict
 
     files = sorted(pathlib.Path(trace_dir).rglob("*.trace.json.gz"))
     if not files:
@@ -305,9 +297,6 @@ def build_eval(
 ):  # fmt: skip
     """Compile chunked SPEC §8 accuracy over ``n`` trajectories: (``once()``, forward FLOPs
     per call, compile seconds, cfg)."""
-    import jax
-
-    from slotv_jax import config, models, train
 
     models.first_layer_form = form
     plain_sum = models.sum_over_points
@@ -342,10 +331,6 @@ def bench_eval(
 
 
 def environment() -> dict:
-    import flax
-    import jax
-    import jaxlib
-    import optax
 
     devs = jax.devices()
     return {
@@ -398,8 +383,6 @@ def main(argv=None) -> int:
     ap.add_argument("--profile", default=None, help="dir: HLO + kernel profile of slotv train")
     args = ap.parse_args(argv)
 
-    import jax
-
     gpu = jax.default_backend() != "cpu"
     if args.variant_methods is None:
         args.variant_methods = "slotv" if args.device_run else ""
@@ -411,8 +394,6 @@ def main(argv=None) -> int:
     print(slotv_jax.XLA_CONFIG.summary())
     print(json.dumps(env), flush=True)
     print(f"steps per timed epoch {steps}, repeats {repeats}, peak matmul {n_peak}³", flush=True)
-
-    from slotv_jax.train import default_backward, default_unroll, packs_updates
 
     pairs = 0
     if packs_updates(jax.default_backend()) and not (args.all_slots or args.dense):
