@@ -63,7 +63,8 @@ def variants(backward: str, method: str) -> list[tuple[str, dict]]:
 
     if backward == "auto":
         backward = default_backward(jax.default_backend(), method)
-    out = [(f"backward={b}", {"backward": b}) for b in BACKWARDS if b != backward]
+    out = [("default, again (the noise floor)", {"backward": backward})]
+    out += [(f"backward={b}", {"backward": b}) for b in BACKWARDS if b != backward]
     out += [(f"first layer {f}", {"form": f}) for f in ("difference", "broadcast")]
     other = 4 if default_unroll(jax.default_backend()) == 1 else 1
     out += [(f"backward={backward}, unroll {other}", {"backward": backward, "unroll": other})]
@@ -228,14 +229,16 @@ def build_train(
 
 
 def interleaved(fns: list, repeats: int) -> list[float]:
-    """Median seconds of each of ``fns``, called round-robin ``repeats`` times (so that a
-    change of load on a shared machine hits every variant alike)."""
+    """Median seconds of each of ``fns``, called round-robin ``repeats`` times, each round
+    starting one further along (so that a change of load on a shared machine, and the
+    position in the round, hit every variant alike)."""
     ts: list[list[float]] = [[] for _ in fns]
-    for _ in range(repeats):
-        for f, t in zip(fns, ts, strict=True):
+    for r in range(repeats):
+        for i in range(len(fns)):
+            j = (i + r) % len(fns)
             t0 = time.perf_counter()
-            f()
-            t.append(time.perf_counter() - t0)
+            fns[j]()
+            ts[j].append(time.perf_counter() - t0)
     return [statistics.median(t) for t in ts]
 
 
@@ -469,7 +472,8 @@ def main(argv=None) -> int:
                 print(f"  {method} eval: {tps:,.0f} traj/s, {fps / 1e12:.2f} TFLOP/s = "
                       f"{100 * fps / peak:.1f}% of peak", flush=True)  # fmt: skip
                 if method in args.variant_methods.split(","):
-                    chosen = [("first layer difference", {"form": "difference"}),
+                    chosen = [("default, again (the noise floor)", {}),
+                              ("first layer difference", {"form": "difference"}),
                               ("first layer broadcast", {"form": "broadcast"}),
                               ("sum as contraction=False", {"contraction": False}),
                               ("sum as contraction=True", {"contraction": True}),
