@@ -38,11 +38,10 @@ bfloat16; parameters, gradients and optimiser state stay float32.
 Implementation choices that do not change the values (up to float rounding):
 ``make_train(backward=...)`` selects how the gradient of the first layers is formed
 (see :meth:`slotv_jax.models.GoalRelativeMLP.grid`; "auto" takes the fastest measured
-one per platform and method) and ``unroll`` unrolls the update loop;
-:func:`train_trials` cuts the goal slots no training trajectory uses
-(:func:`trim_goals`) and, on CPUs, packs SLOT-V updates to each batch's real
-(trajectory, goal) pairs (:func:`slotv_loss_packed`, with a capacity counted exactly
-over every batch of the run).
+one per platform and method, :func:`default_backward`); :func:`train_trials` cuts the
+goal slots no training trajectory uses (:func:`trim_goals`) and, on CPUs, packs SLOT-V
+updates to each batch's real (trajectory, goal) pairs (:func:`slotv_loss_packed`, with a
+capacity counted exactly over every batch of the run).
 
 Sample-efficiency curves (SPEC §8): ``cfg.eval_every = k`` validates on the first
 ``cfg.eval_size`` trajectories of ``val`` after every k updates (and once before
@@ -216,7 +215,6 @@ class Trainer:
     tx: optax.GradientTransformation
     progress: _Progress | None
     backward: str = "fused"  # first-layer gradient implementation (models.GoalRelativeMLP.grid)
-    unroll: int = 1  # updates per iteration of the compiled update loop
     # SLOT-V: real (trajectory, goal) pairs computed per update (0: all B·G slots). Set by
     # train_trials and the CLI from an exact count over every batch (pair_capacity).
     packed_pairs: int = 0
@@ -373,9 +371,7 @@ class Trainer:
         def block(carry, xs):
             (params, opt_state), epoch = carry
             b, inputs = xs
-            (params, opt_state), losses = jax.lax.scan(
-                step_fn, (params, opt_state), inputs, unroll=self.unroll
-            )
+            (params, opt_state), losses = jax.lax.scan(step_fn, (params, opt_state), inputs)
             updates = epoch * steps + (b + 1) * k
             acc = self.accuracy(params, val) if validate else jnp.float32(jnp.nan)
             report(updates, losses.mean())
@@ -417,12 +413,12 @@ class Trainer:
 
 @functools.cache
 def _make_train(
-    cfg: TrainConfig, mesh: Mesh, progress: bool, backward: str, unroll: int, packed_pairs: int
+    cfg: TrainConfig, mesh: Mesh, progress: bool, backward: str, packed_pairs: int
 ) -> Trainer:
     graphdef = models.graphdef(cfg)
     bar = _Progress(f"{cfg.method} ", cfg.batch_size) if progress else None
     tx = make_optimizer(cfg)
-    return Trainer(cfg, mesh, graphdef, tx, bar, backward, unroll, packed_pairs)
+    return Trainer(cfg, mesh, graphdef, tx, bar, backward, packed_pairs)
 
 
 def default_backward(platform: str, method: str = "slotv") -> str:
@@ -432,12 +428,6 @@ def default_backward(platform: str, method: str = "slotv") -> str:
     if platform == "cpu":
         return "recompute"
     return "fused" if method == "slotv" else "autodiff"
-
-
-def default_unroll(platform: str) -> int:
-    """Updates per iteration of the compiled update loop: 4 on accelerators (measured 2–3%
-    faster per update on an H100 for both methods, experiments/BENCHMARKS.md), 1 on CPUs."""
-    return 1 if platform == "cpu" else 4
 
 
 def packs_updates(platform: str) -> bool:
@@ -453,7 +443,6 @@ def make_train(
     mesh: Mesh | None = None,
     progress: bool = True,
     backward: str = "auto",
-    unroll: int | str = "auto",
     packed_pairs: int = 0,
 ) -> Trainer:
     """The :class:`Trainer` for ``cfg`` (cached: the same arguments give the same object, so
@@ -462,28 +451,23 @@ def make_train(
     ``mesh`` defaults to :func:`make_mesh`; ``progress`` reports to a tqdm bar;
     ``backward`` picks the implementation of the first layers' gradient (same values, see
     :meth:`slotv_jax.models.GoalRelativeMLP.grid`; "auto": :func:`default_backward`);
-    ``unroll`` unrolls the update loop ("auto": :func:`default_unroll`); ``packed_pairs`` > 0
-    computes SLOT-V updates on that
-    many real (trajectory, goal) pairs (:func:`slotv_loss_packed`): it must come from
-    :meth:`Trainer.pair_capacity` for the runs it trains, as in :func:`train_trials`.
+    ``packed_pairs`` > 0 computes SLOT-V updates on that many real (trajectory, goal) pairs
+    (:func:`slotv_loss_packed`): it must come from :meth:`Trainer.pair_capacity` for the
+    runs it trains, as in :func:`train_trials`.
     """
     if not isinstance(cfg, TrainConfig):
         raise ValueError(f"cfg: expected a TrainConfig, got {type(cfg).__name__}")
     mesh = make_mesh(cfg.batch_size) if mesh is None else mesh
-    platform = mesh.devices.flat[0].platform
+    platform = devices.platform(mesh)
     if backward == "auto":
         backward = default_backward(platform, cfg.method)
-    if unroll == "auto":
-        unroll = default_unroll(platform)
-    if not isinstance(unroll, int) or unroll < 1:
-        raise ValueError(f"unroll: expected 'auto' or a positive integer, got {unroll!r}")
     if backward not in models.BACKWARDS:
         raise ValueError(
             f"backward: expected 'auto' or one of {models.BACKWARDS}, got {backward!r}"
         )
     if packed_pairs and cfg.method != "slotv":
         raise ValueError("packed_pairs: only SLOT-V updates can be packed")
-    return _make_train(cfg, mesh, bool(progress), backward, int(unroll), int(packed_pairs))
+    return _make_train(cfg, mesh, bool(progress), backward, int(packed_pairs))
 
 
 def packed_trainer(trainer: Trainer, state_keys: jax.Array, data: TrainData, epochs) -> Trainer:
@@ -499,7 +483,7 @@ def packed_trainer(trainer: Trainer, state_keys: jax.Array, data: TrainData, epo
     progress = trainer.progress is not None
     return make_train(
         trainer.cfg, mesh=trainer.mesh, progress=progress, backward=trainer.backward,
-        unroll=trainer.unroll, packed_pairs=cap,
+        packed_pairs=cap,
     )  # fmt: skip
 
 

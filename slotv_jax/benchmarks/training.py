@@ -1,7 +1,9 @@
-"""Benchmark: SLOT-V and T-REX training steps at paper sizes, against the device's matmul peak.
+"""Benchmark: SLOT-V and T-REX training steps, against the device's matmul peak.
 
-    python -m slotv_jax.benchmarks.training              # CPU: short windows
+    python -m slotv_jax.benchmarks.training              # paper sizes; CPU: short windows
     python -m slotv_jax.benchmarks.training --device-run # GPU: long windows, variants
+    python -m slotv_jax.benchmarks.training --preset quick --steps 250 --repeats 11 \
+        --dtypes float32 --variant-methods slotv,trex    # the CPU's quick sizes, variants
 
 What is timed is the real compiled training loop (:meth:`slotv_jax.train.Trainer.run`):
 one call runs one epoch, a ``lax.scan`` of ``--steps`` updates over synthetic data held
@@ -10,7 +12,8 @@ on the device (no host sync per update, the state donated). Per (method, dtype):
 - trajectories/s: SLOT-V trajectories per second; T-REX pairs per second × 2;
 - achieved FLOP/s: analytic matmul FLOPs per update over its time. Forward FLOPs per
   trajectory and goal are 2·(3·H1/G + Σ_l H_l·H_{l+1} · T + H_L · T) (the goal-relative
-  layer as computed: (T, 3)×(3, H1) and (G, 3)×(3, H1) per trajectory); an update costs
+  layer counted as a (T, 3)×(3, H1) and a (G, 3)×(3, H1) product per trajectory; it is
+  computed elementwise from p − g, and negligible either way); an update costs
   ≈ 3× its forward FLOPs (backward: gradients w.r.t. activations and weights). The
   synthetic scenes have 2, 3, 5 or 6 goals, like the training split; as in training the
   two slots no scene uses are cut (``--all-slots`` keeps all 8), and the remaining padded
@@ -18,12 +21,15 @@ on the device (no host sync per update, the state donated). Per (method, dtype):
 - the matmul peak of the same device and dtype, measured in the same run: an N×N×N
   ``jnp.dot`` (N = 8192 on GPUs, 2048 on CPUs), median of repeated calls.
 
-Also reported: forward-only evaluation throughput (SPEC §8 accuracy, chunked), and with
-``--device-run`` two implementation variants of the update: the plain autodiff
-first-layer gradient instead of the fused one, and an unrolled update loop.
+Also reported: forward-only evaluation throughput (SPEC §8 accuracy, chunked), and for
+the ``--variant-methods`` (default with ``--device-run``: slotv) the variants of the
+update, each timed round-robin with the default in the same process (the order rotates
+every round): the default again (the run's noise floor), the other first-layer gradients
+(``backward``; "autodiff" is the simplest form) and, where SLOT-V updates are packed
+(CPUs), the update without packing and the simplest form of all (autodiff, not packed).
+``--preset quick`` times the quick preset's network and batch sizes (what CPUs run).
 
-It imports neither MuJoCo nor the data pipeline: it runs on an accelerator image with
-only jax, flax, optax, orbax, jaxtyping and tqdm.
+The data are synthetic: no dataset needs to be generated.
 """
 
 from __future__ import annotations
@@ -50,29 +56,26 @@ import numpy as np
 import optax
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
-from slotv_jax import config, models, train
+from slotv_jax import config, train
 from slotv_jax.models import BACKWARDS
-from slotv_jax.train import default_backward, default_unroll, packs_updates
+from slotv_jax.train import default_backward, packs_updates
 
 T = 100
 G = 8
 
 
-def variants(backward: str, method: str) -> list[tuple[str, dict]]:
-    """Other implementations of the same update (Trainer.backward, Trainer.unroll)."""
-
+def variants(backward: str, method: str, packed: bool) -> list[tuple[str, dict]]:
+    """The default again (the noise floor of the run), the other first-layer gradients
+    (``Trainer.backward``), and on CPUs, for SLOT-V, the update without packing and the
+    simplest form of all (autodiff, not packed)."""
     if backward == "auto":
         backward = default_backward(jax.default_backend(), method)
     out = [("default, again (the noise floor)", {"backward": backward})]
     out += [(f"backward={b}", {"backward": b}) for b in BACKWARDS if b != backward]
-    out += [(f"first layer {f}", {"form": f}) for f in ("difference", "broadcast")]
-    other = 4 if default_unroll(jax.default_backend()) == 1 else 1
-    out += [(f"backward={backward}, unroll {other}", {"backward": backward, "unroll": other})]
-    out += [(f"sum as contraction={c}", {"contraction": c}) for c in (False, True)]
-    out += [("not packed", {"pairs": 0})] if method == "slotv" else []
-    simplest = {"backward": "autodiff", "unroll": 1, "form": "difference", "contraction": False}
-    return [*out, ("simplest: autodiff, unroll 1, difference, plain sum, not packed",
-                   {**simplest, "pairs": 0})]  # fmt: skip
+    if packed and method == "slotv":
+        out += [("not packed", {"backward": backward, "pairs": 0})]
+        out += [("simplest: autodiff, not packed", {"backward": "autodiff", "pairs": 0})]
+    return out
 
 
 def forward_flops(hidden: tuple[int, ...], rows_per_traj: int, goals_per_traj: int) -> float:
@@ -175,49 +178,35 @@ def build_train(
     steps: int,
     *,
     backward: str = "auto",
-    unroll: int | str = "auto",
     trim: bool = True,
-    form: str = "auto",
     trials: int = 1,
     pairs: int = 0,
     preset: str = "paper",
-    contraction: bool | None = None,
 ):
     """Compile one timed epoch of ``steps`` updates: (``once()``, which runs it, FLOPs per
     update, compile seconds, cfg, goal slots per trajectory computed, compiled). With
     ``trials`` > 1, that many vmapped trials per call (FLOPs of all of them together).
-    ``form`` is :data:`slotv_jax.models.first_layer_form`; ``pairs`` > 0 packs SLOT-V updates
-    to that many (trajectory, goal) pairs (:func:`slotv_jax.train.slotv_loss_packed`);
-    ``contraction`` forces the form of :func:`slotv_jax.models.sum_over_points`."""
+    ``pairs`` > 0 packs SLOT-V updates to that many (trajectory, goal) pairs
+    (:func:`slotv_jax.train.slotv_loss_packed`)."""
 
-    models.first_layer_form = form  # read when tracing, below
-    plain_sum = models.sum_over_points
-    if contraction is not None:
-        models.sum_over_points = functools.partial(plain_sum, contraction=contraction)
-    try:
-        cfg = config.PRESETS[preset](method, compute_dtype=dtype, epochs=1, log_every=steps)
-        cfg = dataclasses.replace(cfg, train_size=None)
-        n = steps * cfg.batch_size
-        pairs = pairs if method == "slotv" else 0
-        trainer = train.make_train(
-            cfg, progress=False, backward=backward, unroll=unroll, packed_pairs=pairs
-        )
-        data = trainer.replicate(synthetic_data(n, trim=trim))
-        slots = pairs / cfg.batch_size if pairs else data.goals.shape[1]
-        run = functools.partial(trainer.run, epochs=1)
-        if trials > 1:
-            keys = jax.random.split(jax.random.key(0), trials)
-            state = trainer.replicate(jax.vmap(trainer.init)(keys))
-            run = jax.vmap(run, in_axes=(0, None))
-        else:
-            state = trainer.replicate(trainer.init(jax.random.key(0)))
-        epoch = jax.jit(run, donate_argnums=0)
-        t0 = time.perf_counter()
-        compiled = epoch.lower(state, data).compile()
-        compile_s = time.perf_counter() - t0
-    finally:
-        models.first_layer_form = "auto"
-        models.sum_over_points = plain_sum
+    cfg = config.PRESETS[preset](method, compute_dtype=dtype, epochs=1, log_every=steps)
+    cfg = dataclasses.replace(cfg, train_size=None)
+    n = steps * cfg.batch_size
+    pairs = pairs if method == "slotv" else 0
+    trainer = train.make_train(cfg, progress=False, backward=backward, packed_pairs=pairs)
+    data = trainer.replicate(synthetic_data(n, trim=trim))
+    slots = pairs / cfg.batch_size if pairs else data.goals.shape[1]
+    run = functools.partial(trainer.run, epochs=1)
+    if trials > 1:
+        keys = jax.random.split(jax.random.key(0), trials)
+        state = trainer.replicate(jax.vmap(trainer.init)(keys))
+        run = jax.vmap(run, in_axes=(0, None))
+    else:
+        state = trainer.replicate(trainer.init(jax.random.key(0)))
+    epoch = jax.jit(run, donate_argnums=0)
+    t0 = time.perf_counter()
+    compiled = epoch.lower(state, data).compile()
+    compile_s = time.perf_counter() - t0
     holder = [compiled(state, data)[0]]  # warm-up
 
     def once():
@@ -294,30 +283,19 @@ def kernel_summary(trace_dir, updates: int, top: int = 25) -> None:
               f"x{cnt[name] / updates:.2f}  {name[:110]}")  # fmt: skip
 
 
-def build_eval(
-    method: str, dtype: str, n: int, trim: bool = True, *,
-    preset: str = "paper", form: str = "auto", contraction: bool | None = None,
-):  # fmt: skip
+def build_eval(method: str, dtype: str, n: int, trim: bool = True, *, preset: str = "paper"):
     """Compile chunked SPEC §8 accuracy over ``n`` trajectories: (``once()``, forward FLOPs
     per call, compile seconds, cfg)."""
 
-    models.first_layer_form = form
-    plain_sum = models.sum_over_points
-    if contraction is not None:
-        models.sum_over_points = functools.partial(plain_sum, contraction=contraction)
-    try:
-        cfg = config.PRESETS[preset](method, compute_dtype=dtype)
-        trainer = train.make_train(cfg, progress=False)
-        params = trainer.replicate(trainer.init(jax.random.key(0)).params)
-        data = synthetic_data(n, seed=1, trim=trim)
-        ev = trainer.replicate(trainer.eval_data(data, size=n))
-        f = jax.jit(trainer.accuracy)
-        t0 = time.perf_counter()
-        compiled = f.lower(params, ev).compile()
-        compile_s = time.perf_counter() - t0
-    finally:
-        models.first_layer_form = "auto"
-        models.sum_over_points = plain_sum
+    cfg = config.PRESETS[preset](method, compute_dtype=dtype)
+    trainer = train.make_train(cfg, progress=False)
+    params = trainer.replicate(trainer.init(jax.random.key(0)).params)
+    data = synthetic_data(n, seed=1, trim=trim)
+    ev = trainer.replicate(trainer.eval_data(data, size=n))
+    f = jax.jit(trainer.accuracy)
+    t0 = time.perf_counter()
+    compiled = f.lower(params, ev).compile()
+    compile_s = time.perf_counter() - t0
     jax.block_until_ready(compiled(params, ev))
     g = data.goals.shape[1]
     fl = forward_flops(cfg.hidden, T * g, g) * n
@@ -421,8 +399,7 @@ def main(argv=None) -> int:
                 slot_note = f", {pairs} pairs" if pairs else f", {slots} goal slots"
             bw = default_backward(jax.default_backend(), method)
             bw = bw if args.backward == "auto" else args.backward
-            unroll = default_unroll(jax.default_backend())
-            name = f"{method} train ({bw}, unroll {unroll}{slot_note})"
+            name = f"{method} train ({bw}{slot_note})"
             row = Row(name, dtype, cfg.batch_size, cfg.hidden, t * 1e3,
                       traj / t, fl / t, peak, cs)  # fmt: skip
             rows.append(row)
@@ -432,7 +409,7 @@ def main(argv=None) -> int:
             if method in args.variant_methods.split(","):
                 wanted = [w for w in args.variants.split(",") if w]
                 chosen = [(label, {"pairs": pairs, **kw}) for label, kw in
-                          variants(args.backward, method)
+                          variants(args.backward, method, bool(pairs))
                           if not wanted or any(w in label for w in wanted)]  # fmt: skip
                 base = {"backward": args.backward, "trim": trim, "pairs": pairs,
                         "preset": args.preset}  # fmt: skip
@@ -471,27 +448,6 @@ def main(argv=None) -> int:
                                 tps, fps, peak, ecs))  # fmt: skip
                 print(f"  {method} eval: {tps:,.0f} traj/s, {fps / 1e12:.2f} TFLOP/s = "
                       f"{100 * fps / peak:.1f}% of peak", flush=True)  # fmt: skip
-                if method in args.variant_methods.split(","):
-                    chosen = [("default, again (the noise floor)", {}),
-                              ("first layer difference", {"form": "difference"}),
-                              ("first layer broadcast", {"form": "broadcast"}),
-                              ("sum as contraction=False", {"contraction": False}),
-                              ("sum as contraction=True", {"contraction": True}),
-                              ("simplest: difference, plain sum",
-                               {"form": "difference", "contraction": False})]  # fmt: skip
-                    built = [build_eval(method, dtype, n_eval, trim, preset=args.preset)]
-                    built += [build_eval(method, dtype, n_eval, trim, preset=args.preset, **kw)
-                              for _, kw in chosen]  # fmt: skip
-                    times = interleaved([b[0] for b in built], repeats)
-                    print(f"    eval interleaved, {repeats} rounds: default "
-                          f"{n_eval / times[0]:,.0f} traj/s", flush=True)  # fmt: skip
-                    for (label, _), tv in zip(chosen, times[1:], strict=True):
-                        extra.append({"method": method, "variant": f"eval {label}",
-                                      "dtype": dtype, "step_ms": 1e3 * tv,
-                                      "default_ms": 1e3 * times[0], "ratio": tv / times[0],
-                                      "traj_per_s": n_eval / tv})  # fmt: skip
-                        print(f"    eval variant {label}: {n_eval / tv:,.0f} traj/s "
-                              f"({tv / times[0]:.3f} × default time)", flush=True)  # fmt: skip
 
     print()
     print(f"device: {env['device']}; jax {env['jax']}, flax {env['flax']}, {env['date']}")
