@@ -42,6 +42,7 @@ import subprocess
 import sys
 import warnings
 from collections.abc import Callable
+from importlib import metadata
 from pathlib import Path
 
 from slotv_jax.fileio import write_text
@@ -81,7 +82,6 @@ def _backends_initialised() -> bool:
 
 def _jax_packages() -> str:
     """Versions of the installed JAX packages (jax, jaxlib, PJRT plugins), one string."""
-    from importlib import metadata
 
     found = set()
     for dist in metadata.distributions():

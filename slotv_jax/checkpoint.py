@@ -33,10 +33,12 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+import orbax.checkpoint as ocp
 from flax import nnx
 from jaxtyping import Array, Bool, Float
 
 from slotv_jax import models
+from slotv_jax import train as train_lib
 from slotv_jax.config import TrainConfig
 
 FORMAT = "slotv_jax.checkpoint/1"
@@ -73,8 +75,6 @@ def _flatten(state) -> dict[str, Any]:
 
 def _template(cfg: TrainConfig):
     """Abstract TrainState, raw key (shapes and dtypes only), for ``cfg``."""
-    from slotv_jax import train as train_lib
-
     trainer = train_lib.make_train(cfg, progress=False)
     return jax.eval_shape(lambda k: _raw_key(trainer.init(k)), jax.random.key(0))
 
@@ -94,9 +94,7 @@ def exists(path: str | os.PathLike) -> bool:
 def save(
     path: str | os.PathLike, cfg: TrainConfig, state, *, meta: Mapping[str, Any] | None = None
 ) -> Path:
-    """Write ``state`` (a :class:`~slotv_jax.train.TrainState` of one trial) atomically."""
-    import orbax.checkpoint as ocp
-
+    """Write ``state`` (a :class:`~slotv_jax.types.TrainState` of one trial) atomically."""
     path = Path(path).absolute()
     flat = _flatten(_raw_key(state))
     want = _describe(_flatten(_template(cfg)))
@@ -177,8 +175,6 @@ def restore(path: str | os.PathLike, cfg: TrainConfig | None = None):
     model and optimiser; ``epochs`` and the evaluation/logging fields may differ.
     Raises ValueError on any mismatch of config or array shapes.
     """
-    import orbax.checkpoint as ocp
-
     path = Path(path).absolute()
     doc = _read_doc(path)
     saved = TrainConfig.from_dict(doc["config"])

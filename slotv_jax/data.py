@@ -44,14 +44,18 @@ import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
+import flax
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
+import optax
 from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import kinematics, validation
 from slotv_jax.fileio import atomic_write
+from slotv_jax.labelers import label_all
 from slotv_jax.scene import Scene, SceneConfig, check_scene, sample_goal_count, sample_scene
 from slotv_jax.trajectories import DISTRIBUTIONS, TrajectoryConfig, plan_path, straight_path
 from slotv_jax.validation import G_MAX
@@ -433,8 +437,6 @@ def generate_split(
 
 def relabel(split: Split, labels: LabelConfig, *, progress: bool = True) -> Split:
     """Recompute the four labels of a split (for example after a β change)."""
-    from slotv_jax.labelers import label_all
-
     t0 = time.perf_counter()
     y = label_all(
         split.xyz,
@@ -522,10 +524,6 @@ def _sha256(a: np.ndarray) -> str:
 
 def environment() -> dict:
     """Library versions and devices, recorded with every output."""
-    import flax
-    import mujoco
-    import optax
-
     return {
         "slotv_jax": slotv_jax.__version__,
         "python": sys.version.split()[0],

@@ -22,25 +22,32 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Mapping
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
+from jax.sharding import Mesh
 from jaxtyping import Array, Bool, Float, Int
 
-from slotv_jax import models
+from slotv_jax import devices, models
+from slotv_jax.config import TrainConfig
+from slotv_jax.types import EvalData, TrainData, prepare, subset, trim_goals
 
-
-class EvalData(NamedTuple):
-    """A split cut into M chunks of C trajectories (the padding has ``valid`` False)."""
-
-    xyz: Float[Array, "M C T 3"]
-    goals: Float[Array, "M C G 3"]  # G ≤ 8 goal slots (unused trailing slots may be cut)
-    goal_mask: Bool[Array, "M C G"]
-    labels: Float[Array, "M C G"]
-    valid: Bool[Array, "M C"]
+__all__ = [
+    "EvalData",
+    "accuracy",
+    "chunk",
+    "chunked_accuracy",
+    "chunked_pairwise_accuracy",
+    "eval_data",
+    "exact_fraction",
+    "pairwise_accuracy",
+    "predict",
+    "split_accuracies",
+    "start_accuracy",
+    "target",
+]
 
 
 def predict(scores: Float[Array, "... 8"], goal_mask: Bool[Array, "... 8"]) -> Int[Array, "..."]:
@@ -110,12 +117,22 @@ def chunked_pairwise_accuracy(
     return correct / (n_chunks * chunk_size)
 
 
+def eval_data(cfg: TrainConfig, mesh: Mesh, data: TrainData, size: int | None = None) -> EvalData:
+    """The first ``size`` (default ``cfg.eval_size``) trajectories of ``data``, chunked for
+    ``mesh``: chunks of :meth:`~slotv_jax.config.TrainConfig.eval_chunk_size` trajectories
+    (at most ``size`` rounded up to the data-axis size)."""
+    n = cfg.eval_size if size is None else size
+    n_data = devices.data_size(mesh)
+    c = cfg.eval_chunk_size(n_data, data.goals.shape[-2], data.xyz.shape[1], devices.platform(mesh))
+    return chunk(subset(data, n), min(c, -(-n // n_data) * n_data))
+
+
 # ---------------------------------------------------------------- convenience (entry points)
 
 
-def _batched(trainer, params) -> bool:
+def _batched(cfg: TrainConfig, params) -> bool:
     """True if ``params`` has a leading trial axis relative to the model's parameters."""
-    _, abstract = nnx.split(nnx.eval_shape(lambda: models.make_model(trainer.cfg, nnx.Rngs(0))))
+    _, abstract = nnx.split(nnx.eval_shape(lambda: models.make_model(cfg, nnx.Rngs(0))))
     ref = jax.tree.leaves(abstract)[0]
     got = jax.tree.leaves(params)[0]
     if got.shape == ref.shape:
@@ -124,26 +141,32 @@ def _batched(trainer, params) -> bool:
         return True
     raise ValueError(
         f"params: leaf shape {got.shape} does not fit the config's model ({ref.shape}; "
-        f"hidden={trainer.cfg.hidden})"
+        f"hidden={cfg.hidden})"
     )
 
 
 @functools.cache
-def _jit_accuracy(trainer, batched: bool):
-    f = trainer.accuracy
+def _jit_accuracy(cfg: TrainConfig, mesh: Mesh, batched: bool):
+    graphdef = models.graphdef(cfg)
+
+    def f(params, ev):
+        model = nnx.merge(graphdef, params)
+        return chunked_accuracy(model, ev, shard=functools.partial(devices.shard_batch, mesh))
+
     return jax.jit(jax.vmap(f, in_axes=(0, None)) if batched else f)
 
 
 def accuracy(cfg, params, data, labeler: str | None = None, *, mesh=None) -> np.ndarray:
     """SPEC §8 accuracy of ``params`` on a whole split (jit-compiled, chunked, sharded).
 
-    ``data`` is a :class:`slotv_jax.train.TrainData` or a ``Split`` with ``labeler``.
+    ``data`` is a :class:`slotv_jax.types.TrainData` or a ``Split`` with ``labeler``.
     Goal slots that no trajectory of ``data`` uses are cut first (they cannot change an
     argmax over real goals). ``params`` may carry a leading trial axis (from
     :func:`slotv_jax.train.train_trials`): then the result has shape (n_trials,), else it is
     a scalar array. The result is the exact fraction correct / N in float64: the kernel's
     float32 ratio, whose last bit depends on how XLA compiled the division, is rounded back
-    to its count (:func:`exact_fraction`).
+    to its count (:func:`exact_fraction`). ``mesh`` defaults to
+    :func:`slotv_jax.devices.make_mesh` of the batch size.
     """
     return exact_fraction(*start_accuracy(cfg, params, data, labeler, mesh=mesh))
 
@@ -154,18 +177,16 @@ def start_accuracy(
     """:func:`accuracy` without waiting for the device: the float32 ratio as a (possibly
     still running) device array, and N. Lets a caller dispatch work to several devices
     before reading any result back (:func:`exact_fraction` finishes it)."""
-    from slotv_jax import train as train_lib
-
     if labeler is not None:
-        data = train_lib.prepare(data, labeler)
-    trainer = train_lib.make_train(cfg, mesh=mesh, progress=False)
+        data = prepare(data, labeler)
+    mesh = devices.make_mesh(cfg.batch_size) if mesh is None else mesh
     n = data.xyz.shape[0]
-    ev = trainer.replicate(trainer.eval_data(train_lib.trim_goals(data), size=n))
-    batched = _batched(trainer, params)
+    ev = devices.replicate(mesh, eval_data(cfg, mesh, trim_goals(data), size=n))
+    batched = _batched(cfg, params)
     if batched and jax.tree.leaves(params)[0].shape[0] == 1:  # one trial: no vmap
-        ratio = _jit_accuracy(trainer, False)(jax.tree.map(lambda x: x[0], params), ev)[None]
+        ratio = _jit_accuracy(cfg, mesh, False)(jax.tree.map(lambda x: x[0], params), ev)[None]
     else:
-        ratio = _jit_accuracy(trainer, batched)(params, ev)
+        ratio = _jit_accuracy(cfg, mesh, batched)(params, ev)
     return ratio, n
 
 
@@ -183,11 +204,13 @@ def split_accuracies(
 
 
 @functools.cache
-def _jit_pairwise(trainer, batched: bool, n_chunks: int, chunk_size: int):
+def _jit_pairwise(cfg: TrainConfig, mesh: Mesh, batched: bool, n_chunks: int, chunk_size: int):
+    graphdef = models.graphdef(cfg)
+    shard = functools.partial(devices.shard_batch, mesh)
+
     def f(params, data, key):
-        return chunked_pairwise_accuracy(
-            trainer.model(params), data, key, n_chunks, chunk_size, shard=trainer._shard_batch
-        )
+        model = nnx.merge(graphdef, params)
+        return chunked_pairwise_accuracy(model, data, key, n_chunks, chunk_size, shard=shard)
 
     return jax.jit(jax.vmap(f, in_axes=(0, None, None)) if batched else f)
 
@@ -197,14 +220,12 @@ def pairwise_accuracy(
 ) -> np.ndarray:
     """T-REX's diagnostic: accuracy of ordering ``n_pairs`` SPEC §6 pairs of ``data``
     (rounded up to whole chunks). Same trial-axis convention as :func:`accuracy`."""
-    from slotv_jax import train as train_lib
-
     if labeler is not None:
-        data = train_lib.prepare(data, labeler)
-    trainer = train_lib.make_train(cfg, mesh=mesh, progress=False)
-    size = cfg.eval_chunk_size(trainer.mesh.size, 1, data.xyz.shape[1], trainer.platform) * 2
-    size = min(size, -(-n_pairs // trainer.mesh.size) * trainer.mesh.size)
+        data = prepare(data, labeler)
+    mesh = devices.make_mesh(cfg.batch_size) if mesh is None else mesh
+    size = cfg.eval_chunk_size(mesh.size, 1, data.xyz.shape[1], devices.platform(mesh)) * 2
+    size = min(size, -(-n_pairs // mesh.size) * mesh.size)
     n_chunks = -(-n_pairs // size)
     key = jax.random.key(0) if key is None else key
-    f = _jit_pairwise(trainer, _batched(trainer, params), n_chunks, size)
-    return np.asarray(f(params, trainer.replicate(data), key))
+    f = _jit_pairwise(cfg, mesh, _batched(cfg, params), n_chunks, size)
+    return np.asarray(f(params, devices.replicate(mesh, data), key))

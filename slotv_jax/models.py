@@ -17,9 +17,9 @@ For a trajectory p_0..p_{T−1} and goals g_1..g_8:
   the real goals' probabilities do not depend on the padding.
 
 Because the first layer sees only r − g, translating a scene together with its
-trajectory leaves every score unchanged. It is evaluated elementwise from r − g,
-or as W_1 r − (W_1 g − b_1) broadcast to (T, G, H) (:data:`first_layer_form`),
-never as a (T·G, 3) × (3, H) product. This layer is always in the parameters'
+trajectory leaves every score unchanged. It is evaluated elementwise from r − g
+(three products and a bias per element, fused by XLA into the kernel that consumes
+them), never as a (T·G, 3) × (3, H) product. This layer is always in the parameters'
 precision, float32 (r and g are metres of similar size, so rounding them before
 the subtraction would cost accuracy near the goal); the hidden layers use
 ``compute_dtype`` (bfloat16 on GPUs) with float32 parameters, and the scalar
@@ -149,7 +149,7 @@ class GoalRelativeMLP(nnx.Module):
             raise ValueError(f"reduce: expected 'mean' or 'sum', got {reduce!r}")
         h = self._last_hidden(xyz, goals, backward)  # (..., T, G, H)
         acc = jnp.promote_types(self.readout.kernel.dtype, jnp.float32)
-        pooled = sum_over_points(h, acc, contraction=jax.default_backend() == "cpu")
+        pooled = jnp.sum(h, axis=-3, dtype=acc)  # Σ_t, accumulated in float32
         if reduce == "mean":
             pooled = pooled / h.shape[-3]
         w = self.readout.kernel[...][:, 0].astype(acc)
@@ -168,44 +168,13 @@ class GoalRelativeMLP(nnx.Module):
         return self._hidden(goal_relative_features(xyz, goals, w1, b1, cd, backward == "fused"))
 
 
-def sum_over_points(h: Float[Array, "... T G H"], dtype, *, contraction: bool) -> Array:
-    """Σ_t h[..., t, :, :], accumulated in ``dtype``: as a reduction, or (``contraction``) as
-    a product with a vector of ones, which XLA runs as a matrix kernel (faster on CPUs,
-    where its reductions are slow; the reduction is the faster form on GPUs)."""
-    if contraction:
-        ones = jnp.ones(h.shape[-3], h.dtype)
-        return jnp.einsum("...tgh,t->...gh", h, ones, preferred_element_type=dtype)
-    return jnp.sum(h, axis=-3, dtype=dtype)
-
-
-FIRST_LAYER_FORMS = ("auto", "difference", "broadcast")
-# How the first layer is evaluated; a speed choice (the values agree to float32 rounding).
-# "auto": "broadcast" for several goals on a CPU, else "difference". Read when tracing.
-first_layer_form = "auto"
-
-
 def _pre_activation(xyz, goals, w, b):
     """W_1 (p_t − g_k) + b_1 for every (t, k): (..., T, G, H), in the parameters' precision.
 
-    - "difference": d = p_t − g_k first (exact when p_t is near g_k), then the three-term
-      product written out elementwise. XLA fuses the whole layer into the kernel that
-      consumes it, so the only (T·G, H) memory traffic is that kernel's output: the fastest
-      form on GPUs, and for one goal (T-REX's pairs) everywhere.
-    - "broadcast": W_1 p_t − (W_1 g_k − b_1), a (T, H) and a (G, H) product at the highest
-      matmul precision broadcast to (T, G, H): one subtraction per element, faster on CPUs,
-      where the arithmetic counts, when the (T, H) product is shared by several goals.
+    d = p_t − g_k first (exact when p_t is near g_k), then the three-term product written
+    out elementwise: XLA fuses the whole layer into the kernel that consumes it, so the
+    only (T·G, H) memory traffic is that kernel's output.
     """
-    form = first_layer_form
-    if form not in FIRST_LAYER_FORMS:
-        raise ValueError(f"first_layer_form: expected one of {FIRST_LAYER_FORMS}, got {form!r}")
-    if form == "auto":
-        several = goals.shape[-2] > 1
-        form = "broadcast" if several and jax.default_backend() == "cpu" else "difference"
-    if form == "broadcast":
-        hp = jax.lax.Precision.HIGHEST
-        a = jnp.matmul(xyz, w, precision=hp)  # (..., T, H)
-        c = jnp.matmul(goals, w, precision=hp) - b  # (..., G, H)
-        return a[..., :, None, :] - c[..., None, :, :]
     d = xyz[..., :, None, :] - goals[..., None, :, :]  # (..., T, G, 3)
     return d[..., 0:1] * w[0] + d[..., 1:2] * w[1] + d[..., 2:3] * w[2] + b
 
@@ -304,8 +273,7 @@ def goal_relative_features(
     fused_backward: bool = False,
 ) -> Float[Array, "... T G H"]:
     """First hidden layer on every (point, goal) pair: relu(W_1 (p_t − g_k) + b_1), in the
-    parameters' precision (float32; evaluated in the form :data:`first_layer_form` picks),
-    then cast to ``dtype`` (None: keep).
+    parameters' precision (float32), then cast to ``dtype`` (None: keep).
 
     With ``fused_backward`` the gradient is a custom VJP that recomputes the
     pre-activation instead of storing a mask, and gets ∂L/∂W_1 = Σ_{t,k} (p_t − g_k) ⊗ δ_{tk}
@@ -384,6 +352,13 @@ def make_model(cfg, rngs: nnx.Rngs | jax.Array | int) -> Model:
     if cls is None:
         raise ValueError(f"cfg.method: expected 'slotv' or 'trex', got {cfg.method!r}")
     return cls(cfg.hidden, compute_dtype=cfg.compute_dtype, rngs=rngs)
+
+
+@functools.cache
+def graphdef(cfg) -> nnx.GraphDef:
+    """The ``nnx`` graph definition of :func:`make_model`'s model for ``cfg`` (no parameters
+    are allocated): ``nnx.merge(graphdef(cfg), params)`` rebuilds the model."""
+    return nnx.split(nnx.eval_shape(lambda: make_model(cfg, nnx.Rngs(0))))[0]
 
 
 def check_observer_inputs(xyz, goals, goal_mask, *, batch_shape: tuple[int, ...] = ()) -> None:

@@ -101,8 +101,8 @@ from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Bool, Float, Int
 from tqdm.auto import tqdm
 
+from slotv_jax import checkpoint, labelers, models, scene, validation
 from slotv_jax import config as config_lib
-from slotv_jax import labelers, models, scene, validation
 from slotv_jax import train as train_lib
 from slotv_jax.config import TrainConfig
 from slotv_jax.fileio import atomic_write, write_text
@@ -1090,7 +1090,7 @@ def train_study(
 
     ``cfg.train_size`` is ignored (every answer row is used). ``on_epoch(state, loss)`` is
     called after each epoch (e.g. to checkpoint). ``state`` resumes a run. Returns the final
-    :class:`slotv_jax.train.TrainState`.
+    :class:`slotv_jax.types.TrainState`.
     """
     trainer = make_study_train(cfg)
     data = study_data(study) if isinstance(study, Study) else study
@@ -1459,8 +1459,6 @@ def simulate_study(
 def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
     """``python -m slotv_jax.train --study FILE ...``: train on a study, checkpoint every
     epoch, optionally cross-validate (``--cv K``), and print the metrics."""
-    from slotv_jax import checkpoint
-
     study = load_study(args.study)
     if args.condition is not None:
         study = study.select_condition(args.condition)

@@ -38,11 +38,10 @@ bfloat16; parameters, gradients and optimiser state stay float32.
 Implementation choices that do not change the values (up to float rounding):
 ``make_train(backward=...)`` selects how the gradient of the first layers is formed
 (see :meth:`slotv_jax.models.GoalRelativeMLP.grid`; "auto" takes the fastest measured
-one per platform and method) and ``unroll`` unrolls the update loop;
-:func:`train_trials` cuts the goal slots no training trajectory uses
-(:func:`trim_goals`) and, on CPUs, packs SLOT-V updates to each batch's real
-(trajectory, goal) pairs (:func:`slotv_loss_packed`, with a capacity counted exactly
-over every batch of the run).
+one per platform and method, :func:`default_backward`); :func:`train_trials` cuts the
+goal slots no training trajectory uses (:func:`trim_goals`) and, on CPUs, packs SLOT-V
+updates to each batch's real (trajectory, goal) pairs (:func:`slotv_loss_packed`, with a
+capacity counted exactly over every batch of the run).
 
 Sample-efficiency curves (SPEC §8): ``cfg.eval_every = k`` validates on the first
 ``cfg.eval_size`` trajectories of ``val`` after every k updates (and once before
@@ -58,15 +57,11 @@ array([0.96, 0.95], dtype=float32)
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import functools
-import json
 import sys
-import time
 from collections.abc import Sequence
-from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -75,107 +70,17 @@ import optax
 from flax import nnx
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Float, Int
+from tqdm.auto import tqdm
 
-from slotv_jax import config as config_lib
-from slotv_jax import evaluate, models, validation
+from slotv_jax import devices, evaluate, models
 from slotv_jax.config import TrainConfig
+from slotv_jax.devices import make_mesh
+from slotv_jax.types import EvalData, Metrics, TrainData, TrainState, subset, trim_goals
 
-LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
-
-
-class TrainData(NamedTuple):
-    """One labelled split as device arrays (N trajectories of T points)."""
-
-    xyz: Float[Array, "N T 3"]  # executed TCP path (m)
-    goals: Float[Array, "N 8 3"]  # goals of each trajectory's scene (m)
-    goal_mask: Bool[Array, "N 8"]  # real goal slots
-    labels: Float[Array, "N 8"]  # labeler's distribution over goals (0 on padding)
-
-
-class TrainState(NamedTuple):
-    """Everything a resumed run needs."""
-
-    params: nnx.State  # model parameters, float32
-    opt_state: optax.OptState  # optimiser state, float32
-    epoch: Int[Array, ""]  # epochs completed
-    key: Array  # typed PRNG key; epoch e uses fold_in(key, e)
-
-
-class Metrics(NamedTuple):
-    """What one call of ``run``/``train`` records (E epochs, K loss blocks, V validations)."""
-
-    loss: Float[Array, "E K"]  # mean training loss of each block of updates
-    eval_updates: Int[Array, "E V"]  # global update count at each validation
-    eval_accuracy: Float[Array, "E V"]  # validation accuracy after those updates
-    start_accuracy: Float[Array, ""]  # validation accuracy before the first update (NaN: none)
-
-
-def prepare(split, labeler: str, *, size: int | None = None) -> TrainData:
-    """Validated arrays for one labeler from a :class:`slotv_jax.data.Split`.
-
-    ``size`` keeps the first ``size`` trajectories. Raises ValueError on wrong shapes,
-    NaN, a scene with no real goal, or labels that are not distributions.
-    """
-    if labeler not in split.labels:
-        raise ValueError(f"labeler: expected one of {sorted(split.labels)}, got {labeler!r}")
-    n = len(split) if size is None else min(int(size), len(split))
-    if n < 1:
-        raise ValueError(f"split {getattr(split, 'name', '?')!r}: expected at least 1 trajectory")
-    xyz = np.asarray(split.xyz[:n], np.float32)
-    goals = np.asarray(split.goals[:n], np.float32)
-    goal_mask = np.asarray(split.goal_mask[:n], bool)
-    labels = np.asarray(split.labels[labeler][:n], np.float32)
-    return make_data(xyz, goals, goal_mask, labels)
-
-
-def make_data(xyz, goals, goal_mask, labels) -> TrainData:
-    """Validate raw arrays (N, T, 3), (N, 8, 3), (N, 8), (N, 8) and pack them."""
-    validation.check_array("xyz", xyz, (None, None, 3))
-    n, t = np.shape(xyz)[:2]
-    if t < 2:
-        raise ValueError(
-            f"xyz: expected at least 2 points per trajectory, got shape {np.shape(xyz)}"
-        )
-    validation.check_goals("goals", goals, goal_mask, batch_shape=(n,))
-    validation.check_labels("labels", labels, goal_mask)
-    return TrainData(
-        jnp.asarray(xyz, jnp.float32),
-        jnp.asarray(goals, jnp.float32),
-        jnp.asarray(goal_mask, bool),
-        jnp.asarray(labels, jnp.float32),
-    )
-
-
-def trim_goals(data: TrainData) -> TrainData:
-    """The same data with the goal axis cut after its last real slot in any trajectory.
-
-    Padded slots add nothing to the loss, its gradient or the accuracy (their logits are
-    −∞ and their labels 0), but every one of them costs a full pass of the network over
-    the trajectory. The training split of SPEC §7 has at most 6 real goals of the 8 slots,
-    so this removes a quarter of SLOT-V's work. Needs concrete ``goal_mask`` (host or
-    device arrays, not tracers); returns ``data`` itself when nothing can be cut.
-    """
-    mask = np.asarray(data.goal_mask, bool)
-    used = np.where(mask, np.arange(1, mask.shape[-1] + 1), 0)
-    g = max(1, int(used.max(initial=0)))
-    if g == mask.shape[-1]:
-        return data
-    return data._replace(
-        goals=data.goals[:, :g], goal_mask=data.goal_mask[:, :g], labels=data.labels[:, :g]
-    )
-
-
-def subset(data: TrainData, n: int) -> TrainData:
-    """The first ``n`` trajectories (static slicing; also fine on tracers)."""
-    return TrainData(*(x[:n] for x in data))
-
-
-def make_mesh(batch_size: int, devices: Sequence[jax.Device] | None = None) -> Mesh:
-    """A 1-D ('data',) mesh over the largest number of devices that divides ``batch_size``."""
-    devices = list(jax.local_devices() if devices is None else devices)
-    n = max(d for d in range(1, len(devices) + 1) if batch_size % d == 0)
-    return Mesh(np.array(devices[:n]), ("data",))
+# Re-exported: the shared types and their constructors live in slotv_jax.types.
+from slotv_jax.types import make_data as make_data
+from slotv_jax.types import prepare as prepare
 
 
 def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
@@ -278,8 +183,6 @@ class _Progress:
         self.last = -1
 
     def __call__(self, updates, loss, *, total: int):
-        from tqdm.auto import tqdm
-
         u = int(np.max(np.asarray(updates)))
         if u < self.last or self.last < 0:
             if self.bar is not None:
@@ -312,25 +215,24 @@ class Trainer:
     tx: optax.GradientTransformation
     progress: _Progress | None
     backward: str = "fused"  # first-layer gradient implementation (models.GoalRelativeMLP.grid)
-    unroll: int = 1  # updates per iteration of the compiled update loop
     # SLOT-V: real (trajectory, goal) pairs computed per update (0: all B·G slots). Set by
     # train_trials and the CLI from an exact count over every batch (pair_capacity).
     packed_pairs: int = 0
 
     # ---- sharding helpers
     def _shard_batch(self, x):
-        return jax.lax.with_sharding_constraint(x, NamedSharding(self.mesh, P("data")))
+        return devices.shard_batch(self.mesh, x)
 
     @property
     def platform(self) -> str:
         """The platform of the mesh's devices ("cpu", "gpu", …)."""
-        return self.mesh.devices.flat[0].platform
+        return devices.platform(self.mesh)
 
     @property
     def n_data(self) -> int:
         """Devices the batch axis is split over: the mesh's "data" axis (a mesh may also
         have a "trial" axis for independent runs, :mod:`slotv_jax.parallel`)."""
-        return int(self.mesh.shape["data"])
+        return devices.data_size(self.mesh)
 
     @property
     def packs(self) -> bool:
@@ -341,7 +243,7 @@ class Trainer:
 
     def replicate(self, tree):
         """Place arrays (e.g. a TrainData) on every device of the mesh."""
-        return jax.device_put(tree, NamedSharding(self.mesh, P()))
+        return devices.replicate(self.mesh, tree)
 
     # ---- pieces
     @staticmethod
@@ -427,24 +329,21 @@ class Trainer:
         loss = functools.partial(trex_loss, backward=self.backward)
         return self._update(carry, loss, xyz, goal, label)
 
-    def accuracy(self, params: nnx.State, val: evaluate.EvalData) -> Float[Array, ""]:
+    def accuracy(self, params: nnx.State, val: EvalData) -> Float[Array, ""]:
         """Accuracy of ``params`` on a chunked evaluation set (pure)."""
         return evaluate.chunked_accuracy(self.model(params), val, shard=self._shard_batch)
 
-    def eval_data(self, data: TrainData, size: int | None = None) -> evaluate.EvalData:
-        """The fixed validation subset (first ``size`` or ``cfg.eval_size``), chunked."""
-        n = self.cfg.eval_size if size is None else size
-        chunk = self.cfg.eval_chunk_size(
-            self.n_data, data.goals.shape[-2], data.xyz.shape[1], self.platform
-        )
-        return evaluate.chunk(subset(data, n), min(chunk, _round_up(n, self.n_data)))
+    def eval_data(self, data: TrainData, size: int | None = None) -> EvalData:
+        """The fixed validation subset (first ``size`` or ``cfg.eval_size``), chunked
+        (:func:`slotv_jax.evaluate.eval_data`)."""
+        return evaluate.eval_data(self.cfg, self.mesh, data, size)
 
     # ---- the compiled loop
     def run(
         self,
         state: TrainState,
         data: TrainData,
-        val: evaluate.EvalData | None = None,
+        val: EvalData | None = None,
         *,
         epochs: int,
     ) -> tuple[TrainState, Metrics]:
@@ -472,9 +371,7 @@ class Trainer:
         def block(carry, xs):
             (params, opt_state), epoch = carry
             b, inputs = xs
-            (params, opt_state), losses = jax.lax.scan(
-                step_fn, (params, opt_state), inputs, unroll=self.unroll
-            )
+            (params, opt_state), losses = jax.lax.scan(step_fn, (params, opt_state), inputs)
             updates = epoch * steps + (b + 1) * k
             acc = self.accuracy(params, val) if validate else jnp.float32(jnp.nan)
             report(updates, losses.mean())
@@ -508,25 +405,20 @@ class Trainer:
         return TrainState(params, opt_state, epoch, key), Metrics(loss, upd, acc, start)
 
     def train(
-        self, key: jax.Array, data: TrainData, val: evaluate.EvalData | None = None
+        self, key: jax.Array, data: TrainData, val: EvalData | None = None
     ) -> tuple[TrainState, Metrics]:
         """Initialise from ``key`` and train ``cfg.epochs`` epochs (pure; jit/vmap it)."""
         return self.run(self.init(key), data, val, epochs=self.cfg.epochs)
 
 
-def _round_up(n: int, m: int) -> int:
-    return -(-n // m) * m
-
-
 @functools.cache
 def _make_train(
-    cfg: TrainConfig, mesh: Mesh, progress: bool, backward: str, unroll: int, packed_pairs: int
+    cfg: TrainConfig, mesh: Mesh, progress: bool, backward: str, packed_pairs: int
 ) -> Trainer:
-    abstract = nnx.eval_shape(lambda: models.make_model(cfg, nnx.Rngs(0)))
-    graphdef, _ = nnx.split(abstract)
+    graphdef = models.graphdef(cfg)
     bar = _Progress(f"{cfg.method} ", cfg.batch_size) if progress else None
     tx = make_optimizer(cfg)
-    return Trainer(cfg, mesh, graphdef, tx, bar, backward, unroll, packed_pairs)
+    return Trainer(cfg, mesh, graphdef, tx, bar, backward, packed_pairs)
 
 
 def default_backward(platform: str, method: str = "slotv") -> str:
@@ -536,12 +428,6 @@ def default_backward(platform: str, method: str = "slotv") -> str:
     if platform == "cpu":
         return "recompute"
     return "fused" if method == "slotv" else "autodiff"
-
-
-def default_unroll(platform: str) -> int:
-    """Updates per iteration of the compiled update loop: 4 on accelerators (measured 2–3%
-    faster per update on an H100 for both methods, experiments/BENCHMARKS.md), 1 on CPUs."""
-    return 1 if platform == "cpu" else 4
 
 
 def packs_updates(platform: str) -> bool:
@@ -557,7 +443,6 @@ def make_train(
     mesh: Mesh | None = None,
     progress: bool = True,
     backward: str = "auto",
-    unroll: int | str = "auto",
     packed_pairs: int = 0,
 ) -> Trainer:
     """The :class:`Trainer` for ``cfg`` (cached: the same arguments give the same object, so
@@ -566,28 +451,23 @@ def make_train(
     ``mesh`` defaults to :func:`make_mesh`; ``progress`` reports to a tqdm bar;
     ``backward`` picks the implementation of the first layers' gradient (same values, see
     :meth:`slotv_jax.models.GoalRelativeMLP.grid`; "auto": :func:`default_backward`);
-    ``unroll`` unrolls the update loop ("auto": :func:`default_unroll`); ``packed_pairs`` > 0
-    computes SLOT-V updates on that
-    many real (trajectory, goal) pairs (:func:`slotv_loss_packed`): it must come from
-    :meth:`Trainer.pair_capacity` for the runs it trains, as in :func:`train_trials`.
+    ``packed_pairs`` > 0 computes SLOT-V updates on that many real (trajectory, goal) pairs
+    (:func:`slotv_loss_packed`): it must come from :meth:`Trainer.pair_capacity` for the
+    runs it trains, as in :func:`train_trials`.
     """
     if not isinstance(cfg, TrainConfig):
         raise ValueError(f"cfg: expected a TrainConfig, got {type(cfg).__name__}")
     mesh = make_mesh(cfg.batch_size) if mesh is None else mesh
-    platform = mesh.devices.flat[0].platform
+    platform = devices.platform(mesh)
     if backward == "auto":
         backward = default_backward(platform, cfg.method)
-    if unroll == "auto":
-        unroll = default_unroll(platform)
-    if not isinstance(unroll, int) or unroll < 1:
-        raise ValueError(f"unroll: expected 'auto' or a positive integer, got {unroll!r}")
     if backward not in models.BACKWARDS:
         raise ValueError(
             f"backward: expected 'auto' or one of {models.BACKWARDS}, got {backward!r}"
         )
     if packed_pairs and cfg.method != "slotv":
         raise ValueError("packed_pairs: only SLOT-V updates can be packed")
-    return _make_train(cfg, mesh, bool(progress), backward, int(unroll), int(packed_pairs))
+    return _make_train(cfg, mesh, bool(progress), backward, int(packed_pairs))
 
 
 def packed_trainer(trainer: Trainer, state_keys: jax.Array, data: TrainData, epochs) -> Trainer:
@@ -603,7 +483,7 @@ def packed_trainer(trainer: Trainer, state_keys: jax.Array, data: TrainData, epo
     progress = trainer.progress is not None
     return make_train(
         trainer.cfg, mesh=trainer.mesh, progress=progress, backward=trainer.backward,
-        unroll=trainer.unroll, packed_pairs=cap,
+        packed_pairs=cap,
     )  # fmt: skip
 
 
@@ -696,111 +576,7 @@ def select_trial(tree, i: int):
     return jax.tree.map(lambda x: x[i], tree)
 
 
-# ---------------------------------------------------------------- CLI
+if __name__ == "__main__":  # python -m slotv_jax.train: the CLI sits above this module
+    from slotv_jax.train_cli import main
 
-TEST_SPLITS = ("train", "trajectory_test", "position_test", "goal_count_test")
-
-
-def _parse_args(argv):
-    ap = argparse.ArgumentParser(
-        prog="python -m slotv_jax.train",
-        description="Train one SLOT-V or T-REX model on a generated dataset and save a checkpoint.",
-    )
-    ap.add_argument("--data", help="dataset directory (python -m slotv_jax.data)")
-    ap.add_argument("--labeler", choices=LABELERS)
-    ap.add_argument(
-        "--study", help="train on a study file instead (.npz, python -m slotv_jax.study import)"
-    )
-    ap.add_argument("--condition", default=None, help="--study: use this condition's answers")
-    ap.add_argument("--cv", type=int, default=0, help="--study: also run K-fold cross-validation")
-    ap.add_argument("--method", required=True, choices=config_lib.METHODS)
-    ap.add_argument("--preset", default="quick", choices=tuple(config_lib.PRESETS))
-    ap.add_argument(
-        "--model", default="mlp", choices=config_lib.MODELS,
-        help="observer: the paper's network (mlp) or a parametric archetype (SPEC §10; "
-        "needs --method slotv; its preset is config.archetype)",
-    )  # fmt: skip
-    ap.add_argument("--out", required=True, help="checkpoint directory to write")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--epochs", type=int, default=None, help="override the preset's epochs")
-    ap.add_argument("--compute-dtype", default=None, choices=config_lib.COMPUTE_DTYPES)
-    ap.add_argument(
-        "--set", action="append", default=[], metavar="KEY=VALUE",
-        help="override any TrainConfig field, e.g. --set hidden=256,128 --set learning_rate=0.01",
-    )  # fmt: skip
-    ap.add_argument("--resume", action="store_true", help="continue from --out if it exists")
-    ap.add_argument("--no-progress", action="store_true")
-    args = ap.parse_args(argv)
-    if args.study is None and (args.data is None or args.labeler is None):
-        ap.error("give --data and --labeler (a generated dataset), or --study FILE")
-    if args.study is not None and (args.data is not None or args.labeler is not None):
-        ap.error("--study replaces --data and --labeler; give one or the other")
-    return args
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """CLI entry point: train, checkpoint after every epoch, report test accuracies."""
-    from slotv_jax import XLA_CONFIG, checkpoint
-    from slotv_jax import data as data_lib
-
-    args = _parse_args(argv)
-    print(XLA_CONFIG.summary(), flush=True)
-    try:
-        cfg = config_lib.preset(args.preset, args.method, model=args.model)
-    except ValueError as e:
-        raise SystemExit(f"python -m slotv_jax.train: {e}") from e
-    if args.epochs is not None:
-        cfg = dataclasses.replace(cfg, epochs=args.epochs)
-    if args.compute_dtype is not None:
-        cfg = dataclasses.replace(cfg, compute_dtype=args.compute_dtype)
-    cfg = config_lib.apply_overrides(cfg, args.set)
-    if args.study is not None:
-        from slotv_jax import study
-
-        return study.train_main(cfg, args)
-    out = Path(args.out)
-
-    train_split = data_lib.load_split(args.data, "train")
-    data = trim_goals(prepare(train_split, args.labeler, size=cfg.train_size))
-    trainer = make_train(cfg, progress=not args.no_progress)
-    if args.resume and checkpoint.exists(out):
-        _, state, meta = checkpoint.restore(out, cfg)
-        print(f"resuming from {out} after epoch {int(state.epoch)}", flush=True)
-    else:
-        state, meta = trainer.init(jax.random.key(args.seed)), {}
-    trainer = packed_trainer(trainer, state.key, data, range(int(state.epoch), cfg.epochs))
-    print(f"devices: {trainer.mesh.size} × {trainer.platform}; "
-          f"backward: {trainer.backward}; packed pairs: {trainer.packed_pairs or 'off'}; "
-          f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)  # fmt: skip
-    run_epoch = jax.jit(functools.partial(trainer.run, epochs=1), donate_argnums=0)
-    data = trainer.replicate(data)
-    state = trainer.replicate(state)
-    t0 = time.perf_counter()
-    while int(state.epoch) < cfg.epochs:
-        state, metrics = run_epoch(state, data)
-        loss = float(np.asarray(metrics.loss)[-1].mean())
-        print(f"epoch {int(state.epoch)}/{cfg.epochs}: loss {loss:.4f}", flush=True)
-        meta = {**meta, "labeler": args.labeler, "seed": args.seed, "data": str(args.data)}
-        checkpoint.save(out, cfg, state, meta=meta)
-    train_s = time.perf_counter() - t0
-
-    acc = {}
-    for name in TEST_SPLITS:
-        split = train_split if name == "train" else data_lib.load_split(args.data, name)
-        size = cfg.train_size if name == "train" else None
-        acc[name] = float(
-            evaluate.accuracy(cfg, state.params, prepare(split, args.labeler, size=size))
-        )
-        print(f"accuracy {name}: {acc[name]:.4f}", flush=True)
-    meta = {**meta, "accuracy": acc, "train_seconds": round(train_s, 2)}
-    if cfg.model != "mlp":  # the fitted parameters, in the checkpoint and in words
-        fitted = trainer.model(state.params)
-        meta["parameters"] = fitted.parameters()
-        print(fitted.describe(), flush=True)
-    checkpoint.save(out, cfg, state, meta=meta)
-    print(json.dumps({"checkpoint": str(out), "accuracy": acc}, indent=2))
-    return 0
-
-
-if __name__ == "__main__":
     raise SystemExit(main())

@@ -237,32 +237,6 @@ def test_custom_first_layer_gradients_equal_autodiff(backward, shape):
         np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-10, atol=1e-12)
 
 
-@pytest.mark.parametrize("form", ["difference", "broadcast"])
-def test_first_layer_forms_agree(form, monkeypatch):
-    """Both evaluations of W_1 (p − g) + b_1 give the same values and gradients (float64),
-    and an unknown form is refused by name."""
-    m = models.GoalRelativeMLP((24, 8), rngs=nnx.Rngs(4))
-    rng = np.random.default_rng(2)
-    with jax.enable_x64(True):
-        graphdef, params = nnx.split(m)
-        params = jax.tree.map(lambda x: x.astype(jnp.float64), params)
-        xyz = jnp.asarray(rng.uniform(-0.5, 0.5, (2, 9, 3)))
-        goals = jnp.asarray(rng.uniform(-0.5, 0.5, (2, 4, 3)))
-
-        def f(p, x):
-            return jnp.sum(jnp.sin(nnx.merge(graphdef, p).grid(x, goals)))
-
-        monkeypatch.setattr(models, "first_layer_form", "broadcast")
-        ref = f(params, xyz), jax.grad(f, argnums=(0, 1))(params, xyz)
-        monkeypatch.setattr(models, "first_layer_form", form)
-        got = f(params, xyz), jax.grad(f, argnums=(0, 1))(params, xyz)
-    for a, b in zip(jax.tree.leaves(ref), jax.tree.leaves(got), strict=True):
-        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-12, atol=1e-13)
-    monkeypatch.setattr(models, "first_layer_form", "matmul")
-    with pytest.raises(ValueError, match="first_layer_form"):
-        m.grid(xyz.astype(jnp.float32), goals.astype(jnp.float32))
-
-
 @pytest.mark.parametrize("reduce", ["mean", "sum"])
 @pytest.mark.parametrize("backward", models.BACKWARDS)
 def test_integrate_equals_reduced_grid(reduce, backward):
@@ -308,16 +282,3 @@ def test_integrate_bfloat16_close_to_float32():
     got = np.asarray(m16.integrate(xyz, goals))
     assert got.dtype == np.float32
     np.testing.assert_allclose(got, ref, rtol=0, atol=0.02 * np.abs(ref).max())
-
-
-@pytest.mark.parametrize("dtype", [jnp.float32, jnp.bfloat16])
-def test_sum_over_points_forms_agree(dtype):
-    """The reduction and the contraction with ones give the same sums, accumulated in
-    float32 (bfloat16 inputs are exact in both), against a float64 NumPy sum."""
-    rng = np.random.default_rng(5)
-    h = jnp.asarray(rng.uniform(0, 2, (3, 50, 4, 16)), dtype)
-    ref = np.asarray(h, np.float64).sum(axis=-3)
-    for contraction in (False, True):
-        got = models.sum_over_points(h, jnp.float32, contraction=contraction)
-        assert got.dtype == jnp.float32 and got.shape == (3, 4, 16)
-        np.testing.assert_allclose(np.asarray(got), ref, rtol=1e-6)

@@ -16,7 +16,17 @@ import numpy as np
 import pytest
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
-from slotv_jax import checkpoint, config, evaluate, labelers, models, parametric, scene, train
+from slotv_jax import (
+    checkpoint,
+    config,
+    evaluate,
+    labelers,
+    models,
+    parametric,
+    scene,
+    train,
+    train_cli,
+)
 
 PROB_TOL = 2e-6  # float32 probabilities of two implementations of one formula (absolute)
 FD_TOL = 1e-6  # float64 gradient against central differences (relative to its norm)
@@ -362,7 +372,7 @@ def test_cli_trains_an_archetype(tmp_path, capsys):
     dcfg = data_lib.DataConfig(preset="tiny", n_train=96, n_eval=32, n_train_scenes=96,
                                n_new_scenes=32)  # fmt: skip
     (tmp_path / "data").mkdir()
-    for i, name in enumerate(train.TEST_SPLITS):
+    for i, name in enumerate(train_cli.TEST_SPLITS):
         n = 96 if name == "train" else 32
         xyz, goals, mask = random_set(10 + i, n)
         y = {k: label(lambda x, g, m, f=f: f(x, g, m), xyz, goals, mask)
@@ -376,16 +386,16 @@ def test_cli_trains_an_archetype(tmp_path, capsys):
     ck = tmp_path / "ck"
     args = ["--data", str(tmp_path / "data"), "--labeler", "dragan", "--method", "slotv",
             "--model", "dragan", "--out", str(ck), "--epochs", "1", "--no-progress"]  # fmt: skip
-    assert train.main(args) == 0
+    assert train_cli.main(args) == 0
     out = capsys.readouterr().out
     assert "Learnable Dragan observer" in out and "accuracy goal_count_test" in out
     doc = json.loads((ck / "config.json").read_text())
     assert doc["config"]["model"] == "dragan" and doc["config"]["optimizer"] == "adam"
     assert set(doc["meta"]["parameters"]) >= {"beta", "alpha", "start_weight", "metric_z"}
     with pytest.raises(SystemExit, match="T-REX trains only the MLP"):
-        train.main([*args[:5], "trex", *args[6:]])
+        train_cli.main([*args[:5], "trex", *args[6:]])
     with pytest.raises(ValueError, match="holds a 'dragan' observer"):
-        train.main([*args[:7], "viewpoint", *args[8:], "--resume"])
+        train_cli.main([*args[:7], "viewpoint", *args[8:], "--resume"])
 
 
 def test_make_model_dispatch():

@@ -17,7 +17,7 @@ import pytest
 from flax import nnx
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
-from slotv_jax import config, models, study, train
+from slotv_jax import config, models, study, train, train_cli
 
 REL_TOL = 2e-5  # float32 loss against the float64 reference
 ROOT = Path(__file__).resolve().parents[1]
@@ -440,7 +440,7 @@ def test_cli_training_then_load_observer(small, tmp_path, capsys):
     out = tmp_path / "ckpt"
     argv = ["--study", str(path), "--method", "slotv", "--out", str(out), "--epochs", "2",
             "--set", "hidden=16,8", "--set", "batch_size=4", "--no-progress"]  # fmt: skip
-    assert train.main(argv) == 0
+    assert train_cli.main(argv) == 0
     assert "NLL per answer" in capsys.readouterr().out
     meta = json.loads((out / "config.json").read_text())["meta"]
     assert meta["study"] == str(path) and "train_metrics" in meta
@@ -455,7 +455,7 @@ def test_cli_training_then_load_observer(small, tmp_path, capsys):
     real = small.goal_mask[n]
     np.testing.assert_allclose(logits[real], np.asarray(ref)[real], rtol=1e-5, atol=1e-6)
     with pytest.raises(SystemExit):
-        train.main(["--study", str(path), "--labeler", "dragan", "--method", "slotv", "--out",
+        train_cli.main(["--study", str(path), "--labeler", "dragan", "--method", "slotv", "--out",
                     str(out)])  # fmt: skip
 
 

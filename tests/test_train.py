@@ -18,7 +18,7 @@ import pytest
 from flax import nnx
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
-from slotv_jax import config, evaluate, train
+from slotv_jax import config, evaluate, train, train_cli
 
 PROB_TOL = 1e-5  # goal probabilities of two runs that differ only in summation order
 STEP_FRAC = 1e-2  # their parameters differ by less than this fraction of one update (lr)
@@ -199,19 +199,19 @@ def test_cli_trains_checkpoints_and_resumes(tiny_data, tiny_cfg, tmp_path, capsy
     from slotv_jax import data as data_lib
 
     (tmp_path / "data").mkdir()
-    for name in train.TEST_SPLITS:
+    for name in train_cli.TEST_SPLITS:
         data_lib.save_split(tmp_path / "data", tiny_data[name], tiny_cfg)
     ck = tmp_path / "ck"
     args = ["--data", str(tmp_path / "data"), "--labeler", "effdist", "--method", "trex",
             "--out", str(ck), "--set", "hidden=8,8", "--set", "train_size=none",
             "--no-progress"]  # fmt: skip
-    assert train.main([*args, "--epochs", "1"]) == 0
+    assert train_cli.main([*args, "--epochs", "1"]) == 0
     doc = json.loads((ck / "config.json").read_text())
     assert doc["epoch"] == 1 and doc["config"]["hidden"] == [8, 8]
-    assert set(doc["meta"]["accuracy"]) == set(train.TEST_SPLITS)
+    assert set(doc["meta"]["accuracy"]) == set(train_cli.TEST_SPLITS)
     out = capsys.readouterr().out
     assert "accuracy goal_count_test" in out and "epoch 1/1" in out
-    assert train.main([*args, "--epochs", "2", "--resume"]) == 0
+    assert train_cli.main([*args, "--epochs", "2", "--resume"]) == 0
     out = capsys.readouterr().out
     assert "resuming from" in out and "epoch 2/2" in out and "epoch 1/2" not in out
     assert json.loads((ck / "config.json").read_text())["epoch"] == 2

@@ -43,9 +43,17 @@ import subprocess
 import sys
 import time
 
+import jax
+import jax.numpy as jnp
+import jaxlib
+import mujoco
 import numpy as np
 
-from slotv_jax._xla import FLAG_NAME, OPT_OUT_VAR  # no JAX import: the driver never starts XLA
+import slotv_jax
+from slotv_jax import kinematics as K
+from slotv_jax import scene as S
+from slotv_jax import trajectories as T
+from slotv_jax._xla import FLAG_NAME, OPT_OUT_VAR
 from slotv_jax.benchmarks._machine import cpu_model
 
 RESULT_TAG = "KINEMATICS_BENCHMARK_RESULT "
@@ -73,9 +81,6 @@ def _timed(f, n: int, repeats: int) -> dict:
 
 
 def _mujoco_c(qs: np.ndarray, repeats: int) -> dict:
-    import mujoco
-
-    from slotv_jax import kinematics as K
 
     model = mujoco.MjModel.from_xml_path(str(K.PANDA_XML))
     data = mujoco.MjData(model)
@@ -92,10 +97,6 @@ def _mujoco_c(qs: np.ndarray, repeats: int) -> dict:
 
 
 def _mjx_single(qs: np.ndarray, calls: int) -> dict:
-    import jax
-    import jax.numpy as jnp
-
-    from slotv_jax import kinematics as K
 
     f = jax.jit(K.tcp_position)
     q = [jnp.asarray(x, jnp.float32) for x in qs[:calls]]
@@ -116,10 +117,6 @@ def _mjx_single(qs: np.ndarray, calls: int) -> dict:
 
 
 def _mjx_batched(qs: np.ndarray, batch: int, repeats: int) -> dict:
-    import jax
-    import jax.numpy as jnp
-
-    from slotv_jax import kinematics as K
 
     f = jax.jit(jax.vmap(K.tcp_pose))
     x = jnp.asarray(qs[:batch], jnp.float32)
@@ -134,10 +131,6 @@ def _mjx_batched(qs: np.ndarray, batch: int, repeats: int) -> dict:
 
 
 def _trajectories(batch: int, repeats: int, seed: int) -> dict:
-    import jax
-
-    from slotv_jax import scene as S
-    from slotv_jax import trajectories as T
 
     cfg = T.TrajectoryConfig()
     k_scene, k_count, k_traj = jax.random.split(jax.random.key(seed), 3)
@@ -177,15 +170,8 @@ def _trajectories(batch: int, repeats: int, seed: int) -> dict:
 
 def worker(args: argparse.Namespace) -> dict:
     """Measure one variant in this interpreter (XLA's setting is whatever it started with)."""
-    import slotv_jax
-
     summary = slotv_jax.XLA_CONFIG.summary()
     xla_flags = os.environ.get("XLA_FLAGS", "")
-    import jax
-    import jaxlib
-    import mujoco
-
-    from slotv_jax import kinematics as K
 
     fast = args.worker == "with"
     t0 = time.perf_counter()

@@ -1,7 +1,9 @@
-"""Benchmark: SLOT-V and T-REX training steps at paper sizes, against the device's matmul peak.
+"""Benchmark: SLOT-V and T-REX training steps, against the device's matmul peak.
 
-    python -m slotv_jax.benchmarks.training              # CPU: short windows
+    python -m slotv_jax.benchmarks.training              # paper sizes; CPU: short windows
     python -m slotv_jax.benchmarks.training --device-run # GPU: long windows, variants
+    python -m slotv_jax.benchmarks.training --preset quick --steps 250 --repeats 11 \
+        --dtypes float32 --variant-methods slotv,trex    # the CPU's quick sizes, variants
 
 What is timed is the real compiled training loop (:meth:`slotv_jax.train.Trainer.run`):
 one call runs one epoch, a ``lax.scan`` of ``--steps`` updates over synthetic data held
@@ -10,7 +12,8 @@ on the device (no host sync per update, the state donated). Per (method, dtype):
 - trajectories/s: SLOT-V trajectories per second; T-REX pairs per second × 2;
 - achieved FLOP/s: analytic matmul FLOPs per update over its time. Forward FLOPs per
   trajectory and goal are 2·(3·H1/G + Σ_l H_l·H_{l+1} · T + H_L · T) (the goal-relative
-  layer as computed: (T, 3)×(3, H1) and (G, 3)×(3, H1) per trajectory); an update costs
+  layer counted as a (T, 3)×(3, H1) and a (G, 3)×(3, H1) product per trajectory; it is
+  computed elementwise from p − g, and negligible either way); an update costs
   ≈ 3× its forward FLOPs (backward: gradients w.r.t. activations and weights). The
   synthetic scenes have 2, 3, 5 or 6 goals, like the training split; as in training the
   two slots no scene uses are cut (``--all-slots`` keeps all 8), and the remaining padded
@@ -18,12 +21,15 @@ on the device (no host sync per update, the state donated). Per (method, dtype):
 - the matmul peak of the same device and dtype, measured in the same run: an N×N×N
   ``jnp.dot`` (N = 8192 on GPUs, 2048 on CPUs), median of repeated calls.
 
-Also reported: forward-only evaluation throughput (SPEC §8 accuracy, chunked), and with
-``--device-run`` two implementation variants of the update: the plain autodiff
-first-layer gradient instead of the fused one, and an unrolled update loop.
+Also reported: forward-only evaluation throughput (SPEC §8 accuracy, chunked), and for
+the ``--variant-methods`` (default with ``--device-run``: slotv) the variants of the
+update, each timed round-robin with the default in the same process (the order rotates
+every round): the default again (the run's noise floor), the other first-layer gradients
+(``backward``; "autodiff" is the simplest form) and, where SLOT-V updates are packed
+(CPUs), the update without packing and the simplest form of all (autodiff, not packed).
+``--preset quick`` times the quick preset's network and batch sizes (what CPUs run).
 
-It imports neither MuJoCo nor the data pipeline: it runs on an accelerator image with
-only jax, flax, optax, orbax, jaxtyping and tqdm.
+The data are synthetic: no dataset needs to be generated.
 """
 
 from __future__ import annotations
@@ -32,32 +38,44 @@ import argparse
 import dataclasses
 import datetime
 import functools
+import gzip
 import itertools
 import json
+import pathlib
 import platform
 import statistics
 import sys
 import time
+from collections import defaultdict
+
+import flax
+import jax
+import jax.numpy as jnp
+import jaxlib
+import numpy as np
+import optax
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
+from slotv_jax import config, train
+from slotv_jax.models import BACKWARDS
+from slotv_jax.train import default_backward, packs_updates
 
 T = 100
 G = 8
 
 
-def variants(backward: str, method: str) -> list[tuple[str, dict]]:
-    """Other implementations of the same update (Trainer.backward, Trainer.unroll)."""
-    import jax
-
-    from slotv_jax.models import BACKWARDS
-    from slotv_jax.train import default_backward, default_unroll
-
+def variants(backward: str, method: str, packed: bool) -> list[tuple[str, dict]]:
+    """The default again (the noise floor of the run), the other first-layer gradients
+    (``Trainer.backward``), and on CPUs, for SLOT-V, the update without packing and the
+    simplest form of all (autodiff, not packed)."""
     if backward == "auto":
         backward = default_backward(jax.default_backend(), method)
-    out = [(f"backward={b}", {"backward": b}) for b in BACKWARDS if b != backward]
-    out += [(f"first layer {f}", {"form": f}) for f in ("difference", "broadcast")]
-    other = 4 if default_unroll(jax.default_backend()) == 1 else 1
-    return [*out, (f"backward={backward}, unroll {other}", {"backward": backward, "unroll": other})]
+    out = [("default, again (the noise floor)", {"backward": backward})]
+    out += [(f"backward={b}", {"backward": b}) for b in BACKWARDS if b != backward]
+    if packed and method == "slotv":
+        out += [("not packed", {"backward": backward, "pairs": 0})]
+        out += [("simplest: autodiff, not packed", {"backward": "autodiff", "pairs": 0})]
+    return out
 
 
 def forward_flops(hidden: tuple[int, ...], rows_per_traj: int, goals_per_traj: int) -> float:
@@ -82,9 +100,6 @@ def synthetic_data(n: int, seed: int = 0, trim: bool = True):
     """Random but valid trajectories, scenes (2, 3, 5 or 6 goals, as the training split) and
     label distributions (on the host); ``trim`` cuts the two slots no scene uses, as
     :func:`slotv_jax.train.train_trials` does."""
-    import numpy as np
-
-    from slotv_jax import train
 
     rng = np.random.default_rng(seed)
     counts = rng.choice([2, 3, 5, 6], n)
@@ -106,17 +121,16 @@ def synthetic_data(n: int, seed: int = 0, trim: bool = True):
     return train.trim_goals(data) if trim else data
 
 
-def paper_pair_capacity(trials: int = 10) -> int:
-    """The packed SLOT-V pairs per update of a paper-preset run of ``trials`` trials
-    (seeds 0..trials−1, 15 epochs) on 100,000 synthetic training trajectories."""
-    import jax
+def paper_pair_capacity(trials: int = 10, preset: str = "paper") -> int:
+    """The packed SLOT-V pairs per update of a ``preset`` run of ``trials`` trials
+    (seeds 0..trials−1, the preset's epochs) on synthetic training trajectories (100,000
+    for the paper preset, the quick preset's ``train_size``)."""
 
-    from slotv_jax import config, train
-
-    cfg = config.paper("slotv")
+    cfg = config.PRESETS[preset]("slotv")
     trainer = train.make_train(cfg, progress=False)
     keys = jax.vmap(train.Trainer.state_key)(train.trial_keys(trials))
-    return trainer.pair_capacity(keys, synthetic_data(100_000).goal_mask, range(cfg.epochs))
+    n = cfg.train_size or 100_000
+    return trainer.pair_capacity(keys, synthetic_data(n).goal_mask, range(cfg.epochs))
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -130,8 +144,6 @@ def _median_time(fn, repeats: int) -> float:
 
 def matmul_peak(dtype: str, n: int, repeats: int) -> float:
     """FLOP/s of a jitted n×n×n ``jnp.dot`` in ``dtype`` on random data (median of calls)."""
-    import jax
-    import jax.numpy as jnp
 
     dt = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}[dtype]
     ka, kb = jax.random.split(jax.random.key(0))
@@ -160,38 +172,28 @@ class Row:
         return self.flops_per_s / self.peak
 
 
-def bench_train(
+def build_train(
     method: str,
     dtype: str,
     steps: int,
-    repeats: int,
     *,
     backward: str = "auto",
-    unroll: int | str = "auto",
-    profile: str | None = None,
     trim: bool = True,
-    form: str = "auto",
     trials: int = 1,
     pairs: int = 0,
-) -> tuple[float, float, float, object, float]:
-    """(seconds per update, FLOPs per update, compile seconds, cfg, goal slots per
-    trajectory computed) of the paper-size loop; with ``trials`` > 1, that many vmapped
-    trials per call (FLOPs and time of all of them together). ``form`` is
-    :data:`slotv_jax.models.first_layer_form`; ``pairs`` > 0 packs SLOT-V updates to that
-    many (trajectory, goal) pairs (:func:`slotv_jax.train.slotv_loss_packed`)."""
-    import jax
+    preset: str = "paper",
+):
+    """Compile one timed epoch of ``steps`` updates: (``once()``, which runs it, FLOPs per
+    update, compile seconds, cfg, goal slots per trajectory computed, compiled). With
+    ``trials`` > 1, that many vmapped trials per call (FLOPs of all of them together).
+    ``pairs`` > 0 packs SLOT-V updates to that many (trajectory, goal) pairs
+    (:func:`slotv_jax.train.slotv_loss_packed`)."""
 
-    from slotv_jax import config, models, train
-
-    models.first_layer_form = form  # read when tracing, below
-
-    cfg = config.paper(method, compute_dtype=dtype, epochs=1, log_every=steps)
+    cfg = config.PRESETS[preset](method, compute_dtype=dtype, epochs=1, log_every=steps)
+    cfg = dataclasses.replace(cfg, train_size=None)
     n = steps * cfg.batch_size
     pairs = pairs if method == "slotv" else 0
-    trainer = train.make_train(
-        cfg, progress=False, backward=backward, unroll=unroll, packed_pairs=pairs
-    )
-    backward, unroll = trainer.backward, trainer.unroll
+    trainer = train.make_train(cfg, progress=False, backward=backward, packed_pairs=pairs)
     data = trainer.replicate(synthetic_data(n, trim=trim))
     slots = pairs / cfg.batch_size if pairs else data.goals.shape[1]
     run = functools.partial(trainer.run, epochs=1)
@@ -211,28 +213,52 @@ def bench_train(
         holder[0], m = compiled(holder[0], data)
         jax.block_until_ready(m)
 
+    flops, _ = update_flops(cfg, slots)
+    return once, flops * trials, compile_s, cfg, slots, compiled
+
+
+def interleaved(fns: list, repeats: int) -> list[float]:
+    """Median seconds of each of ``fns``, called round-robin ``repeats`` times, each round
+    starting one further along (so that a change of load on a shared machine, and the
+    position in the round, hit every variant alike)."""
+    ts: list[list[float]] = [[] for _ in fns]
+    for r in range(repeats):
+        for i in range(len(fns)):
+            j = (i + r) % len(fns)
+            t0 = time.perf_counter()
+            fns[j]()
+            ts[j].append(time.perf_counter() - t0)
+    return [statistics.median(t) for t in ts]
+
+
+def bench_train(
+    method: str,
+    dtype: str,
+    steps: int,
+    repeats: int,
+    *,
+    profile: str | None = None,
+    **kw,
+) -> tuple[float, float, float, object, float]:
+    """(seconds per update, FLOPs per update, compile seconds, cfg, goal slots per
+    trajectory computed) of the loop built by :func:`build_train` (``kw``)."""
+
+    once, flops, compile_s, cfg, slots, compiled = build_train(method, dtype, steps, **kw)
     t = _median_time(once, repeats) / steps
     if profile:
-        import pathlib
-
         d = pathlib.Path(profile)
         d.mkdir(parents=True, exist_ok=True)
-        tag = f"{method}_{dtype}_{backward}_unroll{unroll}_p{pairs}_{form}_x{trials}"
+        tag = f"{method}_{dtype}_" + "_".join(f"{k}{v}" for k, v in sorted(kw.items()))
         (d / f"{tag}.hlo.txt").write_text(compiled.as_text())
         with jax.profiler.trace(str(d / tag), create_perfetto_trace=True):
             for _ in range(2):
                 once()
         kernel_summary(d / tag, steps * 2)
-    models.first_layer_form = "auto"
-    flops, _ = update_flops(cfg, slots)
-    return t, flops * trials, compile_s, cfg, slots
+    return t, flops, compile_s, cfg, slots
 
 
 def kernel_summary(trace_dir, updates: int, top: int = 25) -> None:
     """Print the device kernels of a profiler trace by total time (per update)."""
-    import gzip
-    import pathlib
-    from collections import defaultdict
 
     files = sorted(pathlib.Path(trace_dir).rglob("*.trace.json.gz"))
     if not files:
@@ -257,15 +283,11 @@ def kernel_summary(trace_dir, updates: int, top: int = 25) -> None:
               f"x{cnt[name] / updates:.2f}  {name[:110]}")  # fmt: skip
 
 
-def bench_eval(
-    method: str, dtype: str, n: int, repeats: int, trim: bool = True
-) -> tuple[float, float, float]:
-    """(trajectories/s, FLOP/s, compile s) of chunked SPEC §8 accuracy at paper size."""
-    import jax
+def build_eval(method: str, dtype: str, n: int, trim: bool = True, *, preset: str = "paper"):
+    """Compile chunked SPEC §8 accuracy over ``n`` trajectories: (``once()``, forward FLOPs
+    per call, compile seconds, cfg)."""
 
-    from slotv_jax import config, train
-
-    cfg = config.paper(method, compute_dtype=dtype)
+    cfg = config.PRESETS[preset](method, compute_dtype=dtype)
     trainer = train.make_train(cfg, progress=False)
     params = trainer.replicate(trainer.init(jax.random.key(0)).params)
     data = synthetic_data(n, seed=1, trim=trim)
@@ -275,17 +297,21 @@ def bench_eval(
     compiled = f.lower(params, ev).compile()
     compile_s = time.perf_counter() - t0
     jax.block_until_ready(compiled(params, ev))
-    t = _median_time(lambda: jax.block_until_ready(compiled(params, ev)), repeats)
     g = data.goals.shape[1]
     fl = forward_flops(cfg.hidden, T * g, g) * n
+    return (lambda: jax.block_until_ready(compiled(params, ev))), fl, compile_s, cfg
+
+
+def bench_eval(
+    method: str, dtype: str, n: int, repeats: int, trim: bool = True, **kw
+) -> tuple[float, float, float]:
+    """(trajectories/s, FLOP/s, compile s) of chunked SPEC §8 accuracy (:func:`build_eval`)."""
+    once, fl, compile_s, _ = build_eval(method, dtype, n, trim, **kw)
+    t = _median_time(once, repeats)
     return n / t, fl / t, compile_s
 
 
 def environment() -> dict:
-    import flax
-    import jax
-    import jaxlib
-    import optax
 
     devs = jax.devices()
     return {
@@ -304,6 +330,8 @@ def environment() -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.training")
     ap.add_argument("--device-run", action="store_true", help="accelerator settings + variants")
+    ap.add_argument("--preset", default="paper", choices=("paper", "quick"), help="model sizes")
+    ap.add_argument("--eval-size", type=int, default=None, help="trajectories per eval call")
     ap.add_argument("--steps", type=int, default=None, help="updates per timed epoch")
     ap.add_argument("--repeats", type=int, default=None)
     ap.add_argument("--dtypes", default="float32,bfloat16")
@@ -336,28 +364,24 @@ def main(argv=None) -> int:
     ap.add_argument("--profile", default=None, help="dir: HLO + kernel profile of slotv train")
     args = ap.parse_args(argv)
 
-    import jax
-
     gpu = jax.default_backend() != "cpu"
     if args.variant_methods is None:
         args.variant_methods = "slotv" if args.device_run else ""
     steps = args.steps or (400 if gpu else 3)
     repeats = args.repeats or (5 if gpu else 2)
     n_peak = 8192 if gpu else 2048
-    n_eval = 16384 if gpu else 64
+    n_eval = args.eval_size or (16384 if gpu else 64)
     env = environment()
     print(slotv_jax.XLA_CONFIG.summary())
     print(json.dumps(env), flush=True)
     print(f"steps per timed epoch {steps}, repeats {repeats}, peak matmul {n_peak}³", flush=True)
 
-    from slotv_jax.train import default_backward, default_unroll, packs_updates
-
     pairs = 0
     if packs_updates(jax.default_backend()) and not (args.all_slots or args.dense):
-        pairs = paper_pair_capacity()
+        pairs = paper_pair_capacity(10 if args.preset == "paper" else 2, args.preset)
     if pairs:
         print(f"SLOT-V updates packed to {pairs} real (trajectory, goal) pairs of the 32 × 6 "
-              "slots (the most in any batch of a 10-trial paper run)", flush=True)  # fmt: skip
+              f"slots (the most in any batch of a {args.preset} run)", flush=True)  # fmt: skip
     rows: list[Row] = []
     extra: list[dict] = []
     for dtype in args.dtypes.split(","):
@@ -367,7 +391,7 @@ def main(argv=None) -> int:
             trim = not args.all_slots
             t, fl, cs, cfg, slots = bench_train(
                 method, dtype, steps, repeats, backward=args.backward, profile=args.profile,
-                trim=trim, pairs=pairs,
+                trim=trim, pairs=pairs, preset=args.preset,
             )  # fmt: skip
             _, traj = update_flops(cfg, slots)
             slot_note = ""
@@ -375,8 +399,7 @@ def main(argv=None) -> int:
                 slot_note = f", {pairs} pairs" if pairs else f", {slots} goal slots"
             bw = default_backward(jax.default_backend(), method)
             bw = bw if args.backward == "auto" else args.backward
-            unroll = default_unroll(jax.default_backend())
-            name = f"{method} train ({bw}, unroll {unroll}{slot_note})"
+            name = f"{method} train ({bw}{slot_note})"
             row = Row(name, dtype, cfg.batch_size, cfg.hidden, t * 1e3,
                       traj / t, fl / t, peak, cs)  # fmt: skip
             rows.append(row)
@@ -385,22 +408,32 @@ def main(argv=None) -> int:
                   f"(compile {cs:.1f} s)", flush=True)  # fmt: skip
             if method in args.variant_methods.split(","):
                 wanted = [w for w in args.variants.split(",") if w]
-                for label, kw in variants(args.backward, method):
-                    if wanted and not any(w in label for w in wanted):
-                        continue
-                    tv, flv, *_ = bench_train(
-                        method, dtype, steps, repeats, profile=args.profile, trim=trim,
-                        pairs=pairs, **kw,
-                    )  # fmt: skip
+                chosen = [(label, {"pairs": pairs, **kw}) for label, kw in
+                          variants(args.backward, method, bool(pairs))
+                          if not wanted or any(w in label for w in wanted)]  # fmt: skip
+                base = {"backward": args.backward, "trim": trim, "pairs": pairs,
+                        "preset": args.preset}  # fmt: skip
+                built = [build_train(method, dtype, steps, **base)]
+                built += [build_train(method, dtype, steps, trim=trim, preset=args.preset, **kw)
+                          for _, kw in chosen]  # fmt: skip
+                times = interleaved([b[0] for b in built], repeats)
+                t0 = times[0] / steps
+                print(f"    interleaved, {repeats} rounds: default {t0 * 1e3:.3f} ms/update",
+                      flush=True)  # fmt: skip
+                for (label, _), b, tv in zip(chosen, built[1:], times[1:], strict=True):
+                    tv /= steps
+                    flv = b[1]
                     v = {"method": method, "variant": label, "dtype": dtype, "step_ms": tv * 1e3,
-                         "traj_per_s": traj / tv, "frac_peak": flv / tv / peak}  # fmt: skip
+                         "default_ms": t0 * 1e3, "ratio": tv / t0, "traj_per_s": traj / tv,
+                         "frac_peak": flv / tv / peak}  # fmt: skip
                     extra.append(v)
-                    print(f"    variant {label}: {tv * 1e3:.3f} ms/update, {traj / tv:,.0f} "
-                          f"traj/s, {100 * flv / tv / peak:.1f}% of peak", flush=True)  # fmt: skip
+                    print(f"    variant {label}: {tv * 1e3:.3f} ms/update ({tv / t0:.3f} × "
+                          f"default), {traj / tv:,.0f} traj/s, {100 * flv / tv / peak:.1f}% of "
+                          "peak", flush=True)  # fmt: skip
             for k in [int(x) for x in args.vmap_trials.split(",") if x]:
                 tv, flv, *_ = bench_train(
                     method, dtype, steps, repeats, backward=args.backward, trim=trim, trials=k,
-                    pairs=pairs,
+                    pairs=pairs, preset=args.preset,
                 )  # fmt: skip
                 v = {"method": method, "variant": f"{k} vmapped trials", "dtype": dtype,
                      "step_ms": tv * 1e3 / k, "traj_per_s": k * traj / tv,
@@ -410,7 +443,7 @@ def main(argv=None) -> int:
                       f"{k * traj / tv:,.0f} traj/s, {100 * flv / tv / peak:.1f}% of peak",
                       flush=True)  # fmt: skip
             if not args.no_eval:
-                tps, fps, ecs = bench_eval(method, dtype, n_eval, repeats, trim)
+                tps, fps, ecs = bench_eval(method, dtype, n_eval, repeats, trim, preset=args.preset)
                 rows.append(Row(f"{method} eval", dtype, n_eval, cfg.hidden, 1e3 * n_eval / tps,
                                 tps, fps, peak, ecs))  # fmt: skip
                 print(f"  {method} eval: {tps:,.0f} traj/s, {fps / 1e12:.2f} TFLOP/s = "

@@ -26,6 +26,7 @@ efficiency summaries), ``OUT/explainable.md`` (the tables) and ``OUT/explainable
 from __future__ import annotations
 
 import argparse
+import csv
 import dataclasses
 import json
 import sys
@@ -33,12 +34,14 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+import jax
 import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
+from slotv_jax import evaluate, train
 from slotv_jax.experiments import sample_efficiency, table1
 from slotv_jax.experiments.table1 import LABELER_TITLES, LABELERS, SPLIT_TITLES, SPLITS
 from slotv_jax.fileio import save_figure, write_text
@@ -77,9 +80,6 @@ def run(
     progress: bool = True,
 ) -> dict:
     """Run the three steps and write the results, tables and figure."""
-    import jax
-
-    from slotv_jax import evaluate, train
 
     t_start = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
@@ -195,7 +195,6 @@ def run(
 def _read_curve(sub: Path) -> tuple[np.ndarray, np.ndarray]:
     """Examples (V,) and accuracy (repeats, V) of the SLOT-V-loss curve a
     sample-efficiency run wrote to ``sub``."""
-    import csv
 
     with open(sub / "sample_efficiency.csv", newline="") as f:
         rows = [row for row in csv.DictReader(f) if row["method"] == "slotv"]

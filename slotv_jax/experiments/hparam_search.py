@@ -36,13 +36,16 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh
 from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
-from slotv_jax import parallel
+from slotv_jax import evaluate, parallel, train
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import LABELERS, dataset_dir
 from slotv_jax.fileio import write_text
@@ -167,11 +170,6 @@ def run(
     is read back; with ``time_limit_s`` no round is started that would, at the last round's
     pace, end after that many seconds: a rerun continues.
     """
-    import jax
-    import jax.numpy as jnp
-    from jax.sharding import Mesh
-
-    from slotv_jax import evaluate, train
 
     t_start = time.perf_counter()
     writer = parallel.is_writer()

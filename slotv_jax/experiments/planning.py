@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -43,11 +44,13 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import checkpoint, labelers, planning, scene
+from slotv_jax import checkpoint, labelers, planning, scene, train
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
 from slotv_jax.experiments.table1 import dataset_dir
 from slotv_jax.fileio import atomic_write, save_figure, write_text
+from slotv_jax.kinematics import home_tcp
+from slotv_jax.scene import camera, project
 
 FAMILIES = ("dragan", "nikolaidis")  # the true labelers; each is its own family's oracle
 METHODS = ("slotv", "trex")
@@ -160,7 +163,6 @@ def train_observer(
     cfg: PlanningConfig, method: str, labeler: str, train_split, out: Path
 ) -> tuple[Path, float]:
     """Train one observer with the preset's config on ``labeler`` labels; save it to ``out``."""
-    from slotv_jax import train
 
     tc = cfg.train[method]
     t0 = time.perf_counter()
@@ -373,9 +375,6 @@ def render(out: Path, n_examples: int = 3) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from slotv_jax.kinematics import home_tcp
-    from slotv_jax.scene import camera, project
-
     with np.load(out / "plans.npz", allow_pickle=False) as f:
         plans = {k: f[k] for k in f.files}
     doc = json.loads((out / "results.json").read_text())
@@ -551,8 +550,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = args.out or Path("runs") / f"planning_{args.preset}"
     doc = run(cfg, out, checkpoints=ckpts, cache=args.cache)
     if args.doc is not None:
-        import shutil
-
         args.doc.parent.mkdir(parents=True, exist_ok=True)
         stem = args.doc.stem
         for fig in ("scenes.png", "bars.png"):

@@ -29,11 +29,12 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+import jax
 import numpy as np
 
 import slotv_jax
 from slotv_jax import data as data_lib
-from slotv_jax import parallel
+from slotv_jax import evaluate, parallel, train
 from slotv_jax.config import MODELS
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
@@ -68,7 +69,6 @@ def run(
     ``model`` replaces SLOT-V's network by an observer archetype (SPEC §10,
     :func:`slotv_jax.experiments.table1.with_model`); ``labeler`` trains and validates on
     another labeler's labels than the paper's Dragan."""
-    from slotv_jax import evaluate, train
 
     if preset not in table1.PRESETS:
         raise ValueError(f"preset: expected one of {sorted(table1.PRESETS)}, got {preset!r}")
@@ -165,9 +165,6 @@ def train_repeats(cfg, tdata, vdata, repeats: int, *, progress: bool = True):
     padded to a multiple of the device count, sharded over them
     (:func:`slotv_jax.parallel.train_group`; the repeats share every shape, and vmapping
     them keeps the small in-loop validations batched, as on one device)."""
-    import jax
-
-    from slotv_jax import train
 
     n_dev = jax.device_count()
     if n_dev == 1:

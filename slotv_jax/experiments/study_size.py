@@ -58,11 +58,14 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+import jax
 import numpy as np
+from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import config as config_lib
 from slotv_jax import data as data_lib
+from slotv_jax import evaluate, study, train
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
 from slotv_jax.fileio import save_figure, write_text
 
@@ -152,10 +155,6 @@ def _cell_key(c: dict) -> tuple:
 
 def run(cfg: StudySizeConfig, out: Path, *, cache: Path = Path("data"), progress: bool = True):
     """Run (or resume) every cell; returns the results document (also written to ``out``)."""
-    import jax
-    from tqdm.auto import tqdm
-
-    from slotv_jax import evaluate, study, train
 
     stem = "study_size" if cfg.preset == "quick" else f"study_size_{cfg.preset}"
     out.mkdir(parents=True, exist_ok=True)
@@ -263,9 +262,6 @@ def budget_curve(cfg: StudySizeConfig, xyz, goals, mask, probs, ev, *, progress=
     one run (trial 0's key) evaluated after ``BUDGET_FRACTIONS`` × ``cfg.updates`` updates
     (whole epochs, as the cells train). Flat between 1 and 2 × means the cells' budget
     does not limit them."""
-    import jax
-
-    from slotv_jax import evaluate, study
 
     n, k = max(cfg.n_grid), len(cfg.taus)
     s = study.make_study(
@@ -300,9 +296,6 @@ def measure(tr, cfg: StudySizeConfig, *, n: int = 2000, participants: int = 20, 
     """Wall time of SLOT-V (quick preset, as the CLI trains it) on an N × P simulated study,
     whole motions and prefixes (τ ∈ {0.25, 0.5, 0.75, 1}); two runs each, the first
     including compilation."""
-    import jax
-
-    from slotv_jax import study
 
     out = {}
     for name, taus in (("whole motions", (1.0,)), ("prefixes", (0.25, 0.5, 0.75, 1.0))):

@@ -28,15 +28,17 @@ import json
 import sys
 import time
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import jax
 import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
-from slotv_jax import parallel
+from slotv_jax import evaluate, parallel, train
 from slotv_jax.fileio import write_text
 
 LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
@@ -257,7 +259,6 @@ def run(
     the run stops before a unit (or group) that would end after that many seconds, judged by
     the last one of the same method; a rerun continues.
     """
-    import jax
 
     t_start = time.perf_counter()
     writer = parallel.is_writer()
@@ -344,9 +345,6 @@ def _single_device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_
     """One device: yield (method, [(labeler, trial)], step) per trial (or, ``vmap_trials``,
     per (labeler, method)); ``step()`` trains and evaluates, returning (accuracies per
     split, losses, times)."""
-    import jax
-
-    from slotv_jax import evaluate, train
 
     units: list[tuple[str, str, list[int]]] = []
     for lab, meth, trial in todo:
@@ -394,9 +392,6 @@ def _device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_dev: in
     """Several devices: per method, the pending (labeler, trial) units in the groups of
     :func:`slotv_jax.parallel.groups`, each trained side by side and evaluated where it
     trained. The trajectories are shared and each unit has its labeler's labels."""
-    import jax
-
-    from slotv_jax import train
 
     shared: dict[str, train.TrainData] = {}
     labels: dict[tuple[str, str], np.ndarray] = {}
@@ -444,9 +439,6 @@ def _precompile_in_background(cfg: Table1Config, methods: Sequence[str], n_dev: 
     shape the training split will have (its size, points, and largest goal count): on one
     device :func:`slotv_jax.train.precompile`, on several the full group of
     :func:`slotv_jax.parallel.precompile_group`. Returns the futures."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from slotv_jax import train
 
     if not methods:
         return {}
