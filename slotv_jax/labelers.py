@@ -54,6 +54,7 @@ from jaxtyping import Array, Bool, Float
 from tqdm.auto import tqdm
 
 from slotv_jax import validation
+from slotv_jax._xla import XLA_CONFIG
 from slotv_jax.fileio import atomic_write
 from slotv_jax.scene import Camera, project
 from slotv_jax.scene import camera as scene_camera
@@ -716,7 +717,6 @@ def _savez(path, arrays: dict[str, np.ndarray]) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m slotv_jax.labelers --in trajs.npz --out labels.npz``."""
-    from slotv_jax import XLA_CONFIG
 
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.labelers",

@@ -27,12 +27,6 @@ EXCEPTIONS = {
     ("slotv_jax", "slotv_jax.checkpoint"): "lazy package attribute",
     # Consulted only when JAX is already imported: _xla must not import JAX itself.
     ("slotv_jax._xla", "jax._src"): "probe of an already imported JAX",
-    # Owned by the labelling work (issue 17, labelers part); to be moved to module level
-    # there (`from slotv_jax._xla import XLA_CONFIG` at the top of labelers.py; `jax`,
-    # `jaxlib` at the top of benchmarks/labeling.py).
-    ("slotv_jax.labelers", "slotv_jax"): "pending in labelers.py",
-    ("slotv_jax.benchmarks.labeling", "jax"): "pending in benchmarks/labeling.py",
-    ("slotv_jax.benchmarks.labeling", "jaxlib"): "pending in benchmarks/labeling.py",
 }
 
 

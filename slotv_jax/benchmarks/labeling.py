@@ -36,6 +36,8 @@ import platform
 import sys
 import time
 
+import jax
+import jaxlib
 import numpy as np
 
 import slotv_jax
@@ -127,9 +129,6 @@ def main(argv=None) -> int:
     p.add_argument("--chunk-size", type=int, default=L.DEFAULT_CHUNK)
     p.add_argument("--repeats", type=int, default=5)
     args = p.parse_args(argv)
-
-    import jax
-    import jaxlib
 
     print(slotv_jax.XLA_CONFIG.summary())
     print(
