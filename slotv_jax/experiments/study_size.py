@@ -590,7 +590,7 @@ def _notes(doc: dict) -> list[str]:
             f"{cfg['updates']:,} updates per cell instead of 15 epochs of 100,000, a "
             f"{cfg['data']['n_train']:,}-trajectory dataset, {cfg['trials']} trials. The "
             "numbers of trajectories above are those this small observer needs within this "
-            "budget. At paper scale (100,000 trajectories, 15 epochs) SLOT-V reaches 0.89 on "
+            "budget. At paper scale (100,000 trajectories, 15 epochs) SLOT-V reaches 0.905 on "
             "Dragan's `position_test` (`experiments/README.md`); how many trajectories a "
             "paper-size observer needs is what the paper preset (GPU) measures: "
             "`python -m slotv_jax.experiments.study_size --preset paper --set "
@@ -622,7 +622,7 @@ def _notes(doc: dict) -> list[str]:
     lines.append(
         f"- Trajectories are not examples: every cell consumes ≈ {per} examples (N = "
         f"{min(cfg['n_grid']):,}: each trajectory many times over). The paper's 'about "
-        "10,000 examples for 80 %' (its Fig. 3; 8,960 in ours at paper scale, "
+        "10,000 examples for 80 %' (its Fig. 3; 5,760 in ours at paper scale, "
         "`experiments/README.md`) counts examples of one pass over fresh trajectories. A "
         "study pays for distinct trajectories and answers, which is what N and N × P count "
         "here; reusing them costs only compute."
