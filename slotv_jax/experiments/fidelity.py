@@ -85,7 +85,6 @@ FACTOR_TITLES = {
     "timing": "time parameterisation",
     "defaults": "around the β ×4 defaults",
 }
-TIGHT_BOX = TABLE_VIA_BOX  # over the goal table's cube region (m); the default since v7
 VIA_COUNTS = ((0,), (1,), (2,), (3,), (1, 2, 3), (3, 4, 5))
 BETA_SCALES = (1.0, 4.0)  # × the first version's β (Dragan 5, Nikolaidis 7.5, EffDist 5, FastApp 5)
 NIKOLAIDIS_SCALES = (8.0, 16.0)  # Nikolaidis' β alone, × the first version's, at the defaults
@@ -188,7 +187,9 @@ def settings(cfg: FidelityConfig) -> list[Setting]:
         )
         out.append((f"beta=x{k:g}", "beta", f"×{k:g}", dataclasses.replace(base, labels=labels)))
     out.append(("box=spec", "box", "SPEC", base))
-    out.append(("box=tight", "box", "tight", traj(via_low=TIGHT_BOX[0], via_high=TIGHT_BOX[1])))
+    out.append(
+        ("box=tight", "box", "tight", traj(via_low=TABLE_VIA_BOX[0], via_high=TABLE_VIA_BOX[1]))
+    )
     out.append(("timing=arc", "timing", "arc length", base))
     out.append(("timing=segment", "timing", "per segment", traj(timing="segment")))
     # Second stage, around the chosen defaults (β ×4 for all four labelers).
@@ -199,7 +200,7 @@ def settings(cfg: FidelityConfig) -> list[Setting]:
         labels = dataclasses.replace(x4.labels, beta_nikolaidis=beta)
         out.append((f"default+nik=x{k:g}", "defaults", f"Nik. β ×{k:g}",
                     dataclasses.replace(x4, labels=labels)))  # fmt: skip
-    tight = dataclasses.replace(x4.trajectory, via_low=TIGHT_BOX[0], via_high=TIGHT_BOX[1])
+    tight = dataclasses.replace(x4.trajectory, via_low=TABLE_VIA_BOX[0], via_high=TABLE_VIA_BOX[1])
     out.append(("default+box=tight", "defaults", "tight box",
                 dataclasses.replace(x4, trajectory=tight)))  # fmt: skip
     return [
@@ -316,8 +317,10 @@ def run(
     only: Sequence[str] | None = None,
     cache: Path = Path("data"),
     progress: bool = True,
+    previous: dict | None = None,
 ) -> dict:
-    """Run (or resume) the ablation; ``only`` restricts it to the named settings."""
+    """Run (or resume) the ablation; ``only`` restricts it to the named settings, and
+    ``previous`` (see :func:`collect`) joins earlier runs to the results."""
     out.mkdir(parents=True, exist_ok=True)
     all_settings = settings(cfg)
     names = [s.name for s in all_settings]
@@ -328,7 +331,7 @@ def run(
     runs = {owner[n].name: owner[n] for n in (only or names)}
     for s in tqdm(runs.values(), desc="fidelity settings", unit="setting", disable=not progress):
         run_setting(cfg, s, out, cache=cache, progress=progress)
-    doc = collect(cfg, out)
+    doc = collect(cfg, out, previous)
     write_text(out / "results.json", json.dumps(doc, indent=1))
     return doc
 
@@ -546,12 +549,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         write_text(out / "results.json", json.dumps(doc, indent=1))
     else:
         try:
-            doc = run(cfg, out, only=args.settings, cache=args.cache)
+            doc = run(cfg, out, only=args.settings, cache=args.cache, previous=previous)
         except ValueError as e:
             p.error(str(e))
-        if previous:
-            doc = collect(cfg, out, previous)
-            write_text(out / "results.json", json.dumps(doc, indent=1))
     wall = None if args.report_only else time.perf_counter() - t0
     doc_path = args.doc or (
         Path("experiments") / "fidelity.md" if args.preset == "paper" else out / "fidelity.md"
