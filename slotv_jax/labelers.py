@@ -77,7 +77,10 @@ __all__ = [
 LABELER_NAMES = ("dragan", "nikolaidis", "effdist", "fastapp")
 DEFAULT_BETAS = {"dragan": 5.0, "nikolaidis": 7.5, "effdist": 5.0, "fastapp": 5.0}
 DEPTH_EPS = 1e-6  # a point or goal with camera depth <= this is invalid (SPEC §4.2)
-DEFAULT_CHUNK = 4096  # trajectories per compiled call of label_all (measured fastest, 2-core CPU)
+# label_all's default chunk: this many trajectory labels per compiled call, i.e. 16,384
+# trajectories for one labeler and 4,096 for all four (measured fastest on the 2-core
+# CPU: experiments/BENCHMARKS.md; larger chunks of all four spill out of the caches).
+CHUNK_LABELS = 16384
 
 # ----------------------------------------------------------------- time weights
 
@@ -291,15 +294,19 @@ def _nikolaidis_core(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS) -> Arra
     and that loop compiles like Dragan's 3-D one (measured 1.5× faster than dividing
     first). The depth check is counted in the same loop (10 % faster than a separate
     pass over the points). See experiments/BENCHMARKS.md.
+
+    A non-finite point is not a depth problem: its depth is NaN, neither valid nor
+    invalid, and the labels are NaN as with the other labelers (so that
+    :func:`label_all` finds it from the labels, without a pass over the points).
     """
     pc = _camera_frame(xyz, pos, rot)
     depth = -pc[2]
-    ok = depth > eps
+    behind = depth <= eps  # False for a NaN depth
     (u, v), ok_g = _image(goals, pos, rot, eps)
     rays = jnp.stack([u, v, -jnp.ones_like(u)], axis=-1)
     goal_behind = ~jnp.all(ok_g | ~mask, axis=-1)
-    scale = jnp.where(ok, depth, 1.0)
-    return _dragan_core(pc, rays, mask, beta, c, scale=scale, invalid=~ok | goal_behind)
+    scale = jnp.where(behind, 1.0, depth)
+    return _dragan_core(pc, rays, mask, beta, c, scale=scale, invalid=behind | goal_behind)
 
 
 # ------------------------------------------------------------ public labelers
@@ -589,9 +596,10 @@ _ERRORS = (  # what label_all reports for a bad trajectory, first applicable fir
 def _label_chunk(xyz, goals, mask, t, betas, camera, names):
     """``jit(vmap)`` of the public labelers ``names`` over one chunk, and per trajectory
     the checks that cannot raise inside, ``(C, 3)`` (``(C, 5)`` with nikolaidis) in the
-    order of ``_ERRORS``. NaN labels flag non-finite points (or an overflow); nikolaidis
-    hides them behind a uniform label when a depth is invalid, so with it the points
-    are checked too."""
+    order of ``_ERRORS``. NaN labels flag non-finite points (or an overflow). Nikolaidis
+    gives a uniform label when a depth is invalid, which may hide a bad point: its
+    point-depth flag here only says "not exactly uniform", and :func:`_recheck_points`
+    checks the points of the (few) uniform ones."""
     _TRACES["label_chunk"] += 1
 
     def one(x, g, m, tt):
@@ -614,8 +622,9 @@ def _label_chunk(xyz, goals, mask, t, betas, camera, names):
         ok = [functools.reduce(jnp.logical_and, finite), goals_finite]
         ok.append(~functools.reduce(jnp.logical_or, same))
         if "nikolaidis" in names:
-            ok[0] &= jnp.all(jnp.isfinite(x))
-            ok += _depth_flags(x, g, m, camera.pos, camera.rot)
+            uniform = (m / jnp.sum(m)).astype(labels["nikolaidis"].dtype)
+            _, ok_g = _image(g, camera.pos, camera.rot, DEPTH_EPS)
+            ok += [~jnp.all(labels["nikolaidis"] == uniform), jnp.all(ok_g | ~m)]
         ok[0] |= ~goals_finite  # non-finite goals are reported as such
         return labels, jnp.stack(ok)
 
@@ -629,7 +638,7 @@ def label_all(
     goal_mask: Bool[np.ndarray, "N 8"],
     *,
     t: Float[np.ndarray, "*N T"] | None = None,
-    chunk_size: int = DEFAULT_CHUNK,
+    chunk_size: int | None = None,
     progress: bool = True,
     labelers: Sequence[str] = LABELER_NAMES,
     beta_dragan: float = DEFAULT_BETAS["dragan"],
@@ -639,9 +648,10 @@ def label_all(
     camera: Camera | str = "observer",
 ) -> dict[str, np.ndarray]:
     """Label many trajectories (float32): the public labelers under ``jit(vmap)``, chunk by
-    chunk. Chunks of ``chunk_size`` go through one compiled function (the last chunk
-    overlaps the one before). On the CPU a float32 JAX array is read in place; a NumPy
-    array is copied chunk by chunk (cheaper than one copy of the whole).
+    chunk. Chunks of ``chunk_size`` (default ``16384 // len(labelers)``) go through one
+    compiled function (the last chunk overlaps the one before). On the CPU a float32 JAX
+    array is read in place; a NumPy array is copied chunk by chunk (cheaper than one copy
+    of the whole).
 
     Args: ``xyz (N, T, 3)`` (m, T >= 2); ``goals (N, 8, 3)`` and ``goal_mask (N, 8)``, or
     ``(8, 3)`` and ``(8,)`` shared by all; ``t`` optional time stamps, ``(T,)`` or
@@ -662,6 +672,7 @@ def label_all(
     names, (xyz, goals, goal_mask, t), betas, cam = _bulk_inputs(
         labelers, xyz, goals, goal_mask, t, chunk_size, betas, camera
     )
+    chunk_size = CHUNK_LABELS // len(names) if chunk_size is None else chunk_size
     N, C = len(xyz), min(chunk_size, max(len(xyz), 1))
     out = {n: np.empty((N, G_MAX), np.float32) for n in names}
     ok = np.ones((N, len(_ERRORS)), bool)
@@ -675,10 +686,32 @@ def label_all(
                 out[name][lo : lo + C] = np.asarray(labels[name])
             ok[lo : lo + C, : flags.shape[-1]] = np.asarray(flags)
             bar.update(min(C, N - start))
+    if "nikolaidis" in names:
+        _recheck_points(ok, xyz, cam)
     if not ok.all():
         i = int(np.flatnonzero(~ok.all(-1))[0])
         raise ValueError(_ERRORS[int(np.argmin(ok[i]))].format(i=i, eps=DEPTH_EPS))
     return out
+
+
+@jax.jit
+def _points_ok(xyz: Float[Array, "n T 3"], pos, rot) -> tuple[Bool[Array, " n"], Bool[Array, " n"]]:
+    """Per trajectory: all points finite; all points at depth > ``DEPTH_EPS`` (float32,
+    as :func:`_nikolaidis_core` decides)."""
+    _, in_front = _image(xyz, pos, rot, DEPTH_EPS)
+    return jnp.all(jnp.isfinite(xyz), axis=(-2, -1)), jnp.all(in_front, axis=-1)
+
+
+def _recheck_points(ok: np.ndarray, xyz: np.ndarray, cam: Camera) -> None:
+    """Check the points of the trajectories whose nikolaidis label is exactly uniform
+    (``ok[:, 3]`` False from :func:`_label_chunk`): set their finite (0) and
+    point-depth (3) flags. The label of a point behind the camera is uniform, and hides
+    a NaN point; any other label shows a NaN point as NaN."""
+    rows = np.flatnonzero(~ok[:, 3])
+    if rows.size:
+        finite, in_front = map(np.asarray, _points_ok(jnp.asarray(xyz[rows]), cam.pos, cam.rot))
+        ok[rows, 0] &= finite
+        ok[rows, 3] = in_front
 
 
 def _bulk_inputs(labelers, xyz, goals, goal_mask, t, chunk_size, betas, camera):
@@ -702,7 +735,7 @@ def _bulk_inputs(labelers, xyz, goals, goal_mask, t, chunk_size, betas, camera):
         t = _normalise_times(np.asarray(t, np.float64), np).astype(np.float32)
     for n in names:
         validation.check_positive(f"beta_{n}", betas[n])
-    if int(chunk_size) < 1:
+    if chunk_size is not None and int(chunk_size) < 1:
         raise ValueError(f"chunk_size: expected a positive integer, got {chunk_size}")
     arrays = (np.asarray(xyz, np.float32), goals, goal_mask.astype(bool, copy=False), t)
     return names, arrays, {n: jnp.float32(betas[n]) for n in names}, _as_camera(camera)
@@ -733,7 +766,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument(
         "--labelers", default=",".join(LABELER_NAMES), help="comma-separated subset to compute"
     )
-    p.add_argument("--chunk-size", type=int, default=DEFAULT_CHUNK)
+    p.add_argument(
+        "--chunk-size", type=int, help="trajectories per chunk (default: 16384 / labelers)"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
     print(XLA_CONFIG.summary(), file=sys.stderr)

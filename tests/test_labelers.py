@@ -427,6 +427,39 @@ def test_nikolaidis_points_behind_the_camera():
         L.label_all(behind[None], goals, mask, progress=False)
 
 
+def test_label_all_nikolaidis_checks_the_points_of_uniform_labels():
+    # label_all reads bad points from the labels; a point behind the camera gives a
+    # uniform label instead, and so may hide a NaN point: those rows are re-checked.
+    rng = np.random.default_rng(23)
+    cases = [random_case(rng, n_goals=3, contiguous=True) for _ in range(6)]
+    xyz, goals, mask = (np.stack(c) for c in zip(*cases, strict=True))
+    pos, axis = np.asarray(OBSERVER.pos, np.float64), np.asarray(OBSERVER.rot[:, 2], np.float64)
+
+    def label(x, g=goals, m=mask):
+        return L.label_all(x, g, m, chunk_size=4, labelers=("nikolaidis",), progress=False)
+
+    behind = xyz.copy()
+    behind[5, 40] = pos + 0.5 * axis  # in the second chunk
+    with pytest.raises(ValueError, match=r"xyz: trajectory 5 has point\(s\) at camera depth"):
+        label(behind)
+    hidden = xyz.copy()
+    hidden[2, 10, 0] = np.nan
+    goal_behind = goals.copy()
+    goal_behind[2, 1] = pos + 0.1 * axis  # makes trajectory 2's label uniform
+    with pytest.raises(ValueError, match=r"xyz: expected finite.*trajectory 2\b"):
+        label(hidden, goal_behind)
+    with pytest.raises(ValueError, match=r"goals: trajectory 2 has real goal"):
+        label(xyz, goal_behind)
+    # A valid trajectory whose label is exactly uniform (one real goal) passes the recheck.
+    one = mask.copy()
+    one[3] = np.arange(8) < 1
+    y = label(xyz, goals, one)
+    np.testing.assert_array_equal(y["nikolaidis"][3], np.float32([1] + [0] * 7))
+    # Under jit, a NaN point gives NaN labels, as with the other labelers.
+    f = jax.jit(lambda x: L.nikolaidis(x, goals[0], mask[0], OBSERVER))
+    assert np.all(np.isnan(np.asarray(f(hidden[2]))[:3]))
+
+
 # ---------------------------------------------------------------- bad inputs
 
 

@@ -15,12 +15,15 @@ import pytest
 
 from slotv_jax import _xla
 
-FLAG = "--xla_cpu_use_fusion_emitters=false"
+EMITTERS = "--xla_cpu_use_fusion_emitters=false"
+WIDTH = "--xla_cpu_prefer_vector_width=512"
+FLAGS = (EMITTERS, WIDTH)
+FLAG = f"{EMITTERS} {WIDTH}"  # as they appear in XLA_FLAGS
 OTHER = "--xla_force_host_platform_device_count=2"
 
 
 def test_flag_constants():
-    assert _xla.FLAG == FLAG
+    assert _xla.FLAGS == FLAGS
     assert _xla.OPT_OUT_VAR == "SLOTV_JAX_XLA_FLAGS"
 
 
@@ -28,7 +31,7 @@ def test_flag_constants():
 def test_sets_flag_when_absent(environ):
     cfg = _xla.configure(environ)
     assert environ["XLA_FLAGS"] == FLAG
-    assert cfg.applied == (FLAG,)
+    assert cfg.applied == FLAGS
     assert cfg.xla_flags == FLAG
 
 
@@ -37,19 +40,38 @@ def test_appends_to_user_flags_without_overwriting():
     cfg = _xla.configure(environ)
     assert environ["XLA_FLAGS"] == f"{OTHER} --xla_dump_to=/tmp/x {FLAG}"
     assert environ["HOME"] == "/home/u"
-    assert cfg.applied == (FLAG,)
+    assert cfg.applied == FLAGS
     assert cfg.xla_flags == environ["XLA_FLAGS"]
 
 
 @pytest.mark.parametrize(
-    "user", ["--xla_cpu_use_fusion_emitters=true", f"{OTHER} --xla_cpu_use_fusion_emitters=false"]
+    "user",
+    [
+        "--xla_cpu_use_fusion_emitters=true --xla_cpu_prefer_vector_width=256",
+        f"{OTHER} --xla_cpu_prefer_vector_width=128 --xla_cpu_use_fusion_emitters=false",
+    ],
 )
-def test_respects_users_own_value(user):
+def test_respects_users_own_values(user):
     environ = {"XLA_FLAGS": user}
     cfg = _xla.configure(environ)
     assert environ == {"XLA_FLAGS": user}
     assert cfg.applied == ()
     assert cfg.xla_flags == user
+    assert "already set" in cfg.reason
+
+
+@pytest.mark.parametrize(
+    ("user", "added"),
+    [
+        ("--xla_cpu_use_fusion_emitters=true", WIDTH),
+        ("--xla_cpu_prefer_vector_width=256", EMITTERS),
+    ],
+)
+def test_user_value_of_one_flag_keeps_the_other(user, added):
+    environ = {"XLA_FLAGS": user}
+    cfg = _xla.configure(environ)
+    assert environ["XLA_FLAGS"] == f"{user} {added}"
+    assert cfg.applied == (added,)
     assert "already set" in cfg.reason
 
 
@@ -76,7 +98,7 @@ def test_opt_out(value):
 @pytest.mark.parametrize("value", ["1", "true", ""])
 def test_other_opt_out_values_still_apply(value):
     environ = {"SLOTV_JAX_XLA_FLAGS": value}
-    assert _xla.configure(environ).applied == (FLAG,)
+    assert _xla.configure(environ).applied == FLAGS
     assert environ["XLA_FLAGS"] == FLAG
 
 
@@ -84,7 +106,7 @@ def test_summary_and_frozen_record():
     applied = _xla.configure({})
     assert FLAG in applied.summary() and "appended" in applied.summary()
     assert "SLOTV_JAX_XLA_FLAGS=0" in applied.summary()  # says how to opt out
-    kept = _xla.configure({"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"})
+    kept = _xla.configure({"XLA_FLAGS": f"{EMITTERS.replace('false', 'true')} {WIDTH}"})
     assert "left unchanged" in kept.summary()
     with pytest.raises(dataclasses.FrozenInstanceError):
         applied.applied = ()  # type: ignore[misc]
@@ -161,10 +183,18 @@ def test_import_after_jax_started_warns_and_changes_nothing():
 
 def test_unsupported_flag_is_not_applied():
     environ = {"XLA_FLAGS": OTHER}
-    cfg = _xla.configure(environ, supported=lambda: False)
+    cfg = _xla.configure(environ, supported=lambda flag: False)
     assert environ == {"XLA_FLAGS": OTHER}
     assert cfg.applied == ()
     assert "does not know" in cfg.summary()
+
+
+def test_only_the_unsupported_flag_is_left_out():
+    environ = {"XLA_FLAGS": OTHER}
+    cfg = _xla.configure(environ, supported=lambda flag: flag == EMITTERS)
+    assert environ == {"XLA_FLAGS": f"{OTHER} {EMITTERS}"}
+    assert cfg.applied == (EMITTERS,)
+    assert "does not know xla_cpu_prefer_vector_width" in cfg.reason
 
 
 def test_probe_detects_unknown_and_known_flags():
@@ -176,12 +206,14 @@ def test_probe_detects_unknown_and_known_flags():
 def test_probe_result_is_cached(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     calls = []
-    monkeypatch.setattr(_xla, "probe_flag", lambda flag=FLAG: calls.append(flag) or True)
-    assert _xla.flag_supported() is True
-    assert _xla.flag_supported() is True
-    assert calls == [FLAG]
+    monkeypatch.setattr(_xla, "probe_flag", lambda flag: calls.append(flag) or True)
+    assert _xla.flag_supported(EMITTERS) is True
+    assert _xla.flag_supported(EMITTERS) is True
+    assert calls == [EMITTERS]
+    assert _xla.flag_supported(WIDTH) is True  # each flag has its own entry
+    assert calls == [EMITTERS, WIDTH]
     assert (tmp_path / "slotv_jax" / "xla_flags.json").exists()
     # A corrupt cache file is probed again and rewritten.
     (tmp_path / "slotv_jax" / "xla_flags.json").write_text("{oops")
-    assert _xla.flag_supported() is True
-    assert len(calls) == 2
+    assert _xla.flag_supported(EMITTERS) is True
+    assert len(calls) == 3

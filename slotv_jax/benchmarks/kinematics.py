@@ -53,7 +53,7 @@ import slotv_jax
 from slotv_jax import kinematics as K
 from slotv_jax import scene as S
 from slotv_jax import trajectories as T
-from slotv_jax._xla import FLAG_NAME, OPT_OUT_VAR
+from slotv_jax._xla import OPT_OUT_VAR, SETTINGS
 from slotv_jax.benchmarks._machine import cpu_model
 
 RESULT_TAG = "KINEMATICS_BENCHMARK_RESULT "
@@ -225,10 +225,10 @@ def _load() -> str:
 
 
 def _variant_env(variant: str) -> dict[str, str]:
-    """A worker's environment: the user's, minus any fusion-emitter flag and opt-out."""
+    """A worker's environment: the user's, minus any flag slotv_jax sets and opt-out."""
     env = dict(os.environ)
     env["XLA_FLAGS"] = " ".join(
-        f for f in shlex.split(env.get("XLA_FLAGS", "")) if FLAG_NAME not in f
+        f for f in shlex.split(env.get("XLA_FLAGS", "")) if not any(name in f for name in SETTINGS)
     )
     env.pop(OPT_OUT_VAR, None)
     if variant == "without":

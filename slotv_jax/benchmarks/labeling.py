@@ -18,7 +18,10 @@ For each labeler, in one run on the same synthetic trajectories, side by side:
 all after compilation, taking turns within each of ``--repeats`` repeats (so that all
 see the same machine state), best of the repeats. Then all four labelers together,
 both ways (the public way: one jitted function of the four), and the largest
-difference between the NumPy and JAX labels as a sanity check. Targets (issue 17):
+difference between the NumPy and JAX labels as a sanity check. The last column is the
+public path compiled with XLA's default vector width (``compiler_options`` of
+``jax.jit``), against the package's ``--xla_cpu_prefer_vector_width=512``
+(:mod:`slotv_jax._xla`), in the same run. Targets (issue 17):
 public >= 80x the NumPy loop for each labeler, all four <= 1 s for 160,000 and
 ``label_all`` within 1.3x of the public path.
 
@@ -121,12 +124,15 @@ def np_fastapp(xyz, goals, mask, beta=5.0):
 # ------------------------------------------------------------------- benchmark
 
 
+VECTOR_WIDTH = "xla_cpu_prefer_vector_width"
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.labeling", description=__doc__)
     p.add_argument("--n", type=int, default=160_000, help="trajectories for JAX")
     p.add_argument("--T", type=int, default=100, help="points per trajectory")
     p.add_argument("--numpy-n", type=int, default=1000, help="trajectories for the NumPy loop")
-    p.add_argument("--chunk-size", type=int, default=L.DEFAULT_CHUNK)
+    p.add_argument("--chunk-size", type=int, help="label_all's chunk (default: its own)")
     p.add_argument("--repeats", type=int, default=5)
     args = p.parse_args(argv)
 
@@ -136,7 +142,8 @@ def main(argv=None) -> int:
         f"{os.cpu_count()} cores, load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}\n"
         f"# python {platform.python_version()}, jax {jax.__version__}, jaxlib "
         f"{jaxlib.__version__}, numpy {np.__version__}, backend {jax.default_backend()}\n"
-        f"# {args.n} trajectories of {args.T} points, label_all chunk {args.chunk_size}, "
+        f"# {args.n} trajectories of {args.T} points, "
+        f"label_all chunk {args.chunk_size or 'default'}, "
         f"{args.repeats} repeats; NumPy loop on {args.numpy_n} trajectories (float64)"
     )
     xyz, goals, mask = synthetic(args.n, args.T)
@@ -153,7 +160,8 @@ def main(argv=None) -> int:
     kw = dict(chunk_size=args.chunk_size, progress=False)
     m = min(args.numpy_n, args.n)
     x64, g64 = xyz[:m].astype(np.float64), goals[:m].astype(np.float64)
-    warm = (xyz[: 2 * args.chunk_size], goals[: 2 * args.chunk_size], mask[: 2 * args.chunk_size])
+    w = 2 * (args.chunk_size or L.CHUNK_LABELS)
+    warm = (xyz[:w], goals[:w], mask[:w])
 
     def measure(*fs):
         """Last output, best wall time and best process CPU time of each of ``fs`` over
@@ -182,7 +190,8 @@ def main(argv=None) -> int:
     print(
         f"{'labeler':<11} {'numpy':>7} | {'JAX arrays in: public':>21} {'label_all':>15} "
         f"{'la/pub':>6} | {'NumPy arrays in: public':>23} {'label_all':>15} {'la/pub':>6} | "
-        f"{'max |dy|':>8} | by CPU time: public, label_all (JAX in); la/pub (JAX, NumPy in)"
+        f"{'max |dy|':>8} | by CPU time: public, label_all (JAX in); la/pub (JAX, NumPy in) | "
+        f"public, XLA's 256-bit vectors (JAX in): rate, speed-up of the package's setting"
     )
     ratios = {}
     for name in L.LABELER_NAMES:
@@ -190,6 +199,11 @@ def main(argv=None) -> int:
         f_pub(xyz[:8], goals[:8], mask[:8])  # compile for a small batch: traces only
         run_pub, run_pub_np = host(f_pub, dev), host(f_pub)
         run_pub()  # compile for N
+        # The same public path compiled with XLA's default vector width, for the record of
+        # the --xla_cpu_prefer_vector_width=512 setting (slotv_jax._xla), in the same run.
+        f_256 = jax.jit(jax.vmap(public[name]), compiler_options={VECTOR_WIDTH: 256})
+        run_256 = host(f_256, dev)
+        run_256()  # compile
         L.label_all(*warm, labelers=(name,), **kw)
         results = measure(
             lambda f=f_np: np.stack([f(x64[i], g64[i], mask[i]) for i in range(m)]),
@@ -197,9 +211,10 @@ def main(argv=None) -> int:
             lambda n=name: L.label_all(*dev, labelers=(n,), **kw),
             run_pub_np,
             lambda n=name: L.label_all(xyz, goals, mask, labelers=(n,), **kw),
+            run_256,
         )
         (y_np, np_wall, np_cpu), (y_pub, pub_w, pub_c), (y_all, all_w, all_c) = results[:3]
-        (_, pub_np_w, pub_np_c), (_, all_np_w, all_np_c) = results[3:]
+        (_, pub_np_w, pub_np_c), (_, all_np_w, all_np_c), (_, w256, _) = results[3:]
         np_rate = m / np_wall
         np_n_cpu = np_cpu / m * args.n  # CPU time of the NumPy loop for all n
 
@@ -212,7 +227,8 @@ def main(argv=None) -> int:
             f"{name:<11} {np_rate:>7,.0f} | {rate(pub_w):>21} {rate(all_w):>15} "
             f"{all_w / pub_w:>5.2f}x | {rate(pub_np_w):>23} {rate(all_np_w):>15} "
             f"{all_np_w / pub_np_w:>5.2f}x | {diff:>8.1e} | {np_n_cpu / pub_c:>4.0f}x "
-            f"{np_n_cpu / all_c:>4.0f}x; {all_c / pub_c:.2f}x {all_np_c / pub_np_c:.2f}x",
+            f"{np_n_cpu / all_c:>4.0f}x; {all_c / pub_c:.2f}x {all_np_c / pub_np_c:.2f}x | "
+            f"{rate(w256)} {w256 / pub_w:.2f}x",
             flush=True,
         )
 
