@@ -12,6 +12,7 @@ planner's compilation dominates their time.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -332,3 +333,24 @@ def test_experiment_problems_from_held_out_scenes(tiny_cfg, tiny_data):
     assert np.all(p["goal_mask"][np.arange(n), p["target"]])
     pairs = set(zip(p["split"].tolist(), p["scene"].tolist(), p["target"].tolist(), strict=True))
     assert len(pairs) == n  # no duplicates
+
+
+def test_experiment_archetype_observers():
+    """Each family gets SLOT-V's loss with its own archetype beside the paper's observers;
+    --no-archetypes (an empty ``archetype``) leaves them out."""
+    from slotv_jax.experiments import planning as exp
+
+    for preset in ("quick", "paper", "tiny"):
+        cfg = exp.PRESETS[preset]()
+        learned = cfg.learned()
+        assert len(learned) == 6 and set(learned) == {
+            (m, f) for m in exp.LEARNED for f in exp.FAMILIES
+        }
+        for family, model in exp.ARCHETYPES.items():
+            tc = cfg.observer_config("archetype", family)
+            assert tc.model == model and tc.method == "slotv"
+        assert cfg.observer_config("trex", "dragan") is cfg.train["trex"]
+        assert "archetype" in cfg.to_json()
+    bare = dataclasses.replace(exp.quick(), archetype={})
+    assert bare.learned() == [(m, f) for f in exp.FAMILIES for m in exp.METHODS]
+    assert exp.observer_key("archetype", "nikolaidis") == "archetype/nikolaidis"

@@ -16,7 +16,10 @@ Steps:
 3. observers: the straight line (no optimisation), the Dragan labeler (the oracle),
    SLOT-V and T-REX trained on Dragan labels, and the same three for Nikolaidis.
    Learned observers come from ``--slotv-dragan CKPT`` etc., or are trained here with
-   the preset's training config and saved under ``OUT/observers/``;
+   the preset's training config and saved under ``OUT/observers/``. Beside them, in
+   ``archetype_planners``: SLOT-V's loss with the family's parametric observer
+   archetype (SPEC §10: ``dragan`` for Dragan, ``viewpoint`` for Nikolaidis), which
+   separates what the loss learns from what the paper's network can represent;
 4. every observer plans every problem with :mod:`slotv_jax.planning` (one compiled
    program for all observers), and every plan is scored by the TRUE hand-crafted
    labeler of its family: mean and SD of y_target, the rate at which the target is the
@@ -53,10 +56,13 @@ from slotv_jax.kinematics import home_tcp
 from slotv_jax.scene import camera, project
 
 FAMILIES = ("dragan", "nikolaidis")  # the true labelers; each is its own family's oracle
-METHODS = ("slotv", "trex")
+METHODS = ("slotv", "trex")  # the learned observers of SPEC's `planners` rows
+ARCHETYPES = {"dragan": "dragan", "nikolaidis": "viewpoint"}  # family -> archetype model
+LEARNED = (*METHODS, "archetype")
 SPLITS = ("position_test", "goal_count_test")
 TITLES = {"straight": "straight line", "dragan": "Dragan (oracle)",
-          "nikolaidis": "Nikolaidis (oracle)", "slotv": "SLOT-V", "trex": "T-REX"}  # fmt: skip
+          "nikolaidis": "Nikolaidis (oracle)", "slotv": "SLOT-V", "trex": "T-REX",
+          "archetype": "SLOT-V loss, archetype"}  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,6 +76,18 @@ class PlanningConfig:
     n_scenes: int  # held-out scenes per split (the stored ones first)
     seed: int = 0  # training seed of the learned observers
     n_examples: int = 3  # example scenes in the figure
+    # family -> training config of its archetype observer (empty: no archetype rows)
+    archetype: dict[str, train_config.TrainConfig] = dataclasses.field(default_factory=dict)
+
+    def observer_config(self, method: str, family: str) -> train_config.TrainConfig:
+        """Training config of a learned observer (``method`` in :data:`LEARNED`)."""
+        return self.archetype[family] if method == "archetype" else self.train[method]
+
+    def learned(self) -> list[tuple[str, str]]:
+        """``(method, family)`` of every learned observer of the run."""
+        return [
+            (m, f) for f in FAMILIES for m in (*METHODS, *(["archetype"] * (f in self.archetype)))
+        ]
 
     def to_json(self) -> dict:
         return {
@@ -77,6 +95,7 @@ class PlanningConfig:
             "data": self.data.to_json(),
             "data_digest": self.data.digest(),
             "train": {m: c.to_dict() for m, c in self.train.items()},
+            "archetype": {f: c.to_dict() for f, c in self.archetype.items()},
             "planner": self.planner.to_dict(),
             "n_scenes": self.n_scenes,
             "seed": self.seed,
@@ -88,14 +107,16 @@ def quick() -> PlanningConfig:
     held-out scenes (about 100 problems)."""
     d = data_lib.quick()
     t = {m: train_config.quick(m) for m in METHODS}
-    return PlanningConfig("quick", d, t, planning.PlannerConfig(), n_scenes=d.n_new_scenes)
+    a = {f: train_config.archetype("quick", m) for f, m in ARCHETYPES.items()}
+    return PlanningConfig("quick", d, t, planning.PlannerConfig(), d.n_new_scenes, archetype=a)
 
 
 def paper() -> PlanningConfig:
     """Paper-size data and observers (use a GPU), 60 held-out scenes per split (>= 500
     problems: about 4 goals per position_test scene and 6 per goal_count_test scene)."""
     t = {m: train_config.paper(m) for m in METHODS}
-    return PlanningConfig("paper", data_lib.paper(), t, planning.PlannerConfig(), n_scenes=60)
+    a = {f: train_config.archetype("paper", m) for f, m in ARCHETYPES.items()}
+    return PlanningConfig("paper", data_lib.paper(), t, planning.PlannerConfig(), 60, archetype=a)
 
 
 def tiny() -> PlanningConfig:
@@ -104,8 +125,12 @@ def tiny() -> PlanningConfig:
         preset="tiny", n_train=300, n_eval=100, n_train_scenes=20, n_new_scenes=2, chunk_size=512
     )
     t = {m: train_config.quick(m, hidden=(16, 8), epochs=1, train_size=None) for m in METHODS}
+    a = {
+        f: train_config.archetype("quick", m, train_size=None, epochs=1)
+        for f, m in ARCHETYPES.items()
+    }
     p = planning.PlannerConfig(iters=3)
-    return PlanningConfig("tiny", d, t, p, n_scenes=2, n_examples=1)
+    return PlanningConfig("tiny", d, t, p, n_scenes=2, n_examples=1, archetype=a)
 
 
 PRESETS = {"quick": quick, "paper": paper, "tiny": tiny}
@@ -162,9 +187,9 @@ def make_problems(scenes: dict) -> dict[str, np.ndarray]:
 def train_observer(
     cfg: PlanningConfig, method: str, labeler: str, train_split, out: Path
 ) -> tuple[Path, float]:
-    """Train one observer with the preset's config on ``labeler`` labels; save it to ``out``."""
-
-    tc = cfg.train[method]
+    """Train one observer (``method`` in :data:`LEARNED`) with the preset's config on
+    ``labeler`` labels; save it to ``out``."""
+    tc = cfg.observer_config(method, labeler)
     t0 = time.perf_counter()
     data = train.prepare(train_split, labeler, size=tc.train_size)
     state, _ = train.train_trials(tc, data, [cfg.seed], progress=False)
@@ -250,23 +275,22 @@ def run(
     problems = make_problems(held_out_scenes(cfg, dataset))
     timing["scenes_s"] = time.perf_counter() - t0
 
-    # Observers: the two labelers, and SLOT-V / T-REX per family (given or trained here).
+    # Observers: the two labelers, and the learned ones per family (given or trained here).
     checkpoints = dict(checkpoints or {})
     observers: dict[str, planning.Observer] = {f: planning.labeler_observer(f) for f in FAMILIES}
     sources: dict[str, dict] = {}
     timing["train_s"] = 0.0
-    for family in FAMILIES:
-        for method in METHODS:
-            path = checkpoints.get((method, family))
-            if path is None:
-                path, sec = train_observer(
-                    cfg, method, family, dataset["train"], out / "observers" / f"{method}_{family}"
-                )
-                timing["train_s"] += sec
-                sources[observer_key(method, family)] = {"checkpoint": str(path), "trained": True}
-            else:
-                sources[observer_key(method, family)] = {"checkpoint": str(path), "trained": False}
-            observers[observer_key(method, family)] = slotv_jax.load_observer(path)
+    for method, family in cfg.learned():
+        key, path = observer_key(method, family), checkpoints.get((method, family))
+        sources[key] = {"checkpoint": str(path), "trained": path is None}
+        if path is None:
+            path, sec = train_observer(
+                cfg, method, family, dataset["train"], out / "observers" / f"{method}_{family}"
+            )
+            timing["train_s"] += sec
+            sources[key]["checkpoint"] = str(path)
+        model = ARCHETYPES[family] if method == "archetype" else "mlp"
+        observers[key] = slotv_jax.load_observer(path, model=model)
 
     # Plans: one compiled program for every observer.
     planner = planning.make_planner(observers, cfg.planner)
@@ -287,7 +311,7 @@ def run(
     xyz_straight = np.asarray(straight.xyz)
     len_straight = path_length(xyz_straight)
     arrays: dict[str, np.ndarray] = {**problems, "xyz/straight": xyz_straight}
-    planners = []
+    planners, archetype_planners = [], []
     gains: dict[str, dict] = {}
     for family in FAMILIES:
         y_s_all = true_labels(family, xyz_straight, goals, mask)
@@ -296,7 +320,7 @@ def run(
         ok_s = np.asarray(jax.device_get(straight.target_residual)) <= planning.MAX_RESIDUAL
         planners.append(summarise("straight", family, y_s, y_s, y_s_all.argmax(-1) == target,
                                   np.ones_like(len_straight), ok_s))  # fmt: skip
-        for name in (family, *METHODS):
+        for name in (family, *METHODS, *(["archetype"] * (family in cfg.archetype))):
             key = observer_key(name, family)
             res = plans[key]
             y_all = true_labels(family, res.xyz, goals, mask)
@@ -317,12 +341,16 @@ def run(
             row["by_split"] = {
                 s: float(y[problems["split"] == i].mean()) for i, s in enumerate(SPLITS)
             }
-            planners.append(row)
+            if name == "archetype":
+                row["model"] = ARCHETYPES[family]
+                archetype_planners.append(row)
+            else:
+                planners.append(row)
         oracle_gain = next(r for r in planners if r["observer"] == family)["mean_gain"]
-        for method in METHODS:
-            r = next(r for r in planners if (r["observer"], r["labeler"]) == (method, family))
-            r["oracle_gain_kept"] = r["mean_gain"] / oracle_gain if oracle_gain > 0 else None
-            gains[f"{method}/{family}"] = r["oracle_gain_kept"]
+        for r in planners + archetype_planners:
+            if r["labeler"] == family and r["observer"] in LEARNED:
+                r["oracle_gain_kept"] = r["mean_gain"] / oracle_gain if oracle_gain > 0 else None
+                gains[f"{r['observer']}/{family}"] = r["oracle_gain_kept"]
 
     timing["total_s"] = time.perf_counter() - t_start
     doc = {
@@ -336,6 +364,8 @@ def run(
             s: int((problems["split"] == i).sum()) for i, s in enumerate(SPLITS)
         },
         "planners": planners,
+        # SLOT-V's loss with the family's parametric archetype (not a SPEC `planners` row)
+        "archetype_planners": archetype_planners,
         "oracle_gain_kept": gains,
         "timing": timing,
     }
@@ -349,11 +379,14 @@ def run(
 # ------------------------------------------------------------------- figures
 
 
-def _plan_keys(family: str) -> list[tuple[str, str]]:
-    return [("straight", "straight"), *((n, observer_key(n, family)) for n in (family, *METHODS))]
+def _plan_keys(family: str, plans: dict) -> list[tuple[str, str]]:
+    names = (family, *LEARNED)
+    keys = [(n, observer_key(n, family)) for n in names]
+    return [("straight", "straight"), *((n, k) for n, k in keys if f"xyz/{k}" in plans)]
 
 
-_COLOURS = {"straight": "0.4", "dragan": "C3", "nikolaidis": "C3", "slotv": "C0", "trex": "C2"}
+_COLOURS = {"straight": "0.4", "dragan": "C3", "nikolaidis": "C3", "slotv": "C0", "trex": "C2",
+            "archetype": "C1"}  # fmt: skip
 
 
 def example_indices(plans: dict, n: int) -> list[int]:
@@ -387,7 +420,7 @@ def render(out: Path, n_examples: int = 3) -> None:
         for col, family in enumerate(FAMILIES):
             ax = axes[row, col]
             y = plans[f"y_{family}/{family}"][i]  # the oracle plan's true labels
-            for name, key in _plan_keys(family):
+            for name, key in _plan_keys(family, plans):
                 xyz = plans[f"xyz/{key}"][i]
                 pts = xyz[:, :2] if col == 0 else project(xyz.astype(np.float64), cam64)[0]
                 yt = plans[f"y_{family}/{key}"][i, t]
@@ -417,18 +450,25 @@ def render(out: Path, n_examples: int = 3) -> None:
 
     fig, axes = plt.subplots(1, len(FAMILIES), figsize=(10, 3.8), sharey=True)
     for ax, family in zip(axes, FAMILIES, strict=True):
-        rows = [r for r in doc["planners"] if r["labeler"] == family]
-        names = [TITLES[r["observer"]] for r in rows]
+        every = doc["planners"] + doc.get("archetype_planners", [])
+        rows = [r for r in every if r["labeler"] == family]
+        names = [_title(r).replace(" loss, ", " loss,\n") for r in rows]
         ax.bar(names, [r["mean_y_target"] for r in rows], yerr=[r["sd_y_target"] for r in rows],
                color=[_COLOURS[r["observer"]] for r in rows], capsize=4)  # fmt: skip
         ax.set(title=f"true {family} legibility (n = {rows[0]['n']})", ylabel="mean y_target ± SD")
-        ax.tick_params(axis="x", rotation=20)
+        ax.tick_params(axis="x", rotation=25)
     fig.tight_layout()
     save_figure(fig, out / "bars.png", dpi=100)
     plt.close(fig)
 
 
 # -------------------------------------------------------------------- report
+
+
+def _title(row: dict) -> str:
+    if row["observer"] == "archetype":
+        return f"SLOT-V loss, {row['model']} archetype"
+    return TITLES[row["observer"]]
 
 
 def report(doc: dict, figures: str = "") -> str:
@@ -454,7 +494,8 @@ def report(doc: dict, figures: str = "") -> str:
         "| feasible | lowered | raised | gain kept | observer's own P(target): straight → plan |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for r in doc["planners"]:
+    every = doc["planners"] + doc.get("archetype_planners", [])
+    for r in sorted(every, key=lambda r: FAMILIES.index(r["labeler"])):
         kept = r.get("oracle_gain_kept")
         own = (
             f"{r['observer_p_target_straight']:.3f} → {r['observer_p_target_plan']:.3f}"
@@ -462,7 +503,7 @@ def report(doc: dict, figures: str = "") -> str:
             else "—"
         )
         lines.append(
-            f"| {r['labeler']} | {TITLES[r['observer']]} | {r['mean_y_target']:.3f} ± "
+            f"| {r['labeler']} | {_title(r)} | {r['mean_y_target']:.3f} ± "
             f"{r['sd_y_target']:.3f} | {r['argmax_rate']:.3f} | {r['length_ratio']:.3f} | "
             f"{r['feasible_rate']:.3f} | {r['lowered_rate']:.3f} | {r['raised_rate']:.3f} | "
             f"{'—' if kept is None else f'{kept:.0%}'} | {own} |"
@@ -470,7 +511,7 @@ def report(doc: dict, figures: str = "") -> str:
     plan_s = sum(t["plan_s"].values())
 
     def worst(field, pick):
-        return pick(r[field] for r in doc["planners"] if field in r)
+        return pick(r[field] for r in every if field in r)
 
     lines += [
         "",
@@ -511,12 +552,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--preset", choices=sorted(PRESETS), default="quick")
     p.add_argument("--out", type=Path, help="results directory (default: runs/planning_<preset>)")
     p.add_argument("--cache", type=Path, default=Path("data"), help="dataset cache directory")
-    for method in METHODS:
+    for method in LEARNED:
         for family in FAMILIES:
+            what = f"the {ARCHETYPES[family]} archetype" if method == "archetype" else method
             p.add_argument(
                 f"--{method}-{family}", type=Path, metavar="CKPT",
-                help=f"checkpoint of {method} trained on {family} labels (default: train one)",
+                help=f"checkpoint of {what} trained on {family} labels (default: train one)",
             )  # fmt: skip
+    p.add_argument("--no-archetypes", action="store_true",
+                   help="leave out the archetype observers (archetype_planners)")  # fmt: skip
     p.add_argument("--n-scenes", type=int, help="held-out scenes per split (default: preset's)")
     p.add_argument("--iters", type=int, help="planner iterations (default: preset's)")
     p.add_argument("--budget", type=float, help="trust-region budget in m² (default: preset's)")
@@ -541,9 +585,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         train = {m: dataclasses.replace(c, compute_dtype=args.compute_dtype)
                  for m, c in cfg.train.items()}  # fmt: skip
         cfg = dataclasses.replace(cfg, train=train)
+    if args.no_archetypes:
+        cfg = dataclasses.replace(cfg, archetype={})
     ckpts = {
         (m, f): getattr(args, f"{m}_{f}")
-        for m in METHODS
+        for m in LEARNED
         for f in FAMILIES
         if getattr(args, f"{m}_{f}") is not None
     }
