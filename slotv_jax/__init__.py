@@ -1,6 +1,6 @@
 """slotv_jax: SLOT-V observer models of legible robot motion, in JAX.
 
-Importing the package applies one XLA CPU setting before JAX starts (see
+Importing the package applies two XLA CPU settings before JAX starts (see
 :mod:`slotv_jax._xla`); :data:`XLA_CONFIG` says what was applied.
 
 :func:`load_observer` (SPEC §9) is :func:`slotv_jax.checkpoint.load_observer`, imported
