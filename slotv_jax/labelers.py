@@ -275,11 +275,11 @@ def _image(xyz: Float[Array, "*n 3"], pos, rot, eps) -> tuple[tuple[Array, Array
     return (pc[0] / safe, pc[1] / safe), ok
 
 
-def _depth_flags(xyz, goals, mask, pos, rot, eps=DEPTH_EPS) -> tuple[Array, Array]:
-    """Whether every point, and every real goal, lies in front of the camera."""
-    _, ok_p = _image(xyz, pos, rot, eps)
-    _, ok_g = _image(goals, pos, rot, eps)
-    return jnp.all(ok_p, axis=-1), jnp.all(ok_g | ~mask, axis=-1)
+def _in_front(pts: Float[Array, "*n K 3"], pos, rot, mask=None, eps=DEPTH_EPS) -> Array:
+    """Whether every one of the K points (with ``mask (*n, K)``: every real one) lies at
+    camera depth > eps, ``(*n,)``."""
+    _, ok = _image(pts, pos, rot, eps)
+    return jnp.all(ok if mask is None else ok | ~mask, axis=-1)
 
 
 def _nikolaidis_core(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS) -> Array:
@@ -517,8 +517,9 @@ def depth_ok(
     """
     cam = _as_camera(camera)
     mask = jnp.asarray(goal_mask).astype(bool)
-    ok_p, ok_g = _depth_flags(jnp.asarray(xyz), jnp.asarray(goals), mask, cam.pos, cam.rot)
-    return ok_p & ok_g
+    return _in_front(jnp.asarray(xyz), cam.pos, cam.rot) & _in_front(
+        jnp.asarray(goals), cam.pos, cam.rot, mask
+    )
 
 
 def nikolaidis(
@@ -623,8 +624,8 @@ def _label_chunk(xyz, goals, mask, t, betas, camera, names):
         ok.append(~functools.reduce(jnp.logical_or, same))
         if "nikolaidis" in names:
             uniform = (m / jnp.sum(m)).astype(labels["nikolaidis"].dtype)
-            _, ok_g = _image(g, camera.pos, camera.rot, DEPTH_EPS)
-            ok += [~jnp.all(labels["nikolaidis"] == uniform), jnp.all(ok_g | ~m)]
+            in_front = _in_front(g, camera.pos, camera.rot, m)
+            ok += [~jnp.all(labels["nikolaidis"] == uniform), in_front]
         ok[0] |= ~goals_finite  # non-finite goals are reported as such
         return labels, jnp.stack(ok)
 
@@ -698,8 +699,7 @@ def label_all(
 def _points_ok(xyz: Float[Array, "n T 3"], pos, rot) -> tuple[Bool[Array, " n"], Bool[Array, " n"]]:
     """Per trajectory: all points finite; all points at depth > ``DEPTH_EPS`` (float32,
     as :func:`_nikolaidis_core` decides)."""
-    _, in_front = _image(xyz, pos, rot, DEPTH_EPS)
-    return jnp.all(jnp.isfinite(xyz), axis=(-2, -1)), jnp.all(in_front, axis=-1)
+    return jnp.all(jnp.isfinite(xyz), axis=(-2, -1)), _in_front(xyz, pos, rot)
 
 
 def _recheck_points(ok: np.ndarray, xyz: np.ndarray, cam: Camera) -> None:

@@ -83,11 +83,13 @@ class PlanningConfig:
         """Training config of a learned observer (``method`` in :data:`LEARNED`)."""
         return self.archetype[family] if method == "archetype" else self.train[method]
 
+    def methods(self, family: str) -> tuple[str, ...]:
+        """The learned observers of ``family``: SLOT-V, T-REX and, if configured, its archetype."""
+        return (*METHODS, "archetype") if family in self.archetype else METHODS
+
     def learned(self) -> list[tuple[str, str]]:
         """``(method, family)`` of every learned observer of the run."""
-        return [
-            (m, f) for f in FAMILIES for m in (*METHODS, *(["archetype"] * (f in self.archetype)))
-        ]
+        return [(m, f) for f in FAMILIES for m in self.methods(f)]
 
     def to_json(self) -> dict:
         return {
@@ -282,14 +284,14 @@ def run(
     timing["train_s"] = 0.0
     for method, family in cfg.learned():
         key, path = observer_key(method, family), checkpoints.get((method, family))
-        sources[key] = {"checkpoint": str(path), "trained": path is None}
-        if path is None:
+        trained = path is None
+        if trained:
             path, sec = train_observer(
                 cfg, method, family, dataset["train"], out / "observers" / f"{method}_{family}"
             )
             timing["train_s"] += sec
-            sources[key]["checkpoint"] = str(path)
-        model = ARCHETYPES[family] if method == "archetype" else "mlp"
+        sources[key] = {"checkpoint": str(path), "trained": trained}
+        model = cfg.observer_config(method, family).model
         observers[key] = slotv_jax.load_observer(path, model=model)
 
     # Plans: one compiled program for every observer.
@@ -320,7 +322,7 @@ def run(
         ok_s = np.asarray(jax.device_get(straight.target_residual)) <= planning.MAX_RESIDUAL
         planners.append(summarise("straight", family, y_s, y_s, y_s_all.argmax(-1) == target,
                                   np.ones_like(len_straight), ok_s))  # fmt: skip
-        for name in (family, *METHODS, *(["archetype"] * (family in cfg.archetype))):
+        for name in (family, *cfg.methods(family)):
             key = observer_key(name, family)
             res = plans[key]
             y_all = true_labels(family, res.xyz, goals, mask)
@@ -342,7 +344,7 @@ def run(
                 s: float(y[problems["split"] == i].mean()) for i, s in enumerate(SPLITS)
             }
             if name == "archetype":
-                row["model"] = ARCHETYPES[family]
+                row["model"] = cfg.observer_config(name, family).model
                 archetype_planners.append(row)
             else:
                 planners.append(row)
