@@ -37,6 +37,9 @@ MODELS = ("mlp", "dragan", "viewpoint", "mixture")
 ARCHETYPE_WIDTH = 8
 OPTIMIZERS = ("rmsprop", "adam")
 COMPUTE_DTYPES = ("float32", "bfloat16")
+# Hidden activations of the MLP: "relu" is the paper's (SPEC §5); "softplus" makes V smooth,
+# which legible planning needs (slotv_jax.models, experiments/planning_paper.md).
+ACTIVATIONS = ("relu", "softplus")
 # Elements of the first hidden activation (rows × width) one evaluation chunk may hold:
 # small on CPUs (cache-friendly), large on accelerators (fewer, bigger matmuls).
 EVAL_CHUNK_BUDGET = {"cpu": 1 << 24, "accelerator": 1 << 28}
@@ -46,13 +49,16 @@ EVAL_CHUNK_BUDGET = {"cpu": 1 << 24, "accelerator": 1 << 28}
 class TrainConfig:
     """Everything that defines one training run (and rebuilds its model).
 
-    The model is V(r, g) = MLP(r − g) with the ``hidden`` widths (ReLU) and a
-    linear scalar output; SLOT-V averages it over the trajectory, T-REX sums it.
+    The model is V(r, g) = MLP(r − g) with the ``hidden`` widths (ReLU, or softplus with
+    ``activation="softplus"``) and a linear scalar output; SLOT-V averages it over the
+    trajectory, T-REX sums it.
     """
 
     method: str = "slotv"  # "slotv" (SPEC §5) or "trex" (SPEC §6)
     model: str = "mlp"  # observer: the MLP, or an archetype of slotv_jax.parametric (SPEC §10)
     hidden: tuple[int, ...] = (1536, 768)  # hidden widths after the r − g layer
+    activation: str = "relu"  # of the hidden layers: "relu" (the paper) or "softplus" (smooth)
+    start_term: bool = False  # add w₀ · f(p_0, g_k) to the scores, w₀ learned (models._Observer)
     compute_dtype: str = "float32"  # matmul dtype of the hidden layers; params stay float32
     optimizer: str = "rmsprop"  # "rmsprop" or "adam"
     learning_rate: float = 0.005
@@ -82,6 +88,19 @@ class TrainConfig:
         if self.optimizer not in OPTIMIZERS:
             raise ValueError(
                 f"TrainConfig.optimizer: expected one of {OPTIMIZERS}, got {self.optimizer!r}"
+            )
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(
+                f"TrainConfig.activation: expected one of {ACTIVATIONS}, got {self.activation!r}"
+            )
+        if not isinstance(self.start_term, bool):
+            raise ValueError(
+                f"TrainConfig.start_term: expected True or False, got {self.start_term!r}"
+            )
+        if self.model != "mlp" and (self.start_term or self.activation != "relu"):
+            raise ValueError(
+                f"TrainConfig: start_term and activation belong to the MLP; the {self.model!r} "
+                "archetype has neither (leave start_term=False, activation='relu')"
             )
         if self.compute_dtype not in COMPUTE_DTYPES:
             raise ValueError(
@@ -290,6 +309,11 @@ def _parse_value(name: str, text: str, annotation: Any) -> Any:
     try:
         if origin is tuple:
             return tuple(int(v) for v in text.replace("/", ",").split(",") if v.strip())
+        if hint is bool:
+            low = text.strip().lower()
+            if low not in {"true", "false", "1", "0"}:
+                raise ValueError(text)
+            return low in {"true", "1"}
         if hint is int:
             return int(text)
         if hint is float:

@@ -3,9 +3,14 @@
 Both methods share one network archetype, a function of one trajectory point
 ``r`` and one goal ``g`` through the goal-relative input ``r − g``:
 
-    f(r, g) = w_L · relu(W_{L−1} ⋯ relu(W_1 (r − g) + b_1) ⋯),
+    f(r, g) = w_L · σ(W_{L−1} ⋯ σ(W_1 (r − g) + b_1) ⋯),
 
-with hidden widths ``hidden`` (paper: 1536/768 for SLOT-V, 1792/768 for T-REX).
+with hidden widths ``hidden`` (paper: 1536/768 for SLOT-V, 1792/768 for T-REX) and the
+activation σ: ReLU in the paper (the default), or softplus, σ(x) = log(1 + eˣ)
+(``activation="softplus"``). A ReLU network is piecewise linear in r, so its gradient
+∇_r f, which a planner follows, is piecewise constant and, away from the training
+trajectories, arbitrary; a softplus network is smooth (experiments/planning_paper.md
+measures what this does to legible planning).
 For a trajectory p_0..p_{T−1} and goals g_1..g_8:
 
 - SLOT-V's observer score is the mean over time, s_k = (1/T) Σ_i V(p_i, g_k),
@@ -50,6 +55,11 @@ from slotv_jax.validation import G_MAX
 
 _DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 BACKWARDS = ("autodiff", "fused", "recompute")  # see GoalRelativeMLP.grid
+# activation name -> (σ, σ'): the derivative is what the custom backward passes multiply by
+ACTIVATIONS = {
+    "relu": (jax.nn.relu, lambda pre: pre > 0),
+    "softplus": (jax.nn.softplus, jax.nn.sigmoid),
+}
 _List = getattr(nnx, "List", list)  # flax < 0.12 keeps sub-modules in plain lists
 
 
@@ -59,13 +69,20 @@ def _dtype(name: str):
     return _DTYPES[name]
 
 
+def _activation(name: str):
+    if name not in ACTIVATIONS:
+        raise ValueError(f"activation: expected one of {tuple(ACTIVATIONS)}, got {name!r}")
+    return ACTIVATIONS[name][0]
+
+
 def mask_logits(scores: Float[Array, "... G"], goal_mask: Bool[Array, "... G"]) -> Array:
     """Padded goal slots get −∞: softmax then gives them exactly 0."""
     return jnp.where(goal_mask, scores, -jnp.inf)
 
 
 class GoalRelativeMLP(nnx.Module):
-    """f(r, g) = MLP(r − g): Dense(hidden[0]) ReLU → … → Dense(hidden[-1]) ReLU → Dense(1).
+    """f(r, g) = MLP(r − g): Dense(hidden[0]) σ → … → Dense(hidden[-1]) σ → Dense(1), with σ
+    the ``activation`` (:data:`ACTIVATIONS`: "relu", the paper's, or "softplus").
 
     The output layer has no bias: softmax over goals (SLOT-V) and the pairwise loss
     (T-REX) are both invariant to it.
@@ -73,7 +90,14 @@ class GoalRelativeMLP(nnx.Module):
     Parameters are float32; the hidden matmuls run in ``compute_dtype``.
     """
 
-    def __init__(self, hidden: Sequence[int], *, compute_dtype: str = "float32", rngs: nnx.Rngs):
+    def __init__(
+        self,
+        hidden: Sequence[int],
+        *,
+        activation: str = "relu",
+        compute_dtype: str = "float32",
+        rngs: nnx.Rngs,
+    ):
         hidden = tuple(int(h) for h in hidden)
         if not hidden or min(hidden) < 1:
             raise ValueError(f"hidden: expected positive widths, got {hidden}")
@@ -81,7 +105,9 @@ class GoalRelativeMLP(nnx.Module):
         # float64 model, e.g. for finite-difference checks.
         cd = None if compute_dtype == "float32" else _dtype(compute_dtype)
         out = None if cd is None else jnp.float32
+        _activation(activation)
         self.hidden = hidden
+        self.activation = activation
         self.compute_dtype = compute_dtype
         self.first = nnx.Linear(3, hidden[0], precision=jax.lax.Precision.HIGHEST, rngs=rngs)
         self.layers = _List(
@@ -99,8 +125,9 @@ class GoalRelativeMLP(nnx.Module):
         """Hidden layers ``start``… from the activations before them (in ``compute_dtype``)."""
         if self.compute_dtype != "float32":
             h = h.astype(_dtype(self.compute_dtype))
+        act = _activation(self.activation)
         for layer in self.layers[start:]:
-            h = jax.nn.relu(layer(h))
+            h = act(layer(h))
         return h
 
     def _readout(self, h: Array, out) -> Array:
@@ -109,7 +136,7 @@ class GoalRelativeMLP(nnx.Module):
 
     def __call__(self, r: Float[Array, "... 3"], g: Float[Array, "... 3"]) -> Float[Array, "..."]:
         """f(r, g) for broadcastable batches of points and goals."""
-        h = jax.nn.relu(self.first(r - g))
+        h = _activation(self.activation)(self.first(r - g))
         return self._readout(self._hidden(h), h.dtype)
 
     def grid(
@@ -161,11 +188,14 @@ class GoalRelativeMLP(nnx.Module):
         w1, b1 = self.first.kernel[...], self.first.bias[...]
         if backward == "recompute" and len(self.layers) > 0:
             l2 = self.layers[0]
-            z2 = goal_relative_two_layers(xyz, goals, w1, b1, l2.kernel[...], l2.bias[...], cd)
-            return self._hidden(jax.nn.relu(z2), start=1)
+            w2, b2 = l2.kernel[...], l2.bias[...]
+            z2 = goal_relative_two_layers(xyz, goals, w1, b1, w2, b2, cd, self.activation)
+            return self._hidden(_activation(self.activation)(z2), start=1)
         if backward not in BACKWARDS:
             raise ValueError(f"backward: expected one of {BACKWARDS}, got {backward!r}")
-        return self._hidden(goal_relative_features(xyz, goals, w1, b1, cd, backward == "fused"))
+        fused = backward == "fused"
+        h = goal_relative_features(xyz, goals, w1, b1, cd, fused, activation=self.activation)
+        return self._hidden(h)
 
 
 def _pre_activation(xyz, goals, w, b):
@@ -179,25 +209,28 @@ def _pre_activation(xyz, goals, w, b):
     return d[..., 0:1] * w[0] + d[..., 1:2] * w[1] + d[..., 2:3] * w[2] + b
 
 
-def _features(xyz, goals, w, b, dtype):
-    h = jax.nn.relu(_pre_activation(xyz, goals, w, b))
+def _features(xyz, goals, w, b, dtype, activation):
+    h = _activation(activation)(_pre_activation(xyz, goals, w, b))
     return h if dtype is None else h.astype(dtype)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(4,))
-def _features_fused(xyz, goals, w, b, dtype):
-    return _features(xyz, goals, w, b, dtype)
+@functools.partial(jax.custom_vjp, nondiff_argnums=(4, 5))
+def _features_fused(xyz, goals, w, b, dtype, activation):
+    return _features(xyz, goals, w, b, dtype, activation)
 
 
-def _features_fused_fwd(xyz, goals, w, b, dtype):
-    return _features(xyz, goals, w, b, dtype), (xyz, goals, w, b)
+def _features_fused_fwd(xyz, goals, w, b, dtype, activation):
+    return _features(xyz, goals, w, b, dtype, activation), (xyz, goals, w, b)
 
 
-def _features_fused_bwd(dtype, res, dh):
+def _features_fused_bwd(dtype, activation, res, dh):
     xyz, goals, w, b = res
     hp = jax.lax.Precision.HIGHEST
     pre = _pre_activation(xyz, goals, w, b)  # (..., T, G, H), recomputed, never stored
-    dpre = jnp.where(pre > 0, dh, jnp.zeros((), dh.dtype))  # in the cotangent's dtype
+    if activation == "relu":
+        dpre = jnp.where(pre > 0, dh, jnp.zeros((), dh.dtype))  # in the cotangent's dtype
+    else:
+        dpre = dh * ACTIVATIONS[activation][1](pre).astype(dh.dtype)
     f32 = jnp.promote_types(dpre.dtype, jnp.float32)
     # W_1 and b_1 as one skinny matmul over all (t, k) rows: Σ_{t,k} (p_t − g_k, 1) ⊗ δ_tk
     d = xyz[..., :, None, :] - goals[..., None, :, :]  # (..., T, G, 3)
@@ -218,29 +251,30 @@ def _features_fused_bwd(dtype, res, dh):
 _features_fused.defvjp(_features_fused_fwd, _features_fused_bwd)
 
 
-def _two_layers(xyz, goals, w1, b1, w2, b2, dtype):
-    h1 = _features(xyz, goals, w1, b1, dtype)
+def _two_layers(xyz, goals, w1, b1, w2, b2, dtype, activation):
+    h1 = _features(xyz, goals, w1, b1, dtype, activation)
     return jnp.matmul(h1, w2.astype(h1.dtype)) + b2.astype(h1.dtype)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(6,))
-def _two_layers_recompute(xyz, goals, w1, b1, w2, b2, dtype):
-    return _two_layers(xyz, goals, w1, b1, w2, b2, dtype)
+@functools.partial(jax.custom_vjp, nondiff_argnums=(6, 7))
+def _two_layers_recompute(xyz, goals, w1, b1, w2, b2, dtype, activation):
+    return _two_layers(xyz, goals, w1, b1, w2, b2, dtype, activation)
 
 
-def _two_layers_fwd(xyz, goals, w1, b1, w2, b2, dtype):
-    return _two_layers(xyz, goals, w1, b1, w2, b2, dtype), (xyz, goals, w1, b1, w2, b2)
+def _two_layers_fwd(xyz, goals, w1, b1, w2, b2, dtype, activation):
+    out = _two_layers(xyz, goals, w1, b1, w2, b2, dtype, activation)
+    return out, (xyz, goals, w1, b1, w2, b2)
 
 
-def _two_layers_bwd(dtype, res, dz):
+def _two_layers_bwd(dtype, activation, res, dz):
     xyz, goals, w1, b1, w2, b2 = res
-    h1 = _features(xyz, goals, w1, b1, dtype)  # recomputed, not stored by the forward pass
+    h1 = _features(xyz, goals, w1, b1, dtype, activation)  # recomputed, not stored
     rows = tuple(range(h1.ndim - 1))
     f32 = jnp.promote_types(w2.dtype, jnp.float32)  # float32 (float64 under x64)
     dw2 = jax.lax.dot_general(h1, dz, ((rows, rows), ((), ())), preferred_element_type=f32)
     db2 = jnp.sum(dz.astype(f32), axis=rows)
     dh1 = jnp.matmul(dz, w2.astype(h1.dtype).T)
-    dxyz, dgoals, dw1, db1 = _features_fused_bwd(dtype, (xyz, goals, w1, b1), dh1)
+    dxyz, dgoals, dw1, db1 = _features_fused_bwd(dtype, activation, (xyz, goals, w1, b1), dh1)
     return dxyz, dgoals, dw1, db1, dw2.astype(w2.dtype), db2.astype(b2.dtype)
 
 
@@ -255,13 +289,16 @@ def goal_relative_two_layers(
     w2: Float[Array, "H N"],
     b2: Float[Array, " N"],
     dtype=None,
+    activation: str = "relu",
 ) -> Float[Array, "... T G N"]:
-    """Pre-activation of the second hidden layer, W_2 relu(W_1 (p_t − g_k) + b_1) + b_2, with
+    """Pre-activation of the second hidden layer, W_2 σ(W_1 (p_t − g_k) + b_1) + b_2, with
     a custom gradient that recomputes the first activation in the backward pass (so the
     forward pass stores only its small inputs) and reuses the one-pass first-layer gradient
     of :func:`goal_relative_features`. Matmuls in ``dtype`` (None: the parameters' dtype),
-    weight gradients accumulated in float32. Reverse mode only."""
-    return _two_layers_recompute(xyz, goals, w1, b1, w2, b2, dtype)
+    weight gradients accumulated in float32; σ the ``activation`` (:data:`ACTIVATIONS`).
+    Reverse mode only."""
+    _activation(activation)
+    return _two_layers_recompute(xyz, goals, w1, b1, w2, b2, dtype, activation)
 
 
 def goal_relative_features(
@@ -271,25 +308,54 @@ def goal_relative_features(
     b: Float[Array, " H"],
     dtype=None,
     fused_backward: bool = False,
+    *,
+    activation: str = "relu",
 ) -> Float[Array, "... T G H"]:
-    """First hidden layer on every (point, goal) pair: relu(W_1 (p_t − g_k) + b_1), in the
-    parameters' precision (float32), then cast to ``dtype`` (None: keep).
+    """First hidden layer on every (point, goal) pair: σ(W_1 (p_t − g_k) + b_1), in the
+    parameters' precision (float32), then cast to ``dtype`` (None: keep); σ the
+    ``activation`` (:data:`ACTIVATIONS`).
 
     With ``fused_backward`` the gradient is a custom VJP that recomputes the
     pre-activation instead of storing a mask, and gets ∂L/∂W_1 = Σ_{t,k} (p_t − g_k) ⊗ δ_{tk}
-    and ∂L/∂b_1 = Σ_{t,k} δ_{tk} as one (4 × T·G) · (T·G × H) matmul over δ = ∂L/∂pre
-    (accumulated in float32), instead of reductions over k and over t followed by small
-    products (autodiff): the (T·G, H) tensors dominate the memory traffic of a training
-    step. Reverse mode only (no ``jvp``); the default path supports both.
+    and ∂L/∂b_1 = Σ_{t,k} δ_{tk} as one (4 × T·G) · (T·G × H) matmul over
+    δ = ∂L/∂pre = σ'(pre) ⊙ ∂L/∂h (accumulated in float32), instead of reductions over k
+    and over t followed by small products (autodiff): the (T·G, H) tensors dominate the
+    memory traffic of a training step. Reverse mode only (no ``jvp``); the default path
+    supports both.
     """
+    _activation(activation)
     if fused_backward:
-        return _features_fused(xyz, goals, w, b, dtype)
-    return _features(xyz, goals, w, b, dtype)
+        return _features_fused(xyz, goals, w, b, dtype, activation)
+    return _features(xyz, goals, w, b, dtype, activation)
 
 
 class _Observer(nnx.Module):
     """Per-goal scores of a trajectory (``scores``, set by the subclass); ``__call__`` masks
-    the padded goals to −∞."""
+    the padded goals to −∞.
+
+    With ``start_term`` the scores get a learned multiple of the network's value at the
+    trajectory's first point, + w₀ f(p_0, g_k) (w₀ starts at 0, the paper's score). The
+    observers of Dragan (SPEC §4.1) and FastApp (§4.4, after summation by parts) score the
+    progress made since the start, ‖S − g_k‖ − d_k(i); a function of p − g alone cannot
+    hold the per-goal constant ‖S − g_k‖, except through its values at the offsets where
+    the training trajectories start, and a planner that moves the first waypoints exploits
+    exactly those. With w₀ = −1, SLOT-V's score is the mean value gained since the start,
+    (1/T) Σ_i [V(p_i, g_k) − V(p_0, g_k)]. Measured in experiments/planning_paper.md.
+    """
+
+    def _init_start(self, start_term: bool) -> None:
+        self.start_weight = nnx.Param(jnp.zeros((), jnp.float32)) if start_term else None
+
+    def add_start(self, s: Float[Array, "... G"], f0: Float[Array, "... G"]) -> Array:
+        """``s + w₀ f0`` with a start term (``f0`` = f(p_0, g_k)), else ``s`` unchanged."""
+        if self.start_weight is None:
+            return s
+        return s + self.start_weight[...].astype(f0.dtype) * f0
+
+    def _with_start(self, s, net: GoalRelativeMLP, xyz, goals, **kw):
+        if self.start_weight is None:
+            return s
+        return self.add_start(s, net.integrate(xyz[..., :1, :], goals, reduce="sum", **kw))
 
     def __call__(
         self,
@@ -303,37 +369,59 @@ class _Observer(nnx.Module):
 
 
 class SlotV(_Observer):
-    """SLOT-V observer: logits s_k = (1/T) Σ_i V(p_i, g_k), padded goals at −∞ (SPEC §5)."""
+    """SLOT-V observer: logits s_k = (1/T) Σ_i V(p_i, g_k) (+ w₀ V(p_0, g_k) with
+    ``start_term``), padded goals at −∞ (SPEC §5)."""
 
     method = "slotv"
 
     def __init__(
-        self, hidden: Sequence[int] = (1536, 768), *, compute_dtype: str = "float32", rngs: nnx.Rngs
+        self,
+        hidden: Sequence[int] = (1536, 768),
+        *,
+        activation: str = "relu",
+        start_term: bool = False,
+        compute_dtype: str = "float32",
+        rngs: nnx.Rngs,
     ):
-        self.value = GoalRelativeMLP(hidden, compute_dtype=compute_dtype, rngs=rngs)
+        self.value = GoalRelativeMLP(
+            hidden, activation=activation, compute_dtype=compute_dtype, rngs=rngs
+        )
+        self._init_start(start_term)
 
     def scores(
         self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], **kw
     ) -> Float[Array, "... G"]:
-        """Unmasked s_k = mean over time of V(p_i, g_k)."""
-        return self.value.integrate(xyz, goals, reduce="mean", **kw)
+        """Unmasked s_k = mean over time of V(p_i, g_k) (+ the start term)."""
+        s = self.value.integrate(xyz, goals, reduce="mean", **kw)
+        return self._with_start(s, self.value, xyz, goals, **kw)
 
 
 class TRex(_Observer):
-    """Adapted T-REX: per-goal returns R_k = Σ_i r(p_i, g_k), padded goals at −∞ (SPEC §6)."""
+    """Adapted T-REX: per-goal returns R_k = Σ_i r(p_i, g_k) (+ w₀ r(p_0, g_k) with
+    ``start_term``), padded goals at −∞ (SPEC §6)."""
 
     method = "trex"
 
     def __init__(
-        self, hidden: Sequence[int] = (1792, 768), *, compute_dtype: str = "float32", rngs: nnx.Rngs
+        self,
+        hidden: Sequence[int] = (1792, 768),
+        *,
+        activation: str = "relu",
+        start_term: bool = False,
+        compute_dtype: str = "float32",
+        rngs: nnx.Rngs,
     ):
-        self.reward = GoalRelativeMLP(hidden, compute_dtype=compute_dtype, rngs=rngs)
+        self.reward = GoalRelativeMLP(
+            hidden, activation=activation, compute_dtype=compute_dtype, rngs=rngs
+        )
+        self._init_start(start_term)
 
     def scores(
         self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], **kw
     ) -> Float[Array, "... G"]:
-        """Unmasked returns R_k = Σ_i r(p_i, g_k)."""
-        return self.reward.integrate(xyz, goals, reduce="sum", **kw)
+        """Unmasked returns R_k = Σ_i r(p_i, g_k) (+ the start term)."""
+        s = self.reward.integrate(xyz, goals, reduce="sum", **kw)
+        return self._with_start(s, self.reward, xyz, goals, **kw)
 
 
 Model = SlotV | TRex
@@ -351,7 +439,13 @@ def make_model(cfg, rngs: nnx.Rngs | jax.Array | int) -> Model:
     cls = {"slotv": SlotV, "trex": TRex}.get(cfg.method)
     if cls is None:
         raise ValueError(f"cfg.method: expected 'slotv' or 'trex', got {cfg.method!r}")
-    return cls(cfg.hidden, compute_dtype=cfg.compute_dtype, rngs=rngs)
+    return cls(
+        cfg.hidden,
+        activation=getattr(cfg, "activation", "relu"),
+        start_term=getattr(cfg, "start_term", False),
+        compute_dtype=cfg.compute_dtype,
+        rngs=rngs,
+    )
 
 
 @functools.cache

@@ -930,8 +930,9 @@ def prefix_scores(
     """Unmasked scores of the first ``seen`` points of each trajectory.
 
     SLOT-V: s_k = (1/L) Σ_{i<L} V(p_i, g_k); T-REX: s_k = Σ_{i<L} r(p_i, g_k), with
-    L = ``seen``. Points i ≥ L are replaced by p_0 before the network and weighted 0, so
-    their values reach neither the scores nor any gradient. With L = T this is
+    L = ``seen`` (+ w₀ f(p_0, g_k) for a model with a start term: p_0 is always seen).
+    Points i ≥ L are replaced by p_0 before the network and weighted 0, so their values
+    reach neither the scores nor any gradient. With L = T this is
     ``model.scores`` (up to summation order).
 
     >>> m = models.SlotV((8, 4), rngs=nnx.Rngs(0))  # doctest: +SKIP
@@ -944,7 +945,8 @@ def prefix_scores(
     w = vis.astype(v.dtype)
     if model.method == "slotv":
         w = w / seen[..., None].astype(v.dtype)
-    return jnp.einsum("...tg,...t->...g", v, w, precision=jax.lax.Precision.HIGHEST)
+    s = jnp.einsum("...tg,...t->...g", v, w, precision=jax.lax.Precision.HIGHEST)
+    return model.add_start(s, v[..., 0, :])
 
 
 def count_nll(

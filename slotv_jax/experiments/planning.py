@@ -47,7 +47,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import checkpoint, labelers, planning, scene, train
+from slotv_jax import checkpoint, evaluate, labelers, planning, scene, train
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
 from slotv_jax.experiments.table1 import dataset_dir
@@ -57,11 +57,14 @@ from slotv_jax.scene import camera, project
 
 FAMILIES = ("dragan", "nikolaidis")  # the true labelers; each is its own family's oracle
 METHODS = ("slotv", "trex")  # the learned observers of SPEC's `planners` rows
+# the same networks with the learned start term (models._Observer): start_term_planners
+START = {"slotv_start": "slotv", "trex_start": "trex"}
 ARCHETYPES = {"dragan": "dragan", "nikolaidis": "viewpoint"}  # family -> archetype model
-LEARNED = (*METHODS, "archetype")
+LEARNED = (*METHODS, *START, "archetype")
 SPLITS = ("position_test", "goal_count_test")
 TITLES = {"straight": "straight line", "dragan": "Dragan (oracle)",
           "nikolaidis": "Nikolaidis (oracle)", "slotv": "SLOT-V", "trex": "T-REX",
+          "slotv_start": "SLOT-V + start term", "trex_start": "T-REX + start term",
           "archetype": "SLOT-V loss, archetype"}  # fmt: skip
 
 
@@ -78,14 +81,23 @@ class PlanningConfig:
     n_examples: int = 3  # example scenes in the figure
     # family -> training config of its archetype observer (empty: no archetype rows)
     archetype: dict[str, train_config.TrainConfig] = dataclasses.field(default_factory=dict)
+    start_term: bool = True  # also plan with SLOT-V and T-REX with the start term
 
     def observer_config(self, method: str, family: str) -> train_config.TrainConfig:
-        """Training config of a learned observer (``method`` in :data:`LEARNED`)."""
-        return self.archetype[family] if method == "archetype" else self.train[method]
+        """Training config of a learned observer (``method`` in :data:`LEARNED`): the
+        preset's network for SLOT-V and T-REX, the same with ``start_term=True`` for
+        their ``_start`` variants, the family's archetype for "archetype"."""
+        if method == "archetype":
+            return self.archetype[family]
+        if method in START:
+            return dataclasses.replace(self.train[START[method]], start_term=True)
+        return self.train[method]
 
     def methods(self, family: str) -> tuple[str, ...]:
-        """The learned observers of ``family``: SLOT-V, T-REX and, if configured, its archetype."""
-        return (*METHODS, "archetype") if family in self.archetype else METHODS
+        """The learned observers of ``family``: SLOT-V, T-REX and, if configured, their
+        start-term variants and the family's archetype."""
+        start = tuple(START) if self.start_term else ()
+        return (*METHODS, *start, *(("archetype",) if family in self.archetype else ()))
 
     def learned(self) -> list[tuple[str, str]]:
         """``(method, family)`` of every learned observer of the run."""
@@ -98,6 +110,7 @@ class PlanningConfig:
             "data_digest": self.data.digest(),
             "train": {m: c.to_dict() for m, c in self.train.items()},
             "archetype": {f: c.to_dict() for f, c in self.archetype.items()},
+            "start_term": self.start_term,
             "planner": self.planner.to_dict(),
             "n_scenes": self.n_scenes,
             "seed": self.seed,
@@ -209,6 +222,18 @@ def train_observer(
     return out, seconds
 
 
+def observer_facts(path: Path, labeler: str, splits: dict) -> dict:
+    """What a learned observer's checkpoint says about it: its accuracy (SPEC §8) on the
+    ``labeler`` labels of each split's trajectories and, with a start term, the learned
+    weight w₀ (``start_weight``)."""
+    tc, state, _ = checkpoint.restore(path)
+    acc = {s: float(evaluate.accuracy(tc, state.params, d, labeler)) for s, d in splits.items()}
+    facts: dict = {"accuracy": acc}
+    if tc.model == "mlp" and tc.start_term:
+        facts["start_weight"] = float(state.params["start_weight"][...])
+    return facts
+
+
 def observer_key(name: str, family: str) -> str:
     """Key of an observer in the planner: the labelers by name, learned ones by method/family."""
     return name if name in FAMILIES else f"{name}/{family}"
@@ -271,6 +296,7 @@ def run(
     ddir = dataset_dir(cache, cfg.data)
     splits = ("train", *SPLITS)
     dataset = data_lib.generate_dataset(cfg.data, ddir, splits=splits, progress=progress)
+    # the held-out splits' own trajectories: each learned observer's accuracy on its labels
     timing["data_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -290,9 +316,10 @@ def run(
                 cfg, method, family, dataset["train"], out / "observers" / f"{method}_{family}"
             )
             timing["train_s"] += sec
-        sources[key] = {"checkpoint": str(path), "trained": trained}
         model = cfg.observer_config(method, family).model
         observers[key] = slotv_jax.load_observer(path, model=model)
+        facts = observer_facts(path, family, {s: dataset[s] for s in SPLITS})
+        sources[key] = {"checkpoint": str(path), "trained": trained, **facts}
 
     # Plans: one compiled program for every observer.
     planner = planning.make_planner(observers, cfg.planner)
@@ -313,7 +340,7 @@ def run(
     xyz_straight = np.asarray(straight.xyz)
     len_straight = path_length(xyz_straight)
     arrays: dict[str, np.ndarray] = {**problems, "xyz/straight": xyz_straight}
-    planners, archetype_planners = [], []
+    planners, start_term_planners, archetype_planners = [], [], []
     gains: dict[str, dict] = {}
     for family in FAMILIES:
         y_s_all = true_labels(family, xyz_straight, goals, mask)
@@ -346,10 +373,12 @@ def run(
             if name == "archetype":
                 row["model"] = cfg.observer_config(name, family).model
                 archetype_planners.append(row)
+            elif name in START:
+                start_term_planners.append(row)
             else:
                 planners.append(row)
         oracle_gain = next(r for r in planners if r["observer"] == family)["mean_gain"]
-        for r in planners + archetype_planners:
+        for r in planners + start_term_planners + archetype_planners:
             if r["labeler"] == family and r["observer"] in LEARNED:
                 r["oracle_gain_kept"] = r["mean_gain"] / oracle_gain if oracle_gain > 0 else None
                 gains[f"{r['observer']}/{family}"] = r["oracle_gain_kept"]
@@ -366,6 +395,8 @@ def run(
             s: int((problems["split"] == i).sum()) for i, s in enumerate(SPLITS)
         },
         "planners": planners,
+        # SLOT-V and T-REX with the learned start term (not SPEC `planners` rows)
+        "start_term_planners": start_term_planners,
         # SLOT-V's loss with the family's parametric archetype (not a SPEC `planners` row)
         "archetype_planners": archetype_planners,
         "oracle_gain_kept": gains,
@@ -388,7 +419,12 @@ def _plan_keys(family: str, plans: dict) -> list[tuple[str, str]]:
 
 
 _COLOURS = {"straight": "0.4", "dragan": "C3", "nikolaidis": "C3", "slotv": "C0", "trex": "C2",
-            "archetype": "C1"}  # fmt: skip
+            "slotv_start": "C9", "trex_start": "C8", "archetype": "C1"}  # fmt: skip
+
+
+def all_rows(doc: dict) -> list[dict]:
+    """Every planner row of a results document: SPEC's, the start-term and the archetype ones."""
+    return doc["planners"] + doc.get("start_term_planners", []) + doc.get("archetype_planners", [])
 
 
 def example_indices(plans: dict, n: int) -> list[int]:
@@ -452,8 +488,7 @@ def render(out: Path, n_examples: int = 3) -> None:
 
     fig, axes = plt.subplots(1, len(FAMILIES), figsize=(10, 3.8), sharey=True)
     for ax, family in zip(axes, FAMILIES, strict=True):
-        every = doc["planners"] + doc.get("archetype_planners", [])
-        rows = [r for r in every if r["labeler"] == family]
+        rows = [r for r in all_rows(doc) if r["labeler"] == family]
         names = [_title(r).replace(" loss, ", " loss,\n") for r in rows]
         ax.bar(names, [r["mean_y_target"] for r in rows], yerr=[r["sd_y_target"] for r in rows],
                color=[_COLOURS[r["observer"]] for r in rows], capsize=4)  # fmt: skip
@@ -496,7 +531,7 @@ def report(doc: dict, figures: str = "") -> str:
         "| feasible | lowered | raised | gain kept | observer's own P(target): straight → plan |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    every = doc["planners"] + doc.get("archetype_planners", [])
+    every = all_rows(doc)
     for r in sorted(every, key=lambda r: FAMILIES.index(r["labeler"])):
         kept = r.get("oracle_gain_kept")
         own = (
@@ -534,14 +569,25 @@ def report(doc: dict, figures: str = "") -> str:
         + "; the first includes the one compilation).",
         "",
         f"jax {env.get('jax')}, flax {env.get('flax')}, mujoco {env.get('mujoco')}, "
-        f"devices {env.get('devices')}. Observers: "
-        + ", ".join(
-            f"{k} ({'trained by this run' if v['trained'] else v['checkpoint']})"
-            for k, v in doc["observers"].items()
-        )
-        + ".",
+        f"devices {env.get('devices')}.",
         "",
+        "Learned observers: accuracy (SPEC §8) on the labels of their family on the "
+        "held-out splits' trajectories, and the learned start-term weight w₀.",
+        "",
+        "| observer | " + " | ".join(f"accuracy {s}" for s in SPLITS) + " | w₀ | source |",
+        "|---|" + "---|" * len(SPLITS) + "---|---|",
     ]
+    for k, v in doc["observers"].items():
+        acc = v.get("accuracy", {})
+        w0 = v.get("start_weight")
+        lines.append(
+            f"| {k} | "
+            + " | ".join(f"{acc[s]:.3f}" if s in acc else "—" for s in SPLITS)
+            + f" | {'—' if w0 is None else f'{w0:.3f}'} | "
+            + ("trained by this run" if v["trained"] else v["checkpoint"])
+            + " |"
+        )
+    lines.append("")
     return "\n".join(lines)
 
 
@@ -558,14 +604,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         for family in FAMILIES:
             what = f"the {ARCHETYPES[family]} archetype" if method == "archetype" else method
             p.add_argument(
-                f"--{method}-{family}", type=Path, metavar="CKPT",
+                f"--{method.replace('_', '-')}-{family}", type=Path, metavar="CKPT",
                 help=f"checkpoint of {what} trained on {family} labels (default: train one)",
             )  # fmt: skip
+    p.add_argument("--no-start-term", action="store_true",
+                   help="leave out the start-term observers (start_term_planners)")  # fmt: skip
     p.add_argument("--no-archetypes", action="store_true",
                    help="leave out the archetype observers (archetype_planners)")  # fmt: skip
     p.add_argument("--n-scenes", type=int, help="held-out scenes per split (default: preset's)")
     p.add_argument("--iters", type=int, help="planner iterations (default: preset's)")
     p.add_argument("--budget", type=float, help="trust-region budget in m² (default: preset's)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a TrainConfig field of the SLOT-V and T-REX observers, e.g. "
+                   "--set activation=softplus")  # fmt: skip
     p.add_argument("--compute-dtype", choices=train_config.COMPUTE_DTYPES,
                    help="matmul dtype of the observers' training (bfloat16 on GPUs)")  # fmt: skip
     p.add_argument("--doc", type=Path, help="also write the report here, figures beside it")
@@ -587,8 +638,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         train = {m: dataclasses.replace(c, compute_dtype=args.compute_dtype)
                  for m, c in cfg.train.items()}  # fmt: skip
         cfg = dataclasses.replace(cfg, train=train)
+    if args.set:
+        try:
+            train = {m: train_config.apply_overrides(c, args.set) for m, c in cfg.train.items()}
+        except ValueError as e:
+            p.error(str(e))
+        cfg = dataclasses.replace(cfg, train=train)
     if args.no_archetypes:
         cfg = dataclasses.replace(cfg, archetype={})
+    if args.no_start_term:
+        cfg = dataclasses.replace(cfg, start_term=False)
     ckpts = {
         (m, f): getattr(args, f"{m}_{f}")
         for m in LEARNED
