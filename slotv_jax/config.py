@@ -59,6 +59,7 @@ class TrainConfig:
     hidden: tuple[int, ...] = (1536, 768)  # hidden widths after the r − g layer
     activation: str = "relu"  # of the hidden layers: "relu" (the paper) or "softplus" (smooth)
     start_term: bool = False  # add w₀ · f(p_0, g_k) to the scores, w₀ learned (models._Observer)
+    time_weight: bool = False  # weight the points by (1 − t)^α, α learned (models._Observer)
     compute_dtype: str = "float32"  # matmul dtype of the hidden layers; params stay float32
     optimizer: str = "rmsprop"  # "rmsprop" or "adam"
     learning_rate: float = 0.005
@@ -93,14 +94,18 @@ class TrainConfig:
             raise ValueError(
                 f"TrainConfig.activation: expected one of {ACTIVATIONS}, got {self.activation!r}"
             )
-        if not isinstance(self.start_term, bool):
+        for name in ("start_term", "time_weight"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(
+                    f"TrainConfig.{name}: expected True or False, got {getattr(self, name)!r}"
+                )
+        if self.model != "mlp" and (
+            self.start_term or self.time_weight or self.activation != "relu"
+        ):
             raise ValueError(
-                f"TrainConfig.start_term: expected True or False, got {self.start_term!r}"
-            )
-        if self.model != "mlp" and (self.start_term or self.activation != "relu"):
-            raise ValueError(
-                f"TrainConfig: start_term and activation belong to the MLP; the {self.model!r} "
-                "archetype has neither (leave start_term=False, activation='relu')"
+                f"TrainConfig: start_term, time_weight and activation belong to the MLP; the "
+                f"{self.model!r} archetype has none of them (leave start_term=False, "
+                "time_weight=False, activation='relu')"
             )
         if self.compute_dtype not in COMPUTE_DTYPES:
             raise ValueError(

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+import math
 from collections.abc import Sequence
 
 import jax
@@ -61,6 +62,7 @@ ACTIVATIONS = {
     "softplus": (jax.nn.softplus, jax.nn.sigmoid),
 }
 _List = getattr(nnx, "List", list)  # flax < 0.12 keeps sub-modules in plain lists
+ALPHA_INIT = 1.0  # initial time-weighting exponent: Dragan & Srinivasa's f(t) = T − t
 
 
 def _dtype(name: str):
@@ -162,9 +164,11 @@ class GoalRelativeMLP(nnx.Module):
         goals: Float[Array, "... G 3"],
         *,
         reduce: str = "mean",
+        weights: Float[Array, " T"] | None = None,
         backward: str = "autodiff",
     ) -> Float[Array, "... G"]:
-        """``grid(xyz, goals)`` reduced over the points (``reduce``: "mean" or "sum").
+        """``grid(xyz, goals)`` reduced over the points (``reduce``: "mean" or "sum"), each
+        point's value times ``weights[i]`` if given (weights of mean 1 keep the scale).
 
         The readout is linear, so the reduction is taken first, on the last hidden
         activation (accumulated in float32), and the readout is applied once per goal
@@ -176,7 +180,11 @@ class GoalRelativeMLP(nnx.Module):
             raise ValueError(f"reduce: expected 'mean' or 'sum', got {reduce!r}")
         h = self._last_hidden(xyz, goals, backward)  # (..., T, G, H)
         acc = jnp.promote_types(self.readout.kernel.dtype, jnp.float32)
-        pooled = jnp.sum(h, axis=-3, dtype=acc)  # Σ_t, accumulated in float32
+        if weights is None:
+            pooled = jnp.sum(h, axis=-3, dtype=acc)  # Σ_t, accumulated in float32
+        else:  # Σ_t w_t h_t, accumulated in float32
+            w = weights.astype(h.dtype)
+            pooled = jnp.einsum("...tgh,t->...gh", h, w, preferred_element_type=acc)
         if reduce == "mean":
             pooled = pooled / h.shape[-3]
         w = self.readout.kernel[...][:, 0].astype(acc)
@@ -333,6 +341,12 @@ class _Observer(nnx.Module):
     """Per-goal scores of a trajectory (``scores``, set by the subclass); ``__call__`` masks
     the padded goals to −∞.
 
+    With ``time_weight`` the points are weighted by (1 − t_i)^α (normalised to mean 1) with
+    a learned α ≥ 0, the weighting of Dragan & Srinivasa's legibility integral (f(t) = T − t
+    at α = 1): an observer that judges the motion by what it shows early. α starts at
+    :data:`ALPHA_INIT` = 1 (measured on the quick data: from 1, planning kept 94 % of the
+    oracle's gain; from 0.05, near the paper's plain mean, 88 % after the same updates).
+
     With ``start_term`` the scores get a learned multiple of the network's value at the
     trajectory's first point, + w₀ f(p_0, g_k) (w₀ starts at 0, the paper's score). The
     observers of Dragan (SPEC §4.1) and FastApp (§4.4, after summation by parts) score the
@@ -343,8 +357,23 @@ class _Observer(nnx.Module):
     (1/T) Σ_i [V(p_i, g_k) − V(p_0, g_k)]. Measured in experiments/planning_paper.md.
     """
 
-    def _init_start(self, start_term: bool) -> None:
+    def _init_terms(self, start_term: bool, time_weight: bool) -> None:
         self.start_weight = nnx.Param(jnp.zeros((), jnp.float32)) if start_term else None
+        raw = math.log(math.expm1(ALPHA_INIT))  # softplus⁻¹
+        self.raw_alpha = nnx.Param(jnp.asarray(raw, jnp.float32)) if time_weight else None
+
+    @property
+    def alpha(self) -> Float[Array, ""] | None:
+        """The learned time-weighting exponent α = softplus(raw) ≥ 0 (None without one)."""
+        return None if self.raw_alpha is None else jax.nn.softplus(self.raw_alpha[...])
+
+    def point_weights(self, n_points: int) -> Float[Array, " T"] | None:
+        """Per-point weights of mean 1, u_i · T with u the normalised (1 − t_i)^α
+        (:func:`slotv_jax.parametric.time_weights`), or None (every point counts the same)."""
+        if self.raw_alpha is None:
+            return None
+        a = self.alpha
+        return n_points * parametric.time_weights(a, n_points, a.dtype)
 
     def add_start(self, s: Float[Array, "... G"], f0: Float[Array, "... G"]) -> Array:
         """``s + w₀ f0`` with a start term (``f0`` = f(p_0, g_k)), else ``s`` unchanged."""
@@ -380,19 +409,21 @@ class SlotV(_Observer):
         *,
         activation: str = "relu",
         start_term: bool = False,
+        time_weight: bool = False,
         compute_dtype: str = "float32",
         rngs: nnx.Rngs,
     ):
         self.value = GoalRelativeMLP(
             hidden, activation=activation, compute_dtype=compute_dtype, rngs=rngs
         )
-        self._init_start(start_term)
+        self._init_terms(start_term, time_weight)
 
     def scores(
         self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], **kw
     ) -> Float[Array, "... G"]:
         """Unmasked s_k = mean over time of V(p_i, g_k) (+ the start term)."""
-        s = self.value.integrate(xyz, goals, reduce="mean", **kw)
+        w = self.point_weights(xyz.shape[-2])
+        s = self.value.integrate(xyz, goals, reduce="mean", weights=w, **kw)
         return self._with_start(s, self.value, xyz, goals, **kw)
 
 
@@ -408,19 +439,21 @@ class TRex(_Observer):
         *,
         activation: str = "relu",
         start_term: bool = False,
+        time_weight: bool = False,
         compute_dtype: str = "float32",
         rngs: nnx.Rngs,
     ):
         self.reward = GoalRelativeMLP(
             hidden, activation=activation, compute_dtype=compute_dtype, rngs=rngs
         )
-        self._init_start(start_term)
+        self._init_terms(start_term, time_weight)
 
     def scores(
         self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], **kw
     ) -> Float[Array, "... G"]:
         """Unmasked returns R_k = Σ_i r(p_i, g_k) (+ the start term)."""
-        s = self.reward.integrate(xyz, goals, reduce="sum", **kw)
+        w = self.point_weights(xyz.shape[-2])
+        s = self.reward.integrate(xyz, goals, reduce="sum", weights=w, **kw)
         return self._with_start(s, self.reward, xyz, goals, **kw)
 
 
@@ -443,6 +476,7 @@ def make_model(cfg, rngs: nnx.Rngs | jax.Array | int) -> Model:
         cfg.hidden,
         activation=getattr(cfg, "activation", "relu"),
         start_term=getattr(cfg, "start_term", False),
+        time_weight=getattr(cfg, "time_weight", False),
         compute_dtype=cfg.compute_dtype,
         rngs=rngs,
     )

@@ -74,6 +74,7 @@ __all__ = [
     "camera_frame",
     "camera_pose",
     "make_archetype",
+    "time_weights",
 ]
 
 #: The workspace centre (m): the point the observer cameras look at (SPEC §4.2).
@@ -127,6 +128,19 @@ def _log_one_minus_t(T: int, dtype) -> Array:
     """log max(1 − t_i, ε) for t_i = i/(T − 1), ε the smallest normal number of ``dtype``."""
     tiny = np.finfo(np.dtype(dtype)).tiny
     return jnp.asarray(np.log(np.maximum(1.0 - _uniform_times(T), tiny)), dtype)
+
+
+def time_weights(alpha: Float[Array, ""] | float, T: int, dtype=jnp.float32) -> Float[Array, " T"]:
+    """Normalised time weights u_i = (1 − t_i)^α / Σ_j (1 − t_j)^α, t_i = i/(T − 1).
+
+    The weighting of Dragan & Srinivasa's legibility integral (RSS 2013, f(t) = T − t at
+    α = 1; the labels of SPEC §4.1): early points count more. α = 0 gives the plain mean.
+    Evaluated as softmax(α · log max(1 − t_i, ε)) (module docstring: Time).
+
+    >>> [round(float(u), 3) for u in time_weights(1.0, 3)]
+    [0.667, 0.333, 0.0]
+    """
+    return jax.nn.softmax(alpha * _log_one_minus_t(T, dtype))
 
 
 def _log_trapezoid(T: int, dtype) -> Array:
@@ -550,9 +564,8 @@ class DistanceApproachMixture(_Archetype):
         p = self._constrained()
         d = _distances(xyz, goals)  # (..., T, G)
         T = d.shape[-2]
-        log1m = _log_one_minus_t(T, d.dtype)
-        u = jax.nn.softmax(p["alpha_effdist"] * log1m)
-        v = jax.nn.softmax(p["alpha_fastapp"] * log1m[1:])
+        u = time_weights(p["alpha_effdist"], T, d.dtype)
+        v = jax.nn.softmax(p["alpha_fastapp"] * _log_one_minus_t(T, d.dtype)[1:])
         e = -jnp.einsum("...tg,t->...g", d, u, precision=jax.lax.Precision.HIGHEST)
         approach = d[..., :-1, :] - d[..., 1:, :]  # (..., T−1, G)
         f = jnp.einsum("...tg,t->...g", approach, v, precision=jax.lax.Precision.HIGHEST)

@@ -44,10 +44,11 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from flax import nnx
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import checkpoint, evaluate, labelers, planning, scene, train
+from slotv_jax import checkpoint, evaluate, labelers, models, planning, scene, train
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
 from slotv_jax.experiments.table1 import dataset_dir
@@ -57,14 +58,16 @@ from slotv_jax.scene import camera, project
 
 FAMILIES = ("dragan", "nikolaidis")  # the true labelers; each is its own family's oracle
 METHODS = ("slotv", "trex")  # the learned observers of SPEC's `planners` rows
-# the same networks with the learned start term (models._Observer): start_term_planners
-START = {"slotv_start": "slotv", "trex_start": "trex"}
+# SLOT-V+ and T-REX+: the same networks with the learned start term and time weights
+# (models._Observer); their rows are plus_planners
+PLUS = {"slotv_plus": "slotv", "trex_plus": "trex"}
 ARCHETYPES = {"dragan": "dragan", "nikolaidis": "viewpoint"}  # family -> archetype model
-LEARNED = (*METHODS, *START, "archetype")
+LEARNED = (*METHODS, *PLUS, "archetype")
 SPLITS = ("position_test", "goal_count_test")
 TITLES = {"straight": "straight line", "dragan": "Dragan (oracle)",
           "nikolaidis": "Nikolaidis (oracle)", "slotv": "SLOT-V", "trex": "T-REX",
-          "slotv_start": "SLOT-V + start term", "trex_start": "T-REX + start term",
+          "slotv_plus": "SLOT-V+ (start term, time weights)",
+          "trex_plus": "T-REX+ (start term, time weights)",
           "archetype": "SLOT-V loss, archetype"}  # fmt: skip
 
 
@@ -81,23 +84,25 @@ class PlanningConfig:
     n_examples: int = 3  # example scenes in the figure
     # family -> training config of its archetype observer (empty: no archetype rows)
     archetype: dict[str, train_config.TrainConfig] = dataclasses.field(default_factory=dict)
-    start_term: bool = True  # also plan with SLOT-V and T-REX with the start term
+    plus: bool = True  # also plan with SLOT-V+ and T-REX+ (plus_planners)
 
     def observer_config(self, method: str, family: str) -> train_config.TrainConfig:
         """Training config of a learned observer (``method`` in :data:`LEARNED`): the
-        preset's network for SLOT-V and T-REX, the same with ``start_term=True`` for
-        their ``_start`` variants, the family's archetype for "archetype"."""
+        preset's network for SLOT-V and T-REX, the same with the learned start term and
+        time weights for SLOT-V+ and T-REX+ (``_plus``), the family's archetype for
+        "archetype"."""
         if method == "archetype":
             return self.archetype[family]
-        if method in START:
-            return dataclasses.replace(self.train[START[method]], start_term=True)
+        if method in PLUS:
+            base = self.train[PLUS[method]]
+            return dataclasses.replace(base, start_term=True, time_weight=True)
         return self.train[method]
 
     def methods(self, family: str) -> tuple[str, ...]:
-        """The learned observers of ``family``: SLOT-V, T-REX and, if configured, their
-        start-term variants and the family's archetype."""
-        start = tuple(START) if self.start_term else ()
-        return (*METHODS, *start, *(("archetype",) if family in self.archetype else ()))
+        """The learned observers of ``family``: SLOT-V, T-REX and, if configured, SLOT-V+,
+        T-REX+ and the family's archetype."""
+        plus = tuple(PLUS) if self.plus else ()
+        return (*METHODS, *plus, *(("archetype",) if family in self.archetype else ()))
 
     def learned(self) -> list[tuple[str, str]]:
         """``(method, family)`` of every learned observer of the run."""
@@ -110,7 +115,7 @@ class PlanningConfig:
             "data_digest": self.data.digest(),
             "train": {m: c.to_dict() for m, c in self.train.items()},
             "archetype": {f: c.to_dict() for f, c in self.archetype.items()},
-            "start_term": self.start_term,
+            "plus": self.plus,
             "planner": self.planner.to_dict(),
             "n_scenes": self.n_scenes,
             "seed": self.seed,
@@ -224,13 +229,17 @@ def train_observer(
 
 def observer_facts(path: Path, labeler: str, splits: dict) -> dict:
     """What a learned observer's checkpoint says about it: its accuracy (SPEC §8) on the
-    ``labeler`` labels of each split's trajectories and, with a start term, the learned
-    weight w₀ (``start_weight``)."""
+    ``labeler`` labels of each split's trajectories and its learned start weight w₀
+    (``start_weight``) and time-weighting exponent α (``alpha``), where it has them."""
     tc, state, _ = checkpoint.restore(path)
     acc = {s: float(evaluate.accuracy(tc, state.params, d, labeler)) for s, d in splits.items()}
     facts: dict = {"accuracy": acc}
-    if tc.model == "mlp" and tc.start_term:
-        facts["start_weight"] = float(state.params["start_weight"][...])
+    if tc.model == "mlp":
+        model = nnx.merge(models.graphdef(tc), state.params)
+        if model.start_weight is not None:
+            facts["start_weight"] = float(model.start_weight[...])
+        if model.alpha is not None:
+            facts["alpha"] = float(model.alpha)
     return facts
 
 
@@ -340,7 +349,7 @@ def run(
     xyz_straight = np.asarray(straight.xyz)
     len_straight = path_length(xyz_straight)
     arrays: dict[str, np.ndarray] = {**problems, "xyz/straight": xyz_straight}
-    planners, start_term_planners, archetype_planners = [], [], []
+    planners, plus_planners, archetype_planners = [], [], []
     gains: dict[str, dict] = {}
     for family in FAMILIES:
         y_s_all = true_labels(family, xyz_straight, goals, mask)
@@ -373,12 +382,12 @@ def run(
             if name == "archetype":
                 row["model"] = cfg.observer_config(name, family).model
                 archetype_planners.append(row)
-            elif name in START:
-                start_term_planners.append(row)
+            elif name in PLUS:
+                plus_planners.append(row)
             else:
                 planners.append(row)
         oracle_gain = next(r for r in planners if r["observer"] == family)["mean_gain"]
-        for r in planners + start_term_planners + archetype_planners:
+        for r in planners + plus_planners + archetype_planners:
             if r["labeler"] == family and r["observer"] in LEARNED:
                 r["oracle_gain_kept"] = r["mean_gain"] / oracle_gain if oracle_gain > 0 else None
                 gains[f"{r['observer']}/{family}"] = r["oracle_gain_kept"]
@@ -395,8 +404,8 @@ def run(
             s: int((problems["split"] == i).sum()) for i, s in enumerate(SPLITS)
         },
         "planners": planners,
-        # SLOT-V and T-REX with the learned start term (not SPEC `planners` rows)
-        "start_term_planners": start_term_planners,
+        # SLOT-V+ and T-REX+: learned start term and time weights (not SPEC `planners` rows)
+        "plus_planners": plus_planners,
         # SLOT-V's loss with the family's parametric archetype (not a SPEC `planners` row)
         "archetype_planners": archetype_planners,
         "oracle_gain_kept": gains,
@@ -419,12 +428,12 @@ def _plan_keys(family: str, plans: dict) -> list[tuple[str, str]]:
 
 
 _COLOURS = {"straight": "0.4", "dragan": "C3", "nikolaidis": "C3", "slotv": "C0", "trex": "C2",
-            "slotv_start": "C9", "trex_start": "C8", "archetype": "C1"}  # fmt: skip
+            "slotv_plus": "C9", "trex_plus": "C8", "archetype": "C1"}  # fmt: skip
 
 
 def all_rows(doc: dict) -> list[dict]:
-    """Every planner row of a results document: SPEC's, the start-term and the archetype ones."""
-    return doc["planners"] + doc.get("start_term_planners", []) + doc.get("archetype_planners", [])
+    """Every planner row of a results document: SPEC's, the ``+`` and the archetype ones."""
+    return doc["planners"] + doc.get("plus_planners", []) + doc.get("archetype_planners", [])
 
 
 def example_indices(plans: dict, n: int) -> list[int]:
@@ -572,18 +581,20 @@ def report(doc: dict, figures: str = "") -> str:
         f"devices {env.get('devices')}.",
         "",
         "Learned observers: accuracy (SPEC §8) on the labels of their family on the "
-        "held-out splits' trajectories, and the learned start-term weight w₀.",
+        "held-out splits' trajectories; the learned start weight w₀ and time-weighting "
+        "exponent α of SLOT-V+ and T-REX+.",
         "",
-        "| observer | " + " | ".join(f"accuracy {s}" for s in SPLITS) + " | w₀ | source |",
-        "|---|" + "---|" * len(SPLITS) + "---|---|",
+        "| observer | " + " | ".join(f"accuracy {s}" for s in SPLITS) + " | w₀ | α | source |",
+        "|---|" + "---|" * len(SPLITS) + "---|---|---|",
     ]
     for k, v in doc["observers"].items():
         acc = v.get("accuracy", {})
-        w0 = v.get("start_weight")
+        learned = [v.get(f) for f in ("start_weight", "alpha")]
         lines.append(
             f"| {k} | "
             + " | ".join(f"{acc[s]:.3f}" if s in acc else "—" for s in SPLITS)
-            + f" | {'—' if w0 is None else f'{w0:.3f}'} | "
+            + "".join(f" | {'—' if x is None else f'{x:.3f}'}" for x in learned)
+            + " | "
             + ("trained by this run" if v["trained"] else v["checkpoint"])
             + " |"
         )
@@ -607,8 +618,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"--{method.replace('_', '-')}-{family}", type=Path, metavar="CKPT",
                 help=f"checkpoint of {what} trained on {family} labels (default: train one)",
             )  # fmt: skip
-    p.add_argument("--no-start-term", action="store_true",
-                   help="leave out the start-term observers (start_term_planners)")  # fmt: skip
+    p.add_argument("--no-plus", action="store_true",
+                   help="leave out SLOT-V+ and T-REX+ (plus_planners)")  # fmt: skip
     p.add_argument("--no-archetypes", action="store_true",
                    help="leave out the archetype observers (archetype_planners)")  # fmt: skip
     p.add_argument("--n-scenes", type=int, help="held-out scenes per split (default: preset's)")
@@ -646,8 +657,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = dataclasses.replace(cfg, train=train)
     if args.no_archetypes:
         cfg = dataclasses.replace(cfg, archetype={})
-    if args.no_start_term:
-        cfg = dataclasses.replace(cfg, start_term=False)
+    if args.no_plus:
+        cfg = dataclasses.replace(cfg, plus=False)
     ckpts = {
         (m, f): getattr(args, f"{m}_{f}")
         for m in LEARNED
