@@ -58,7 +58,7 @@ class TrainConfig:
     model: str = "mlp"  # observer: the MLP, or an archetype of slotv_jax.parametric (SPEC §10)
     hidden: tuple[int, ...] = (1536, 768)  # hidden widths after the r − g layer
     activation: str = "relu"  # of the hidden layers: "relu" (the paper) or "softplus" (smooth)
-    start_term: bool = False  # add w₀ · f(p_0, g_k) to the scores, w₀ learned (models._Observer)
+    start_term: bool = False  # values relative to the start's, f(p_i, g) − f(p_0, g) (models)
     time_weight: bool = False  # weight the points by (1 − t)^α, α learned (models._Observer)
     compute_dtype: str = "float32"  # matmul dtype of the hidden layers; params stay float32
     optimizer: str = "rmsprop"  # "rmsprop" or "adam"

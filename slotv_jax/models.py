@@ -347,18 +347,20 @@ class _Observer(nnx.Module):
     :data:`ALPHA_INIT` = 1 (measured on the quick data: from 1, planning kept 94 % of the
     oracle's gain; from 0.05, near the paper's plain mean, 88 % after the same updates).
 
-    With ``start_term`` the scores get a learned multiple of the network's value at the
-    trajectory's first point, + w₀ f(p_0, g_k) (w₀ starts at 0, the paper's score). The
-    observers of Dragan (SPEC §4.1) and FastApp (§4.4, after summation by parts) score the
-    progress made since the start, ‖S − g_k‖ − d_k(i); a function of p − g alone cannot
-    hold the per-goal constant ‖S − g_k‖, except through its values at the offsets where
-    the training trajectories start, and a planner that moves the first waypoints exploits
-    exactly those. With w₀ = −1, SLOT-V's score is the mean value gained since the start,
-    (1/T) Σ_i [V(p_i, g_k) − V(p_0, g_k)]. Measured in experiments/planning_paper.md.
+    With ``start_term`` every point's value is taken relative to the trajectory's first
+    point, f(p_i, g_k) − f(p_0, g_k): SLOT-V's score becomes the (weighted) mean value
+    gained since the start. The observers of Dragan (SPEC §4.1) and FastApp (§4.4, after
+    summation by parts) score the progress made since the start, ‖S − g_k‖ − d_k(i); a
+    function of p − g alone cannot hold the per-goal constant ‖S − g_k‖, except through
+    its values at the offsets where the training trajectories start, and a planner that
+    moves the first waypoints exploits exactly those. (A learned weight w₀ of the start's
+    value, tried first, settled near −1 on the quick data but drifted to +1.2–1.7 at the
+    paper's size, where planning kept less of the oracle's gain: experiments/
+    planning_paper.md.)
     """
 
     def _init_terms(self, start_term: bool, time_weight: bool) -> None:
-        self.start_weight = nnx.Param(jnp.zeros((), jnp.float32)) if start_term else None
+        self.start_term = bool(start_term)
         raw = math.log(math.expm1(ALPHA_INIT))  # softplus⁻¹
         self.raw_alpha = nnx.Param(jnp.asarray(raw, jnp.float32)) if time_weight else None
 
@@ -375,16 +377,15 @@ class _Observer(nnx.Module):
         a = self.alpha
         return n_points * parametric.time_weights(a, n_points, a.dtype)
 
-    def add_start(self, s: Float[Array, "... G"], f0: Float[Array, "... G"]) -> Array:
-        """``s + w₀ f0`` with a start term (``f0`` = f(p_0, g_k)), else ``s`` unchanged."""
-        if self.start_weight is None:
-            return s
-        return s + self.start_weight[...].astype(f0.dtype) * f0
+    def add_start(self, s: Float[Array, "... G"], f0: Float[Array, "... G"], weight) -> Array:
+        """With a start term, ``s − weight · f0`` (``f0`` = f(p_0, g_k), ``weight`` the total
+        weight of the points in ``s``: 1 for a mean, Σ_i u_i for a sum); else ``s``."""
+        return s - weight * f0 if self.start_term else s
 
-    def _with_start(self, s, net: GoalRelativeMLP, xyz, goals, **kw):
-        if self.start_weight is None:
+    def _with_start(self, s, net: GoalRelativeMLP, xyz, goals, weight, **kw):
+        if not self.start_term:
             return s
-        return self.add_start(s, net.integrate(xyz[..., :1, :], goals, reduce="sum", **kw))
+        return self.add_start(s, net.integrate(xyz[..., :1, :], goals, reduce="sum", **kw), weight)
 
     def __call__(
         self,
@@ -398,8 +399,8 @@ class _Observer(nnx.Module):
 
 
 class SlotV(_Observer):
-    """SLOT-V observer: logits s_k = (1/T) Σ_i V(p_i, g_k) (+ w₀ V(p_0, g_k) with
-    ``start_term``), padded goals at −∞ (SPEC §5)."""
+    """SLOT-V observer: logits s_k = (1/T) Σ_i V(p_i, g_k) (SPEC §5), padded goals at −∞;
+    the options give s_k = (1/T) Σ_i u_i [V(p_i, g_k) − V(p_0, g_k)] (:class:`_Observer`)."""
 
     method = "slotv"
 
@@ -424,12 +425,12 @@ class SlotV(_Observer):
         """Unmasked s_k = mean over time of V(p_i, g_k) (+ the start term)."""
         w = self.point_weights(xyz.shape[-2])
         s = self.value.integrate(xyz, goals, reduce="mean", weights=w, **kw)
-        return self._with_start(s, self.value, xyz, goals, **kw)
+        return self._with_start(s, self.value, xyz, goals, 1.0, **kw)
 
 
 class TRex(_Observer):
-    """Adapted T-REX: per-goal returns R_k = Σ_i r(p_i, g_k) (+ w₀ r(p_0, g_k) with
-    ``start_term``), padded goals at −∞ (SPEC §6)."""
+    """Adapted T-REX: per-goal returns R_k = Σ_i r(p_i, g_k) (SPEC §6), padded goals at −∞;
+    the options give R_k = Σ_i u_i [r(p_i, g_k) − r(p_0, g_k)] (:class:`_Observer`)."""
 
     method = "trex"
 
@@ -454,7 +455,7 @@ class TRex(_Observer):
         """Unmasked returns R_k = Σ_i r(p_i, g_k) (+ the start term)."""
         w = self.point_weights(xyz.shape[-2])
         s = self.reward.integrate(xyz, goals, reduce="sum", weights=w, **kw)
-        return self._with_start(s, self.reward, xyz, goals, **kw)
+        return self._with_start(s, self.reward, xyz, goals, xyz.shape[-2], **kw)
 
 
 Model = SlotV | TRex

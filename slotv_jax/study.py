@@ -930,9 +930,10 @@ def prefix_scores(
     """Unmasked scores of the first ``seen`` points of each trajectory.
 
     SLOT-V: s_k = (1/L) Σ_{i<L} V(p_i, g_k); T-REX: s_k = Σ_{i<L} r(p_i, g_k), with
-    L = ``seen`` (+ w₀ f(p_0, g_k) for a model with a start term: p_0 is always seen). A
-    model with time weights u_i weights the seen points by them: SLOT-V's s_k is then
-    Σ_{i<L} u_i V(p_i, g_k) / Σ_{i<L} u_i, T-REX's Σ_{i<L} u_i r(p_i, g_k).
+    L = ``seen``. A model with time weights u_i weights the seen points by them: SLOT-V's
+    s_k is then Σ_{i<L} u_i V(p_i, g_k) / Σ_{i<L} u_i, T-REX's Σ_{i<L} u_i r(p_i, g_k); a
+    model with the start term takes every value relative to f(p_0, g_k) (p_0 is always
+    seen).
     Points i ≥ L are replaced by p_0 before the network and weighted 0, so their values
     reach neither the scores nor any gradient. With L = T this is
     ``model.scores`` (up to summation order).
@@ -948,10 +949,11 @@ def prefix_scores(
     u = model.point_weights(t)  # time weights of mean 1 over the whole trajectory, or None
     if u is not None:
         w = w * u.astype(v.dtype)
+    total = w.sum(-1)  # the points' total weight: s_k's weight on a constant
     if model.method == "slotv":
-        w = w / w.sum(-1, keepdims=True)
+        w, total = w / total[..., None], jnp.ones_like(total)
     s = jnp.einsum("...tg,...t->...g", v, w, precision=jax.lax.Precision.HIGHEST)
-    return model.add_start(s, v[..., 0, :])
+    return model.add_start(s, v[..., 0, :], total[..., None])
 
 
 def count_nll(

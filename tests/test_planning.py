@@ -344,22 +344,30 @@ def test_experiment_problems_from_held_out_scenes(tiny_cfg, tiny_data):
     assert len(pairs) == n  # no duplicates
 
 
-def test_experiment_archetype_observers():
-    """Each family gets SLOT-V's loss with its own archetype beside the paper's observers;
-    --no-archetypes (an empty ``archetype``) leaves them out."""
+def test_experiment_observers():
+    """Each family gets SLOT-V and T-REX (the paper's networks), SLOT-V+ and T-REX+ (the
+    same with the learned start term and time weights) and SLOT-V's loss with its own
+    archetype; --no-plus and --no-archetypes leave those out."""
     from slotv_jax.experiments import planning as exp
 
     for preset in ("quick", "paper", "tiny"):
         cfg = exp.PRESETS[preset]()
         learned = cfg.learned()
-        assert len(learned) == 6 and set(learned) == {
+        assert len(learned) == 10 and set(learned) == {
             (m, f) for m in exp.LEARNED for f in exp.FAMILIES
         }
         for family, model in exp.ARCHETYPES.items():
             tc = cfg.observer_config("archetype", family)
             assert tc.model == model and tc.method == "slotv"
         assert cfg.observer_config("trex", "dragan") is cfg.train["trex"]
-        assert "archetype" in cfg.to_json()
-    bare = dataclasses.replace(exp.quick(), archetype={})
+        for plus, method in exp.PLUS.items():
+            tc = cfg.observer_config(plus, "nikolaidis")
+            assert tc.start_term and tc.time_weight and tc.method == method
+            assert dataclasses.replace(tc, start_term=False, time_weight=False) == cfg.train[method]
+            base = cfg.train[method]
+            assert not base.start_term and not base.time_weight and base.activation == "relu"
+        assert "archetype" in cfg.to_json() and cfg.to_json()["plus"] is True
+    bare = dataclasses.replace(exp.quick(), archetype={}, plus=False)
     assert bare.learned() == [(m, f) for f in exp.FAMILIES for m in exp.METHODS]
     assert exp.observer_key("archetype", "nikolaidis") == "archetype/nikolaidis"
+    assert exp.observer_key("slotv_plus", "dragan") == "slotv_plus/dragan"

@@ -229,15 +229,13 @@ def train_observer(
 
 def observer_facts(path: Path, labeler: str, splits: dict) -> dict:
     """What a learned observer's checkpoint says about it: its accuracy (SPEC §8) on the
-    ``labeler`` labels of each split's trajectories and its learned start weight w₀
-    (``start_weight``) and time-weighting exponent α (``alpha``), where it has them."""
+    ``labeler`` labels of each split's trajectories and, with time weights, the learned
+    exponent α (``alpha``)."""
     tc, state, _ = checkpoint.restore(path)
     acc = {s: float(evaluate.accuracy(tc, state.params, d, labeler)) for s, d in splits.items()}
     facts: dict = {"accuracy": acc}
     if tc.model == "mlp":
         model = nnx.merge(models.graphdef(tc), state.params)
-        if model.start_weight is not None:
-            facts["start_weight"] = float(model.start_weight[...])
         if model.alpha is not None:
             facts["alpha"] = float(model.alpha)
     return facts
@@ -581,20 +579,19 @@ def report(doc: dict, figures: str = "") -> str:
         f"devices {env.get('devices')}.",
         "",
         "Learned observers: accuracy (SPEC §8) on the labels of their family on the "
-        "held-out splits' trajectories; the learned start weight w₀ and time-weighting "
-        "exponent α of SLOT-V+ and T-REX+.",
+        "held-out splits' trajectories; the learned time-weighting exponent α of SLOT-V+ and "
+        "T-REX+.",
         "",
-        "| observer | " + " | ".join(f"accuracy {s}" for s in SPLITS) + " | w₀ | α | source |",
-        "|---|" + "---|" * len(SPLITS) + "---|---|---|",
+        "| observer | " + " | ".join(f"accuracy {s}" for s in SPLITS) + " | α | source |",
+        "|---|" + "---|" * len(SPLITS) + "---|---|",
     ]
     for k, v in doc["observers"].items():
         acc = v.get("accuracy", {})
-        learned = [v.get(f) for f in ("start_weight", "alpha")]
+        alpha = v.get("alpha")
         lines.append(
             f"| {k} | "
             + " | ".join(f"{acc[s]:.3f}" if s in acc else "—" for s in SPLITS)
-            + "".join(f" | {'—' if x is None else f'{x:.3f}'}" for x in learned)
-            + " | "
+            + f" | {'—' if alpha is None else f'{alpha:.3f}'} | "
             + ("trained by this run" if v["trained"] else v["checkpoint"])
             + " |"
         )
@@ -622,6 +619,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="leave out SLOT-V+ and T-REX+ (plus_planners)")  # fmt: skip
     p.add_argument("--no-archetypes", action="store_true",
                    help="leave out the archetype observers (archetype_planners)")  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="training seed of the learned observers")
     p.add_argument("--n-scenes", type=int, help="held-out scenes per split (default: preset's)")
     p.add_argument("--iters", type=int, help="planner iterations (default: preset's)")
     p.add_argument("--budget", type=float, help="trust-region budget in m² (default: preset's)")
@@ -634,7 +632,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
 
-    cfg = PRESETS[args.preset]()
+    cfg = dataclasses.replace(PRESETS[args.preset](), seed=args.seed)
     if args.n_scenes is not None:
         if args.n_scenes < 1:
             p.error("--n-scenes: expected an integer >= 1")
