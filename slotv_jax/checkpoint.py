@@ -226,9 +226,11 @@ def _wrong_model(path, saved: str, requested: str) -> str:
 def make_observer(cfg: TrainConfig, params) -> Callable:
     """The pure function ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
 
-    SLOT-V: s_k = (1/T) Σ_i V(p_i, g_k); T-REX: R_k = Σ_i r(p_i, g_k); padded slots −∞.
-    Shapes are checked on every call; values (NaN, an empty mask) on concrete inputs.
-    Works under ``jit``, ``vmap`` and ``grad`` (w.r.t. ``xyz`` or ``goals``).
+    SLOT-V: s_k = (1/T) Σ_i V(p_i, g_k); T-REX: R_k = Σ_i r(p_i, g_k) (with the config's
+    options, :class:`slotv_jax.models.SlotV`); padded slots −∞. Shapes are checked on every
+    call; values (NaN, an empty mask) on concrete inputs. Works under ``jit``, ``vmap`` and
+    ``grad`` (w.r.t. ``xyz`` or ``goals``). The function carries its ``config`` and
+    ``params``.
     """
     abstract = nnx.eval_shape(lambda: models.make_model(cfg, nnx.Rngs(0)))
     graphdef, _ = nnx.split(abstract)
@@ -241,6 +243,7 @@ def make_observer(cfg: TrainConfig, params) -> Callable:
         return model(jnp.asarray(xyz), jnp.asarray(goals), jnp.asarray(goal_mask, bool))
 
     observer.config = cfg  # type: ignore[attr-defined]
+    observer.params = params  # type: ignore[attr-defined]
     if cfg.model != "mlp":  # an archetype explains itself: its fitted parameters
         fitted = nnx.merge(graphdef, params)
         observer.describe = fitted.describe  # type: ignore[attr-defined]

@@ -56,10 +56,11 @@ from slotv_jax.validation import G_MAX
 
 _DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 BACKWARDS = ("autodiff", "fused", "recompute")  # see GoalRelativeMLP.grid
-# activation name -> (σ, σ'): the derivative is what the custom backward passes multiply by
+# activation name -> (σ, δ(pre, dh) = σ'(pre) ⊙ dh, in the cotangent's dtype: what the
+# custom backward passes of the first layers compute)
 ACTIVATIONS = {
-    "relu": (jax.nn.relu, lambda pre: pre > 0),
-    "softplus": (jax.nn.softplus, jax.nn.sigmoid),
+    "relu": (jax.nn.relu, lambda pre, dh: jnp.where(pre > 0, dh, jnp.zeros((), dh.dtype))),
+    "softplus": (jax.nn.softplus, lambda pre, dh: dh * jax.nn.sigmoid(pre).astype(dh.dtype)),
 }
 _List = getattr(nnx, "List", list)  # flax < 0.12 keeps sub-modules in plain lists
 ALPHA_INIT = 1.0  # initial time-weighting exponent: Dragan & Srinivasa's f(t) = T − t
@@ -165,10 +166,12 @@ class GoalRelativeMLP(nnx.Module):
         *,
         reduce: str = "mean",
         weights: Float[Array, " T"] | None = None,
+        from_start: bool = False,
         backward: str = "autodiff",
     ) -> Float[Array, "... G"]:
         """``grid(xyz, goals)`` reduced over the points (``reduce``: "mean" or "sum"), each
-        point's value times ``weights[i]`` if given (weights of mean 1 keep the scale).
+        point's value times ``weights[i]`` if given (weights of mean 1 keep the scale) and,
+        with ``from_start``, taken relative to the first point's: f(p_i, g) − f(p_0, g).
 
         The readout is linear, so the reduction is taken first, on the last hidden
         activation (accumulated in float32), and the readout is applied once per goal
@@ -185,6 +188,9 @@ class GoalRelativeMLP(nnx.Module):
         else:  # Σ_t w_t h_t, accumulated in float32
             w = weights.astype(h.dtype)
             pooled = jnp.einsum("...tgh,t->...gh", h, w, preferred_element_type=acc)
+        if from_start:  # Σ_t w_t (h_t − h_0): the total weight times the first point's
+            total = h.shape[-3] if weights is None else jnp.sum(weights, dtype=acc)
+            pooled = pooled - total * h[..., 0, :, :].astype(acc)
         if reduce == "mean":
             pooled = pooled / h.shape[-3]
         w = self.readout.kernel[...][:, 0].astype(acc)
@@ -235,10 +241,7 @@ def _features_fused_bwd(dtype, activation, res, dh):
     xyz, goals, w, b = res
     hp = jax.lax.Precision.HIGHEST
     pre = _pre_activation(xyz, goals, w, b)  # (..., T, G, H), recomputed, never stored
-    if activation == "relu":
-        dpre = jnp.where(pre > 0, dh, jnp.zeros((), dh.dtype))  # in the cotangent's dtype
-    else:
-        dpre = dh * ACTIVATIONS[activation][1](pre).astype(dh.dtype)
+    dpre = ACTIVATIONS[activation][1](pre, dh)
     f32 = jnp.promote_types(dpre.dtype, jnp.float32)
     # W_1 and b_1 as one skinny matmul over all (t, k) rows: Σ_{t,k} (p_t − g_k, 1) ⊗ δ_tk
     d = xyz[..., :, None, :] - goals[..., None, :, :]  # (..., T, G, 3)
@@ -359,10 +362,31 @@ class _Observer(nnx.Module):
     planning_paper.md.)
     """
 
-    def _init_terms(self, start_term: bool, time_weight: bool) -> None:
+    reduce: str  # over the points: "mean" (SLOT-V) or "sum" (T-REX)
+    network_name: str  # the attribute holding the GoalRelativeMLP ("value", "reward")
+    default_hidden: tuple[int, ...]  # the paper's widths
+
+    def __init__(
+        self,
+        hidden: Sequence[int] | None = None,
+        *,
+        activation: str = "relu",
+        start_term: bool = False,
+        time_weight: bool = False,
+        compute_dtype: str = "float32",
+        rngs: nnx.Rngs,
+    ):
+        hidden = self.default_hidden if hidden is None else hidden
+        net = GoalRelativeMLP(hidden, activation=activation, compute_dtype=compute_dtype, rngs=rngs)
+        setattr(self, self.network_name, net)
         self.start_term = bool(start_term)
         raw = math.log(math.expm1(ALPHA_INIT))  # softplus⁻¹
         self.raw_alpha = nnx.Param(jnp.asarray(raw, jnp.float32)) if time_weight else None
+
+    @property
+    def network(self) -> GoalRelativeMLP:
+        """The network f: SLOT-V's value V, T-REX's reward r."""
+        return getattr(self, self.network_name)
 
     @property
     def alpha(self) -> Float[Array, ""] | None:
@@ -377,15 +401,18 @@ class _Observer(nnx.Module):
         a = self.alpha
         return n_points * parametric.time_weights(a, n_points, a.dtype)
 
-    def add_start(self, s: Float[Array, "... G"], f0: Float[Array, "... G"], weight) -> Array:
-        """With a start term, ``s − weight · f0`` (``f0`` = f(p_0, g_k), ``weight`` the total
-        weight of the points in ``s``: 1 for a mean, Σ_i u_i for a sum); else ``s``."""
-        return s - weight * f0 if self.start_term else s
-
-    def _with_start(self, s, net: GoalRelativeMLP, xyz, goals, weight, **kw):
-        if not self.start_term:
-            return s
-        return self.add_start(s, net.integrate(xyz[..., :1, :], goals, reduce="sum", **kw), weight)
+    def scores(
+        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], **kw
+    ) -> Float[Array, "... G"]:
+        """Unmasked scores: f integrated over the points (the class docstring's equation)."""
+        return self.network.integrate(
+            xyz,
+            goals,
+            reduce=self.reduce,
+            weights=self.point_weights(xyz.shape[-2]),
+            from_start=self.start_term,
+            **kw,
+        )
 
     def __call__(
         self,
@@ -400,62 +427,24 @@ class _Observer(nnx.Module):
 
 class SlotV(_Observer):
     """SLOT-V observer: logits s_k = (1/T) Σ_i V(p_i, g_k) (SPEC §5), padded goals at −∞;
-    the options give s_k = (1/T) Σ_i u_i [V(p_i, g_k) − V(p_0, g_k)] (:class:`_Observer`)."""
+    the options give s_k = (1/T) Σ_i u_i [V(p_i, g_k) − V(p_0, g_k)] (:class:`_Observer`).
+    ``hidden`` defaults to the paper's (1536, 768)."""
 
     method = "slotv"
-
-    def __init__(
-        self,
-        hidden: Sequence[int] = (1536, 768),
-        *,
-        activation: str = "relu",
-        start_term: bool = False,
-        time_weight: bool = False,
-        compute_dtype: str = "float32",
-        rngs: nnx.Rngs,
-    ):
-        self.value = GoalRelativeMLP(
-            hidden, activation=activation, compute_dtype=compute_dtype, rngs=rngs
-        )
-        self._init_terms(start_term, time_weight)
-
-    def scores(
-        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], **kw
-    ) -> Float[Array, "... G"]:
-        """Unmasked s_k = mean over time of V(p_i, g_k) (+ the start term)."""
-        w = self.point_weights(xyz.shape[-2])
-        s = self.value.integrate(xyz, goals, reduce="mean", weights=w, **kw)
-        return self._with_start(s, self.value, xyz, goals, 1.0, **kw)
+    reduce = "mean"
+    network_name = "value"
+    default_hidden = (1536, 768)
 
 
 class TRex(_Observer):
     """Adapted T-REX: per-goal returns R_k = Σ_i r(p_i, g_k) (SPEC §6), padded goals at −∞;
-    the options give R_k = Σ_i u_i [r(p_i, g_k) − r(p_0, g_k)] (:class:`_Observer`)."""
+    the options give R_k = Σ_i u_i [r(p_i, g_k) − r(p_0, g_k)] (:class:`_Observer`).
+    ``hidden`` defaults to the paper's (1792, 768)."""
 
     method = "trex"
-
-    def __init__(
-        self,
-        hidden: Sequence[int] = (1792, 768),
-        *,
-        activation: str = "relu",
-        start_term: bool = False,
-        time_weight: bool = False,
-        compute_dtype: str = "float32",
-        rngs: nnx.Rngs,
-    ):
-        self.reward = GoalRelativeMLP(
-            hidden, activation=activation, compute_dtype=compute_dtype, rngs=rngs
-        )
-        self._init_terms(start_term, time_weight)
-
-    def scores(
-        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], **kw
-    ) -> Float[Array, "... G"]:
-        """Unmasked returns R_k = Σ_i r(p_i, g_k) (+ the start term)."""
-        w = self.point_weights(xyz.shape[-2])
-        s = self.reward.integrate(xyz, goals, reduce="sum", weights=w, **kw)
-        return self._with_start(s, self.reward, xyz, goals, xyz.shape[-2], **kw)
+    reduce = "sum"
+    network_name = "reward"
+    default_hidden = (1792, 768)
 
 
 Model = SlotV | TRex

@@ -915,10 +915,6 @@ def study_data(study: Study) -> StudyData:
     )
 
 
-def _network(model: models.Model) -> models.GoalRelativeMLP:
-    return model.value if model.method == "slotv" else model.reward
-
-
 def prefix_scores(
     model: models.Model,
     xyz: Float[Array, "... T 3"],
@@ -944,16 +940,16 @@ def prefix_scores(
     t = xyz.shape[-2]
     vis = jnp.arange(t) < seen[..., None]  # (..., T)
     x = jnp.where(vis[..., None], xyz, xyz[..., :1, :])
-    v = _network(model).grid(x, goals, backward=backward)  # (..., T, G)
+    v = model.network.grid(x, goals, backward=backward)  # (..., T, G)
+    if model.start_term:  # values relative to the start's (point 0 is always seen)
+        v = v - v[..., :1, :]
     w = vis.astype(v.dtype)
     u = model.point_weights(t)  # time weights of mean 1 over the whole trajectory, or None
     if u is not None:
         w = w * u.astype(v.dtype)
-    total = w.sum(-1)  # the points' total weight: s_k's weight on a constant
     if model.method == "slotv":
-        w, total = w / total[..., None], jnp.ones_like(total)
-    s = jnp.einsum("...tg,...t->...g", v, w, precision=jax.lax.Precision.HIGHEST)
-    return model.add_start(s, v[..., 0, :], total[..., None])
+        w = w / w.sum(-1, keepdims=True)
+    return jnp.einsum("...tg,...t->...g", v, w, precision=jax.lax.Precision.HIGHEST)
 
 
 def count_nll(

@@ -230,15 +230,15 @@ def train_observer(
     return out, seconds
 
 
-def observer_facts(path: Path, labeler: str, splits: dict) -> dict:
-    """What a learned observer's checkpoint says about it: its accuracy (SPEC §8) on the
-    ``labeler`` labels of each split's trajectories and, with time weights, the learned
-    exponent α (``alpha``)."""
-    tc, state, _ = checkpoint.restore(path)
-    acc = {s: float(evaluate.accuracy(tc, state.params, d, labeler)) for s, d in splits.items()}
+def observer_facts(observer, labeler: str, splits: dict) -> dict:
+    """What a loaded learned observer (:func:`slotv_jax.load_observer`) says about itself:
+    its accuracy (SPEC §8) on the ``labeler`` labels of each split's trajectories and, with
+    time weights, the learned exponent α (``alpha``)."""
+    tc, params = observer.config, observer.params
+    acc = {s: float(evaluate.accuracy(tc, params, d, labeler)) for s, d in splits.items()}
     facts: dict = {"accuracy": acc}
     if tc.model == "mlp":
-        model = nnx.merge(models.graphdef(tc), state.params)
+        model = nnx.merge(models.graphdef(tc), params)
         if model.alpha is not None:
             facts["alpha"] = float(model.alpha)
     return facts
@@ -306,7 +306,6 @@ def run(
     ddir = dataset_dir(cache, cfg.data)
     splits = ("train", *SPLITS)
     dataset = data_lib.generate_dataset(cfg.data, ddir, splits=splits, progress=progress)
-    # the held-out splits' own trajectories: each learned observer's accuracy on its labels
     timing["data_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -328,7 +327,7 @@ def run(
             timing["train_s"] += sec
         model = cfg.observer_config(method, family).model
         observers[key] = slotv_jax.load_observer(path, model=model)
-        facts = observer_facts(path, family, {s: dataset[s] for s in SPLITS})
+        facts = observer_facts(observers[key], family, {s: dataset[s] for s in SPLITS})
         sources[key] = {"checkpoint": str(path), "trained": trained, **facts}
 
     # Plans: one compiled program for every observer.
