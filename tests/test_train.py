@@ -281,6 +281,23 @@ def test_training_on_trimmed_goal_slots_is_the_same_run(tiny, method):
     )
 
 
+def assert_packed_equals_dense(model, batch, cap: int, backward: str = "autodiff"):
+    """Loss and gradient of the packed SLOT-V update (``backward`` for the packed one)
+    equal the all-slots update's; returns the all-slots gradient."""
+
+    def dense(m):
+        return train.slotv_loss(m, *batch, backward="autodiff")
+
+    def pack(m):
+        return train.slotv_loss_packed(m, *batch, capacity=cap, backward=backward)
+
+    (la, ga), (lb, gb) = (nnx.value_and_grad(f)(model) for f in (dense, pack))
+    np.testing.assert_allclose(float(lb), float(la), rtol=1e-6)
+    for a, b in zip(jax.tree.leaves(ga), jax.tree.leaves(gb), strict=True):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-4, atol=1e-6)
+    return ga
+
+
 def test_packed_slotv_updates_are_exact(tiny):
     """SLOT-V updates on the batch's real (trajectory, goal) pairs: the capacity covers every
     batch of the run (counted independently here), and loss and gradient equal the
@@ -305,17 +322,7 @@ def test_packed_slotv_updates_are_exact(tiny):
     idx = np.asarray(trainer.slotv_batches(keys[0], 0, len(counts)))[0]
     batch = [jnp.asarray(x)[idx] for x in data]
     model = trainer.model(trainer.init(jax.random.key(0)).params)
-
-    def dense(m):
-        return train.slotv_loss(m, *batch, backward="autodiff")
-
-    def pack(m):
-        return train.slotv_loss_packed(m, *batch, capacity=cap, backward="autodiff")
-
-    (la, ga), (lb, gb) = (nnx.value_and_grad(f)(model) for f in (dense, pack))
-    np.testing.assert_allclose(float(lb), float(la), rtol=1e-6)
-    for a, b in zip(jax.tree.leaves(ga), jax.tree.leaves(gb), strict=True):
-        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-4, atol=1e-6)
+    assert_packed_equals_dense(model, batch, cap)
     with pytest.raises(ValueError, match="packed_pairs"):
         train.make_train(small_cfg("trex"), packed_pairs=64)
 
