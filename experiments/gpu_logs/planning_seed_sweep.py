@@ -1,0 +1,91 @@
+"""Probe, not part of the package: train one learned observer with several seeds, plan the
+planning experiment's problems with each and score them as the experiment does.
+
+Recorded in experiments/planning_paper.md (SLOT-V+ over seeds). Run on one H100
+(2026-11-24, the code of commit baa4d5a, jax 0.11.2) as
+
+    python experiments/gpu_logs/planning_seed_sweep.py paper nikolaidis 3 \
+        compute_dtype=bfloat16 start_term=true time_weight=true
+
+(args: preset, family, seeds, then TrainConfig overrides of the preset's SLOT-V). Output
+(accuracy on trajectory_test / position_test / goal_count_test; the cosine of the
+planning gradient with the oracle's at the straight lines, as in
+planning_gradient_alignment.py; the learned α; the gain kept and the lowered rate):
+
+    nikolaidis seed 0: acc 0.898/0.854/0.818 align 0.885 alpha 1.033 kept 81.8% lowered 0.000
+    nikolaidis seed 1: acc 0.899/0.886/0.819 align 0.872 alpha 1.078 kept 82.9% lowered 0.000
+    nikolaidis seed 2: acc 0.913/0.898/0.854 align 0.800 alpha 1.031 kept 75.6% lowered 0.000
+    dragan seed 0: acc 0.931/0.904/0.899 align 0.959 alpha 1.048 kept 96.7% lowered 0.000
+    dragan seed 1: acc 0.939/0.923/0.909 align 0.951 alpha 1.055 kept 96.2% lowered 0.000
+    dragan seed 2: acc 0.924/0.890/0.872 align 0.955 alpha 1.111 kept 89.1% lowered 0.000
+"""
+
+import dataclasses
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+from flax import nnx
+
+from slotv_jax import checkpoint, evaluate, models, planning, train, types
+from slotv_jax import config as C
+from slotv_jax import data as data_lib
+from slotv_jax.experiments import planning as PE
+from slotv_jax.experiments.table1 import dataset_dir
+
+preset, family, n_seeds = sys.argv[1], sys.argv[2], int(sys.argv[3])
+cfg = PE.PRESETS[preset]()
+tc = C.apply_overrides(cfg.train["slotv"], sys.argv[4:])
+splits = ("trajectory_test", *PE.SPLITS)
+ds = data_lib.generate_dataset(
+    cfg.data, dataset_dir(Path("data"), cfg.data), splits=("train", *splits), progress=False
+)
+problems = PE.make_problems(PE.held_out_scenes(cfg, ds))
+rows = np.arange(len(problems["target"]))
+g, m, t = problems["goals"], problems["goal_mask"], problems["target"]
+oracle = planning.labeler_observer(family)
+planner = planning.make_planner({"oracle": oracle}, cfg.planner)
+straight = planner.straight_line(g, m, t)
+xyz0 = np.asarray(straight.xyz)
+a_inv = planning.metric_inverse(xyz0.shape[1] - 2)
+
+
+def true_y(xyz):
+    return PE.true_labels(family, np.asarray(xyz), g, m)[rows, t]
+
+
+def grads(obs):
+    def log_p(x, gg, mm, tt):
+        return jax.nn.log_softmax(obs(x, gg, mm))[tt]
+
+    return np.asarray(jax.jit(jax.vmap(jax.grad(log_p)))(xyz0, g, m, t), np.float64)[:, 1:-1]
+
+
+g_ref = grads(oracle)
+d_ref = np.einsum("ij,njc->nic", a_inv, g_ref)
+
+
+def alignment(obs):
+    gr = grads(obs)
+    d = np.einsum("ij,njc->nic", a_inv, gr)
+    cos = (g_ref * d).sum((1, 2)) / np.sqrt((g_ref * d_ref).sum((1, 2)) * (gr * d).sum((1, 2)))
+    return cos.mean()
+
+
+y_straight, y_oracle = true_y(straight.xyz), true_y(planner.plan_problems(straight).xyz)
+data = types.prepare(ds["train"], family, size=tc.train_size)
+tc = dataclasses.replace(tc, train_size=None)
+for seed in range(n_seeds):
+    state, _ = train.train_trials(tc, data, [seed], progress=False)
+    params = train.select_trial(state, 0).params
+    obs = checkpoint.make_observer(tc, params)
+    acc = "/".join(f"{float(evaluate.accuracy(tc, params, ds[s], family)):.3f}" for s in splits)
+    res = jax.jit(jax.vmap(lambda p, o=obs: planning.plan(o, p, cfg.planner)))(straight)
+    y = true_y(res.xyz)
+    kept = (y.mean() - y_straight.mean()) / (y_oracle.mean() - y_straight.mean())
+    model = nnx.merge(models.graphdef(tc), params)
+    alpha = "" if model.alpha is None else f" alpha {float(model.alpha):.3f}"
+    low = (y < y_straight).mean()
+    print(f"{family} seed {seed}: acc {acc} align {alignment(obs):.3f}{alpha} "
+          f"kept {kept:.1%} lowered {low:.3f}", flush=True)  # fmt: skip
