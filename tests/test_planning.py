@@ -363,9 +363,16 @@ def test_experiment_observers():
         for plus, method in exp.PLUS.items():
             tc = cfg.observer_config(plus, "nikolaidis")
             assert tc.start_term and tc.time_weight and tc.method == method
-            assert dataclasses.replace(tc, start_term=False, time_weight=False) == cfg.train[method]
+            epochs = cfg.plus_epochs.get(plus, cfg.train[method].epochs)
+            assert tc.epochs == epochs
+            bare = dataclasses.replace(tc, start_term=False, time_weight=False, epochs=epochs)
+            assert bare == dataclasses.replace(cfg.train[method], epochs=epochs)
             base = cfg.train[method]
             assert not base.start_term and not base.time_weight and base.activation == "relu"
+        # the paper preset trains SLOT-V+ for 5 of the paper's 15 epochs (planning_paper.md)
+        if preset == "paper":
+            assert cfg.observer_config("slotv_plus", "dragan").epochs == 5
+            assert cfg.observer_config("trex_plus", "dragan").epochs == cfg.train["trex"].epochs
         assert "archetype" in cfg.to_json() and cfg.to_json()["plus"] is True
     bare = dataclasses.replace(exp.quick(), archetype={}, plus=False)
     assert bare.learned() == [(m, f) for f in exp.FAMILIES for m in exp.METHODS]
