@@ -20,9 +20,10 @@ Steps:
    ``plus_planners``: SLOT-V+ and T-REX+, the same networks with values relative to the
    start's and learned time weights (``start_term``, ``time_weight``:
    :class:`slotv_jax.models.SlotV`), which a planner cannot exploit the way it exploits
-   the paper's score; in ``archetype_planners``: SLOT-V's loss with the family's
-   parametric observer archetype (SPEC §10: ``dragan`` for Dragan, ``viewpoint`` for
-   Nikolaidis), which separates what the loss learns from what a network can represent;
+   the paper's score (the paper preset trains SLOT-V+ for 5 epochs: :func:`paper`); in
+   ``archetype_planners``: SLOT-V's loss with the family's parametric observer archetype
+   (SPEC §10: ``dragan`` for Dragan, ``viewpoint`` for Nikolaidis), which separates what
+   the loss learns from what a network can represent;
 4. every observer plans every problem with :mod:`slotv_jax.planning` (one compiled
    program for all observers), and every plan is scored by the TRUE hand-crafted
    labeler of its family: mean and SD of y_target, the rate at which the target is the
