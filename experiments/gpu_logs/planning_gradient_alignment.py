@@ -1,9 +1,9 @@
 """Probe, not part of the package: how well a learned observer's planning gradient points
 where the oracle's does, at the straight lines of a planning run.
 
-For each problem, g = ∇_xyz log P(target | ξ_straight) of an observer (interior waypoints)
-and the covariant direction A⁻¹g (A the planner's smoothness metric); the cosine in that
-metric, gᵀA⁻¹g_oracle / √(gᵀA⁻¹g · g_oracleᵀA⁻¹g_oracle), is averaged over the problems.
+For each problem, the cosine in the planner's metric between an observer's planning
+gradient and the oracle's at the straight line (planning_probe_setup.py); its mean and
+median over the problems.
 Recorded in experiments/planning_paper.md. Run on one H100 (2026-11-24, commit 9b728f6)
 after the paper-preset planning run, as
 
@@ -24,8 +24,8 @@ Output:
 
 import sys
 
-import jax
 import numpy as np
+from planning_probe_setup import metric_cosines, planning_gradients
 
 import slotv_jax
 from slotv_jax import planning
@@ -43,22 +43,11 @@ obs = {
 }
 for extra in sys.argv[2:]:
     obs[extra] = slotv_jax.load_observer(f"{run}/observers/{extra}")
-g, m, t = f["goals"], f["goal_mask"], f["target"]
-Ai = planning.metric_inverse(s.shape[1] - 2)
-
-
-def grads(o):
-    def log_p(x, gg, mm, tt):
-        return jax.nn.log_softmax(o(x, gg, mm))[tt]
-
-    gr = np.asarray(jax.jit(jax.vmap(jax.grad(log_p)))(s, g, m, t), np.float64)[:, 1:-1]
-    return np.einsum("ij,njc->nic", Ai, gr), gr
-
-
-ref, rg = grads(obs["dragan"])
+problems = (s, f["goals"], f["goal_mask"], f["target"])
+a_inv = planning.metric_inverse(s.shape[1] - 2)
+ref = planning_gradients(obs["dragan"], *problems)
 for name, o in obs.items():
-    d, gr = grads(o)
-    cos = (rg * d).sum((1, 2)) / np.sqrt((rg * ref).sum((1, 2)) * (gr * d).sum((1, 2)))
+    cos = metric_cosines(planning_gradients(o, *problems), ref, a_inv)
     print(
         f"{name:10s} cosine(A^-1) to oracle at straight: mean {np.mean(cos):.3f} "
         f"median {np.median(cos):.3f} frac<0 {np.mean(cos < 0):.3f}"

@@ -26,70 +26,27 @@ refactor that changes float rounding only) gave, for seeds 0–2: Nikolaidis 81.
 
 import dataclasses
 import sys
-from pathlib import Path
 
-import jax
-import numpy as np
 from flax import nnx
+from planning_probe_setup import EVAL_SPLITS, Problems
 
-from slotv_jax import checkpoint, evaluate, models, planning, train, types
+from slotv_jax import checkpoint, evaluate, models, train, types
 from slotv_jax import config as C
-from slotv_jax import data as data_lib
-from slotv_jax.experiments import planning as PE
-from slotv_jax.experiments.table1 import dataset_dir
 
 preset, family, n_seeds = sys.argv[1], sys.argv[2], int(sys.argv[3])
-cfg = PE.PRESETS[preset]()
-tc = C.apply_overrides(cfg.train["slotv"], sys.argv[4:])
-splits = ("trajectory_test", *PE.SPLITS)
-ds = data_lib.generate_dataset(
-    cfg.data, dataset_dir(Path("data"), cfg.data), splits=("train", *splits), progress=False
-)
-problems = PE.make_problems(PE.held_out_scenes(cfg, ds))
-rows = np.arange(len(problems["target"]))
-g, m, t = problems["goals"], problems["goal_mask"], problems["target"]
-oracle = planning.labeler_observer(family)
-planner = planning.make_planner({"oracle": oracle}, cfg.planner)
-straight = planner.straight_line(g, m, t)
-xyz0 = np.asarray(straight.xyz)
-a_inv = planning.metric_inverse(xyz0.shape[1] - 2)
-
-
-def true_y(xyz):
-    return PE.true_labels(family, np.asarray(xyz), g, m)[rows, t]
-
-
-def grads(obs):
-    def log_p(x, gg, mm, tt):
-        return jax.nn.log_softmax(obs(x, gg, mm))[tt]
-
-    return np.asarray(jax.jit(jax.vmap(jax.grad(log_p)))(xyz0, g, m, t), np.float64)[:, 1:-1]
-
-
-g_ref = grads(oracle)
-d_ref = np.einsum("ij,njc->nic", a_inv, g_ref)
-
-
-def alignment(obs):
-    gr = grads(obs)
-    d = np.einsum("ij,njc->nic", a_inv, gr)
-    cos = (g_ref * d).sum((1, 2)) / np.sqrt((g_ref * d_ref).sum((1, 2)) * (gr * d).sum((1, 2)))
-    return cos.mean()
-
-
-y_straight, y_oracle = true_y(straight.xyz), true_y(planner.plan_problems(straight).xyz)
-data = types.prepare(ds["train"], family, size=tc.train_size)
+P = Problems(preset, family)
+tc = C.apply_overrides(P.cfg.train["slotv"], sys.argv[4:])
+data = types.prepare(P.ds["train"], family, size=tc.train_size)
 tc = dataclasses.replace(tc, train_size=None)
 for seed in range(n_seeds):
     state, _ = train.train_trials(tc, data, [seed], progress=False)
     params = train.select_trial(state, 0).params
     obs = checkpoint.make_observer(tc, params)
-    acc = "/".join(f"{float(evaluate.accuracy(tc, params, ds[s], family)):.3f}" for s in splits)
-    res = jax.jit(jax.vmap(lambda p, o=obs: planning.plan(o, p, cfg.planner)))(straight)
-    y = true_y(res.xyz)
-    kept = (y.mean() - y_straight.mean()) / (y_oracle.mean() - y_straight.mean())
+    acc = "/".join(
+        f"{float(evaluate.accuracy(tc, params, P.ds[s], family)):.3f}" for s in EVAL_SPLITS
+    )
+    kept, low = P.score(obs)
     model = nnx.merge(models.graphdef(tc), params)
     alpha = "" if model.alpha is None else f" alpha {float(model.alpha):.3f}"
-    low = (y < y_straight).mean()
-    print(f"{family} seed {seed}: acc {acc} align {alignment(obs):.3f}{alpha} "
+    print(f"{family} seed {seed}: acc {acc} align {P.alignment(obs):.3f}{alpha} "
           f"kept {kept:.1%} lowered {low:.3f}", flush=True)  # fmt: skip

@@ -36,61 +36,17 @@ Dragan, 5 epochs: 96.8 96.4 96.3 (accuracy 0.935–0.951 / 0.913–0.932 / 0.913
 import dataclasses
 import sys
 import time
-from pathlib import Path
 
 import jax
-import numpy as np
 import optax
 from flax import nnx
+from planning_probe_setup import EVAL_SPLITS, Problems
 
-from slotv_jax import checkpoint, evaluate, models, planning, train, types
+from slotv_jax import checkpoint, evaluate, models, train, types
 from slotv_jax import config as C
-from slotv_jax import data as data_lib
-from slotv_jax.experiments import planning as PE
-from slotv_jax.experiments.table1 import dataset_dir
 
-preset, family = sys.argv[1], sys.argv[2]
-
-cfg = PE.PRESETS[preset]()
-specs = sys.argv[3:]
-tc = cfg.train["slotv"]
-splits = ("trajectory_test", *PE.SPLITS)
-ds = data_lib.generate_dataset(
-    cfg.data, dataset_dir(Path("data"), cfg.data), splits=("train", *splits), progress=False
-)
-problems = PE.make_problems(PE.held_out_scenes(cfg, ds))
-rows = np.arange(len(problems["target"]))
-g, m, t = problems["goals"], problems["goal_mask"], problems["target"]
-oracle = planning.labeler_observer(family)
-planner = planning.make_planner({"oracle": oracle}, cfg.planner)
-straight = planner.straight_line(g, m, t)
-xyz0 = np.asarray(straight.xyz)
-a_inv = planning.metric_inverse(xyz0.shape[1] - 2)
-
-
-def true_y(xyz):
-    return PE.true_labels(family, np.asarray(xyz), g, m)[rows, t]
-
-
-def grads(obs):
-    def log_p(x, gg, mm, tt):
-        return jax.nn.log_softmax(obs(x, gg, mm))[tt]
-
-    return np.asarray(jax.jit(jax.vmap(jax.grad(log_p)))(xyz0, g, m, t), np.float64)[:, 1:-1]
-
-
-g_ref = grads(oracle)
-d_ref = np.einsum("ij,njc->nic", a_inv, g_ref)
-
-
-def alignment(obs):
-    gr = grads(obs)
-    d = np.einsum("ij,njc->nic", a_inv, gr)
-    cos = (g_ref * d).sum((1, 2)) / np.sqrt((g_ref * d_ref).sum((1, 2)) * (gr * d).sum((1, 2)))
-    return cos.mean()
-
-
-y_straight, y_oracle = true_y(straight.xyz), true_y(planner.plan_problems(straight).xyz)
+preset, family, specs = sys.argv[1], sys.argv[2], sys.argv[3:]
+P = Problems(preset, family)
 
 ORIG_MK = train.make_optimizer
 EMA_DECAYS = (0.9998, 0.99995)
@@ -127,17 +83,15 @@ def with_ema(c):
 
 
 def score(obs):
-    res = jax.jit(jax.vmap(lambda p: planning.plan(obs, p, cfg.planner)))(straight)
-    y = true_y(res.xyz)
-    kept = (y.mean() - y_straight.mean()) / (y_oracle.mean() - y_straight.mean())
-    return f"align {alignment(obs):.3f} kept {kept:.1%} low {(y < y_straight).mean():.3f}"
+    kept, low = P.score(obs)
+    return f"align {P.alignment(obs):.3f} kept {kept:.1%} low {low:.3f}"
 
 
 for spec in specs:
     label, _, rest = spec.partition("|")
     seeds, _, overrides = rest.partition("|")
-    tc = C.apply_overrides(cfg.train["slotv"], [o for o in overrides.split(";") if o])
-    data = types.prepare(ds["train"], family, size=tc.train_size)
+    tc = C.apply_overrides(P.cfg.train["slotv"], [o for o in overrides.split(";") if o])
+    data = types.prepare(P.ds["train"], family, size=tc.train_size)
     tc = dataclasses.replace(tc, train_size=None)
     train._make_train.cache_clear()
     train.make_optimizer = ORIG_MK
@@ -158,7 +112,7 @@ for spec in specs:
         for name, params in variants:
             ALL.setdefault((label, name), []).append(params)
             acc = "/".join(
-                f"{float(evaluate.accuracy(tc, params, ds[x], family)):.3f}" for x in splits
+                f"{float(evaluate.accuracy(tc, params, P.ds[x], family)):.3f}" for x in EVAL_SPLITS
             )
             model = nnx.merge(models.graphdef(tc), params)
             alpha = "" if model.alpha is None else f" alpha {float(model.alpha):.3f}"
