@@ -1,0 +1,81 @@
+"""Small stimulus sets for the study server's tests, and a participant that answers over HTTP.
+
+:class:`DotRenderer` draws a motion as dots (no OpenGL): the server's tests need real
+files with real checksums, not pictures of a robot. The browser test renders real ones.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import av
+import numpy as np
+from PIL import Image
+
+from slotv_jax.study_web import stimuli
+
+SIZE = (64, 48)
+
+
+class DotRenderer:
+    """Frames with the goals as grey dots and the TCP (x, y) as a red dot; H.264 clips."""
+
+    fps = 10
+
+    def frames(self, motion: stimuli.Motion, tau: float, camera: str):
+        n = len(motion.labels)
+        w, h = SIZE
+        px = np.array([[8 + 48 * k / max(n - 1, 1), 12.0] for k in range(n)])
+        s = np.linspace(0.0, tau, 5)
+        frames = np.full((len(s), h, w, 3), 240, np.uint8)
+        for x, y in px.astype(int):
+            frames[:, y - 2 : y + 3, x - 2 : x + 3] = 90
+        for f, sk in enumerate(s):
+            x, y = int(8 + 48 * sk), int(40 - 20 * sk)
+            frames[f, y - 2 : y + 3, x - 2 : x + 3] = (220, 30, 30)
+        return frames, px
+
+    def write_video(self, path: Path, frames) -> None:
+        with av.open(str(path), "w") as out:
+            st = out.add_stream("libx264", rate=self.fps)
+            st.width, st.height, st.pix_fmt = SIZE[0], SIZE[1], "yuv420p"
+            for f in frames:
+                out.mux(st.encode(av.VideoFrame.from_ndarray(f, format="rgb24")))
+            out.mux(st.encode())
+
+    def write_image(self, path: Path, image) -> None:
+        Image.fromarray(image).save(path)
+
+    def settings(self) -> dict:
+        return {"size": list(SIZE), "fps": self.fps, "duration": 0.5, "hold": 0.0}
+
+
+def motions(n: int, seed: int = 0, n_goals: int = 3):
+    """n straight motions of T = 6 points towards one of ``n_goals`` goals."""
+    rng = np.random.default_rng(seed)
+    goals = np.zeros((n, 8, 3), np.float32)
+    mask = np.zeros((n, 8), bool)
+    goals[:, :n_goals] = rng.uniform(-0.3, 0.3, (n, n_goals, 3)) + [0.5, 0.0, 0.05]
+    mask[:, :n_goals] = True
+    target = rng.integers(0, n_goals, n)
+    start = np.array([0.3, 0.0, 0.5])
+    s = np.linspace(0, 1, 6)[None, :, None]
+    xyz = (start + s * (goals[np.arange(n), target][:, None] - start)).astype(np.float32)
+    q = np.zeros((n, 6, 7), np.float32)
+    return q, xyz, goals, mask, target
+
+
+def write_dot_set(out: Path, *, n: int = 4, taus=(0.5, 1.0), round_: int = 0, first: int = 0):
+    """A set of ``n`` trial motions at ``taus``, one attention check and one practice."""
+    q, xyz, goals, mask, target = motions(n + 2, seed=round_)
+    ids = [f"m{first + i}" for i in range(n)] + [f"check{round_}", f"practice{round_}"]
+    specs = stimuli.cross_specs(
+        range(n), taus=taus, cameras=("observer",), attention=[n], practice=[n + 1]
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    if round_ == 0:
+        stimuli.write_settings(out)
+    return stimuli.write_stimulus_set(
+        out, q=q, xyz=xyz, goals=goals, goal_mask=mask, ids=ids, specs=specs,
+        render=DotRenderer(), targets=target, round_=round_, progress=False,
+    )  # fmt: skip
