@@ -6,15 +6,24 @@ files with real checksums, not pictures of a robot. The browser test renders rea
 
 from __future__ import annotations
 
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import av
+import httpx
 import numpy as np
 from PIL import Image
 
 from slotv_jax.study_web import stimuli
 
 SIZE = (64, 48)
+ROOT = str(Path(__file__).resolve().parents[1])
+SERVE_MODULE = "slotv_jax.study_web"
 
 
 class DotRenderer:
@@ -79,3 +88,50 @@ def write_dot_set(out: Path, *, n: int = 4, taus=(0.5, 1.0), round_: int = 0, fi
         out, q=q, xyz=xyz, goals=goals, goal_mask=mask, ids=ids, specs=specs,
         render=DotRenderer(), targets=target, round_=round_, progress=False,
     )  # fmt: skip
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class ServerProcess:
+    """``python -m slotv_jax.study serve`` in a subprocess; ``.url``, ``.admin_token``."""
+
+    def __init__(self, stimdir: Path, db: Path, port: int | None = None, *, timeout: float = 60):
+        self.port = port or free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        cmd = [sys.executable, "-m", SERVE_MODULE, "serve", "--stimuli", str(stimdir),
+               "--db", str(db), "--port", str(self.port)]  # fmt: skip
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True, env={**os.environ, "PYTHONPATH": ROOT})  # fmt: skip
+        self.admin_token = None
+        deadline = time.monotonic() + timeout
+        for line in self.proc.stdout:
+            if line.startswith("admin token: "):
+                self.admin_token = line.split(": ", 1)[1].strip()
+                break
+        if self.admin_token is None:
+            raise RuntimeError(f"server did not start: {self.proc.stderr.read()[-2000:]}")
+        while time.monotonic() < deadline:  # uvicorn binds after printing
+            try:
+                if httpx.get(self.url + "/healthz", timeout=1).status_code == 200:
+                    return
+            except httpx.TransportError:
+                time.sleep(0.05)
+        raise RuntimeError("server did not answer /healthz")
+
+    def kill9(self) -> None:
+        os.kill(self.proc.pid, signal.SIGKILL)
+        self.proc.wait(10)
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.kill9()
+        for f in (self.proc.stdout, self.proc.stderr):
+            f.close()

@@ -62,9 +62,7 @@ def export_main(args: argparse.Namespace) -> int:
     there = [n for n in export_lib.TABLES if (out / f"{n}.csv").exists()]
     if there and not args.overwrite:
         raise ValueError(f"--out {out}: {there[0]}.csv exists (add --overwrite to replace it)")
-    n = export_lib.export_tables(
-        connect(db), out, drop_failed_attention=args.drop_failed_attention
-    )
+    n = export_lib.export_tables(connect(db), out, drop_failed_attention=args.drop_failed_attention)
     print(
         f"wrote {out}: {n['answers']} answers to {n['trajectories']} trajectories "
         f"from {n['participants']} participants",

@@ -1,15 +1,14 @@
 """The study design: which stimuli a new participant sees, and in which order.
 
-Rules (Dragan et al., HRI 2013 and every between-τ legibility study since):
+Rules:
 
 - **one τ per trajectory**: a participant sees each trajectory at most once, at one stop
   time τ and from one camera, so that an earlier, longer view cannot inform a later guess;
 - **balanced answers**: a new participant gets the ``k`` trajectories with the fewest
   answers so far (answered, or assigned to a participant still active), and of each the
-  stimulus (τ, camera) with the fewest answers. Ties are broken at random. With equal stimuli per trajectory,
-  the answers per stimulus then differ by at most one within a trajectory at any time,
-  and by at most one between trajectories whenever participants see all trajectories or
-  a fixed number of them;
+  stimulus (τ, camera) with the fewest answers. Ties are broken at random. The answers
+  per trajectory then differ by at most one, and so do the answers per stimulus within
+  a trajectory (tested with hypothesis);
 - **random order**: the chosen trials are shuffled per participant (the order is stored
   with the trials); attention checks (τ = 1 motions, whose goal is plain to see) go at
   random positions after the first trial, and the practice trial comes first.
