@@ -131,8 +131,7 @@ def check_output_dir(
     if resume:
         return "resume"
     raise OutputError(
-        f"{what} {path}: holds an earlier output; {resume_hint}, or pass --overwrite to "
-        f"replace it"
+        f"{what} {path}: holds an earlier output; {resume_hint}, or pass --overwrite to replace it"
     )
 
 
@@ -215,7 +214,7 @@ def read_text(path: str | os.PathLike) -> str:
         line = raw[: e.start].count(b"\n") + 1
         raise ValueError(
             f"{path}, line {line}: byte 0x{raw[e.start]:02x} is not UTF-8 text; save the "
-            "file as UTF-8 (in a spreadsheet: \"CSV UTF-8\")"
+            'file as UTF-8 (in a spreadsheet: "CSV UTF-8")'
         ) from None
 
 

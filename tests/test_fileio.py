@@ -26,7 +26,7 @@ def test_output_dir_rule(tmp_path):
     ours = tmp_path / "ours"
     ours.mkdir()
     (ours / "marker.json").write_text("{}")
-    with pytest.raises(fileio.OutputError, match="--resume.*--overwrite"):
+    with pytest.raises(fileio.OutputError, match=r"--resume.*--overwrite"):
         fileio.check_output_dir(ours, ours=_ours)
     assert fileio.check_output_dir(ours, ours=_ours, resume=True) == "resume"
     assert fileio.check_output_dir(ours, ours=_ours, resume=True, overwrite=True) == "overwrite"
@@ -87,7 +87,7 @@ def test_load_npz_names_every_kind_of_bad_file(tmp_path):
         with pytest.raises(ValueError, match=r"bad\.npz.*(empty|truncated)"):
             fileio.load_npz(bad)
     bad.write_text("x,y,z\n1,2,3\n")
-    with pytest.raises(ValueError, match="not an .npz file .not a zip archive"):
+    with pytest.raises(ValueError, match=r"not an \.npz file \(not a zip archive"):
         fileio.load_npz(bad)
     np.save(tmp_path / "a.npy", np.ones(3))
     with pytest.raises(ValueError, match=r"a \.npy array"):
@@ -99,7 +99,7 @@ def test_load_npz_names_every_kind_of_bad_file(tmp_path):
     np.savez(bad, x=np.array([{}], dtype=object))
     with pytest.raises(ValueError, match="Python objects"):
         fileio.load_npz(bad)
-    with pytest.raises(FileNotFoundError, match="missing.npz"):
+    with pytest.raises(FileNotFoundError, match=r"missing\.npz"):
         fileio.load_npz(tmp_path / "missing.npz")
 
 
