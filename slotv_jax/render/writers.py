@@ -30,7 +30,7 @@ import numpy as np
 from jaxtyping import UInt8
 from PIL import Image
 
-from slotv_jax.fileio import atomic_write
+from slotv_jax.fileio import OutputError, atomic_write, check_output_file
 from slotv_jax.render import overlay
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
@@ -50,21 +50,21 @@ def check_frames(frames, *, video: bool = True) -> np.ndarray:
     return a
 
 
-def check_output(path: str | os.PathLike, suffixes: Sequence[str] = SUFFIXES) -> Path:
-    """Raise ValueError unless ``path`` can be written: a known suffix, an existing,
-    writable folder, and not a folder itself (checked before any rendering)."""
+def check_output(
+    path: str | os.PathLike,
+    *,
+    overwrite: bool = False,
+    suffixes: Sequence[str] = SUFFIXES,
+    what: str = "--out",
+) -> Path:
+    """Check, before any rendering, that ``path`` may be written: a known suffix and the
+    project's output rule (:func:`slotv_jax.fileio.check_output_file`: a writable folder,
+    no directory in the way, an existing file replaced only with ``overwrite``).
+    Raises :class:`slotv_jax.fileio.OutputError` (a ValueError)."""
     path = Path(path)
     if path.suffix.lower() not in suffixes:
-        raise ValueError(
-            f"out: expected a file ending in {' or '.join(suffixes)}, got {str(path)!r}"
-        )
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise ValueError(f"out: folder {str(parent)!r} does not exist")
-    if path.is_dir():
-        raise ValueError(f"out: {str(path)!r} is a folder")
-    if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        raise ValueError(f"out: {str(path)!r} is not writable")
+        raise OutputError(f"{what} {path}: expected a file ending in {' or '.join(suffixes)}")
+    check_output_file(path, overwrite=overwrite, what=what)
     return path
 
 
