@@ -81,9 +81,6 @@ def write_dot_set(out: Path, *, n: int = 4, taus=(0.5, 1.0), round_: int = 0, fi
     specs = stimuli.cross_specs(
         range(n), taus=taus, cameras=("observer",), attention=[n], practice=[n + 1]
     )
-    out.mkdir(parents=True, exist_ok=True)
-    if round_ == 0:
-        stimuli.write_settings(out)
     return stimuli.write_stimulus_set(
         out, q=q, xyz=xyz, goals=goals, goal_mask=mask, ids=ids, specs=specs,
         render=DotRenderer(), targets=target, round_=round_, progress=False,

@@ -68,6 +68,7 @@ import hashlib
 import io
 import json
 import re
+import shutil
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple, Protocol
@@ -76,12 +77,20 @@ import numpy as np
 from jaxtyping import Bool, Float, UInt8
 from tqdm.auto import tqdm
 
-from slotv_jax.fileio import atomic_write, write_text
+from slotv_jax.fileio import (
+    atomic_write,
+    check_output_dir,
+    replace_dir,
+    temp_dir_beside,
+    write_text,
+)
 from slotv_jax.study_web.design import KINDS
 
 FORMAT = "slotv_jax.study.stimuli/1"
 MANIFEST = "manifest.json"
 ROUND_DIR = "round-{}"
+TABLES = ("trajectories.csv", "goals.csv")  # the tables in the study import format
+EDITABLE = ("consent.html", "instructions.html", "study.json")  # a researcher's files
 ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
 SETTINGS = {
     "title": "Which object is the robot reaching for?",
@@ -358,11 +367,8 @@ def load_stimulus_set(path: str | Path, *, verify: bool = True) -> StimulusSet:
 
 def write_settings(stimdir: Path) -> None:
     """Write the editable files (consent, instructions, settings) unless they exist."""
-    for name, text in (
-        ("consent.html", CONSENT),
-        ("instructions.html", INSTRUCTIONS),
-        ("study.json", json.dumps(SETTINGS, indent=2) + "\n"),
-    ):
+    texts = (CONSENT, INSTRUCTIONS, json.dumps(SETTINGS, indent=2) + "\n")
+    for name, text in zip(EDITABLE, texts, strict=True):
         if not (stimdir / name).exists():
             write_text(stimdir / name, text)
 
@@ -443,6 +449,7 @@ def write_stimulus_set(
     t: Float[np.ndarray, "N T"] | None = None,
     round_: int = 0,
     source: dict | None = None,
+    overwrite: bool = False,
     progress: bool = True,
 ) -> dict:
     """Render and write one stimulus set (a round) into the new or empty folder ``out``.
@@ -450,11 +457,18 @@ def write_stimulus_set(
     Row n of the arrays is the motion with trajectory id ``ids[n]`` (``q`` drives the
     robot, ``xyz`` is its TCP path for the tables), ``scenes[n]`` its scene and
     ``targets[n]`` its goal slot (optional; attention checks need it). ``specs`` lists the
-    stimuli (:func:`cross_specs`); ``render`` draws them (:class:`Renderer`). Files are
-    written first and ``manifest.json`` last, each to a temporary name and renamed.
+    stimuli (:func:`cross_specs`); ``render`` draws them (:class:`Renderer`).
+
+    ``out`` must be new or empty, or a stimulus set (then only with ``overwrite``, which
+    replaces it whole, later rounds inside it included). The set is written into a
+    temporary folder beside ``out`` and renamed into place when complete, so a reader
+    (the server looking for new rounds) never sees half a set. Round 0 also gets the
+    editable files (consent, instructions, settings; kept from the set it replaces).
     Returns the manifest.
     """
     out = Path(out)
+    check_output_dir(out, ours=lambda p: (p / MANIFEST).is_file(), overwrite=overwrite,
+                     what="--out")  # fmt: skip
     n = len(ids)
     shapes = {"q": (n, None, 7), "xyz": (n, None, 3), "goals": (n, 8, 3), "goal_mask": (n, 8)}
     for name, a in (("q", q), ("xyz", xyz), ("goals", goals), ("goal_mask", goal_mask)):
@@ -473,42 +487,57 @@ def write_stimulus_set(
         if s.kind == "attention" and (targets is None or s.tau != 1.0):
             raise ValueError(f"specs[{i}]: an attention check needs tau = 1 and targets")
     points, goal_tab, labels = motion_tables(xyz, goals, goal_mask, ids, length=length, t=t)
-    (out / "clips").mkdir(parents=True, exist_ok=True)
-    (out / "stills").mkdir(exist_ok=True)
-    write_tables(out, points, goal_tab)
-    entries, seen = [], set()
-    for s in tqdm(specs, desc="stimuli", disable=not progress):
+    todo: list[tuple[dict, Motion]] = []
+    for s in specs:
         i = s.index
         L = int(np.asarray(q).shape[1] if length is None else length[i])
         sid = stimulus_id(ids[i], s.tau, s.camera, s.kind)
-        if sid in seen:
+        if any(e["id"] == sid for e, _ in todo):
             raise ValueError(f"specs: stimulus {sid} listed twice")
-        seen.add(sid)
         target = None if targets is None else int(targets[i])
         motion = Motion(np.asarray(q[i, :L]), np.asarray(goals[i]), np.asarray(goal_mask[i], bool),
                         None if t is None else np.asarray(t[i, :L]), labels[i], target)  # fmt: skip
-        frames, pixels = render.frames(motion, s.tau, s.camera)
-        clip, still = f"clips/{sid}.mp4", f"stills/{sid}.png"
-        render.write_video(out / clip, frames)
-        render.write_image(out / still, frames[-1])
-        entries.append({
+        entry = {
             "id": sid, "kind": s.kind, "trajectory": ids[i], "tau": float(s.tau),
             "scene": ids[i] if scenes is None else scenes[i], "camera": s.camera,
-            "goals": labels[i], "goal_pixels": [[round(float(x), 1), round(float(y), 1)]
-                                                for x, y in pixels],
-            "target": None if target is None else labels[i][target],
-            "clip": clip, "clip_sha256": _sha256(out / clip),
-            "still": still, "still_sha256": _sha256(out / still),
+            "goals": labels[i], "target": None if target is None else labels[i][target],
+            "clip": f"clips/{sid}.mp4", "still": f"stills/{sid}.png",
+        }  # fmt: skip
+        todo.append((entry, motion))
+    header = {"format": FORMAT, "round": int(round_), "source": source or {},
+              **render.settings(), "trajectories": TABLES[0], "goals": TABLES[1]}  # fmt: skip
+    final, out = out, temp_dir_beside(out)
+    try:
+        write_tables(out, points, goal_tab)
+        manifest = _render_into(out, header, todo, render, progress)
+        if round_ == 0:
+            for name in EDITABLE:
+                if (final / name).is_file():
+                    shutil.copy2(final / name, out / name)
+            write_settings(out)
+        replace_dir(out, final)
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+    return manifest
+
+
+def _render_into(out: Path, header: dict, todo: list, render: Renderer, progress: bool) -> dict:
+    """Render every stimulus into ``out``, then write the manifest (the last file)."""
+    (out / "clips").mkdir()
+    (out / "stills").mkdir()
+    entries = []
+    for entry, motion in tqdm(todo, desc="stimuli", disable=not progress):
+        frames, pixels = render.frames(motion, entry["tau"], entry["camera"])
+        render.write_video(out / entry["clip"], frames)
+        render.write_image(out / entry["still"], frames[-1])
+        entries.append({
+            **entry,
+            "goal_pixels": [[round(float(x), 1), round(float(y), 1)] for x, y in pixels],
+            "clip_sha256": _sha256(out / entry["clip"]),
+            "still_sha256": _sha256(out / entry["still"]),
         })  # fmt: skip
-    manifest = {
-        "format": FORMAT,
-        "round": int(round_),
-        "source": source or {},
-        **render.settings(),
-        "trajectories": "trajectories.csv",
-        "goals": "goals.csv",
-        "stimuli": entries,
-    }
+    manifest = {**header, "stimuli": entries}
     check_manifest(manifest, "manifest")
     write_text(out / MANIFEST, json.dumps(manifest, indent=1) + "\n")
     return manifest
