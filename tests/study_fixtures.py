@@ -19,6 +19,7 @@ import httpx
 import numpy as np
 from PIL import Image
 
+from slotv_jax import kinematics, render
 from slotv_jax.study_web import stimuli
 
 SIZE = (64, 48)
@@ -64,7 +65,7 @@ def motions(n: int, seed: int = 0, n_goals: int = 3):
     rng = np.random.default_rng(seed)
     goals = np.zeros((n, 8, 3), np.float32)
     mask = np.zeros((n, 8), bool)
-    goals[:, :n_goals] = rng.uniform(-0.3, 0.3, (n, n_goals, 3)) + [0.5, 0.0, 0.05]
+    goals[:, :n_goals] = rng.uniform(-0.3, 0.3, (n, n_goals, 3)) + np.array([0.5, 0.0, 0.05])
     mask[:, :n_goals] = True
     target = rng.integers(0, n_goals, n)
     start = np.array([0.3, 0.0, 0.5])
@@ -132,3 +133,25 @@ class ServerProcess:
                 self.kill9()
         for f in (self.proc.stdout, self.proc.stderr):
             f.close()
+
+
+def robot_motions(n: int, seed: int = 0):
+    """n joint-space motions of the Panda from home; goal A..C on the table, one under the
+    motion's end (the target), TCP paths from MuJoCo C (no JAX compilation)."""
+    rng = np.random.default_rng(seed)
+    home = np.asarray(kinematics.Q_HOME, np.float64)
+    s = np.linspace(0.0, 1.0, 12)[:, None]
+    low, high = [-0.6, 0.2, -0.3, 0.3, -0.3, -0.2, -0.3], [0.6, 0.5, 0.3, 0.6, 0.3, 0.2, 0.3]
+    q = np.stack([home + s * rng.uniform(low, high) for _ in range(n)])
+    with render.MotionRenderer((32, 32)) as r:
+        xyz = np.stack([r.tcp_path(qi) for qi in q]).astype(np.float32)
+    goals = np.zeros((n, 8, 3), np.float32)
+    mask = np.zeros((n, 8), bool)
+    target = rng.integers(0, 3, n)
+    for i in range(n):
+        end = np.array([xyz[i, -1, 0], xyz[i, -1, 1], 0.025])
+        others = [end + np.array([0.0, dy, 0.0]) for dy in (-0.22, 0.22, 0.44)]
+        others[target[i]] = end
+        goals[i, :3] = others
+        mask[i, :3] = True
+    return q.astype(np.float32), xyz, goals, mask, target

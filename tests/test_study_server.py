@@ -279,8 +279,10 @@ def test_design_balances_answers(n_traj, per_traj, k, people, seed):
     for p in range(people):
         plan = design.plan_trials(stims, counts, k=k, n_attention=1, seed=seed + p)
         main = [s for s in plan if s != 100]
-        assert len(main) == (n_traj if k is None else min(k, n_traj)) and plan[0] != 100 or (
-            len(plan) == 1
+        assert (
+            len(main) == (n_traj if k is None else min(k, n_traj))
+            and plan[0] != 100
+            or (len(plan) == 1)
         )
         assert len({s // per_traj for s in main}) == len(main)
         counts.update(plan)

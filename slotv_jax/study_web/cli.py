@@ -69,3 +69,16 @@ def export_main(args: argparse.Namespace) -> int:
         file=sys.stdout,
     )
     return 0
+
+
+def main(argv=None) -> int:
+    """``stimuli``, ``serve`` and ``export`` on their own (until they join the study CLI)."""
+    from slotv_jax.study_web import make_stimuli
+
+    ap = argparse.ArgumentParser(prog="python -m slotv_jax.study")
+    sub = ap.add_subparsers(dest="command", required=True)
+    add_commands(sub)
+    make_stimuli.add_command(sub)
+    args = ap.parse_args(argv)
+    run = {"serve": serve_main, "export": export_main, "stimuli": make_stimuli.stimuli_main}
+    return run[args.command](args)
