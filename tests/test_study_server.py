@@ -137,7 +137,7 @@ def test_repeated_submission_is_stored_once(server):
 
 def test_tokens(server):
     app, service = server
-    a, sa = client(app)
+    _, sa = client(app)
     b, sb = client(app)
     anon = TestClient(app)
     fake = TestClient(app, cookies={COOKIE: "x" * 43})
@@ -167,7 +167,7 @@ def test_tokens(server):
 
 def test_traversal_attempts(server, stimdir, tmp_path):
     app, _ = server
-    c, state = client(app)
+    c, _ = client(app)
     (tmp_path / "secret.txt").write_text("SECRET")
     probes = [
         "/static/../manifest.json", "/static/%2e%2e/%2e%2e/secret.txt", "/static/..%2fstudy.db",
@@ -200,7 +200,8 @@ def test_malformed_bodies(server):
     bad = [
         ({"content": b"not json"}, 400), ({"content": b"[1, 2]"}, 400),
         ({"content": b"\xff\xfe"}, 400), ({"content": b"x" * (MAX_BODY + 1)}, 413),
-        ({"json": {**good, "position": str(pos)}}, 400), ({"json": {**good, "position": True}}, 400),
+        ({"json": {**good, "position": str(pos)}}, 400),
+        ({"json": {**good, "position": True}}, 400),
         ({"json": {**good, "guess": "Z"}}, 400), ({"json": {**good, "guess": 1}}, 400),
         ({"json": {**good, "guess": "A" * 5000}}, 413), ({"json": {**good, "confidence": 7}}, 400),
         ({"json": {**good, "confidence": 2.5}}, 400), ({"json": {**good, "response_ms": -1}}, 400),
@@ -250,7 +251,7 @@ def test_balanced_assignment_and_new_round(server, stimdir):
     assert len(per) == 8 and set(per.values()) == {3}  # 4 motions x 2 taus, 6 people each
     # a new round appears while the server runs: the next participant gets it
     write_dot_set(stimdir / "round-1", n=2, taus=(0.7,), round_=1, first=10)
-    c, state = client(app)
+    client(app)
     trials = service.storage.trials(7)
     assert {t["round"] for t in trials} == {1} and len(trials) == 4
     assert sorted(t["trajectory"] for t in trials if t["kind"] == "trial") == ["m10", "m11"]
@@ -279,11 +280,8 @@ def test_design_balances_answers(n_traj, per_traj, k, people, seed):
     for p in range(people):
         plan = design.plan_trials(stims, counts, k=k, n_attention=1, seed=seed + p)
         main = [s for s in plan if s != 100]
-        assert (
-            len(main) == (n_traj if k is None else min(k, n_traj))
-            and plan[0] != 100
-            or (len(plan) == 1)
-        )
+        assert len(main) == (n_traj if k is None else min(k, n_traj))
+        assert plan[0] != 100  # never an attention check first
         assert len({s // per_traj for s in main}) == len(main)
         counts.update(plan)
     for t in range(n_traj):

@@ -1,14 +1,18 @@
-"""The ``stimuli``, ``serve`` and ``export`` subcommands of ``python -m slotv_jax.study``."""
+"""The ``stimuli``, ``serve``, ``export`` and ``simulate`` commands of the study CLI."""
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import secrets
 import sys
+import time
 from pathlib import Path
 
+import httpx
 import uvicorn
 
+from slotv_jax.study_web import client
 from slotv_jax.study_web import export as export_lib
 from slotv_jax.study_web.server import make_app
 from slotv_jax.study_web.service import StudyService
@@ -16,7 +20,7 @@ from slotv_jax.study_web.storage import connect
 
 
 def add_commands(sub) -> None:
-    """Add ``serve`` and ``export`` to the study CLI's subparsers."""
+    """Add ``serve``, ``export`` and ``simulate`` to the study CLI's subparsers."""
     serve = sub.add_parser("serve", help="run the study server (participant page at /)")
     serve.add_argument("--stimuli", required=True, help="the study folder (stimulus sets)")
     serve.add_argument("--db", required=True, help="SQLite file of the answers (created if new)")
@@ -28,6 +32,14 @@ def add_commands(sub) -> None:
     exp.add_argument("--drop-failed-attention", action="store_true",
                      help="leave out participants who failed an attention check")  # fmt: skip
     exp.add_argument("--overwrite", action="store_true", help="replace earlier exported files")
+    sim = sub.add_parser("simulate", help="simulated participants take a running study")
+    sim.add_argument("--url", default="http://127.0.0.1:8000", help="the study server")
+    sim.add_argument("--stimuli", required=True, help="the study folder the server serves")
+    sim.add_argument("--participants", type=int, default=20)
+    sim.add_argument("--labeler", default="dragan", choices=("dragan", "effdist", "fastapp"),
+                     help="the simulated participants answer like this observer")  # fmt: skip
+    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the server")
 
 
 def serve_main(args: argparse.Namespace) -> int:
@@ -71,6 +83,29 @@ def export_main(args: argparse.Namespace) -> int:
     return 0
 
 
+def simulate_main(args: argparse.Namespace) -> int:
+    """Run simulated participants against a running server and report what they did."""
+    if not 1 <= args.participants <= 10_000:
+        raise ValueError(f"--participants {args.participants}: expected 1..10000")
+    if not args.url.startswith(("http://", "https://")):
+        raise ValueError(f"--url {args.url}: expected http://HOST:PORT")
+    guess = client.LabelerGuesser(args.stimuli, args.labeler, seed=args.seed)
+    deadline = time.monotonic() + args.wait
+    while True:  # the server may still be starting
+        try:
+            httpx.get(args.url + "/healthz", timeout=5).raise_for_status()
+            break
+        except httpx.HTTPError as e:
+            if time.monotonic() > deadline:
+                raise ValueError(f"--url {args.url}: no study server there ({e})") from None
+            time.sleep(0.25)
+    res = asyncio.run(client.run_crowd(args.url, args.participants, guess, timeout=600))
+    done = sum(r.code is not None for r in res)
+    print(f"{done} of {len(res)} simulated participants finished, "
+          f"{sum(len(r.answers) for r in res)} answers")  # fmt: skip
+    return 0
+
+
 def main(argv=None) -> int:
     """``stimuli``, ``serve`` and ``export`` on their own (until they join the study CLI)."""
     from slotv_jax.study_web import make_stimuli
@@ -80,5 +115,6 @@ def main(argv=None) -> int:
     add_commands(sub)
     make_stimuli.add_command(sub)
     args = ap.parse_args(argv)
-    run = {"serve": serve_main, "export": export_main, "stimuli": make_stimuli.stimuli_main}
+    run = {"serve": serve_main, "export": export_main, "simulate": simulate_main,
+           "stimuli": make_stimuli.stimuli_main}  # fmt: skip
     return run[args.command](args)
