@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, UInt8
 
-from slotv_jax import data, render
+from slotv_jax import render  # first: it picks MUJOCO_GL=egl before MuJoCo loads
+from slotv_jax.data import SPLITS, Split, load_split
 from slotv_jax.fileio import check_output_dir
 from slotv_jax.render.overlay import LABEL_LIFT
 from slotv_jax.study_web.stimuli import (
@@ -81,7 +82,7 @@ class SceneRenderer:
 
 
 def from_split(
-    split: data.Split,
+    split: Split,
     out: str | Path,
     *,
     n: int,
@@ -145,7 +146,7 @@ def add_command(sub) -> None:
     """Add ``stimuli`` to the study CLI's subparsers."""
     p = sub.add_parser("stimuli", help="render a stimulus set (clips cut at tau, stills)")
     p.add_argument("--data", required=True, help="dataset folder (python -m slotv_jax.data)")
-    p.add_argument("--split", default="trajectory_test", choices=data.SPLITS)
+    p.add_argument("--split", default="trajectory_test", choices=SPLITS)
     p.add_argument("--n", type=int, default=10, help="motions shown at every tau")
     p.add_argument("--taus", default="0.4,0.7,1.0", help="stop times in (0, 1]")
     p.add_argument("--cameras", default="observer", help=f"comma-separated: {render.CAMERAS}")
@@ -179,8 +180,11 @@ def stimuli_main(args: argparse.Namespace) -> int:
     if not args.hold >= 0:
         raise ValueError(f"--hold {args.hold}: expected seconds >= 0")
     check_output_dir(args.out, ours=lambda p: (p / MANIFEST).is_file(), overwrite=args.overwrite)
-    split = data.load_split(args.data, args.split)
-    r = SceneRenderer(size, args.fps, args.duration, args.hold, trace=not args.no_trace)
+    split = load_split(args.data, args.split)
+    try:
+        r = SceneRenderer(size, args.fps, args.duration, args.hold, trace=not args.no_trace)
+    except render.RenderBackendError as e:
+        raise ValueError(str(e)) from None  # one line: how to get OpenGL
     try:
         m = from_split(
             split, args.out, n=args.n, taus=taus, cameras=cameras, attention=args.attention,
