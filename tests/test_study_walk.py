@@ -1,8 +1,8 @@
 """The README's study walk-through, with three people in a real browser.
 
 The README block runs verbatim in bash (stimuli from a dataset split, the server, 20
-simulated participants, export, import, training, load_observer, a plan); while its
-server is up, three participants click through the study in headless Chromium
+simulated participants, export, import, training, load_observer, a legibility gradient);
+while its server is up, three participants click through the study in headless Chromium
 (Playwright), one refreshing mid-trial and one pressing the back button. Their clicks
 must reach the database exactly as given, and the exported study must hold them.
 
@@ -137,6 +137,6 @@ def test_readme_study_walk_with_people_in_chromium(browser, tiny_data, tiny_cfg,
     assert "wrote answers: 69 answers to 3 trajectories from 23 participants" in out
     s = study.load_study(tmp_path / "people.npz")
     assert s.n_answers == 69 and s.conditions == ("observer",)
-    probs = re.search(r"P\(goal \| motion\): \[([0-9. ]+)\]", out).group(1).split()
+    probs = re.search(r"P\(goal \| motion\): \[([0-9., ]+)\]", out).group(1).split(",")
     assert abs(sum(map(float, probs)) - 1) < 5e-3
-    assert "plan feasible: True" in out
+    assert "legibility gradient: (100, 3) finite: True" in out
