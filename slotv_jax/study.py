@@ -1475,8 +1475,10 @@ def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
     chosen = any(a.split("=", 1)[0].strip() == "batch_size" for a in getattr(args, "set", []))
     if not chosen and study.n_rows < cfg.batch_size:  # a small study: a batch that fits
         fit = 1 << (study.n_rows.bit_length() - 1)
-        print(f"batch_size: the study has {study.n_rows} answer rows, fewer than the preset's "
-              f"{cfg.batch_size}; using batch_size={fit} (--set batch_size=N to choose)")  # fmt: skip
+        print(
+            f"batch_size: the study has {study.n_rows} answer rows, fewer than the preset's "
+            f"{cfg.batch_size}; using batch_size={fit} (--set batch_size=N to choose)"
+        )
         cfg = dataclasses.replace(cfg, batch_size=fit)
     print(study.summary(), flush=True)
     print(f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)

@@ -353,8 +353,9 @@ def run(
 
     # Plans: one compiled program for every observer.
     planner = planning.make_planner(observers, cfg.planner)
-    print(f"planning: compiling one program for {len(planner.observers)} observers (a minute "
-          "or two on a CPU; nothing is printed meanwhile)", file=sys.stderr, flush=True)  # fmt: skip
+    n_obs = len(planner.observers)
+    note = f"planning: compiling one program for {n_obs} observers (a minute or two on a CPU)"
+    print(note, file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     straight = planner.straight_line(problems["goals"], problems["goal_mask"], problems["target"])
     jax.block_until_ready(straight)
