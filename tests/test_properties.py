@@ -183,7 +183,7 @@ def read(tables, d: Path, bom=False):
 def test_valid_tables_round_trip(tables, bom):
     points, goals, answers = tables
     with tempfile.TemporaryDirectory() as d:
-        paths, s = read(tables, Path(d), bom)
+        _, s = read(tables, Path(d), bom)
         path = study.save_study(Path(d) / "s.npz", s)
         again = study.load_study(path)
     for got in (s, again):
@@ -272,3 +272,19 @@ def test_a_truncated_checkpoint_is_reported_or_loads_the_same(saved, data):
             assert str(ck) in str(e), str(e)
             return
     np.testing.assert_array_equal(got, want)  # never different numbers
+
+
+def test_truncated_arrays_and_config_are_named(saved):
+    path, files, _, _ = saved
+    data = max(
+        (f for f in files if f.startswith("state/d/")), key=lambda f: (path / f).stat().st_size
+    )
+    for name, piece in ((data, "stored arrays in state/ are truncated or corrupt"),
+                        ("config.json", "config.json, line")):  # fmt: skip
+        with tempfile.TemporaryDirectory() as d:
+            ck = Path(d) / "ck"
+            shutil.copytree(path, ck)
+            raw = (ck / name).read_bytes()
+            (ck / name).write_bytes(raw[: len(raw) // 2])
+            with pytest.raises(ValueError, match=piece):
+                slotv_jax.load_observer(ck)
