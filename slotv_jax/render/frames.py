@@ -39,8 +39,8 @@ import numpy as np
 from jaxtyping import Bool, Float, UInt8
 
 from slotv_jax import kinematics, validation
-from slotv_jax.render import overlay
 from slotv_jax.render.camera import View, check_view, scene_model
+from slotv_jax.render.overlay import draw_goal_labels
 from slotv_jax.validation import G_MAX
 
 MAX_SIDE = 4096  # largest frame width or height (pixels)
@@ -370,7 +370,7 @@ def _render(r, q, goals, goal_mask, s, camera, t, labels, show_labels, target, t
         out[k] = r.frame(qs[k], camera, traces=[(tr, s[k]) for tr in traces], target_pos=target_pos)
     if show_labels:
         names = goal_labels(goal_mask) if labels is None else list(labels)
-        overlay.draw_goal_labels(out, goals, goal_mask, names, camera, target=target)
+        draw_goal_labels(out, goals, goal_mask, names, camera, target=target)
     return out
 
 

@@ -31,7 +31,7 @@ from jaxtyping import UInt8
 from PIL import Image
 
 from slotv_jax.fileio import OutputError, atomic_write, check_output_file
-from slotv_jax.render import overlay
+from slotv_jax.render.overlay import title
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 IMAGE_SUFFIXES = (".png",)
@@ -180,7 +180,5 @@ def contact_sheet(
     if captions is not None:
         if len(captions) != len(idx):
             raise ValueError(f"captions: expected {len(idx)} strings, got {len(captions)}")
-        picked = [
-            np.concatenate([overlay.title(f, c), f]) for f, c in zip(picked, captions, strict=True)
-        ]
+        picked = [np.concatenate([title(f, c), f]) for f, c in zip(picked, captions, strict=True)]
     return grid(picked, cols, pad=pad)
