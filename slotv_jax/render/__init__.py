@@ -30,6 +30,7 @@ if (
     os.environ.setdefault("MUJOCO_GL", "egl")
 
 from slotv_jax.render.camera import CAMERAS, FreeCamera, pixels
+from slotv_jax.render.compare import LAYOUTS, compare_frames
 from slotv_jax.render.frames import (
     MotionRenderer,
     RenderBackendError,
@@ -48,9 +49,11 @@ from slotv_jax.render.writers import (
 
 __all__ = [
     "CAMERAS",
+    "LAYOUTS",
     "FreeCamera",
     "MotionRenderer",
     "RenderBackendError",
+    "compare_frames",
     "contact_sheet",
     "frame_times",
     "goal_labels",
