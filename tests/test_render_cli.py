@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from slotv_jax import data, kinematics, render, study
+from slotv_jax.experiments import planning_render
 from slotv_jax.render import cli
 from slotv_jax.render import frames as frames_lib
 
@@ -56,8 +57,10 @@ def test_a_dataset_trajectory_to_mp4(dataset, tmp_path):
     assert cli.main([*args, *FAST]) == 0
     clip = render.read_video(out)
     assert clip.shape == (6 + 1, SIZE[1], SIZE[0], 3)  # 0, 0.2, ..., 1 and one held frame
-    want = render.motion_frames(Q2, GOALS, MASK, size=SIZE, fps=5, duration=1, hold=0.2)
-    assert np.abs(clip.astype(int) - want).mean() < 6.0
+    kw = {"size": SIZE, "fps": 5, "duration": 1, "hold": 0.2}
+    err = [np.abs(clip.astype(int) - render.motion_frames(q, GOALS, MASK, **kw)) for q in (Q2, Q1)]
+    assert err[0].mean() < 8.0  # H.264 in 4:2:0 at 64x48 is lossy (about 6 levels of 255)
+    assert err[0][-1].mean() < 0.7 * err[1][-1].mean()  # trajectory 1 drawn, not 0
 
 
 def test_several_trajectories_into_a_folder(dataset, tmp_path):
@@ -147,3 +150,25 @@ def test_nan_joints_in_an_npz_are_named(tmp_path, monkeypatch, capsys):
         cli.main(["--npz", str(tmp_path / "t.npz"), "--index", "0:2", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert err.startswith("error: t_0001: q: expected finite values"), err
+
+
+def test_planning_figure_rows_and_panels(tmp_path):
+    plans = tmp_path / "plans.npz"
+    np.savez(
+        plans,
+        goals=np.stack([GOALS] * 3),
+        goal_mask=np.stack([MASK] * 3),
+        target=np.array([0, 1, 2]),
+        family=np.array(["dragan", "dragan", "nikolaidis"]),
+        names=np.array(["straight", "oracle", "slotv"]),
+        q=np.stack([np.stack([Q1, Q2, Q1])] * 3),
+    )
+    assert planning_render.default_problems(np.load(plans)["family"]) == [0, 2]
+    out = tmp_path / "fig.png"
+    assert planning_render.main(["--plans", str(plans), "--out", str(out), "--size", "64x48"]) == 0
+    img = render.read_video(out)[0]
+    bar = render.overlay.title(np.zeros((48, 64, 3), np.uint8), "x").shape[0]
+    assert img.shape[:2] == (
+        2 * (2 * bar + 48) + render.compare.GAP,
+        3 * 64 + 2 * render.compare.GAP,
+    )

@@ -36,6 +36,7 @@ from slotv_jax.render.frames import (
     RenderBackendError,
     frame_times,
     goal_labels,
+    joints_from_tcp,
     motion_frames,
     still,
 )
@@ -58,6 +59,7 @@ __all__ = [
     "frame_times",
     "goal_labels",
     "grid",
+    "joints_from_tcp",
     "motion_frames",
     "pixels",
     "read_video",

@@ -34,6 +34,7 @@ import math
 import os
 from collections.abc import Sequence
 
+import jax
 import mujoco
 import numpy as np
 from jaxtyping import Bool, Float, UInt8
@@ -45,7 +46,7 @@ from slotv_jax.validation import G_MAX
 
 MAX_SIDE = 4096  # largest frame width or height (pixels)
 HIDDEN_Z = -10.0  # height (m) that unused cubes are moved to: below the floor, out of sight
-TRACE_WIDTH = 0.004  # radius (m) of the TCP trace's capsules
+TRACE_WIDTH = 0.006  # radius (m) of the TCP trace's capsules
 TRACE_RGBA = (0.05, 0.05, 0.05, 1.0)  # the trace's colour (a dark line reads on every surface)
 TARGET_RGBA = (1.0, 1.0, 1.0, 0.9)  # the disc under the target cube
 TARGET_DISC = (0.045, 0.001)  # its radius and half-height (m)
@@ -149,6 +150,14 @@ def resample(
     q = np.asarray(q, np.float64)
     tn = normalised_times(t, q.shape[0])
     return np.stack([np.interp(s, tn, q[:, j]) for j in range(q.shape[1])], axis=1)
+
+
+def joints_from_tcp(xyz: Float[np.ndarray, "T 3"]) -> tuple[np.ndarray, float]:
+    """A joint path (T, 7) for a TCP path (m), by the project's warm-started IK from
+    ``Q_HOME`` (:func:`slotv_jax.kinematics.solve_path_ik`), and its worst miss (m)."""
+    validation.check_array("xyz", xyz, (None, 3))
+    res = jax.jit(kinematics.solve_path_ik)(np.asarray(xyz, np.float32))
+    return np.asarray(res.q, np.float64), float(np.max(res.residual))
 
 
 # ----------------------------------------------------------------------- renderer
