@@ -30,11 +30,13 @@ if (
     os.environ.setdefault("MUJOCO_GL", "egl")
 
 from slotv_jax.render.camera import CAMERAS, FreeCamera, pixels
+from slotv_jax.render.compare import LAYOUTS, compare_frames
 from slotv_jax.render.frames import (
     MotionRenderer,
     RenderBackendError,
     frame_times,
     goal_labels,
+    joints_from_tcp,
     motion_frames,
     still,
 )
@@ -48,13 +50,16 @@ from slotv_jax.render.writers import (
 
 __all__ = [
     "CAMERAS",
+    "LAYOUTS",
     "FreeCamera",
     "MotionRenderer",
     "RenderBackendError",
+    "compare_frames",
     "contact_sheet",
     "frame_times",
     "goal_labels",
     "grid",
+    "joints_from_tcp",
     "motion_frames",
     "pixels",
     "read_video",

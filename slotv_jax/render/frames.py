@@ -34,6 +34,7 @@ import math
 import os
 from collections.abc import Sequence
 
+import jax
 import mujoco
 import numpy as np
 from jaxtyping import Bool, Float, UInt8
@@ -45,7 +46,7 @@ from slotv_jax.validation import G_MAX
 
 MAX_SIDE = 4096  # largest frame width or height (pixels)
 HIDDEN_Z = -10.0  # height (m) that unused cubes are moved to: below the floor, out of sight
-TRACE_WIDTH = 0.004  # radius (m) of the TCP trace's capsules
+TRACE_WIDTH = 0.006  # radius (m) of the TCP trace's capsules
 TRACE_RGBA = (0.05, 0.05, 0.05, 1.0)  # the trace's colour (a dark line reads on every surface)
 TARGET_RGBA = (1.0, 1.0, 1.0, 0.9)  # the disc under the target cube
 TARGET_DISC = (0.045, 0.001)  # its radius and half-height (m)
@@ -147,12 +148,16 @@ def resample(
     normalised to [0, 1] first.
     """
     q = np.asarray(q, np.float64)
-    if t is None:
-        tn = np.linspace(0.0, 1.0, q.shape[0])
-    else:
-        t = np.asarray(t, np.float64)
-        tn = (t - t[0]) / (t[-1] - t[0])
+    tn = normalised_times(t, q.shape[0])
     return np.stack([np.interp(s, tn, q[:, j]) for j in range(q.shape[1])], axis=1)
+
+
+def joints_from_tcp(xyz: Float[np.ndarray, "T 3"]) -> tuple[np.ndarray, float]:
+    """A joint path (T, 7) for a TCP path (m), by the project's warm-started IK from
+    ``Q_HOME`` (:func:`slotv_jax.kinematics.solve_path_ik`), and its worst miss (m)."""
+    validation.check_array("xyz", xyz, (None, 3))
+    res = jax.jit(kinematics.solve_path_ik)(np.asarray(xyz, np.float32))
+    return np.asarray(res.q, np.float64), float(np.max(res.residual))
 
 
 # ----------------------------------------------------------------------- renderer
@@ -321,6 +326,7 @@ def motion_frames(
     show_labels: bool = True,
     target: int | None = None,
     trace: bool = True,
+    trace_rgba: tuple[float, float, float, float] = TRACE_RGBA,
     shadows: bool = False,
     renderer: MotionRenderer | None = None,
 ) -> UInt8[np.ndarray, "F H W 3"]:
@@ -330,7 +336,8 @@ def motion_frames(
     normalised time 0 … τ and then holds the last frame ``hold`` seconds
     (:func:`frame_times`). ``labels`` name the real goals (default A, B, C, …) and are
     drawn above the cubes (``show_labels=False``: none). ``target`` (a goal slot) draws
-    a white disc under that cube; ``trace`` draws the TCP's path so far. ``renderer``
+    a white disc under that cube; ``trace`` draws the TCP's path so far (in
+    ``trace_rgba``). ``renderer``
     reuses an open :class:`MotionRenderer` of the same size (its ``shadows`` setting
     applies); without one, a renderer is opened and closed here.
 
@@ -348,29 +355,68 @@ def motion_frames(
         raise ValueError(f"renderer: expected one of size {size}, got {renderer.size}")
     r = renderer if renderer is not None else MotionRenderer(size, shadows=shadows)
     try:
-        return _render(r, q, goals, goal_mask, s, camera, t, labels, show_labels, target, trace)
+        out = clips(
+            r, [(q, t)], goals, goal_mask, s, camera, rgbas=[trace_rgba], target=target, trace=trace
+        )[0]
     finally:
         if renderer is None:
             r.close()
-
-
-def _render(r, q, goals, goal_mask, s, camera, t, labels, show_labels, target, trace):
-    q = np.asarray(q, np.float64)
-    r.set_goals(goals, goal_mask)
-    tn = None if t is None else np.asarray(t, np.float64)
-    tn = np.linspace(0, 1, len(q)) if tn is None else (tn - tn[0]) / (tn[-1] - tn[0])
-    traces = [Trace(r.tcp_path(q), tn)] if trace else []
-    target_pos = None if target is None else np.asarray(goals, np.float64)[target]
-    qs = resample(q, s, t)
-    out = np.empty((len(s), r.size[1], r.size[0], 3), np.uint8)
-    for k in range(len(s)):
-        if k > 0 and s[k] == s[k - 1]:
-            out[k] = out[k - 1]  # held frames are copies
-            continue
-        out[k] = r.frame(qs[k], camera, traces=[(tr, s[k]) for tr in traces], target_pos=target_pos)
     if show_labels:
         names = goal_labels(goal_mask) if labels is None else list(labels)
         draw_goal_labels(out, goals, goal_mask, names, camera, target=target)
+    return out
+
+
+def normalised_times(t, n: int) -> np.ndarray:
+    """Sample times mapped to [0, 1]: ``t`` (any unit) or ``i / (n − 1)`` without it."""
+    if t is None:
+        return np.linspace(0.0, 1.0, n)
+    t = np.asarray(t, np.float64)
+    return (t - t[0]) / (t[-1] - t[0])
+
+
+def clips(
+    r: MotionRenderer,
+    motions: Sequence[tuple[np.ndarray, np.ndarray | None]],
+    goals: np.ndarray,
+    goal_mask: np.ndarray,
+    s: np.ndarray,
+    camera: View,
+    *,
+    rgbas: Sequence[tuple] | None = None,
+    target: int | None = None,
+    trace: bool = True,
+    overlay: bool = False,
+) -> list[np.ndarray]:
+    """Unlabelled frames (F, H, W, 3) of checked motions ``(q, t)`` at normalised times s.
+
+    One clip per motion, each with its own trace; with ``overlay``, one clip: at every
+    time each motion is drawn with every trace and the images are averaged, so the
+    scene and the traces stay solid and each robot shows through at 1/n.
+    """
+    r.set_goals(goals, goal_mask)
+    rgbas = [TRACE_RGBA] * len(motions) if rgbas is None else list(rgbas)
+    traces = [
+        Trace(r.tcp_path(q), normalised_times(t, len(q)), tuple(c))
+        for (q, t), c in zip(motions, rgbas, strict=True)
+    ]
+    qs = [resample(q, s, t) for q, t in motions]
+    target_pos = None if target is None else np.asarray(goals, np.float64)[target]
+    shape = (len(s), r.size[1], r.size[0], 3)
+    out = [np.empty(shape, np.uint8) for _ in range(1 if overlay else len(motions))]
+    for k in range(len(s)):
+        if k > 0 and s[k] == s[k - 1]:
+            for o in out:
+                o[k] = o[k - 1]  # held frames are copies
+            continue
+        shown = [(tr, s[k]) for tr in traces] if trace else []
+        if overlay:
+            imgs = [r.frame(qi[k], camera, traces=shown, target_pos=target_pos) for qi in qs]
+            out[0][k] = np.round(np.mean(imgs, axis=0)).astype(np.uint8)
+        else:
+            for i, o in enumerate(out):
+                own = [shown[i]] if trace else []
+                o[k] = r.frame(qs[i][k], camera, traces=own, target_pos=target_pos)
     return out
 
 

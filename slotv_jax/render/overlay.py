@@ -11,7 +11,9 @@ blended into every frame.
 from __future__ import annotations
 
 import functools
+import importlib.util
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 from jaxtyping import UInt8
@@ -22,10 +24,20 @@ from slotv_jax.render.camera import View, pixels, scene_model
 LABEL_LIFT = 0.06  # metres above the cube centre where a label is anchored
 
 
+def _dejavu() -> Path | None:
+    """matplotlib's DejaVu Sans (Greek and accented letters too), found without importing it."""
+    spec = importlib.util.find_spec("matplotlib")
+    if spec is None or spec.origin is None:
+        return None
+    path = Path(spec.origin).parent / "mpl-data" / "fonts" / "ttf" / "DejaVuSans.ttf"
+    return path if path.is_file() else None
+
+
 @functools.cache
 def font(px: int) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
-    """Pillow's bundled font at ``px`` pixels."""
-    return ImageFont.load_default(size=px)
+    """DejaVu Sans at ``px`` pixels (shipped with matplotlib), else Pillow's bundled font."""
+    path = _dejavu()
+    return ImageFont.truetype(str(path), px) if path else ImageFont.load_default(size=px)
 
 
 def font_size(height: int) -> int:
@@ -108,13 +120,34 @@ def draw_goal_labels(
     blend(frames, label_layer((w, h), goals, goal_mask, names, camera, target=target))
 
 
-def title(frame: np.ndarray, text: str, *, height: int | None = None) -> UInt8[np.ndarray, "h W 3"]:
-    """A title bar as wide as ``frame`` (white, dark centred text) to stack above it."""
-    w = frame.shape[1]
-    fh = font_size(frame.shape[0])
-    bar_h = height or round(fh * 1.8)
-    img = Image.new("RGB", (w, bar_h), (255, 255, 255))
-    ImageDraw.Draw(img).text(
-        (w / 2, bar_h / 2), text, font=font(fh), fill=(20, 20, 20), anchor="mm"
-    )
+def _bar(width: int, frame_height: int) -> tuple[Image.Image, int]:
+    fh = font_size(frame_height)
+    return Image.new("RGB", (width, round(fh * 1.8)), (255, 255, 255)), fh
+
+
+def title(
+    frame: np.ndarray, text: str, *, colour: tuple[int, int, int] = (20, 20, 20)
+) -> UInt8[np.ndarray, "h W 3"]:
+    """A title bar as wide as ``frame`` (white, centred text in ``colour``) to stack above it."""
+    img, fh = _bar(frame.shape[1], frame.shape[0])
+    draw = ImageDraw.Draw(img)
+    draw.text((img.width / 2, img.height / 2), text, font=font(fh), fill=colour, anchor="mm")
+    return np.asarray(img)
+
+
+def legend(
+    frame: np.ndarray, names: Sequence[str], colours: Sequence[tuple[int, int, int]]
+) -> UInt8[np.ndarray, "h W 3"]:
+    """A bar as wide as ``frame`` naming each colour: a swatch, then the name, side by side."""
+    img, fh = _bar(frame.shape[1], frame.shape[0])
+    draw = ImageDraw.Draw(img)
+    fnt = font(fh)
+    sw, gap = fh, fh
+    widths = [sw + fh // 3 + draw.textlength(n, font=fnt) for n in names]
+    x = (img.width - sum(widths) - gap * (len(names) - 1)) / 2
+    y = img.height / 2
+    for n, c, w in zip(names, colours, widths, strict=True):
+        draw.rectangle((x, y - sw / 2 + 2, x + sw, y + sw / 2 - 2), fill=tuple(c))
+        draw.text((x + sw + fh // 3, y), n, font=fnt, fill=(20, 20, 20), anchor="lm")
+        x += w + gap
     return np.asarray(img)

@@ -69,11 +69,13 @@ def check_output(
 
 
 def encode_mp4(frames: UInt8[np.ndarray, "F H W 3"], fps: float) -> bytes:
-    """H.264 (yuv420p) MP4 bytes; width and height must be even (4:2:0 chroma)."""
+    """H.264 (yuv420p) MP4 bytes. 4:2:0 chroma needs an even width and height: an odd
+    one gets its last row or column repeated once."""
     frames = check_frames(frames)
     _, h, w, _ = frames.shape
     if w % 2 or h % 2:
-        raise ValueError(f"frames: H.264 in yuv420p needs an even width and height, got {w}x{h}")
+        frames = np.pad(frames, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+        h, w = h + h % 2, w + w % 2
     # +faststart moves the index to the front in a second pass over a named file.
     with tempfile.TemporaryDirectory() as tmp:
         name = Path(tmp) / "clip.mp4"
