@@ -57,6 +57,7 @@ from slotv_jax.study_web.service import (
     Forbidden,
     Invalid,
     StudyService,
+    Unauthorized,
 )
 from slotv_jax.study_web.storage import Conflict
 
@@ -181,12 +182,6 @@ def make_app(service: StudyService, admin_token: str) -> Starlette:
     if len(admin_token) < 16:
         raise ValueError("admin_token: expected at least 16 characters")
 
-    async def current(request: Request) -> dict:
-        p = await run_in_threadpool(service.participant, request.cookies.get(COOKIE))
-        if p is None:
-            raise HTTPException(401, "no participant: start the study from its first page")
-        return p
-
     def admin(request: Request) -> None:
         auth = request.headers.get("authorization", "")
         given = auth[7:] if auth.startswith("Bearer ") else ""
@@ -221,18 +216,22 @@ def make_app(service: StudyService, admin_token: str) -> Starlette:
         return resp
 
     async def state(request: Request) -> Response:
-        p = await current(request)
-        return JSONResponse(await run_in_threadpool(service.state, p, shown=True))
+        token = request.cookies.get(COOKIE)
+        return JSONResponse(await run_in_threadpool(service.state_for, token))
 
     async def answer(request: Request) -> Response:
-        p = await current(request)
+        token = request.cookies.get(COOKIE)
+        if not token:
+            raise Unauthorized("no participant")
         pos, guess, conf, rt = parse_answer(await read_json(request))
-        return JSONResponse(await run_in_threadpool(service.answer, p, pos, guess, conf, rt))
+        return JSONResponse(
+            await run_in_threadpool(service.answer_for, token, pos, guess, conf, rt)
+        )
 
     async def media(request: Request) -> Response:
-        p = await current(request)
-        which = request.path_params["which"]
-        path = await run_in_threadpool(service.media, p, request.path_params["position"], which)
+        token, which = request.cookies.get(COOKIE), request.path_params["which"]
+        pos = request.path_params["position"]
+        path = await run_in_threadpool(service.media_for, token, pos, which)
         return FileResponse(path, media_type=MEDIA_TYPES[which])
 
     async def progress(request: Request) -> Response:
@@ -256,6 +255,10 @@ def make_app(service: StudyService, admin_token: str) -> Starlette:
 
     async def invalid(request: Request, exc: Exception) -> Response:
         return JSONResponse({"error": str(exc)}, status_code=400)
+
+    async def unauthorized(request: Request, exc: Exception) -> Response:
+        return JSONResponse({"error": "no participant: start the study from its first page"},
+                            status_code=401)  # fmt: skip
 
     async def forbidden(request: Request, exc: Exception) -> Response:
         return JSONResponse({"error": "not found"}, status_code=404)
@@ -286,6 +289,7 @@ def make_app(service: StudyService, admin_token: str) -> Starlette:
             HTTPException: http_error,
             Invalid: invalid,
             Forbidden: forbidden,
+            Unauthorized: unauthorized,
             Conflict: conflict,
             Exception: internal,
         },

@@ -34,6 +34,10 @@ class Invalid(ValueError):
     """The request is malformed or breaks a rule of the study (answered as 400)."""
 
 
+class Unauthorized(Exception):
+    """No participant holds the request's token (answered as 401)."""
+
+
 class Forbidden(Exception):
     """The request asks for something that is not the participant's."""
 
@@ -110,9 +114,13 @@ class StudyService:
             return None
         return self.storage.participant(token_hash(token))
 
-    def state(self, participant: dict, *, shown: bool = False) -> dict:
-        """What the participant's page shows next (see the module docstring)."""
-        trials = self.storage.trials(participant["participant"])
+    def state(self, participant: dict, *, shown: bool = False, trials=None) -> dict:
+        """What the participant's page shows next (see the module docstring).
+
+        ``trials``: the participant's trials if the caller has them (saves a query).
+        """
+        if trials is None:
+            trials = self.storage.trials(participant["participant"])
         nxt = unanswered(trials)
         if nxt is None:
             return {
@@ -166,7 +174,28 @@ class StudyService:
         stored, _ = self.storage.answer(
             participant["participant"], position, guess, confidence, response_ms
         )
-        return {"duplicate": not stored, "state": self.state(participant)}
+        if stored:
+            trial["guess"] = guess
+        return {"duplicate": not stored, "state": self.state(participant, trials=trials)}
+
+    def require(self, token: str | None) -> dict:
+        """The participant of a token, or :class:`Unauthorized`."""
+        p = self.participant(token)
+        if p is None:
+            raise Unauthorized("no participant: start the study from its first page")
+        return p
+
+    def state_for(self, token: str | None) -> dict:
+        """:meth:`state` of a token's participant (counts a showing of the trial)."""
+        return self.state(self.require(token), shown=True)
+
+    def answer_for(self, token: str | None, *args) -> dict:
+        """:meth:`answer` for a token's participant."""
+        return self.answer(self.require(token), *args)
+
+    def media_for(self, token: str | None, position: int, which: str) -> Path:
+        """:meth:`media` for a token's participant."""
+        return self.media(self.require(token), position, which)
 
     def media(self, participant: dict, position: int, which: str) -> Path:
         """The clip or still of one of the participant's trials (answered or current)."""

@@ -353,16 +353,12 @@ class SQLiteStorage:
             ans = db.execute(
                 "SELECT guess, confidence, response_ms FROM answers WHERE trial = ?", (row[0],)
             ).fetchone()
-            left = db.execute(
-                "SELECT COUNT(*) FROM trials t LEFT JOIN answers a ON a.trial = t.trial "
-                "WHERE t.participant = ? AND a.trial IS NULL",
-                (participant,),
-            ).fetchone()[0]
             db.execute(
-                "UPDATE participants SET last_seen = ?, "
-                "finished = CASE WHEN ? = 0 AND finished IS NULL THEN ? ELSE finished END "
+                "UPDATE participants SET last_seen = ?, finished = CASE WHEN finished IS NULL "
+                "AND NOT EXISTS (SELECT 1 FROM trials t LEFT JOIN answers a ON a.trial = t.trial "
+                "WHERE t.participant = ? AND a.trial IS NULL) THEN ? ELSE finished END "
                 "WHERE participant = ?",
-                (now, left, now, participant),
+                (now, participant, now, participant),
             )
         return stored, dict(ans)
 
