@@ -19,15 +19,19 @@ a whole motion) and ``--hold`` (seconds the last frame stays) shape the clips.
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from jaxtyping import Float, UInt8
+from tqdm.auto import tqdm
 
 from slotv_jax import render  # first: it picks MUJOCO_GL=egl before MuJoCo loads
 from slotv_jax.data import SPLITS, Split, load_split
-from slotv_jax.fileio import check_output_dir
+from slotv_jax.fileio import check_output_dir, load_npz
 from slotv_jax.render.overlay import LABEL_LIFT
+from slotv_jax.study import load_study
 from slotv_jax.study_web.stimuli import (
     MANIFEST,
     Motion,
@@ -35,6 +39,7 @@ from slotv_jax.study_web.stimuli import (
     write_stimulus_set,
 )
 
+IK_TOLERANCE = 5e-3  # metres: a TCP path the IK misses by more is refused
 DEFAULTS = {"size": (480, 270), "fps": 25.0, "duration": 3.0, "hold": 0.5}
 
 
@@ -81,8 +86,94 @@ class SceneRenderer:
         self.renderer.close()
 
 
-def from_split(
-    split: Split,
+class Motions(NamedTuple):
+    """Motions to choose stimuli from, as :func:`write_stimulus_set` takes them."""
+
+    q: np.ndarray  # (M, T, 7) joint paths (rad), padded after length
+    xyz: np.ndarray  # (M, T, 3) TCP paths (m)
+    goals: np.ndarray  # (M, 8, 3) goals (m)
+    goal_mask: np.ndarray  # (M, 8) real goal slots
+    ids: list[str]  # (M,) trajectory ids
+    scenes: list[str]  # (M,) scene ids
+    targets: np.ndarray | None  # (M,) target slots (None: unknown)
+    length: np.ndarray  # (M,) points of each motion
+    t: np.ndarray | None  # (M, T) time stamps (None: i / (length - 1))
+
+
+def _ik(xyz: np.ndarray, length: np.ndarray, what: str) -> np.ndarray:
+    """Joint paths of TCP paths by the project's IK from Q_HOME (a miss > 5 mm is an error)."""
+    q = np.zeros((*xyz.shape[:2], 7), np.float32)
+    for i in tqdm(range(len(xyz)), desc="IK", disable=len(xyz) < 20):
+        q[i, : length[i]], worst = render.joints_from_tcp(xyz[i, : length[i]])
+        if worst > IK_TOLERANCE:
+            raise ValueError(f"{what} [{i}]: IK misses the path by {worst * 1e3:.1f} mm")
+    return q
+
+
+def motions_from_split(split: Split) -> Motions:
+    """A dataset split (ids ``SPLIT-INDEX``, scenes ``SPLIT-sceneENV``)."""
+    n, T = split.xyz.shape[:2]
+    return Motions(split.q, split.xyz, split.goals, split.goal_mask,
+                   [f"{split.name}-{i}" for i in range(n)],
+                   [f"{split.name}-scene{e}" for e in split.env_id], split.target,
+                   np.full(n, T), None)  # fmt: skip
+
+
+def motions_from_npz(path: str | Path) -> Motions:
+    """The labelers' input format: ``xyz (N, T, 3)``, ``goals (N, 8, 3)`` or ``(8, 3)``,
+    ``goal_mask``, optional ``t``, ``q (N, T, 7)`` (else IK) and ``target (N,)``."""
+    z = load_npz(path)
+    for k in ("xyz", "goals", "goal_mask"):
+        if k not in z:
+            raise ValueError(f"--npz {path}: missing array {k!r}; it holds {sorted(z)}")
+    xyz = np.asarray(z["xyz"], np.float32)
+    if xyz.ndim != 3 or xyz.shape[-1] != 3 or xyz.shape[1] < 2:
+        raise ValueError(f"--npz {path}: xyz: expected (N, T >= 2, 3), got {xyz.shape}")
+    n, T = xyz.shape[:2]
+    goals = np.broadcast_to(z["goals"], (n, 8, 3)).astype(np.float32)
+    mask = np.broadcast_to(z["goal_mask"], (n, 8)).astype(bool)
+    t = None if "t" not in z else np.broadcast_to(z["t"], (n, T)).astype(np.float64)
+    length = np.full(n, T)
+    q = np.asarray(z["q"], np.float32) if "q" in z else _ik(xyz, length, f"--npz {path}")
+    if q.shape != (n, T, 7):
+        raise ValueError(f"--npz {path}: q: expected {(n, T, 7)}, got {q.shape}")
+    target = None if "target" not in z else np.asarray(z["target"], int).reshape(n)
+    stem = Path(path).stem
+    return Motions(q, xyz, goals, mask, [f"{stem}-{i}" for i in range(n)],
+                   [f"{stem}-{i}" for i in range(n)], target, length, t)  # fmt: skip
+
+
+def motions_from_plans(path: str | Path) -> Motions:
+    """A planning run's ``plans.npz``: every planner's plan of every problem (a planner's
+    NaN rows left out); ids ``PLANNER-PROBLEM``, one scene per problem."""
+    z = load_npz(path)
+    missing = [k for k in ("goals", "goal_mask", "target", "names", "q", "xyz") if k not in z]
+    if missing:
+        raise ValueError(f"--plans {path}: missing arrays {missing}; it holds {sorted(z)}")
+    q, xyz, names = z["q"], z["xyz"], [str(s) for s in z["names"]]
+    if q.ndim != 4 or q.shape[0] != len(names) or q.shape[-1] != 7 or xyz.shape[:3] != q.shape[:3]:
+        raise ValueError(f"--plans {path}: q, xyz: expected (K, P, T, 7) and (K, P, T, 3)")
+    rows = [(k, p) for k in range(q.shape[0]) for p in range(q.shape[1])
+            if np.isfinite(q[k, p]).all() and np.isfinite(xyz[k, p]).all()]  # fmt: skip
+    ks, ps = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+    return Motions(q[ks, ps].astype(np.float32), xyz[ks, ps].astype(np.float32),
+                   z["goals"][ps].astype(np.float32), z["goal_mask"][ps].astype(bool),
+                   [f"{names[k]}-{p}" for k, p in rows], [f"problem{p}" for p in ps],
+                   z["target"][ps].astype(int), np.full(len(rows), q.shape[2]), None)  # fmt: skip
+
+
+def motions_from_study(path: str | Path) -> Motions:
+    """A study file (:func:`slotv_jax.study.load_study`): its trajectories, joints by IK;
+    no targets (so no attention checks)."""
+    st = load_study(path)
+    ids = list(st.trajectory_ids) or [f"{Path(path).stem}-{i}" for i in range(st.n_trajectories)]
+    ids = [re.sub(r"[^A-Za-z0-9._-]", "_", s) for s in ids]
+    q = _ik(st.xyz, st.length, f"--study {path}")
+    return Motions(q, st.xyz, st.goals, st.goal_mask, ids, ids, None, st.length, st.t)
+
+
+def make_set(
+    motions: Motions,
     out: str | Path,
     *,
     n: int,
@@ -96,29 +187,29 @@ def from_split(
     progress: bool = True,
     source: dict | None = None,
 ) -> dict:
-    """A stimulus set of ``n`` motions of a dataset split drawn at random (see the module).
-
-    Trajectory ids are ``SPLIT-INDEX``, scenes ``SPLIT-sceneENV``. Returns the manifest.
-    """
+    """A stimulus set of ``n`` motions drawn at random (``seed``): each at every τ from
+    every camera, ``attention`` more as attention checks, one more for practice."""
+    m = len(motions.ids)
     need = n + attention + int(practice)
-    if not 1 <= n or need > len(split):
+    if not 1 <= n or need > m:
         raise ValueError(
-            f"--n {n}: expected 1 <= n and n + attention + practice <= {len(split)} "
-            f"(the motions of split {split.name!r})"
+            f"--n {n}: expected 1 <= n and n + attention + practice <= {m} (the motions)"
         )
-    pick = np.random.default_rng(seed).permutation(len(split))[:need]
-    ids = [f"{split.name}-{i}" for i in pick]
+    if attention and motions.targets is None:
+        raise ValueError("--attention: the source has no targets; use --attention 0")
+    pick = np.random.default_rng(seed).permutation(m)[:need]
     specs = cross_specs(
         range(n), taus=taus, cameras=cameras,
         attention=range(n, n + attention), practice=[need - 1] if practice else [],
     )  # fmt: skip
-    src = {"kind": "split", "split": split.name, "indices": pick.tolist(), "seed": seed,
-           **(source or {})}  # fmt: skip
+    tg = None if motions.targets is None else motions.targets[pick]
     return write_stimulus_set(
-        out, q=split.q[pick], xyz=split.xyz[pick], goals=split.goals[pick],
-        goal_mask=split.goal_mask[pick], ids=ids, specs=specs, render=renderer,
-        scenes=[f"{split.name}-scene{e}" for e in split.env_id[pick]],
-        targets=split.target[pick], source=src, overwrite=overwrite, progress=progress,
+        out, q=motions.q[pick], xyz=motions.xyz[pick], goals=motions.goals[pick],
+        goal_mask=motions.goal_mask[pick], ids=[motions.ids[i] for i in pick], specs=specs,
+        render=renderer, scenes=[motions.scenes[i] for i in pick], targets=tg,
+        length=motions.length[pick], t=None if motions.t is None else motions.t[pick],
+        source={**(source or {}), "indices": pick.tolist(), "seed": seed},
+        overwrite=overwrite, progress=progress,
     )  # fmt: skip
 
 
@@ -145,7 +236,11 @@ def _size(text: str) -> tuple[int, int]:
 def add_command(sub) -> None:
     """Add ``stimuli`` to the study CLI's subparsers."""
     p = sub.add_parser("stimuli", help="render a stimulus set (clips cut at tau, stills)")
-    p.add_argument("--data", required=True, help="dataset folder (python -m slotv_jax.data)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--data", help="dataset folder (python -m slotv_jax.data), with --split")
+    src.add_argument("--npz", help="trajectories in the labelers' .npz format")
+    src.add_argument("--plans", help="a planning run's plans.npz (every planner's plans)")
+    src.add_argument("--study", help="a study file (.npz): its trajectories")
     p.add_argument("--split", default="trajectory_test", choices=SPLITS)
     p.add_argument("--n", type=int, default=10, help="motions shown at every tau")
     p.add_argument("--taus", default="0.4,0.7,1.0", help="stop times in (0, 1]")
@@ -180,16 +275,24 @@ def stimuli_main(args: argparse.Namespace) -> int:
     if not args.hold >= 0:
         raise ValueError(f"--hold {args.hold}: expected seconds >= 0")
     check_output_dir(args.out, ours=lambda p: (p / MANIFEST).is_file(), overwrite=args.overwrite)
-    split = load_split(args.data, args.split)
+    if args.data is not None:
+        motions, source = motions_from_split(load_split(args.data, args.split)), {
+            "kind": "split", "data": str(args.data), "split": args.split}  # fmt: skip
+    elif args.npz is not None:
+        motions, source = motions_from_npz(args.npz), {"kind": "npz", "file": str(args.npz)}
+    elif args.plans is not None:
+        motions, source = motions_from_plans(args.plans), {"kind": "plans", "file": args.plans}
+    else:
+        motions, source = motions_from_study(args.study), {"kind": "study", "file": args.study}
     try:
         r = SceneRenderer(size, args.fps, args.duration, args.hold, trace=not args.no_trace)
     except render.RenderBackendError as e:
         raise ValueError(str(e)) from None  # one line: how to get OpenGL
     try:
-        m = from_split(
-            split, args.out, n=args.n, taus=taus, cameras=cameras, attention=args.attention,
+        m = make_set(
+            motions, args.out, n=args.n, taus=taus, cameras=cameras, attention=args.attention,
             practice=not args.no_practice, seed=args.seed, renderer=r,
-            overwrite=args.overwrite, source={"data": str(args.data)},
+            overwrite=args.overwrite, source=source,
         )  # fmt: skip
     finally:
         r.close()
