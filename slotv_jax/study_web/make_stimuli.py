@@ -5,10 +5,20 @@ clips through MuJoCo (it needs OpenGL: ``MUJOCO_GL=egl`` on a headless machine),
 study server, which only reads sets, never imports it.
 
 ``python -m slotv_jax.study stimuli --data DIR --split NAME --n N --taus 0.4,0.7,1.0
---out STIMDIR`` draws N motions of a dataset split at random (``--seed``), each at every
-τ from every ``--cameras`` view, plus ``--attention`` more motions as attention checks
+--out STIMDIR`` draws N motions of a source at random (``--seed``), each at every τ
+from every ``--cameras`` view, plus ``--attention`` more motions as attention checks
 (τ = 1) and one practice motion; ``--size WxH``, ``--fps``, ``--duration`` (seconds of
-a whole motion) and ``--hold`` (seconds the last frame stays) shape the clips.
+a whole motion) and ``--hold`` (seconds the last frame stays) shape the clips. Sources:
+
+- ``--data DIR --split NAME``: a dataset split (ids ``SPLIT-INDEX``);
+- ``--plans FILE``: a planning run's ``plans.npz``, every planner's plan of every problem
+  (ids ``PLANNER-PROBLEM``): people's guesses on the plans of each observer;
+- ``--npz FILE``: trajectories in the labelers' format (``xyz``, ``goals``,
+  ``goal_mask``, optional ``t``, ``q`` and ``target``);
+- ``--study FILE``: a study file's trajectories (no targets: ``--attention 0``).
+
+A TCP path without joints gets them by the project's IK from ``Q_HOME``
+(:func:`slotv_jax.render.joints_from_tcp`); a path it misses by more than 5 mm is refused.
 
 >>> r = SceneRenderer(size=(320, 180), fps=20)                         # doctest: +SKIP
 >>> write_stimulus_set("stim", q=q, xyz=xyz, goals=goals, goal_mask=mask, ids=ids,
