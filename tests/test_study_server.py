@@ -242,7 +242,7 @@ def test_errors_show_no_internals(server):
     assert hdr["x-content-type-options"] == "nosniff" and hdr["cache-control"] == "no-store"
 
 
-def test_balanced_assignment_and_new_round(server, stimdir):
+def test_balanced_assignment_and_new_round(server, stimdir, caplog):
     app, service = server
     for _ in range(6):
         finish(*client(app))
@@ -258,8 +258,12 @@ def test_balanced_assignment_and_new_round(server, stimdir):
     # an earlier participant is unaffected, and a changed round is refused
     assert service.storage.trials(1)[0]["round"] == 0
     write_dot_set(stimdir / "round-2", n=1, taus=(0.7,), round_=2, first=0)  # m0 differs
+    client(app)  # the study goes on with round 1 and says why round 2 is left out
+    assert {t["round"] for t in service.storage.trials(8)} == {1}
+    assert "round 2 left out" in caplog.text and "differs" in caplog.text
+    # ... and a server started on it refuses to start
     with pytest.raises(ValueError, match="differs"):
-        client(app)
+        StudyService(stimdir, service.storage)
 
 
 @settings(max_examples=40, deadline=None)

@@ -14,6 +14,7 @@ for the state again and lands on the same trial.
 from __future__ import annotations
 
 import hashlib
+import logging
 import secrets
 import threading
 from pathlib import Path
@@ -23,6 +24,7 @@ from slotv_jax.study_web.storage import Storage, unanswered
 
 MAX_RESPONSE_MS = 3_600_000.0  # one hour: longer response times are rejected
 CONFIDENCE = (1, 5)  # the confidence scale (1: a guess, 5: sure)
+log = logging.getLogger("slotv_jax.study")
 ID_PARAMS = {  # external ids taken from the study URL (Prolific, MTurk, plain names)
     "external_id": ("PROLIFIC_PID", "workerId", "participant"),
     "study_id": ("STUDY_ID", "hitId", "study"),
@@ -57,37 +59,50 @@ class StudyService:
         self.sets: dict[int, stimuli.StimulusSet] = {}
         self._by_id: dict[tuple[int, str], dict] = {}
         self._lock = threading.Lock()
-        self.refresh()
+        self.refresh(strict=True)
         if not self.sets:
             raise ValueError(f"--stimuli {self.stimdir}: no stimulus set ({stimuli.MANIFEST})")
 
     # ----------------------------------------------------------------- rounds
 
-    def refresh(self) -> list[int]:
+    def refresh(self, *, strict: bool = False) -> list[int]:
         """Load rounds that appeared in the folder since the last call; their numbers.
 
         A round already in storage must have the same manifest as on disk (a stimulus
-        set must not change under the answers given to it).
+        set must not change under the answers given to it). A round that fails its checks
+        raises with ``strict`` (at start-up); otherwise it is logged and left out, and the
+        study goes on with the rounds it has (it is tried again at the next start).
         """
         with self._lock:
-            new = [r for r in stimuli.find_rounds(self.stimdir) if r not in self.sets]
-            for r in new:
-                st = stimuli.load_stimulus_set(stimuli.round_dir(self.stimdir, r))
-                if st.round != r:
-                    raise ValueError(
-                        f"{st.path / stimuli.MANIFEST}: field 'round' is {st.round}, expected {r}"
-                    )
-                if not self.storage.load_round(r, st.manifest, st.trajectories, st.goals):
-                    old = self.storage.manifest(r)
-                    if old != st.manifest:
-                        raise ValueError(
-                            f"{st.path / stimuli.MANIFEST}: round {r} differs from the one "
-                            "stored in the database (stimuli must not change mid-study)"
-                        )
-                self.sets[r] = st
-                for s in st.manifest["stimuli"]:
-                    self._by_id[(r, s["id"])] = s
+            new = []
+            for r in stimuli.find_rounds(self.stimdir):
+                if r in self.sets:
+                    continue
+                try:
+                    self._load(r)
+                except ValueError as e:
+                    if strict:
+                        raise
+                    log.error("round %d left out: %s", r, e)
+                    continue
+                new.append(r)
             return new
+
+    def _load(self, r: int) -> None:
+        st = stimuli.load_stimulus_set(stimuli.round_dir(self.stimdir, r))
+        if st.round != r:
+            raise ValueError(
+                f"{st.path / stimuli.MANIFEST}: field 'round' is {st.round}, expected {r}"
+            )
+        if not self.storage.load_round(r, st.manifest, st.trajectories, st.goals):
+            if self.storage.manifest(r) != st.manifest:
+                raise ValueError(
+                    f"{st.path / stimuli.MANIFEST}: round {r} differs from the one "
+                    "stored in the database (stimuli must not change mid-study)"
+                )
+        self.sets[r] = st
+        for s in st.manifest["stimuli"]:
+            self._by_id[(r, s["id"])] = s
 
     # ----------------------------------------------------------- participants
 
