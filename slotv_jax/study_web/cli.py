@@ -16,7 +16,7 @@ from slotv_jax.study_web import client
 from slotv_jax.study_web import export as export_lib
 from slotv_jax.study_web.server import make_app
 from slotv_jax.study_web.service import StudyService
-from slotv_jax.study_web.storage import connect
+from slotv_jax.study_web.storage import SYNC, connect
 
 
 def add_commands(sub) -> None:
@@ -26,6 +26,9 @@ def add_commands(sub) -> None:
     serve.add_argument("--db", required=True, help="SQLite file of the answers (created if new)")
     serve.add_argument("--host", default="127.0.0.1", help="address to listen on")
     serve.add_argument("--port", type=int, default=8000)
+    serve.add_argument("--sync", default="full", choices=SYNC,
+                       help="full: each answer on disk before the reply (survives power "
+                       "loss); normal: faster, survives a crashed server")  # fmt: skip
     exp = sub.add_parser("export", help="answers -> CSV tables that `study import` reads")
     exp.add_argument("--db", required=True, help="the server's SQLite file")
     exp.add_argument("--out", required=True, help="folder for answers/trajectories/goals.csv")
@@ -51,7 +54,7 @@ def serve_main(args: argparse.Namespace) -> int:
         raise ValueError(f"--db {db}: the folder {db.parent} does not exist")
     if not 0 < args.port < 65536:
         raise ValueError(f"--port {args.port}: expected 1..65535")
-    service = StudyService(stimdir, connect(db))
+    service = StudyService(stimdir, connect(db, sync=args.sync))
     token = secrets.token_urlsafe(24)
     app = make_app(service, token)
     url = f"http://{args.host}:{args.port}"
