@@ -108,6 +108,7 @@ def test_resume_after_refresh_and_lost_connection(server):
     # a refresh (GET state again), the back button (the page asks again) or another tab
     # with the same cookie: the same next trial
     assert c.get("/api/state").json()["position"] == pos
+    assert service.storage.trials(1)[pos]["shown"] == 1  # one reload of this trial
     c2 = TestClient(app, cookies={COOKIE: c.cookies[COOKIE]})
     assert c2.get("/api/state").json()["position"] == pos
     # a start request from a page that was open before (refreshed consent page) keeps trials
@@ -313,5 +314,7 @@ def test_export_imports_unchanged(server, tmp_path):
              and np.isclose(s.answer_tau[i], r["tau"])]  # fmt: skip
         assert len(a) == 1
         assert s.counts[a[0], list(s.goal_names[k]).index(r["guess"])] >= 1
+    header = (out / "answers.csv").read_text().splitlines()[0].split(",")
+    assert header == list(export.ANSWER_COLUMNS)
     people = (out / "participants.csv").read_text().splitlines()
     assert len(people) == 4 and "p-a" in people[1]

@@ -3,11 +3,12 @@
 ``python -m slotv_jax.study export --db FILE --out DIR`` writes four CSV files:
 
 - ``answers.csv``: ``trajectory, tau, guess, participant, condition, confidence,
-  response_ms, stimulus, round, position, answered`` — one row per answer of a main
+  response_ms, stimulus, round, position, reloads, answered`` — one row per answer of a main
   trial (practice trials and attention checks are left out); ``condition`` is the
   camera, ``participant`` an anonymous ``p<number>``, ``response_ms`` the time from the
   end of the clip to the click, ``position`` the trial's place in the participant's
-  random order, ``answered`` the UTC time it was stored;
+  random order, ``reloads`` how often the page was reloaded on this trial (each reload
+  plays the clip again), ``answered`` the UTC time it was stored;
 - ``trajectories.csv`` and ``goals.csv``: the answered trajectories and their goals
   (``trajectory, t, x, y, z`` and ``trajectory, goal, x, y, z``);
 - ``participants.csv``: ``participant, external_id, study_id, session_id, round,
@@ -33,7 +34,8 @@ from slotv_jax.study_web.stimuli import goal_rows, trajectory_rows
 from slotv_jax.study_web.storage import Storage
 
 ANSWER_COLUMNS = ("trajectory", "tau", "guess", "participant", "condition", "confidence",
-                  "response_ms", "stimulus", "round", "position", "answered")  # fmt: skip
+                  "response_ms", "stimulus", "round", "position", "reloads",
+                  "answered")  # fmt: skip
 PARTICIPANT_COLUMNS = ("participant", "external_id", "study_id", "session_id", "round",
                        "started", "finished", "trials", "answered", "attention_checks",
                        "attention_passed", "completion_code")  # fmt: skip
@@ -58,7 +60,7 @@ def _answer_row(a: dict) -> list:
     conf = "" if a["confidence"] is None else a["confidence"]
     return [a["trajectory"], repr(float(a["tau"])), a["guess"], f"p{a['participant']}",
             a["camera"], conf, f"{a['response_ms']:.0f}", a["stimulus"], a["round"],
-            a["position"], _iso(a["answered"])]  # fmt: skip
+            a["position"], a["shown"], _iso(a["answered"])]  # fmt: skip
 
 
 def _participant_row(p: dict) -> list:

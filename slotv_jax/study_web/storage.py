@@ -319,7 +319,8 @@ class SQLiteStorage:
         return out
 
     def mark_shown(self, participant: int, position: int) -> None:
-        """Count one more showing of a trial (a refresh shows it again) and touch last_seen."""
+        """Count one more showing of a trial by a reload of the page (``trials.shown``) and
+        touch last_seen."""
         with self._tx() as db:
             db.execute(
                 "UPDATE trials SET shown = shown + 1 WHERE participant = ? AND position = ?",
@@ -412,7 +413,7 @@ class SQLiteStorage:
     def answers(self) -> list[dict]:
         """Every stored answer with its trial, stimulus and participant, in answer order."""
         rows = self._con().execute(
-            "SELECT a.trial, t.participant, t.position, s.round, s.id AS stimulus, "
+            "SELECT a.trial, t.participant, t.position, t.shown, s.round, s.id AS stimulus, "
             "s.trajectory, s.tau, s.camera, s.kind, s.target, a.guess, a.confidence, "
             "a.response_ms, a.answered FROM answers a JOIN trials t ON t.trial = a.trial "
             "JOIN stimuli s ON s.stimulus = t.stimulus ORDER BY a.answered, a.trial"
