@@ -160,10 +160,14 @@ def test_planning_figure_rows_and_panels(tmp_path):
         goal_mask=np.stack([MASK] * 3),
         target=np.array([0, 1, 2]),
         family=np.array(["dragan", "dragan", "nikolaidis"]),
-        names=np.array(["straight", "oracle", "slotv"]),
-        q=np.stack([np.stack([Q1, Q2, Q1])] * 3),
+        names=np.array(["straight", "oracle", "slotv", "archetype"]),
+        q=np.stack([np.stack([Q1, Q2, Q1])] * 3 + [np.stack([Q1, Q2, np.full_like(Q1, np.nan)])]),
     )
-    assert planning_render.default_problems(np.load(plans)["family"]) == [0, 2]
+    z = dict(np.load(plans))
+    assert planning_render.default_problems(z["family"]) == [0, 2]
+    assert planning_render.choose_planners(z, [0, 2]) == [0, 1, 2]
+    assert planning_render.choose_planners(z, [0, 2], ["archetype", "oracle"]) == [1]  # NaN out
+    assert planning_render.choose_planners(z, [0, 1], ["archetype", "oracle"]) == [3, 1]
     out = tmp_path / "fig.png"
     assert planning_render.main(["--plans", str(plans), "--out", str(out), "--size", "64x48"]) == 0
     img = render.read_video(out)[0]

@@ -35,9 +35,10 @@ import mujoco
 import numpy as np
 from OpenGL import GL  # PyOpenGL: a dependency of mujoco's GL backends
 
-from slotv_jax import kinematics, render
+from slotv_jax import cli, fileio, kinematics, render
 from slotv_jax.benchmarks._machine import cpu_model
 from slotv_jax.render import writers
+from slotv_jax.render.cli import parse_size
 
 Q_END = np.array([0.3, -0.2, 0.1, -2.0, 0.05, 1.9, 0.7])
 GOALS = np.zeros((8, 3))
@@ -125,6 +126,7 @@ def run(size=(640, 360), n_frames: int = 100, repeats: int = 3, naive: int = 5) 
     return res
 
 
+@cli.command
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.render", description=__doc__)
     p.add_argument("--size", default="640x360", help="frame size WxH")
@@ -132,7 +134,11 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=3, help="best of this many runs")
     p.add_argument("--json", type=Path, help="also write the results here")
     args = p.parse_args(argv)
-    size = tuple(int(v) for v in args.size.lower().split("x"))
+    if args.json:  # checked before the benchmark; the file is regenerated
+        fileio.check_output_files(args.json.parent, [args.json.name], what="--json")
+    size = parse_size(args.size)
+    if args.frames < 2 or args.repeats < 1:
+        raise cli.InputError("--frames >= 2 and --repeats >= 1 expected")
     load0 = os.getloadavg()
     res = run(size, args.frames, args.repeats)
     res.update(
@@ -170,7 +176,7 @@ def main(argv=None) -> int:
         f" {1e3 / fps:.1f} ms per frame"
     )
     if args.json:
-        args.json.write_text(json.dumps(res, indent=1))
+        fileio.write_text(args.json, json.dumps(res, indent=1))
     return 0
 
 

@@ -185,18 +185,21 @@ def _plans_items(args) -> list[Item]:
         ks = [names.index(args.planner)]
     stem = Path(args.plans).stem
     suffix = f"_{args.planner}" if args.planner else ""
-    return [
-        Item(
-            f"{stem}_{p:04d}{suffix}",
-            tuple(q[k, p] for k in ks),
-            z["goals"][p],
-            z["goal_mask"][p],
-            int(z["target"][p]),
-            names=tuple(names[k] for k in ks),
-            rgbas=tuple(PALETTE[k % len(PALETTE)] for k in ks),
+    items = []
+    for p in idx:
+        shown = [k for k in ks if args.planner or np.isfinite(q[k, p]).all()]  # NaN: left out
+        items.append(
+            Item(
+                f"{stem}_{p:04d}{suffix}",
+                tuple(q[k, p] for k in shown),
+                z["goals"][p],
+                z["goal_mask"][p],
+                int(z["target"][p]),
+                names=tuple(names[k] for k in shown),
+                rgbas=tuple(PALETTE[k % len(PALETTE)] for k in shown),
+            )
         )
-        for p in idx
-    ]
+    return items
 
 
 def _parser() -> argparse.ArgumentParser:
