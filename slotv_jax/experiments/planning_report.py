@@ -111,6 +111,7 @@ def render(out: Path, n_examples: int = 3) -> None:
         ax.set(title=f"true {family} legibility, β = {beta:g} (n = {rows[0]['n']})",
                ylabel="mean y_target ± SD")  # fmt: skip
         ax.tick_params(axis="x", rotation=25)
+        plt.setp(ax.get_xticklabels(), ha="right", rotation_mode="anchor")
     fig.tight_layout()
     save_figure(fig, out / "bars.png", dpi=100)
     plt.close(fig)
