@@ -53,7 +53,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 from tqdm.auto import tqdm
 
-from slotv_jax import validation
+from slotv_jax import cli, fileio, validation
 from slotv_jax._xla import XLA_CONFIG
 from slotv_jax.defaults import DEFAULT_BETAS, LABELER_NAMES
 from slotv_jax.fileio import atomic_write
@@ -659,7 +659,8 @@ def label_all(
     Args: ``xyz (N, T, 3)`` (m, T >= 2); ``goals (N, 8, 3)`` and ``goal_mask (N, 8)``, or
     ``(8, 3)`` and ``(8,)`` shared by all; ``t`` optional time stamps, ``(T,)`` or
     ``(N, T)``; ``labelers``: which labels; ``beta_*``: as in SPEC §4 (traced: a new
-    value does not recompile); ``camera``: for nikolaidis. Returns ``{name: (N, 8)}``.
+    value does not recompile); ``camera``: for nikolaidis. ``labelers`` is a sequence of
+    names or one name (``"dragan"``). Returns ``{name: (N, 8)}``.
     Raises ``ValueError`` naming the argument (and the first bad trajectory) for what
     the public labelers reject, and for labels that overflow float32.
 
@@ -719,10 +720,12 @@ def _recheck_points(ok: np.ndarray, xyz: np.ndarray, cam: Camera) -> None:
 def _bulk_inputs(labelers, xyz, goals, goal_mask, t, chunk_size, betas, camera):
     """:func:`label_all`'s boundary checks; its names, arrays (float32, goals and mask
     broadcast to ``(N, ...)``, ``t`` normalised), betas (traced) and camera."""
-    names = tuple(labelers)
+    names = (labelers,) if isinstance(labelers, str) else tuple(labelers)  # one name
     if not names or any(n not in LABELERS for n in names):
         raise ValueError(f"labelers: expected a non-empty subset of {LABELER_NAMES}, got {names}")
     validation.check_shape("xyz", xyz, (None, None, 3))
+    validation.check_real("xyz", xyz)
+    validation.check_real("goals", goals)
     N, T = np.shape(xyz)[:2]
     if T < 2:
         raise ValueError(f"xyz: expected at least 2 trajectory points (T >= 2), got T = {T}")
@@ -750,8 +753,9 @@ def _savez(path, arrays: dict[str, np.ndarray]) -> None:
     atomic_write(path, lambda f: np.savez(f, **arrays))
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m slotv_jax.labelers --in trajs.npz --out labels.npz``."""
+    """``python -m slotv_jax.labelers --in trajs.npz --out labels.npz [--overwrite]``."""
 
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.labelers",
@@ -762,6 +766,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--in", dest="inp", required=True, type=Path, help="input .npz")
     p.add_argument("--out", required=True, type=Path, help="output .npz (written atomically)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     for n in LABELER_NAMES:
         p.add_argument(f"--beta-{n}", type=float, default=DEFAULT_BETAS[n], help=f"β of {n}")
     p.add_argument("--camera", default="observer", help="scene camera for nikolaidis")
@@ -773,18 +778,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
+    fileio.check_output_file(args.out, overwrite=args.overwrite)
     print(XLA_CONFIG.summary(), file=sys.stderr)
 
     names = tuple(s.strip() for s in args.labelers.split(",") if s.strip())
-    try:
-        with np.load(args.inp, allow_pickle=False) as f:
-            files = list(f.files)
-            data = {k: f[k] for k in ("xyz", "goals", "goal_mask", "t") if k in files}
-    except (OSError, ValueError) as e:  # missing file, not an .npz, or object arrays
-        p.error(f"{args.inp}: cannot read ({e})")
+    arrays = fileio.load_npz(args.inp)
+    files = list(arrays)
+    data = {k: arrays[k] for k in ("xyz", "goals", "goal_mask", "t") if k in files}
     missing = [k for k in ("xyz", "goals", "goal_mask") if k not in data]
     if missing:
-        p.error(f"{args.inp}: missing array(s) {missing}; it holds {files}")
+        raise cli.InputError(f"--in {args.inp}: missing array(s) {missing}; it holds {files}")
     betas = {n: getattr(args, f"beta_{n}") for n in LABELER_NAMES}
     try:
         y = label_all(
@@ -799,7 +802,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             **{f"beta_{n}": b for n, b in betas.items()},
         )
     except ValueError as e:
-        p.error(f"{args.inp}: {e}")
+        raise cli.InputError(f"--in {args.inp}: {e}") from None
     arrays = {f"y_{n}": v for n, v in y.items()}
     arrays.update({f"beta_{n}": np.float64(betas[n]) for n in names})
     if "nikolaidis" in names:

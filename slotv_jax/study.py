@@ -37,11 +37,13 @@ the points with t_i ≤ τ, at least two of them; τ = t_{length−1} is the who
 Importing study tables
 ----------------------
 ``python -m slotv_jax.study import --trajectories T --goals G --answers A --out study.npz``
-reads three tables, each a CSV file with a header or a JSON list of objects with the
-same keys (one object per row):
+reads three tables, each a CSV file with a header (UTF-8; a spreadsheet's byte-order
+mark is fine) or a JSON list of objects with the same keys (one object per row):
 
 - trajectories: ``trajectory, x, y, z`` and optionally ``t``; one row per point, in
   time order within each trajectory (any T ≥ 2; trajectories may differ in length);
+  ``t`` is all-or-nothing: every point of every trajectory has one, or the column is
+  left out;
 - goals: ``goal, x, y, z`` (shared by every trajectory) or ``trajectory, goal, x, y, z``
   (per trajectory); 1-8 goals each, slots in order of appearance;
 - answers: ``trajectory, guess`` (a goal name) and optionally ``tau`` (empty: the whole
@@ -83,6 +85,7 @@ import argparse
 import csv
 import dataclasses
 import functools
+import io
 import json
 import math
 import os
@@ -101,7 +104,7 @@ from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Bool, Float, Int
 from tqdm.auto import tqdm
 
-from slotv_jax import checkpoint, labelers, models, scene, validation
+from slotv_jax import checkpoint, cli, fileio, labelers, models, scene, validation
 from slotv_jax import config as config_lib
 from slotv_jax import train as train_lib
 from slotv_jax.config import TrainConfig
@@ -135,7 +138,7 @@ class Study:
     answer_condition: np.ndarray | None = None  # (A,) int32: index into conditions
     conditions: tuple[str, ...] = ()  # condition names
     trajectory_ids: tuple[str, ...] = ()  # (N,) ids from the source tables
-    goal_names: np.ndarray | None = None  # (N, 8) str: goal names ('' on padding)
+    goal_names: np.ndarray | None = None  # (N, 8) str array ('' on padding; numpy.str_ items)
     shared_goals: bool = False  # every trajectory has the same goals (stored once)
 
     @property
@@ -433,8 +436,9 @@ def make_study(
         a = int(bad[0])
         i = int(traj[a])
         raise ValueError(
-            f"{w('answer_tau', a)}: tau = {tau[a]!r} is outside the motion of trajectory {i}: "
-            f"expected {times[i, 1]!r} <= tau <= {full[i]!r} (at least 2 points seen, "
+            f"{w('answer_tau', a)}: tau = {float(tau[a])!r} is outside the motion of trajectory "
+            f"{i}: expected {float(times[i, 1])!r} <= tau <= {float(full[i])!r} (at least 2 "
+            "points seen, "
             "at most the whole motion)"
         )
 
@@ -569,13 +573,7 @@ def load_study(path: str | os.PathLike) -> Study:
     unknown or missing arrays."""
     path = Path(path)
     w = _Where(str(path))
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise
-    except (ValueError, OSError, EOFError) as e:
-        raise ValueError(f"{path}: not a readable .npz study file ({e})") from e
+    arrays = fileio.load_npz(path)  # names a missing, truncated or non-zip file
     fmt = str(arrays.pop("format", ""))
     if fmt != FORMAT:
         raise ValueError(f"{w('format')}: expected {FORMAT!r}, got {fmt!r}")
@@ -617,17 +615,15 @@ class _Table:
 def _read_table(path: str | os.PathLike, required: Sequence[str]) -> _Table:
     path = Path(path)
     if path.suffix.lower() == ".json":
-        try:
-            doc = json.loads(path.read_text())
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{path.name}: not valid JSON ({e})") from e
+        doc = fileio.read_json(path)  # names the file, line and column of bad JSON
         if not isinstance(doc, list) or not all(isinstance(r, dict) for r in doc):
             raise ValueError(f"{path.name}: expected a JSON list of objects (one per row)")
         rows = [{str(k): v for k, v in r.items()} for r in doc]
         where = [f"item {i}" for i in range(len(rows))]
         columns = sorted({k for r in rows for k in r})
     else:
-        with open(path, newline="") as f:
+        # UTF-8 (a spreadsheet's byte-order mark dropped); a bad byte is named by line
+        with io.StringIO(fileio.read_text(path), newline="") as f:
             reader = csv.DictReader(f)
             columns = [c.strip() for c in (reader.fieldnames or [])]
             rows, where = [], []
@@ -728,6 +724,12 @@ def read_tables(
     for i in range(len(tt.rows)):
         tid = _text(tt, i, "trajectory")
         p = [_number(tt, i, c) for c in ("x", "y", "z")]
+        if has_t and _blank(tt.rows[i].get("t")):
+            raise ValueError(
+                f"{tt.at(i, 't')}: no time stamp; the column 't' is all-or-nothing: give t for "
+                "every point of every trajectory, or leave the column out (points are then "
+                "evenly spaced in time)"
+            )
         ti = _number(tt, i, "t") if has_t else None
         pts = points.setdefault(tid, [])
         if has_t and pts and not ti > pts[-1][1]:
@@ -818,7 +820,7 @@ def read_tables(
             if tau > full[k] + TAU_RTOL * (full[k] - times[k, 0]) or seen < 2:
                 raise ValueError(
                     f"{at.at(i, 'tau')}: tau = {tau!r} is outside the motion of trajectory "
-                    f"{tid!r}: expected {times[k, 1]!r} <= tau <= {full[k]!r} "
+                    f"{tid!r}: expected {float(times[k, 1])!r} <= tau <= {float(full[k])!r} "
                     "(at least 2 points seen)"
                 )
             if seen < length[k]:
@@ -1463,11 +1465,21 @@ def simulate_study(
 
 def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
     """``python -m slotv_jax.train --study FILE ...``: train on a study, checkpoint every
-    epoch, optionally cross-validate (``--cv K``), and print the metrics."""
+    epoch, optionally cross-validate (``--cv K``), and print the metrics. A study with
+    fewer answer rows than the preset's batch trains with the largest power of two that
+    fits (and says so), unless ``--set batch_size=N`` is given."""
     study = load_study(args.study)
     if args.condition is not None:
         study = study.select_condition(args.condition)
     cfg = dataclasses.replace(cfg, train_size=None)
+    chosen = any(a.split("=", 1)[0].strip() == "batch_size" for a in getattr(args, "set", []))
+    if not chosen and study.n_rows < cfg.batch_size:  # a small study: a batch that fits
+        fit = 1 << (study.n_rows.bit_length() - 1)
+        print(
+            f"batch_size: the study has {study.n_rows} answer rows, fewer than the preset's "
+            f"{cfg.batch_size}; using batch_size={fit} (--set batch_size=N to choose)"
+        )
+        cfg = dataclasses.replace(cfg, batch_size=fit)
     print(study.summary(), flush=True)
     print(f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)
     out = Path(args.out)
@@ -1511,6 +1523,7 @@ def _parse_args(argv):
     imp.add_argument("--goals", required=True, help="[trajectory,]goal,x,y,z per goal")
     imp.add_argument("--answers", required=True, help="trajectory,guess[,tau,participant,...]")
     imp.add_argument("--out", required=True, help="study file to write (.npz)")
+    imp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     show = sub.add_parser("show", help="validate a study file and summarise it")
     show.add_argument("study")
     cv = sub.add_parser("cv", help="k-fold cross-validation of SLOT-V/T-REX and baselines")
@@ -1523,12 +1536,16 @@ def _parse_args(argv):
     cv.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     cv.add_argument("--condition", default=None)
     cv.add_argument("--out", default=None, help="write the results as JSON here")
+    cv.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     return ap.parse_args(argv)
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
-    """CLI: ``import`` (report what was read), ``show``, ``cv``."""
+    """CLI: ``import`` (report what was read), ``show``, ``cv``; input errors in one line."""
     args = _parse_args(argv)
+    if getattr(args, "out", None) is not None:  # before any work
+        fileio.check_output_file(args.out, overwrite=args.overwrite)
     if args.command == "import":
         study, report = read_tables(args.trajectories, args.goals, args.answers)
         save_study(args.out, study)

@@ -43,9 +43,9 @@ from jax.sharding import Mesh
 from tqdm.auto import tqdm
 
 import slotv_jax
+from slotv_jax import cli, evaluate, fileio, parallel, train
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
-from slotv_jax import evaluate, parallel, train
 from slotv_jax.defaults import LABELER_NAMES
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import dataset_dir
@@ -421,6 +421,7 @@ def summarise(doc: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.hparam_search",
@@ -454,6 +455,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         kw["compute_dtype"] = args.compute_dtype
     cfg = PRESETS[args.preset](**kw)
     out = args.out or Path("runs") / f"hparam_search_{args.preset}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
+    if args.report is not None:
+        fileio.check_output_files(args.report.parent, [args.report.name], what="--report")
     command = "python -m slotv_jax.experiments.hparam_search " + " ".join(
         sys.argv[1:] if argv is None else argv
     )

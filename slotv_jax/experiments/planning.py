@@ -75,10 +75,10 @@ from flax import nnx
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import checkpoint, evaluate, labelers, models, planning, train
+from slotv_jax import checkpoint, cli, evaluate, fileio, labelers, models, planning, train
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
-from slotv_jax.experiments.planning_report import render, report, write_doc
+from slotv_jax.experiments.planning_report import FIGURES, render, report, write_doc
 from slotv_jax.experiments.table1 import dataset_dir
 from slotv_jax.fileio import atomic_write, write_text
 
@@ -169,11 +169,8 @@ def paper() -> PlanningConfig:
     """Paper-size data and observers (use a GPU), 60 held-out scenes per split (>= 500
     problems: about 4 goals per position_test scene and 6 per goal_count_test scene).
 
-    SLOT-V+ trains 5 of the paper's 15 epochs **[choice]**. Measured on an H100
-    (experiments/planning_paper.md): its held-out accuracy is the same, and its plans keep
-    more of the Nikolaidis oracle's gain (eight trainings: 79–90 %, mean 83 %; fifteen
-    trainings of 15 epochs: 75–89 %, mean 79 %). The longer run fits detail of the value
-    field that the planner's gradient then follows away from the labeler's.
+    SLOT-V+ trains 5 of the paper's 15 epochs **[choice]**: as accurate on held-out data,
+    and its plans kept more of the Nikolaidis oracle's gain (experiments/planning_paper.md).
     """
     t = {m: train_config.paper(m) for m in METHODS}
     a = {f: train_config.archetype("paper", m) for f, m in ARCHETYPES.items()}
@@ -408,6 +405,9 @@ def run(
 
     # Plans: one compiled program for every observer.
     planner = planning.make_planner(observers, cfg.planner)
+    n_obs = len(planner.observers)
+    note = f"planning: compiling one program for {n_obs} observers (a minute or two on a CPU)"
+    print(note, file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     straight = planner.straight_line(problems["goals"], problems["goal_mask"], problems["target"])
     straight = jax.device_get(straight)
@@ -514,6 +514,7 @@ def saved_plans(cfg: PlanningConfig, problems: dict, straight, plans: dict, labe
     }
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.planning",
@@ -550,14 +551,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     cfg = dataclasses.replace(PRESETS[args.preset](), seed=args.seed)
     if args.n_scenes is not None:
         if args.n_scenes < 1:
-            p.error("--n-scenes: expected an integer >= 1")
+            raise cli.InputError(f"--n-scenes: expected an integer >= 1, got {args.n_scenes}")
         cfg = dataclasses.replace(cfg, n_scenes=args.n_scenes)
     changes = {k: v for k, v in (("iters", args.iters), ("budget", args.budget)) if v is not None}
     if changes:
         try:
             cfg = dataclasses.replace(cfg, planner=dataclasses.replace(cfg.planner, **changes))
         except ValueError as e:
-            p.error(str(e))
+            raise cli.InputError(f"--iters/--budget: {e}") from None
     if args.compute_dtype:
         train = {m: dataclasses.replace(c, compute_dtype=args.compute_dtype)
                  for m, c in cfg.train.items()}  # fmt: skip
@@ -566,7 +567,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             train = {m: train_config.apply_overrides(c, args.set) for m, c in cfg.train.items()}
         except ValueError as e:
-            p.error(str(e))
+            raise cli.InputError(f"--set: {e}") from None
         cfg = dataclasses.replace(cfg, train=train)
     if args.no_archetypes:
         cfg = dataclasses.replace(cfg, archetype={})
@@ -579,6 +580,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if getattr(args, f"{m}_{f}") is not None
     }
     out = args.out or Path("runs") / f"planning_{args.preset}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
+    if args.doc is not None:
+        names = [args.doc.name, *(f"{args.doc.stem}_{f}" for f in FIGURES)]
+        fileio.check_output_files(args.doc.parent, names, what="--doc")
     doc = run(cfg, out, checkpoints=ckpts, cache=args.cache)
     if args.doc is not None:
         write_doc(out, doc, args.doc)
@@ -589,4 +594,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

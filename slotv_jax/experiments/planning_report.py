@@ -13,13 +13,13 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 import jax
 import numpy as np
 
+from slotv_jax import cli, fileio
 from slotv_jax.fileio import save_figure, write_text
 from slotv_jax.kinematics import home_tcp
 from slotv_jax.scene import camera, project
@@ -214,6 +214,7 @@ def write_doc(out: Path, doc: dict, path: Path) -> None:
     write_text(path, report(doc, figures=f"{path.stem}_"))
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.planning_report",
@@ -226,10 +227,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     missing = [f for f in ("results.json", "plans.npz") if not (args.run / f).is_file()]
     if missing:
-        p.error(f"run: {args.run} holds no {' or '.join(missing)}")
+        raise cli.InputError(f"run: {args.run} holds no {' or '.join(missing)}")
     if args.n_examples < 1:
-        p.error("--n-examples: expected an integer >= 1")
-    doc = json.loads((args.run / "results.json").read_text())
+        raise cli.InputError(f"--n-examples: expected an integer >= 1, got {args.n_examples}")
+    if args.doc is not None:
+        names = [args.doc.name, *(f"{args.doc.stem}_{f}" for f in FIGURES)]
+        fileio.check_output_files(args.doc.parent, names, what="--doc")
+    try:
+        doc = json.loads((args.run / "results.json").read_text())
+        doc["config"]["scoring_betas"]
+    except (ValueError, KeyError) as e:
+        raise cli.InputError(
+            f"run: {args.run / 'results.json'}: not a planning results "
+            f"document with config.scoring_betas ({e!r})"
+        ) from None
     render(args.run, args.n_examples)
     write_text(args.run / "planning.md", report(doc))
     if args.doc is not None:
@@ -239,4 +250,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())
