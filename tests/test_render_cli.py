@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -176,3 +180,16 @@ def test_planning_figure_rows_and_panels(tmp_path):
         2 * (2 * bar + 48) + render.compare.GAP,
         3 * 64 + 2 * render.compare.GAP,
     )
+
+
+def test_no_opengl_is_one_line_naming_mujoco_gl(dataset, tmp_path):
+    """A real backend failure: GLFW with no display (as on a headless machine)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["MUJOCO_GL"] = "glfw"
+    args = ["--data", str(dataset), "--split", "position_test", "--out", str(tmp_path / "a.mp4")]
+    cmd = [sys.executable, "-m", "slotv_jax.render", *args]
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr
+    errors = [line for line in out.stderr.splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1 and "MUJOCO_GL=glfw" in errors[0] and "libegl1" in errors[0]
+    assert not (tmp_path / "a.mp4").exists()
