@@ -39,9 +39,9 @@ Criteria (per candidate, from the members' predictive distributions p_e)
   and the members reweighted by its likelihood, π_e ← π_e p_e(ŷ) / Σ, so that a second
   copy of an informative motion has lost its disagreement (a sampled-fantasy form of
   BatchBALD, Kirsch et al. 2019);
-- ``bald_cluster``: the ``shortlist`` candidates of highest BALD, then k-centre greedy
-  (Sener & Savarese 2018) in the space of the members' predictions (E·G numbers per
-  candidate), starting from the best BALD.
+- ``bald_cluster``: the ``shortlist`` candidates of highest BALD, then a k-centre greedy
+  (Sener & Savarese 2018) weighted by BALD in the space of the members' predictions
+  (E·G numbers per candidate), starting from the best BALD.
 
 All criteria are pure functions of fixed-shape arrays: :func:`select` compiles once for
 a pool size and k, and scores 100,000 candidates in one call
@@ -267,21 +267,26 @@ def select_cluster(
     shortlist: int | None = None,
     weights: Float[Array, " E"] | None = None,
 ) -> Int[Array, " k"]:
-    """k-centre greedy among the ``shortlist`` (default ``SHORTLIST`` · k) candidates of
-    highest BALD, in the space of the members' predictions p_e (E·G numbers each): start
-    at the best BALD, then add the shortlisted candidate farthest (Euclidean) from the
-    picks so far. The first j picks do not depend on k for a fixed ``shortlist``."""
+    """Diverse BALD: among the ``shortlist`` (default ``SHORTLIST`` · k) available
+    candidates of highest BALD, start at the best and then add, k − 1 times, the one that
+    maximises BALD × its Euclidean distance to the nearest pick so far, in the space of
+    the members' predictions p_e (E·G numbers per candidate): a k-centre greedy (Sener &
+    Savarese 2018) weighted by informativeness, so that a copy of a pick (distance 0)
+    and a motion every member agrees on (BALD 0) both score 0. The first j picks do not
+    depend on k for a fixed ``shortlist``."""
     m = min(SHORTLIST * k if shortlist is None else shortlist, logp.shape[1])
     if m < k:
         raise ValueError(f"shortlist: expected at least k = {k}, got {m}")
-    top = _masked_top_k(bald(logp, weights), available, m)  # (m,), best first
+    info = jnp.where(available, bald(logp, weights), -jnp.inf)
+    val, top = jax.lax.top_k(info, m)  # (m,), best first
     feat = jnp.exp(logp[:, top]).transpose(1, 0, 2).reshape(m, -1)  # (m, E·G)
-    ok = available[top]
+    ok = jnp.isfinite(val)
 
     def pick(i, carry):
         dmin, taken, out = carry
-        j = jnp.where(i == 0, 0, jnp.argmax(jnp.where(taken | ~ok, -jnp.inf, dmin)))
-        d = jnp.sum((feat - feat[j]) ** 2, axis=-1)
+        gain = jnp.where(taken | ~ok, -jnp.inf, jnp.maximum(val, 0.0) * dmin)
+        j = jnp.where(i == 0, 0, jnp.argmax(gain))
+        d = jnp.sqrt(jnp.sum((feat - feat[j]) ** 2, axis=-1))
         return jnp.minimum(dmin, d), taken.at[j].set(True), out.at[i].set(top[j])
 
     init = (jnp.full((m,), jnp.inf), jnp.zeros((m,), bool), jnp.zeros((k,), jnp.int32))

@@ -46,6 +46,7 @@ import itertools
 import json
 import math
 import os
+import platform
 import sys
 import time
 from collections.abc import Sequence
@@ -390,6 +391,7 @@ def run(cfg: ActiveConfig, out: Path, *, cache: Path = Path("data"), progress: b
     if doc.get("config") != conf:
         doc = {"preset": cfg.preset, "config": conf, "groups": [], "timing": {}}
     doc["environment"] = data_lib.environment()
+    doc["machine"] = f"{platform.machine()}, {os.cpu_count()} CPUs ({platform.processor() or '?'})"
     doc["xla"] = slotv_jax.XLA_CONFIG.summary()
     t_start = time.perf_counter()
     load = {"cpus": os.cpu_count(), "start": os.getloadavg()[0]}
@@ -411,6 +413,7 @@ def run(cfg: ActiveConfig, out: Path, *, cache: Path = Path("data"), progress: b
     doc["timing"]["total_s"] = doc["timing"].get("total_s", 0.0) + time.perf_counter() - t_start
     if todo or "load" not in doc:
         doc["load"] = {**load, "end": os.getloadavg()[0]}
+        doc["date"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     write_text(path, json.dumps(doc, indent=1))
     return doc
 
@@ -467,8 +470,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)
     out = Path(args.out)
     doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress)
-    doc.setdefault("date", time.strftime("%Y-%m-%d", time.gmtime()))
-    write_text(out / f"{stem_of(cfg.preset)}_results.json", json.dumps(doc, indent=1))
     render(
         doc,
         out,

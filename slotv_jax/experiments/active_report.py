@@ -41,7 +41,7 @@ def report(doc: dict, stem: str, command: str) -> str:
         "",
         f"```bash\n{command}\n```",
         "",
-        f"- Date: {doc.get('date', '')}; machine: {env.get('machine', '')}, devices "
+        f"- Date: {doc.get('date', '')}; machine: {doc.get('machine', '')}, devices "
         f"{env.get('devices', '')}; versions: python {env.get('python')}, jax {env.get('jax')}, "
         f"flax {env.get('flax')}, optax {env.get('optax')}, numpy {env.get('numpy')}",
         f"- Protocol (`slotv_jax/experiments/active.py`): {cfg['seeds']} seeds × strategies "
