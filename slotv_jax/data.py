@@ -53,7 +53,7 @@ import optax
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import kinematics, validation
+from slotv_jax import cli, fileio, kinematics, validation
 from slotv_jax.fileio import atomic_write
 from slotv_jax.labelers import label_all
 from slotv_jax.scene import Scene, SceneConfig, check_scene, sample_goal_count, sample_scene
@@ -649,6 +649,12 @@ def _check_layout(path: Path, arrays: dict[str, np.ndarray]) -> None:
 # -------------------------------------------------------------------------- CLI
 
 
+def is_dataset_dir(path: str | Path) -> bool:
+    """True if ``path`` holds at least one split written by :func:`save_split` (its marker)."""
+    return any((Path(path) / f"{name}.json").is_file() for name in SPLITS)
+
+
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.data", description="Generate the seven SLOT-V dataset splits."
@@ -674,6 +680,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.add_argument(f"--beta-{n}", type=float, help=f"inverse temperature of {n}")
     p.add_argument("--camera", help="camera of the Nikolaidis labeler")
     args = p.parse_args(argv)
+    if args.relabel and not is_dataset_dir(args.out):
+        raise cli.InputError(f"--out {args.out}: holds no dataset splits to --relabel")
+    # a dataset of ours is resumed (finished splits are kept); anything else is refused
+    fileio.check_output_dir(args.out, ours=is_dataset_dir, resume=True)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
 
     label_kw = {f"beta_{n}": getattr(args, f"beta_{n}") for n in LABELER_NAMES}

@@ -83,6 +83,7 @@ import argparse
 import csv
 import dataclasses
 import functools
+import io
 import json
 import math
 import os
@@ -101,7 +102,7 @@ from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Bool, Float, Int
 from tqdm.auto import tqdm
 
-from slotv_jax import checkpoint, labelers, models, scene, validation
+from slotv_jax import checkpoint, cli, fileio, labelers, models, scene, validation
 from slotv_jax import config as config_lib
 from slotv_jax import train as train_lib
 from slotv_jax.config import TrainConfig
@@ -569,13 +570,7 @@ def load_study(path: str | os.PathLike) -> Study:
     unknown or missing arrays."""
     path = Path(path)
     w = _Where(str(path))
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise
-    except (ValueError, OSError, EOFError) as e:
-        raise ValueError(f"{path}: not a readable .npz study file ({e})") from e
+    arrays = fileio.load_npz(path)  # names a missing, truncated or non-zip file
     fmt = str(arrays.pop("format", ""))
     if fmt != FORMAT:
         raise ValueError(f"{w('format')}: expected {FORMAT!r}, got {fmt!r}")
@@ -617,17 +612,15 @@ class _Table:
 def _read_table(path: str | os.PathLike, required: Sequence[str]) -> _Table:
     path = Path(path)
     if path.suffix.lower() == ".json":
-        try:
-            doc = json.loads(path.read_text())
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{path.name}: not valid JSON ({e})") from e
+        doc = fileio.read_json(path)  # names the file, line and column of bad JSON
         if not isinstance(doc, list) or not all(isinstance(r, dict) for r in doc):
             raise ValueError(f"{path.name}: expected a JSON list of objects (one per row)")
         rows = [{str(k): v for k, v in r.items()} for r in doc]
         where = [f"item {i}" for i in range(len(rows))]
         columns = sorted({k for r in rows for k in r})
     else:
-        with open(path, newline="") as f:
+        # UTF-8 (a spreadsheet's byte-order mark dropped); a bad byte is named by line
+        with io.StringIO(fileio.read_text(path), newline="") as f:
             reader = csv.DictReader(f)
             columns = [c.strip() for c in (reader.fieldnames or [])]
             rows, where = [], []
@@ -1511,6 +1504,7 @@ def _parse_args(argv):
     imp.add_argument("--goals", required=True, help="[trajectory,]goal,x,y,z per goal")
     imp.add_argument("--answers", required=True, help="trajectory,guess[,tau,participant,...]")
     imp.add_argument("--out", required=True, help="study file to write (.npz)")
+    imp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     show = sub.add_parser("show", help="validate a study file and summarise it")
     show.add_argument("study")
     cv = sub.add_parser("cv", help="k-fold cross-validation of SLOT-V/T-REX and baselines")
@@ -1523,12 +1517,16 @@ def _parse_args(argv):
     cv.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     cv.add_argument("--condition", default=None)
     cv.add_argument("--out", default=None, help="write the results as JSON here")
+    cv.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     return ap.parse_args(argv)
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
-    """CLI: ``import`` (report what was read), ``show``, ``cv``."""
+    """CLI: ``import`` (report what was read), ``show``, ``cv``; input errors in one line."""
     args = _parse_args(argv)
+    if getattr(args, "out", None) is not None:  # before any work
+        fileio.check_output_file(args.out, overwrite=args.overwrite)
     if args.command == "import":
         study, report = read_tables(args.trajectories, args.goals, args.answers)
         save_study(args.out, study)
