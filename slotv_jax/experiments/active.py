@@ -58,9 +58,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
+from slotv_jax import cli, evaluate, fileio, selection, train
 from slotv_jax import config as config_lib
 from slotv_jax import data as data_lib
-from slotv_jax import evaluate, selection, train
 from slotv_jax.experiments.active_report import fmt_answers, render, stem_of, target_of
 from slotv_jax.experiments.table1 import dataset_dir
 from slotv_jax.fileio import write_text
@@ -158,20 +158,22 @@ def quick(**overrides) -> ActiveConfig:
 
 
 def paper(**overrides) -> ActiveConfig:
-    """GPU preset: the paper's dataset and SLOT-V network (1536/768) on every point."""
+    """GPU preset: the paper's dataset and SLOT-V network (1536/768, bfloat16 matmuls) on
+    every point, E = 3."""
     base = ActiveConfig(
         preset="paper",
         data=data_lib.paper(),
         train_preset="paper",
         labels_labelers=("dragan", "nikolaidis"),
         study_models=("mlp", "slotv_plus", "dragan"),
-        label_sizes=geometric(32, 4096, 2.0),
+        label_sizes=geometric(8, 4096, 2.0),
         study_sizes=geometric(8, 1024, 2.0),
-        updates=150,
+        updates=100,
         participants=20,
         study_targets=(("mlp", 0.8), ("slotv_plus", 0.8), ("dragan", 0.9)),
-        subset=4000,
-        chunk=512,
+        members=3,
+        subset=4096,
+        chunk=64,
         overrides=("compute_dtype=bfloat16",),
     )
     return dataclasses.replace(base, **overrides)
@@ -381,8 +383,25 @@ def comparisons(doc: dict) -> list[dict]:
     return out
 
 
-def run(cfg: ActiveConfig, out: Path, *, cache: Path = Path("data"), progress: bool = True):
-    """Run (or resume) every group; returns the results document (also written)."""
+def is_results(path: Path) -> bool:
+    """Whether ``path`` holds a results document of this experiment (ours to resume)."""
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and {"preset", "config", "groups"} <= set(doc)
+
+
+def run(
+    cfg: ActiveConfig,
+    out: Path,
+    *,
+    cache: Path = Path("data"),
+    progress: bool = True,
+    only: Sequence[tuple[str, str, str]] | None = None,
+):
+    """Run (or resume) every group (or the groups ``only``); returns the results document
+    (also written after each group)."""
     stem = stem_of(cfg.preset)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{stem}_results.json"
@@ -401,7 +420,7 @@ def run(cfg: ActiveConfig, out: Path, *, cache: Path = Path("data"), progress: b
     )
     doc["dataset"] = str(ddir)
     done = {(g["setting"], g["labeler"], g["model"]) for g in doc["groups"]}
-    todo = [g for g in cfg.groups() if g not in done]
+    todo = [g for g in cfg.groups() if g not in done and (only is None or g in only)]
     for setting, labeler, model in tqdm(todo, desc="active groups", disable=not progress):
         t0 = time.perf_counter()
         grp = run_group(cfg, splits, setting, labeler, model, progress=progress)
@@ -432,7 +451,8 @@ def _parse_args(argv):
     ap.add_argument(
         "--groups",
         default=None,
-        help="comma-separated setting/labeler/model, e.g. labels/dragan/mlp",
+        help="run only these groups (setting/labeler/model, comma-separated, e.g. "
+        "labels/dragan/mlp); the results document is shared",
     )
     ap.add_argument(
         "--set",
@@ -445,6 +465,7 @@ def _parse_args(argv):
     return ap.parse_args(argv)
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
     kw: dict = {}
@@ -453,30 +474,35 @@ def main(argv: Sequence[str] | None = None) -> int:
             kw[name] = getattr(args, name)
     if args.strategies:
         kw["strategies"] = tuple(s.strip() for s in args.strategies.split(","))
+    cfg = PRESETS[args.preset](**kw)
+    if args.set:
+        cfg = dataclasses.replace(cfg, overrides=cfg.overrides + tuple(args.set))
+        cfg.train_config("mlp")
+    only = None
     if args.groups:
-        parts = [tuple(g.split("/")) for g in args.groups.split(",")]
-        if any(len(p) != 3 or p[0] not in ("labels", "study") for p in parts):
-            raise SystemExit("error: --groups: expected setting/labeler/model items")
-        kw["labels_labelers"] = tuple(lab for s, lab, _ in parts if s == "labels")
-        kw["study_models"] = tuple(m for s, _, m in parts if s == "study")
-    try:
-        cfg = PRESETS[args.preset](**kw)
-        if args.set:
-            cfg = dataclasses.replace(cfg, overrides=cfg.overrides + tuple(args.set))
-            cfg.train_config("mlp")
-    except ValueError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(slotv_jax.XLA_CONFIG.summary(), flush=True)
+        only = [tuple(g.strip().split("/")) for g in args.groups.split(",")]
+        bad = [g for g in only if g not in cfg.groups()]
+        if bad:
+            raise cli.InputError(
+                f"--groups: {'/'.join(bad[0])} is not a group of this preset; expected some "
+                f"of {', '.join('/'.join(g) for g in cfg.groups())}"
+            )
     out = Path(args.out)
-    doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress)
-    render(
-        doc,
-        out,
-        " ".join(
-            ["python -m slotv_jax.experiments.active", *(sys.argv[1:] if argv is None else argv)]
-        ),
+    stem = stem_of(cfg.preset)
+    out.mkdir(parents=True, exist_ok=True)
+    results = out / f"{stem}_results.json"
+    if results.exists() and not is_results(results):
+        raise cli.InputError(
+            f"--out {out}: {results.name} exists and is not ours; choose another --out"
+        )
+    for suffix in (".md", ".png"):  # rewritten from the results: a file or nothing there
+        fileio.check_output_file(out / f"{stem}{suffix}", overwrite=True)
+    print(slotv_jax.XLA_CONFIG.summary(), flush=True)
+    doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress, only=only)
+    command = " ".join(
+        ["python -m slotv_jax.experiments.active", *(sys.argv[1:] if argv is None else argv)]
     )
+    render(doc, out, command)
     for c in doc["comparisons"]:
         print(
             f"{c['setting']}/{c['labeler']}/{c['model']} {c['strategy']}: "
