@@ -220,3 +220,4 @@ def test_config_rejects_bad_settings():
     with pytest.raises(ValueError, match="study_targets"):
         active.quick(study_targets=(("mlp", 0.8),))
     assert active.geometric(16, 512, 2.0) == (16, 32, 64, 128, 256, 512)
+    assert active.quick().groups()[0] == ("labels", "dragan", "mlp")

@@ -19,8 +19,9 @@ Protocol (every strategy and seed of a group in one vmapped call per step):
 
 1. round 0: ``sizes[0]`` motions drawn at random, the same for every strategy of a seed;
 2. each round trains the ensemble (E = ``members``: member 0 a plain run, the others
-   bootstrapped; warm start) ``updates`` more updates of ``batch_size`` answer rows, and
-   records member 0's held-out accuracy against the number of answers so far;
+   bootstrapped; warm start) ``updates`` (study: ``study_updates``) more updates of
+   ``batch_size`` answer rows, and records member 0's held-out accuracy against the
+   number of answers so far;
 3. the strategy scores ``subset`` motions drawn from the unasked part of the pool (the
    same draw for every strategy of a seed) and asks about the next ``sizes[r+1] −
    sizes[r]``.
@@ -77,7 +78,8 @@ class ActiveConfig:
     study_models: tuple[str, ...]  # the study setting's observers: mlp, slotv_plus, dragan
     label_sizes: tuple[int, ...]  # labelled motions after each round (labels setting)
     study_sizes: tuple[int, ...]  # motions asked after each round (study setting)
-    updates: int  # updates per round (warm start)
+    updates: int  # updates per round of the labels setting (warm start)
+    study_updates: int  # updates per round of the study setting (one guess per answer: noisier)
     participants: int  # simulated answers per motion (study setting)
     study_targets: tuple[tuple[str, float], ...]  # held-out accuracy target per model
     strategies: tuple[str, ...] = selection.STRATEGIES
@@ -138,18 +140,20 @@ def geometric(start: int, stop: int, ratio: float) -> tuple[int, ...]:
 
 
 def quick(**overrides) -> ActiveConfig:
-    """CPU preset: the quick dataset, hidden 64/32 networks on every 4th point, E = 4."""
+    """CPU preset: the quick dataset, hidden 64/32 networks on every 4th point, E = 3, up to
+    256 motions; study targets 75 % (the quick network's budget, ``study_size``)."""
     base = ActiveConfig(
         preset="quick",
         data=data_lib.quick(),
         train_preset="quick",
         labels_labelers=("dragan", "nikolaidis"),
         study_models=("mlp", "slotv_plus", "dragan"),
-        label_sizes=geometric(16, 512, 2.0),
-        study_sizes=geometric(8, 512, 2.0),
-        updates=150,
+        label_sizes=geometric(16, 256, 2.0),
+        study_sizes=geometric(16, 256, 2.0),
+        updates=100,
+        study_updates=100,
         participants=20,
-        study_targets=(("mlp", 0.8), ("slotv_plus", 0.8), ("dragan", 0.9)),
+        study_targets=(("mlp", 0.75), ("slotv_plus", 0.75), ("dragan", 0.9)),
         members=3,
         stride=4,
         subset=1024,
@@ -169,6 +173,7 @@ def paper(**overrides) -> ActiveConfig:
         label_sizes=geometric(8, 4096, 2.0),
         study_sizes=geometric(8, 1024, 2.0),
         updates=100,
+        study_updates=300,
         participants=20,
         study_targets=(("mlp", 0.8), ("slotv_plus", 0.8), ("dragan", 0.9)),
         members=3,
@@ -245,7 +250,8 @@ def run_group(
         first = np.random.default_rng([sd, 1]).choice(n_pool, sizes[0], replace=False)
         cand[i, : sizes[0]] = first
         asked[i, first] = True
-    fit = jax.jit(jax.vmap(lambda e, a, k: sel.fit(e, pool, a, k, updates=cfg.updates)))
+    updates = cfg.updates if setting == "labels" else cfg.study_updates
+    fit = jax.jit(jax.vmap(lambda e, a, k: sel.fit(e, pool, a, k, updates=updates)))
     evc = jnp.arange(evpool.traj.shape[0])
     acc_fn = jax.jit(
         jax.vmap(
@@ -446,7 +452,8 @@ def _parse_args(argv):
     ap.add_argument("--cache", default="data", help="dataset cache folder")
     ap.add_argument("--seeds", type=int, default=None)
     ap.add_argument("--strategies", default=None, help="comma-separated, random among them")
-    ap.add_argument("--updates", type=int, default=None, help="updates per round")
+    ap.add_argument("--updates", type=int, default=None, help="updates per round (labels)")
+    ap.add_argument("--study-updates", type=int, default=None, help="updates per round (study)")
     ap.add_argument("--members", type=int, default=None, help="ensemble size E")
     ap.add_argument(
         "--groups",
@@ -469,7 +476,7 @@ def _parse_args(argv):
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
     kw: dict = {}
-    for name in ("seeds", "updates", "members"):
+    for name in ("seeds", "updates", "study_updates", "members"):
         if getattr(args, name) is not None:
             kw[name] = getattr(args, name)
     if args.strategies:

@@ -46,7 +46,8 @@ def report(doc: dict, stem: str, command: str) -> str:
         f"flax {env.get('flax')}, optax {env.get('optax')}, numpy {env.get('numpy')}",
         f"- Protocol (`slotv_jax/experiments/active.py`): {cfg['seeds']} seeds × strategies "
         f"{', '.join(cfg['strategies'])}; ensembles of {cfg['members']} (member 0 is scored); "
-        f"{cfg['updates']} updates per round (warm start), batch "
+        f"{cfg['updates']} (labels) and {cfg.get('study_updates', cfg['updates'])} (study) "
+        "updates per round (warm start), batch "
         f"{cfg['train']['mlp']['batch_size']}; each round scores {cfg['subset']:,} unasked "
         f"motions; every {cfg['stride']}{'st' if cfg['stride'] == 1 else 'th'} point of each "
         f"motion; dataset preset `{cfg['data']['preset']}` ({cfg['data']['n_train']:,} "
