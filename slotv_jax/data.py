@@ -650,8 +650,9 @@ def _check_layout(path: Path, arrays: dict[str, np.ndarray]) -> None:
 
 
 def is_dataset_dir(path: str | Path) -> bool:
-    """True if ``path`` holds at least one split written by :func:`save_split` (its marker)."""
-    return any((Path(path) / f"{name}.json").is_file() for name in SPLITS)
+    """True if ``path`` holds a split written by :func:`save_split` (its marker: a split's
+    ``.json`` sidecar, or its ``.npz`` alone if a run stopped between the two)."""
+    return any((Path(path) / f"{n}{x}").is_file() for n in SPLITS for x in (".json", ".npz"))
 
 
 @cli.command

@@ -37,11 +37,13 @@ the points with t_i ≤ τ, at least two of them; τ = t_{length−1} is the who
 Importing study tables
 ----------------------
 ``python -m slotv_jax.study import --trajectories T --goals G --answers A --out study.npz``
-reads three tables, each a CSV file with a header or a JSON list of objects with the
-same keys (one object per row):
+reads three tables, each a CSV file with a header (UTF-8; a spreadsheet's byte-order
+mark is fine) or a JSON list of objects with the same keys (one object per row):
 
 - trajectories: ``trajectory, x, y, z`` and optionally ``t``; one row per point, in
   time order within each trajectory (any T ≥ 2; trajectories may differ in length);
+  ``t`` is all-or-nothing: every point of every trajectory has one, or the column is
+  left out;
 - goals: ``goal, x, y, z`` (shared by every trajectory) or ``trajectory, goal, x, y, z``
   (per trajectory); 1-8 goals each, slots in order of appearance;
 - answers: ``trajectory, guess`` (a goal name) and optionally ``tau`` (empty: the whole
@@ -136,7 +138,7 @@ class Study:
     answer_condition: np.ndarray | None = None  # (A,) int32: index into conditions
     conditions: tuple[str, ...] = ()  # condition names
     trajectory_ids: tuple[str, ...] = ()  # (N,) ids from the source tables
-    goal_names: np.ndarray | None = None  # (N, 8) str: goal names ('' on padding)
+    goal_names: np.ndarray | None = None  # (N, 8) str array ('' on padding; numpy.str_ items)
     shared_goals: bool = False  # every trajectory has the same goals (stored once)
 
     @property
@@ -434,8 +436,9 @@ def make_study(
         a = int(bad[0])
         i = int(traj[a])
         raise ValueError(
-            f"{w('answer_tau', a)}: tau = {tau[a]!r} is outside the motion of trajectory {i}: "
-            f"expected {times[i, 1]!r} <= tau <= {full[i]!r} (at least 2 points seen, "
+            f"{w('answer_tau', a)}: tau = {float(tau[a])!r} is outside the motion of trajectory "
+            f"{i}: expected {float(times[i, 1])!r} <= tau <= {float(full[i])!r} (at least 2 "
+            "points seen, "
             "at most the whole motion)"
         )
 
@@ -721,6 +724,12 @@ def read_tables(
     for i in range(len(tt.rows)):
         tid = _text(tt, i, "trajectory")
         p = [_number(tt, i, c) for c in ("x", "y", "z")]
+        if has_t and _blank(tt.rows[i].get("t")):
+            raise ValueError(
+                f"{tt.at(i, 't')}: no time stamp; the column 't' is all-or-nothing: give t for "
+                "every point of every trajectory, or leave the column out (points are then "
+                "evenly spaced in time)"
+            )
         ti = _number(tt, i, "t") if has_t else None
         pts = points.setdefault(tid, [])
         if has_t and pts and not ti > pts[-1][1]:
@@ -811,7 +820,7 @@ def read_tables(
             if tau > full[k] + TAU_RTOL * (full[k] - times[k, 0]) or seen < 2:
                 raise ValueError(
                     f"{at.at(i, 'tau')}: tau = {tau!r} is outside the motion of trajectory "
-                    f"{tid!r}: expected {times[k, 1]!r} <= tau <= {full[k]!r} "
+                    f"{tid!r}: expected {float(times[k, 1])!r} <= tau <= {float(full[k])!r} "
                     "(at least 2 points seen)"
                 )
             if seen < length[k]:
@@ -1456,11 +1465,21 @@ def simulate_study(
 
 def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
     """``python -m slotv_jax.train --study FILE ...``: train on a study, checkpoint every
-    epoch, optionally cross-validate (``--cv K``), and print the metrics."""
+    epoch, optionally cross-validate (``--cv K``), and print the metrics. A study with
+    fewer answer rows than the preset's batch trains with the largest power of two that
+    fits (and says so), unless ``--set batch_size=N`` is given."""
     study = load_study(args.study)
     if args.condition is not None:
         study = study.select_condition(args.condition)
     cfg = dataclasses.replace(cfg, train_size=None)
+    chosen = any(a.split("=", 1)[0].strip() == "batch_size" for a in getattr(args, "set", []))
+    if not chosen and study.n_rows < cfg.batch_size:  # a small study: a batch that fits
+        fit = 1 << (study.n_rows.bit_length() - 1)
+        print(
+            f"batch_size: the study has {study.n_rows} answer rows, fewer than the preset's "
+            f"{cfg.batch_size}; using batch_size={fit} (--set batch_size=N to choose)"
+        )
+        cfg = dataclasses.replace(cfg, batch_size=fit)
     print(study.summary(), flush=True)
     print(f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)
     out = Path(args.out)

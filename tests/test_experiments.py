@@ -123,7 +123,8 @@ def test_killed_run_resumes_without_recomputing(cache, tmp_path):
     n_done = len(killed["timing"]["cells"])
     assert 1 <= n_done < 8, "the run should have been killed midway"
 
-    subprocess.run(cmd, cwd=REPO, env=env, check=True, capture_output=True)
+    rerun = subprocess.run(cmd, cwd=REPO, env=env, check=True, capture_output=True, text=True)
+    assert f"reusing {n_done} finished trial(s) of 8" in rerun.stdout  # it says so
     final = json.loads(results.read_text())
     _check_schema(final)
     # Finished cells were kept as they were, and only the missing ones were trained.

@@ -50,6 +50,7 @@ import mujoco
 import numpy as np
 
 import slotv_jax
+from slotv_jax import cli
 from slotv_jax import kinematics as K
 from slotv_jax import scene as S
 from slotv_jax import trajectories as T
@@ -335,6 +336,7 @@ def report(w: dict, wo: dict, wall_s: float) -> None:
     print(f"# load average after: {_load()}; whole run {wall_s:.0f} s")
 
 
+@cli.command
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.benchmarks.kinematics",

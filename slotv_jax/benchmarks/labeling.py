@@ -44,6 +44,7 @@ import jaxlib
 import numpy as np
 
 import slotv_jax
+from slotv_jax import cli
 from slotv_jax import labelers as L
 from slotv_jax.benchmarks._machine import cpu_model
 from slotv_jax.scene import camera as scene_camera
@@ -127,6 +128,7 @@ def np_fastapp(xyz, goals, mask, beta=5.0):
 VECTOR_WIDTH = "xla_cpu_prefer_vector_width"
 
 
+@cli.command
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.labeling", description=__doc__)
     p.add_argument("--n", type=int, default=160_000, help="trajectories for JAX")

@@ -35,7 +35,7 @@ import jax
 import numpy as np
 
 import slotv_jax
-from slotv_jax import kinematics, planning, scene
+from slotv_jax import cli, kinematics, planning, scene
 from slotv_jax.benchmarks._machine import cpu_model
 
 # Franka's modified DH table (SPEC §1): a, d, alpha per joint; then the flange and the TCP.
@@ -151,6 +151,7 @@ def quality(xyz, straight_xyz, goals, mask, target, feasible) -> str:
     )
 
 
+@cli.command
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.planning")
     p.add_argument("--n", type=int, default=64, help="problems of the batched call")

@@ -39,9 +39,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
+from slotv_jax import cli, evaluate, fileio, train
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
-from slotv_jax import evaluate, train
 from slotv_jax.experiments import sample_efficiency, table1
 from slotv_jax.experiments.table1 import LABELER_TITLES, LABELERS, SPLIT_TITLES, SPLITS
 from slotv_jax.fileio import save_figure, write_text
@@ -400,6 +400,7 @@ def plot(doc: dict, out: Path, path: Path) -> None:
         plt.close(fig)
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.explainable",
@@ -414,12 +415,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="default: runs/explainable_<preset>")
     p.add_argument("--cache", type=Path, default=Path("data"))
     args = p.parse_args(argv)
-    print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     trials = args.trials or table1.PRESETS[args.preset]().trials
     for name, v in (("trials", trials), ("repeats", args.repeats), ("every", args.every)):
         if v < 1:
             p.error(f"--{name}: expected an integer >= 1")
     out = args.out or Path("runs") / f"explainable_{args.preset}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
+    print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     doc = run(
         args.preset, out, trials=trials, models=args.models, labelers=args.labelers,
         repeats=args.repeats, every=args.every, cache=args.cache,

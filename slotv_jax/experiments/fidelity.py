@@ -64,6 +64,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
+from slotv_jax import cli, fileio
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
 from slotv_jax.experiments import label_report, table1
@@ -491,6 +492,7 @@ def write_report(doc: dict, doc_path: Path, *, command: str = "", wall_s: float 
 # ----------------------------------------------------------------------- CLI
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.fidelity",
@@ -536,6 +538,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{s.name:>16s}  {s.factor:>6s}  {s.value:<12s} trials {s.trials}")
         return 0
     out = args.out or Path("runs") / f"fidelity_{args.preset}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
+    doc_path = args.doc or (
+        Path("experiments") / "fidelity.md" if args.preset == "paper" else out / "fidelity.md"
+    )
+    fileio.check_output_files(doc_path.parent, [doc_path.name], what="--doc")
     t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     previous = None
@@ -553,9 +560,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ValueError as e:
             p.error(str(e))
     wall = None if args.report_only else time.perf_counter() - t0
-    doc_path = args.doc or (
-        Path("experiments") / "fidelity.md" if args.preset == "paper" else out / "fidelity.md"
-    )
     command = "python -m slotv_jax.experiments.fidelity " + shlex.join(
         sys.argv[1:] if argv is None else list(argv)
     )

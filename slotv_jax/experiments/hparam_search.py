@@ -43,9 +43,9 @@ from jax.sharding import Mesh
 from tqdm.auto import tqdm
 
 import slotv_jax
+from slotv_jax import cli, evaluate, fileio, parallel, train
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
-from slotv_jax import evaluate, parallel, train
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import LABELERS, dataset_dir
 from slotv_jax.fileio import write_text
@@ -420,6 +420,7 @@ def summarise(doc: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.hparam_search",
@@ -453,6 +454,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         kw["compute_dtype"] = args.compute_dtype
     cfg = PRESETS[args.preset](**kw)
     out = args.out or Path("runs") / f"hparam_search_{args.preset}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
+    if args.report is not None:
+        fileio.check_output_files(args.report.parent, [args.report.name], what="--report")
     command = "python -m slotv_jax.experiments.hparam_search " + " ".join(
         sys.argv[1:] if argv is None else argv
     )

@@ -52,7 +52,7 @@ from flax import nnx
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import checkpoint, evaluate, labelers, models, planning, scene, train
+from slotv_jax import checkpoint, cli, evaluate, fileio, labelers, models, planning, scene, train
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
 from slotv_jax.experiments.table1 import dataset_dir
@@ -353,6 +353,9 @@ def run(
 
     # Plans: one compiled program for every observer.
     planner = planning.make_planner(observers, cfg.planner)
+    n_obs = len(planner.observers)
+    note = f"planning: compiling one program for {n_obs} observers (a minute or two on a CPU)"
+    print(note, file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     straight = planner.straight_line(problems["goals"], problems["goal_mask"], problems["target"])
     jax.block_until_ready(straight)
@@ -622,6 +625,7 @@ def report(doc: dict, figures: str = "") -> str:
     return "\n".join(lines)
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.planning",
@@ -687,6 +691,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if getattr(args, f"{m}_{f}") is not None
     }
     out = args.out or Path("runs") / f"planning_{args.preset}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
+    if args.doc is not None:
+        names = [args.doc.name, *(f"{args.doc.stem}_{f}" for f in ("scenes.png", "bars.png"))]
+        fileio.check_output_files(args.doc.parent, names, what="--doc")
     doc = run(cfg, out, checkpoints=ckpts, cache=args.cache)
     if args.doc is not None:
         args.doc.parent.mkdir(parents=True, exist_ok=True)

@@ -33,8 +33,8 @@ import jax
 import numpy as np
 
 import slotv_jax
+from slotv_jax import cli, evaluate, fileio, parallel, train
 from slotv_jax import data as data_lib
-from slotv_jax import evaluate, parallel, train
 from slotv_jax.config import MODELS
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
@@ -241,6 +241,7 @@ def replot(out: Path) -> None:
     plot(rows, doc["summary"], doc, out / "sample_efficiency.png")
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.sample_efficiency",
@@ -281,6 +282,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             p.error(f"--{name.replace('_', '-')}: expected an integer >= 1")
     suffix = "" if args.model == "mlp" else f"_{args.model}"
     out = args.out or Path("runs") / f"sample_efficiency_{args.preset}{suffix}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
     doc = run(
         args.preset,
         out,

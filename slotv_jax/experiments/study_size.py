@@ -63,9 +63,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
+from slotv_jax import cli, evaluate, fileio, study, train
 from slotv_jax import config as config_lib
 from slotv_jax import data as data_lib
-from slotv_jax import evaluate, study, train
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
 from slotv_jax.fileio import save_figure, write_text
 
@@ -719,8 +719,11 @@ def _parse_args(argv):
     return ap.parse_args(argv)
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
+    stem = "study_size" if args.preset == "quick" else f"study_size_{args.preset}"
+    fileio.check_output_files(args.out, [f"{stem}.{x}" for x in ("json", "md", "png")])
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)
     kw: dict = {}
     if args.n_grid:

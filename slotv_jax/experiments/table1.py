@@ -530,11 +530,6 @@ def report(doc: dict) -> str:
     )
 
 
-def is_results_dir(path: Path) -> bool:
-    """True if ``path`` holds an experiment's ``results.json`` (the marker of our output)."""
-    return (Path(path) / "results.json").is_file()
-
-
 @cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
@@ -593,7 +588,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.merge and args.out is None:
         raise cli.InputError("--merge needs --out")
     # a results directory of ours is resumed (finished cells are kept); else refused
-    fileio.check_output_dir(out, ours=is_results_dir, resume=True)
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)
     parallel.init_from_args(args)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     if args.merge:

@@ -33,7 +33,6 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-import jax
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -47,6 +46,7 @@ from slotv_jax.render.frames import (
     check_motion,
     check_size,
     check_timing,
+    joints_from_tcp,
     motion_frames,
 )
 from slotv_jax.render.writers import SUFFIXES, check_output, contact_sheet, write_png, write_video
@@ -97,11 +97,10 @@ def parse_size(text: str) -> tuple[int, int]:
 
 def _ik(xyz: np.ndarray, what: str) -> np.ndarray:
     """Joint path of a TCP path (warm-started IK from Q_HOME); warns on a large miss."""
-    res = jax.jit(kinematics.solve_path_ik)(np.asarray(xyz, np.float32))
-    worst = float(np.max(res.residual))
+    q, worst = joints_from_tcp(xyz)
     if worst > IK_WARN:
         print(f"warning: {what}: IK misses the path by up to {worst * 1e3:.1f} mm", file=sys.stderr)
-    return np.asarray(res.q, np.float64)
+    return q
 
 
 def _data_items(args) -> list[Item]:
@@ -186,18 +185,21 @@ def _plans_items(args) -> list[Item]:
         ks = [names.index(args.planner)]
     stem = Path(args.plans).stem
     suffix = f"_{args.planner}" if args.planner else ""
-    return [
-        Item(
-            f"{stem}_{p:04d}{suffix}",
-            tuple(q[k, p] for k in ks),
-            z["goals"][p],
-            z["goal_mask"][p],
-            int(z["target"][p]),
-            names=tuple(names[k] for k in ks),
-            rgbas=tuple(PALETTE[k % len(PALETTE)] for k in ks),
+    items = []
+    for p in idx:
+        shown = [k for k in ks if args.planner or np.isfinite(q[k, p]).all()]  # NaN: left out
+        items.append(
+            Item(
+                f"{stem}_{p:04d}{suffix}",
+                tuple(q[k, p] for k in shown),
+                z["goals"][p],
+                z["goal_mask"][p],
+                int(z["target"][p]),
+                names=tuple(names[k] for k in shown),
+                rgbas=tuple(PALETTE[k % len(PALETTE)] for k in shown),
+            )
         )
-        for p in idx
-    ]
+    return items
 
 
 def _parser() -> argparse.ArgumentParser:
