@@ -31,7 +31,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-import os
 from collections.abc import Sequence
 
 import jax
@@ -40,6 +39,7 @@ import numpy as np
 from jaxtyping import Bool, Float, UInt8
 
 from slotv_jax import kinematics, validation
+from slotv_jax.render.backend import RenderBackendError, backend_message
 from slotv_jax.render.camera import View, check_view, scene_model
 from slotv_jax.render.overlay import draw_goal_labels
 from slotv_jax.validation import G_MAX
@@ -50,23 +50,6 @@ TRACE_WIDTH = 0.006  # radius (m) of the TCP trace's capsules
 TRACE_RGBA = (0.05, 0.05, 0.05, 1.0)  # the trace's colour (a dark line reads on every surface)
 TARGET_RGBA = (1.0, 1.0, 1.0, 0.9)  # the disc under the target cube
 TARGET_DISC = (0.045, 0.001)  # its radius and half-height (m)
-
-
-class RenderBackendError(RuntimeError):
-    """No OpenGL context could be opened for offscreen rendering."""
-
-
-def backend_message(err: BaseException) -> str:
-    """What to do when MuJoCo cannot open an OpenGL context."""
-    gl = os.environ.get("MUJOCO_GL", "")
-    return (
-        f"cannot open an OpenGL context for rendering (MUJOCO_GL={gl or 'unset'}: "
-        f"{type(err).__name__}: {str(err).strip().splitlines()[0] if str(err).strip() else ''}). "
-        "Set MUJOCO_GL before Python imports mujoco: MUJOCO_GL=egl on a headless machine "
-        "(a GPU's EGL, or Mesa's software EGL), MUJOCO_GL=osmesa for Mesa's OSMesa, or glfw "
-        "with a display; on Debian/Ubuntu install EGL with `apt-get install libegl1 "
-        "libgl1-mesa-dri` or OSMesa with `apt-get install libosmesa6`"
-    )
 
 
 # ----------------------------------------------------------------- time and inputs
