@@ -35,8 +35,10 @@ import jax
 import numpy as np
 
 import slotv_jax
-from slotv_jax import kinematics, planning, scene
+from slotv_jax import planning
 from slotv_jax.benchmarks._machine import cpu_model
+from slotv_jax.robot import kinematics
+from slotv_jax.world import scene
 
 # Franka's modified DH table (SPEC §1): a, d, alpha per joint; then the flange and the TCP.
 _DH = np.array(

@@ -56,9 +56,10 @@ import numpy as np
 import optax
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
-from slotv_jax import config, train
-from slotv_jax.models import BACKWARDS
-from slotv_jax.train import default_backward, packs_updates
+from slotv_jax.observers.models import BACKWARDS
+from slotv_jax.training import config, types
+from slotv_jax.training import trainer as train
+from slotv_jax.training.trainer import default_backward, packs_updates
 
 T = 100
 G = 8
@@ -117,8 +118,8 @@ def synthetic_data(n: int, seed: int = 0, trim: bool = True):
     logits = np.where(mask, rng.normal(size=(n, G)), -np.inf)
     y = np.exp(logits - logits.max(-1, keepdims=True))
     y = (y / y.sum(-1, keepdims=True)).astype(np.float32)
-    data = train.TrainData(xyz, goals, mask, y)
-    return train.trim_goals(data) if trim else data
+    data = types.TrainData(xyz, goals, mask, y)
+    return types.trim_goals(data) if trim else data
 
 
 def paper_pair_capacity(trials: int = 10, preset: str = "paper") -> int:

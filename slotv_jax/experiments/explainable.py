@@ -39,12 +39,13 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
-from slotv_jax import evaluate, train
+from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.experiments import sample_efficiency, table1
 from slotv_jax.experiments.table1 import LABELER_TITLES, LABELERS, SPLIT_TITLES, SPLITS
-from slotv_jax.fileio import save_figure, write_text
+from slotv_jax.training import config as train_config
+from slotv_jax.training import evaluate, types
+from slotv_jax.training import trainer as train
 
 MODELS = train_config.MODELS
 MODEL_TITLES = {
@@ -106,7 +107,7 @@ def run(
     mlp_size = t1.train["slotv"].n_used(len(dataset["train"]))
 
     def fit_and_score(lab, model, tc, seeds):
-        tdata = train.prepare(dataset["train"], lab, size=tc.train_size)
+        tdata = types.prepare(dataset["train"], lab, size=tc.train_size)
         t0 = time.perf_counter()
         states, _ = train.train_trials(tc, tdata, seeds, progress=False)
         jax.block_until_ready(states)
@@ -114,7 +115,7 @@ def run(
         accs = {}
         for split in SPLITS:
             size = tc.n_used(len(dataset["train"])) if split == "train" else None
-            d = train.prepare(dataset[split], lab, size=size)
+            d = types.prepare(dataset[split], lab, size=size)
             accs[split] = np.asarray(evaluate.accuracy(tc, states.params, d)).reshape(-1)
         fitted = []
         if model != "mlp":

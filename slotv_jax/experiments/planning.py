@@ -52,13 +52,17 @@ from flax import nnx
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import checkpoint, evaluate, labelers, models, planning, scene, train
-from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
+from slotv_jax import planning
+from slotv_jax.core.fileio import atomic_write, save_figure, write_text
 from slotv_jax.experiments.table1 import dataset_dir
-from slotv_jax.fileio import atomic_write, save_figure, write_text
-from slotv_jax.kinematics import home_tcp
-from slotv_jax.scene import camera, project
+from slotv_jax.observers import labelers, models
+from slotv_jax.robot.kinematics import home_tcp
+from slotv_jax.training import checkpoint, evaluate, types
+from slotv_jax.training import config as train_config
+from slotv_jax.training import trainer as train
+from slotv_jax.world import scene
+from slotv_jax.world.scene import camera, project
 
 FAMILIES = ("dragan", "nikolaidis")  # the true labelers; each is its own family's oracle
 METHODS = ("slotv", "trex")  # the learned observers of SPEC's `planners` rows
@@ -235,7 +239,7 @@ def train_observer(
     ``labeler`` labels; save it to ``out``."""
     tc = cfg.observer_config(method, labeler)
     t0 = time.perf_counter()
-    data = train.prepare(train_split, labeler, size=tc.train_size)
+    data = types.prepare(train_split, labeler, size=tc.train_size)
     state, _ = train.train_trials(tc, data, [cfg.seed], progress=False)
     state = train.select_trial(state, 0)
     jax.block_until_ready(state)

@@ -56,7 +56,7 @@ from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
 
-from slotv_jax.fileio import write_text
+from slotv_jax.core.fileio import write_text
 
 # flag name -> (value, why), in the order they are appended
 SETTINGS: dict[str, tuple[str, str]] = {

@@ -46,10 +46,9 @@ traces and compiles the next unit while the devices run the earlier ones.
 
 from __future__ import annotations
 
-import argparse
 import functools
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any, TypeVar
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -59,132 +58,11 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float, Int
 
-from slotv_jax import evaluate, train
-from slotv_jax.config import TrainConfig
-
-TRIAL = "trial"  # mesh axis of independent runs
-DATA = "data"  # mesh axis of one run's minibatch (train.Trainer shards over it)
-U = TypeVar("U")
-
-
-# ---------------------------------------------------------------- planning
-
-
-def plan(n_units: int, n_devices: int) -> list[tuple[int, int]]:
-    """(units, trial-axis size t) of each group that runs ``n_units`` on ``n_devices``.
-
-    Groups of t = N while N or more units are left; the last k < N as one group with t the
-    smallest divisor of N that is ≥ k (its batch axis then spans d = N / t devices). One
-    device: one unit per group.
-
-    >>> plan(10, 4), plan(1, 4), plan(3, 1)
-    ([(4, 4), (4, 4), (2, 2)], [(1, 1)], [(1, 1), (1, 1), (1, 1)])
-    """
-    if n_units < 0 or n_devices < 1:
-        raise ValueError(
-            f"plan: expected n_units >= 0 and n_devices >= 1, got {n_units}, {n_devices}"
-        )
-    full, rest = divmod(n_units, n_devices)
-    out = [(n_devices, n_devices)] * full
-    if rest:
-        out.append((rest, min(t for t in range(rest, n_devices + 1) if n_devices % t == 0)))
-    return out
-
-
-def groups(units: Sequence[U], n_devices: int) -> list[tuple[list[U], int]]:
-    """``units`` cut into the groups of :func:`plan`, in order: (units, trial-axis size)."""
-    out, i = [], 0
-    for k, t in plan(len(units), n_devices):
-        out.append((list(units[i : i + k]), t))
-        i += k
-    return out
-
-
-def unit_mesh(t: int, batch_size: int, devices: Sequence[jax.Device] | None = None) -> Mesh:
-    """A ("trial", "data") mesh of shape (t, d) over ``devices`` (default: every process's).
-
-    d = N / t, lowered to the largest divisor of ``batch_size`` (the minibatch is split
-    evenly over "data"); devices left over stay idle. Rows are consecutive devices, so a
-    run's batch axis stays on one host where it can.
-    """
-    devices = list(jax.devices() if devices is None else devices)
-    if t < 1 or len(devices) % t:
-        raise ValueError(f"t: expected a divisor of the {len(devices)} devices, got {t}")
-    d = len(devices) // t
-    d = max(k for k in range(1, d + 1) if batch_size % k == 0)
-    return Mesh(np.array(devices[: t * d]).reshape(t, d), (TRIAL, DATA))
-
-
-# ---------------------------------------------------------------- many processes
-
-
-def initialize(
-    coordinator: str | None = None, num_processes: int | None = None, process_id: int | None = None
-) -> None:
-    """Start JAX's multi-process runtime (one process per host): ``jax.distributed.initialize``.
-
-    Without arguments JAX detects the cluster (SLURM, Open MPI, cloud TPU); otherwise give
-    the coordinator's ``host:port`` (process 0's host), the process count and this process's
-    index. On CPUs the cross-process collectives use gloo. Call it before any other JAX
-    call (the CLIs do it first thing with ``--coordinator``/``--num-processes``/
-    ``--process-id``, or ``--distributed`` for auto-detection).
-    """
-    if jax.config.jax_platforms in (None, "", "cpu") or "cpu" in str(jax.config.jax_platforms):
-        jax.config.update("jax_cpu_collectives_implementation", "gloo")
-    jax.distributed.initialize(coordinator, num_processes, process_id)
-
-
-def add_cli_args(parser: argparse.ArgumentParser) -> None:
-    """The multi-host flags shared by the experiment CLIs."""
-    g = parser.add_argument_group("many hosts (one process per host; see slotv_jax.parallel)")
-    g.add_argument("--distributed", action="store_true",
-                   help="jax.distributed.initialize() with cluster auto-detection")  # fmt: skip
-    g.add_argument("--coordinator", help="host:port of process 0 (with the two flags below)")
-    g.add_argument("--num-processes", type=int)
-    g.add_argument("--process-id", type=int)
-
-
-def init_from_args(args: argparse.Namespace) -> None:
-    """Call :func:`initialize` if the parsed :func:`add_cli_args` flags ask for it."""
-    manual = (args.coordinator, args.num_processes, args.process_id)
-    if any(v is not None for v in manual):
-        if any(v is None for v in manual):
-            raise ValueError(
-                "--coordinator, --num-processes, --process-id: expected all three or none"
-            )
-        if not 0 <= args.process_id < args.num_processes:
-            raise ValueError(
-                f"--process-id: expected 0 <= id < {args.num_processes}, got {args.process_id}"
-            )
-        initialize(*manual)
-    elif args.distributed:
-        initialize()
-
-
-def is_writer() -> bool:
-    """Whether this process writes the results (process 0)."""
-    return jax.process_index() == 0
-
-
-def broadcast(x: np.ndarray) -> np.ndarray:
-    """Process 0's value of a host array of the same shape on every process."""
-    if jax.process_count() == 1:
-        return np.asarray(x)
-    return np.asarray(multihost_utils.broadcast_one_to_all(np.asarray(x)))
-
-
-def barrier(name: str) -> None:
-    """Wait until every process has reached the barrier ``name``."""
-    if jax.process_count() > 1:
-        multihost_utils.sync_global_devices(name)
-
-
-def fetch(x: jax.Array) -> np.ndarray:
-    """The whole value of a (possibly multi-host) array on every process, as NumPy."""
-    if jax.process_count() == 1 or x.is_fully_addressable:
-        return np.asarray(x)
-    return np.asarray(multihost_utils.process_allgather(x, tiled=True))
-
+from slotv_jax.training import evaluate, types
+from slotv_jax.training import trainer as train
+from slotv_jax.training.config import TrainConfig
+from slotv_jax.training.distributed import broadcast, fetch
+from slotv_jax.training.schedule import TRIAL, U
 
 # ---------------------------------------------------------------- one group of runs
 
@@ -204,20 +82,20 @@ def _jit_group(trainer: train.Trainer, per_unit_labels: bool, vmapped: bool):
 
     if not vmapped:
         return jax.jit(train_run)
-    data_axes = train.TrainData(None, None, None, 0 if per_unit_labels else None)
+    data_axes = types.TrainData(None, None, None, 0 if per_unit_labels else None)
     return jax.jit(jax.vmap(train_run, in_axes=(0, data_axes, None), spmd_axis_name=TRIAL))
 
 
 def train_group(
     cfg: TrainConfig,
-    data: train.TrainData,
+    data: types.TrainData,
     seeds: Sequence[int],
     mesh: Mesh,
     *,
     labels: Float[Array, "U N 8"] | None = None,
-    val: train.TrainData | None = None,
+    val: types.TrainData | None = None,
     progress: bool = False,
-) -> tuple[train.TrainState, train.Metrics]:
+) -> tuple[types.TrainState, types.Metrics]:
     """Train one run per seed side by side, the run axis sharded over ``mesh``'s "trial" axis.
 
     Run i is ``trainer.train(jax.random.key(seeds[i]), data_i, val)`` of
@@ -237,7 +115,7 @@ def train_group(
     if labels is not None and len(labels) != k:
         raise ValueError(f"labels: expected one (N, 8) array per seed ({k}), got {len(labels)}")
     n_used = cfg.n_used(data.xyz.shape[0])
-    data = train.trim_goals(train.subset(data, n_used))
+    data = types.trim_goals(types.subset(data, n_used))
     g = data.goals.shape[1]
     if labels is not None:
         labels = np.asarray(labels)[:, :n_used, :g]
@@ -249,7 +127,7 @@ def train_group(
     ev = None
     if val is not None and cfg.eval_every:
         ev = jax.device_put(
-            trainer.eval_data(train.trim_goals(train.subset(val, cfg.eval_size))), rep
+            trainer.eval_data(types.trim_goals(types.subset(val, cfg.eval_size))), rep
         )
     if k == 1 and t == 1:  # one run over all devices of the mesh: the batch-parallel path
         if labels is not None:
@@ -260,7 +138,7 @@ def train_group(
     size = -(-k // t) * t
     if labels is not None:
         data = data._replace(labels=jax.device_put(_pad(labels, size), by_run))
-    shared = train.TrainData(*(jax.device_put(x, rep) for x in data[:3]), data.labels)
+    shared = types.TrainData(*(jax.device_put(x, rep) for x in data[:3]), data.labels)
     if labels is None:
         shared = shared._replace(labels=jax.device_put(data.labels, rep))
     f = _jit_group(trainer, labels is not None, True)
@@ -281,7 +159,7 @@ def _jit_group_accuracy(trainer: train.Trainer, per_unit_labels: bool, vmapped: 
 def group_accuracy(
     cfg: TrainConfig,
     params,
-    data: train.TrainData,
+    data: types.TrainData,
     mesh: Mesh,
     *,
     labels: Float[Array, "U N 8"] | None = None,
@@ -297,7 +175,7 @@ def group_accuracy(
     t = int(mesh.shape[TRIAL])
     k = len(jax.tree.leaves(params)[0])
     n = data.xyz.shape[0]
-    data = train.trim_goals(data)
+    data = types.trim_goals(data)
     g = data.goals.shape[1]
     trainer = train.make_train(cfg, mesh=mesh, progress=False)
     ev = trainer.eval_data(data, size=n)
@@ -406,7 +284,7 @@ def precompile_group(cfg: TrainConfig, n: int, n_points: int, n_goals: int, mesh
     def spec(shape, dtype, sharding=rep):
         return jax.ShapeDtypeStruct(shape, dtype, sharding=sharding)
 
-    data = train.TrainData(
+    data = types.TrainData(
         spec((n, n_points, 3), jnp.float32),
         spec((n, n_goals, 3), jnp.float32),
         spec((n, n_goals), jnp.bool_),

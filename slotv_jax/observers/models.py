@@ -51,8 +51,9 @@ import jax.numpy as jnp
 from flax import nnx
 from jaxtyping import Array, Bool, Float
 
-from slotv_jax import parametric, validation
-from slotv_jax.validation import G_MAX
+from slotv_jax.core import validation
+from slotv_jax.core.validation import G_MAX
+from slotv_jax.observers import archetypes, parametric
 
 _DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 BACKWARDS = ("autodiff", "fused", "recompute")  # see GoalRelativeMLP.grid
@@ -456,7 +457,7 @@ def make_model(cfg, rngs: nnx.Rngs | jax.Array | int) -> Model:
     MLP (``model="mlp"``) SLOT-V's or T-REX's network."""
     model = getattr(cfg, "model", "mlp")
     if model != "mlp":
-        return parametric.make_archetype(model)
+        return archetypes.make_archetype(model)
     if not isinstance(rngs, nnx.Rngs):
         rngs = nnx.Rngs(rngs)
     cls = {"slotv": SlotV, "trex": TRex}.get(cfg.method)

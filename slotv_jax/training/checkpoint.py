@@ -37,9 +37,9 @@ import orbax.checkpoint as ocp
 from flax import nnx
 from jaxtyping import Array, Bool, Float
 
-from slotv_jax import models
-from slotv_jax import train as train_lib
-from slotv_jax.config import TrainConfig
+from slotv_jax.observers import models
+from slotv_jax.training import trainer as train_lib
+from slotv_jax.training.config import TrainConfig
 
 FORMAT = "slotv_jax.checkpoint/1"
 CONFIG_FILE = "config.json"

@@ -25,11 +25,13 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from slotv_jax import checkpoint, evaluate, study
-from slotv_jax import config as config_lib
 from slotv_jax import data as data_lib
-from slotv_jax._xla import XLA_CONFIG
-from slotv_jax.train import make_train, packed_trainer, prepare, trim_goals
+from slotv_jax.core.xla import XLA_CONFIG
+from slotv_jax.study import cli as study
+from slotv_jax.training import checkpoint, evaluate
+from slotv_jax.training import config as config_lib
+from slotv_jax.training.trainer import make_train, packed_trainer
+from slotv_jax.training.types import prepare, trim_goals
 
 LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
 TEST_SPLITS = ("train", "trajectory_test", "position_test", "goal_count_test")
@@ -129,7 +131,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     checkpoint.save(out, cfg, state, meta=meta)
     print(json.dumps({"checkpoint": str(out), "accuracy": acc}, indent=2))
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -30,7 +30,7 @@ import optax
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
-from slotv_jax import validation
+from slotv_jax.core import validation
 
 
 class TrainData(NamedTuple):

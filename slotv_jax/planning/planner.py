@@ -76,10 +76,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from slotv_jax import kinematics, labelers, validation
-from slotv_jax.scene import camera as scene_camera
-from slotv_jax.trajectories import resample_polyline
-from slotv_jax.validation import G_MAX
+from slotv_jax.core import validation
+from slotv_jax.core.validation import G_MAX
+from slotv_jax.observers import labelers
+from slotv_jax.robot import kinematics
+from slotv_jax.world.scene import camera as scene_camera
+from slotv_jax.world.trajectories import resample_polyline
 
 __all__ = [
     "Diagnostics",

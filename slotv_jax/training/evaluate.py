@@ -30,9 +30,10 @@ from flax import nnx
 from jax.sharding import Mesh
 from jaxtyping import Array, Bool, Float, Int
 
-from slotv_jax import devices, models
-from slotv_jax.config import TrainConfig
-from slotv_jax.types import EvalData, TrainData, prepare, subset, trim_goals
+from slotv_jax.observers import models
+from slotv_jax.training import devices
+from slotv_jax.training.config import TrainConfig
+from slotv_jax.training.types import EvalData, TrainData, prepare, subset, trim_goals
 
 __all__ = [
     "EvalData",

@@ -49,8 +49,9 @@ import numpy as np
 from flax import struct
 from jaxtyping import Array, Float, Int
 
-from slotv_jax import kinematics, validation
-from slotv_jax.scene import Scene
+from slotv_jax.core import validation
+from slotv_jax.robot import kinematics
+from slotv_jax.world.scene import Scene
 
 TIMINGS = ("arc_length", "segment")
 # Via-point boxes (m), (lower corner, upper corner). SPEC §3's [choice] spans the reachable
