@@ -217,7 +217,7 @@ FOUR_DEVICE_RESUME = textwrap.dedent(
     import json
     from pathlib import Path
     import jax
-    from slotv_jax import parallel
+    from slotv_jax.training import parallel
     from slotv_jax.experiments import table1
     assert jax.device_count() == 4
     out, cache = Path({out!r}), Path({cache!r})

@@ -334,7 +334,8 @@ TWO_DEVICES = textwrap.dedent(
     import json, sys
     import numpy as np, jax
     import slotv_jax
-    from slotv_jax import config, train
+    from slotv_jax.training import config
+    from slotv_jax.training import trainer as train
     sys.path.insert(0, {tests!r})
     from test_train import synthetic_split
     assert jax.device_count() == 2, jax.devices()
