@@ -1,5 +1,11 @@
 """Shared fixtures: one small, real, labelled dataset per test session."""
 
+import os
+
+# Rendering tests need an OpenGL backend, chosen before MuJoCo is first imported (below,
+# through slotv_jax.data): EGL, a GPU's or Mesa's software one on a headless machine.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
 import pytest
 
 import slotv_jax  # noqa: F401  (applies the XLA CPU setting before jax starts)

@@ -118,8 +118,11 @@ def test_mismatched_checkpoints_fail_clearly(tmp_path, split):
         checkpoint.save(tmp_path / "bad", cfg, other.init(jax.random.key(0)))
     assert not (tmp_path / "bad").exists()
 
-    with pytest.raises(ValueError, match="not a slotv_jax checkpoint"):
+    with pytest.raises(FileNotFoundError, match="nowhere: does not exist"):
         slotv_jax.load_observer(tmp_path / "nowhere")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="not a slotv_jax checkpoint"):
+        slotv_jax.load_observer(tmp_path / "empty")
 
 
 @pytest.mark.parametrize("method", ["slotv", "trex"])

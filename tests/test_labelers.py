@@ -690,11 +690,11 @@ def test_command_line(tmp_path):
 
     np.savez(src, xyz=xyz, goals=goals)  # no goal_mask
     with pytest.raises(SystemExit):
-        labelers_cli.main(["--in", str(src), "--out", str(dst), "--quiet"])
+        labelers_cli.main(["--in", str(src), "--out", str(dst), "--quiet", "--overwrite"])
     with pytest.raises(SystemExit):  # no such file
-        labelers_cli.main(["--in", str(tmp_path / "missing.npz"), "--out", str(dst), "--quiet"])
+        labelers_cli.main(["--in", str(tmp_path / "missing.npz"), "--out", str(dst), "--overwrite"])
     bad = xyz.copy()
     bad[0, 0, 0] = np.nan
     np.savez(src, xyz=bad, goals=goals, goal_mask=mask)
     with pytest.raises(SystemExit):
-        labelers_cli.main(["--in", str(src), "--out", str(dst), "--quiet"])
+        labelers_cli.main(["--in", str(src), "--out", str(dst), "--quiet", "--overwrite"])

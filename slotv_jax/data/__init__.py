@@ -30,6 +30,7 @@ from slotv_jax.data.storage import (
     FORMAT_VERSION,
     Split,
     environment,
+    is_dataset_dir,
     load_split,
     save_split,
 )
@@ -48,6 +49,7 @@ __all__ = [
     "environment",
     "generate_dataset",
     "generate_split",
+    "is_dataset_dir",
     "load_split",
     "make_tiny_dataset",
     "paper",

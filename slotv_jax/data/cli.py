@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import slotv_jax
+from slotv_jax.core import cli, fileio
 from slotv_jax.data.config import (
     DATA_DISTRIBUTIONS,
     LABELER_NAMES,
@@ -18,11 +19,12 @@ from slotv_jax.data.config import (
     _config_from_json,
 )
 from slotv_jax.data.generate import generate_dataset, relabel
-from slotv_jax.data.storage import load_split, save_split
+from slotv_jax.data.storage import is_dataset_dir, load_split, save_split
 
 # -------------------------------------------------------------------------- CLI
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.data", description="Generate the seven SLOT-V dataset splits."
@@ -48,6 +50,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.add_argument(f"--beta-{n}", type=float, help=f"inverse temperature of {n}")
     p.add_argument("--camera", help="camera of the Nikolaidis labeler")
     args = p.parse_args(argv)
+    if args.relabel and not is_dataset_dir(args.out):
+        raise cli.InputError(f"--out {args.out}: holds no dataset splits to --relabel")
+    # a dataset of ours is resumed (finished splits are kept); anything else is refused
+    fileio.check_output_dir(args.out, ours=is_dataset_dir, resume=True)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
 
     label_kw = {f"beta_{n}": getattr(args, f"beta_{n}") for n in LABELER_NAMES}

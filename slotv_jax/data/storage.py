@@ -116,6 +116,11 @@ def environment() -> dict:
     }
 
 
+def is_dataset_dir(path: str | Path) -> bool:
+    """True if ``path`` holds at least one split written by :func:`save_split` (its marker)."""
+    return any((Path(path) / f"{name}.json").is_file() for name in SPLITS)
+
+
 def _check_dir_config(out: Path, cfg: DataConfig) -> None:
     """Refuse to mix splits of different configs in one directory."""
     for p in sorted(out.glob("*.json")):

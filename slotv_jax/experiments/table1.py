@@ -37,6 +37,7 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.core import cli, fileio
 from slotv_jax.core.fileio import write_text
 from slotv_jax.training import config as train_config
 from slotv_jax.training import distributed, evaluate, parallel, schedule, types
@@ -272,6 +273,9 @@ def run(
     finished = {(c["labeler"], c["method"], c["trial"]) for c in doc["cells"]}
     done_mask = distributed.broadcast(np.array([u in finished for u in everything]))
     todo = [u for u, d in zip(everything, done_mask, strict=True) if not d]
+    if writer and len(todo) < len(everything):
+        print(f"resuming {out}: reusing {len(everything) - len(todo)} finished trial(s) of "
+              f"{len(everything)}; {len(todo)} to train", flush=True)  # fmt: skip
     n_dev = jax.device_count()
     if precompile is None:
         precompile = jax.default_backend() != "cpu"
@@ -528,6 +532,12 @@ def report(doc: dict) -> str:
     )
 
 
+def is_results_dir(path: Path) -> bool:
+    """True if ``path`` holds an experiment's ``results.json`` (the marker of our output)."""
+    return (Path(path) / "results.json").is_file()
+
+
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.table1",
@@ -580,15 +590,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     distributed.add_cli_args(p)
     args = p.parse_args(argv)
+    suffix = "" if args.model == "mlp" else f"_{args.model}"
+    out = args.out or Path("runs") / f"table1_{args.preset}{suffix}"
+    if args.merge and args.out is None:
+        raise cli.InputError("--merge needs --out")
+    # a results directory of ours is resumed (finished cells are kept); else refused
+    fileio.check_output_dir(out, ours=is_results_dir, resume=True)
     distributed.init_from_args(args)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     if args.merge:
-        if args.out is None:
-            p.error("--merge needs --out")
         try:
-            doc = merge([json.loads((d / "results.json").read_text()) for d in args.merge])
-        except (OSError, ValueError, KeyError) as e:
-            p.error(f"--merge: {e}")
+            doc = merge([fileio.read_json(d / "results.json") for d in args.merge])
+        except KeyError as e:
+            raise cli.InputError(f"--merge: a results.json lacks the field {e}") from None
         args.out.mkdir(parents=True, exist_ok=True)
         write_text(args.out / "results.json", json.dumps(doc, indent=1))
         write_text(args.out / "table1.md", report(doc))
@@ -607,8 +621,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.time_limit is not None and not args.time_limit >= 0:
         p.error("--time-limit: expected a number of seconds >= 0")
     cfg = with_model(cfg, args.model)
-    suffix = "" if args.model == "mlp" else f"_{args.model}"
-    out = args.out or Path("runs") / f"table1_{args.preset}{suffix}"
     t0 = time.perf_counter()
     doc = run(
         cfg,

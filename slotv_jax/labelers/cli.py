@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from slotv_jax.core import cli, fileio
 from slotv_jax.core.fileio import atomic_write
 from slotv_jax.core.xla import XLA_CONFIG
 from slotv_jax.observers.labelers import DEFAULT_BETAS, LABELER_NAMES
@@ -23,8 +24,9 @@ def _savez(path, arrays: dict[str, np.ndarray]) -> None:
     atomic_write(path, lambda f: np.savez(f, **arrays))
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m slotv_jax.labelers --in trajs.npz --out labels.npz``."""
+    """``python -m slotv_jax.labelers --in trajs.npz --out labels.npz [--overwrite]``."""
 
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.labelers",
@@ -35,6 +37,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--in", dest="inp", required=True, type=Path, help="input .npz")
     p.add_argument("--out", required=True, type=Path, help="output .npz (written atomically)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     for n in LABELER_NAMES:
         p.add_argument(f"--beta-{n}", type=float, default=DEFAULT_BETAS[n], help=f"β of {n}")
     p.add_argument("--camera", default="observer", help="scene camera for nikolaidis")
@@ -46,18 +49,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
+    fileio.check_output_file(args.out, overwrite=args.overwrite)
     print(XLA_CONFIG.summary(), file=sys.stderr)
 
     names = tuple(s.strip() for s in args.labelers.split(",") if s.strip())
-    try:
-        with np.load(args.inp, allow_pickle=False) as f:
-            files = list(f.files)
-            data = {k: f[k] for k in ("xyz", "goals", "goal_mask", "t") if k in files}
-    except (OSError, ValueError) as e:  # missing file, not an .npz, or object arrays
-        p.error(f"{args.inp}: cannot read ({e})")
+    arrays = fileio.load_npz(args.inp)
+    files = list(arrays)
+    data = {k: arrays[k] for k in ("xyz", "goals", "goal_mask", "t") if k in files}
     missing = [k for k in ("xyz", "goals", "goal_mask") if k not in data]
     if missing:
-        p.error(f"{args.inp}: missing array(s) {missing}; it holds {files}")
+        raise cli.InputError(f"--in {args.inp}: missing array(s) {missing}; it holds {files}")
     betas = {n: getattr(args, f"beta_{n}") for n in LABELER_NAMES}
     try:
         y = label_all(
@@ -72,7 +73,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             **{f"beta_{n}": b for n, b in betas.items()},
         )
     except ValueError as e:
-        p.error(f"{args.inp}: {e}")
+        raise cli.InputError(f"--in {args.inp}: {e}") from None
     arrays = {f"y_{n}": v for n, v in y.items()}
     arrays.update({f"beta_{n}": np.float64(betas[n]) for n in names})
     if "nikolaidis" in names:

@@ -12,6 +12,7 @@ from typing import Any
 
 import jax
 
+from slotv_jax.core import cli, fileio
 from slotv_jax.core.fileio import write_text
 from slotv_jax.study.crossval import cross_validate, cv_table, model_metrics
 from slotv_jax.study.fitting import train_study
@@ -74,6 +75,7 @@ def _parse_args(argv):
     imp.add_argument("--goals", required=True, help="[trajectory,]goal,x,y,z per goal")
     imp.add_argument("--answers", required=True, help="trajectory,guess[,tau,participant,...]")
     imp.add_argument("--out", required=True, help="study file to write (.npz)")
+    imp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     show = sub.add_parser("show", help="validate a study file and summarise it")
     show.add_argument("study")
     cv = sub.add_parser("cv", help="k-fold cross-validation of SLOT-V/T-REX and baselines")
@@ -86,12 +88,16 @@ def _parse_args(argv):
     cv.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     cv.add_argument("--condition", default=None)
     cv.add_argument("--out", default=None, help="write the results as JSON here")
+    cv.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     return ap.parse_args(argv)
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
-    """CLI: ``import`` (report what was read), ``show``, ``cv``."""
+    """CLI: ``import`` (report what was read), ``show``, ``cv``; input errors in one line."""
     args = _parse_args(argv)
+    if getattr(args, "out", None) is not None:  # before any work
+        fileio.check_output_file(args.out, overwrite=args.overwrite)
     if args.command == "import":
         study, report = read_tables(args.trajectories, args.goals, args.answers)
         save_study(args.out, study)

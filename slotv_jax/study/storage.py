@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from slotv_jax.core import fileio
 from slotv_jax.core.fileio import atomic_write
 from slotv_jax.study.format import FORMAT, Study, _Where, make_study
 
@@ -55,13 +56,7 @@ def load_study(path: str | os.PathLike) -> Study:
     unknown or missing arrays."""
     path = Path(path)
     w = _Where(str(path))
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except FileNotFoundError:
-        raise
-    except (ValueError, OSError, EOFError) as e:
-        raise ValueError(f"{path}: not a readable .npz study file ({e})") from e
+    arrays = fileio.load_npz(path)  # names a missing, truncated or non-zip file
     fmt = str(arrays.pop("format", ""))
     if fmt != FORMAT:
         raise ValueError(f"{w('format')}: expected {FORMAT!r}, got {fmt!r}")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import json
+import io
 import math
 import os
 from collections.abc import Sequence
@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from slotv_jax.core import fileio
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.study.format import TAU_RTOL, Study, make_study
 
@@ -33,17 +34,15 @@ class _Table:
 def _read_table(path: str | os.PathLike, required: Sequence[str]) -> _Table:
     path = Path(path)
     if path.suffix.lower() == ".json":
-        try:
-            doc = json.loads(path.read_text())
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{path.name}: not valid JSON ({e})") from e
+        doc = fileio.read_json(path)  # names the file, line and column of bad JSON
         if not isinstance(doc, list) or not all(isinstance(r, dict) for r in doc):
             raise ValueError(f"{path.name}: expected a JSON list of objects (one per row)")
         rows = [{str(k): v for k, v in r.items()} for r in doc]
         where = [f"item {i}" for i in range(len(rows))]
         columns = sorted({k for r in rows for k in r})
     else:
-        with open(path, newline="") as f:
+        # UTF-8 (a spreadsheet's byte-order mark dropped); a bad byte is named by line
+        with io.StringIO(fileio.read_text(path), newline="") as f:
             reader = csv.DictReader(f)
             columns = [c.strip() for c in (reader.fieldnames or [])]
             rows, where = [], []

@@ -26,6 +26,7 @@ import jax
 import numpy as np
 
 from slotv_jax import data as data_lib
+from slotv_jax.core import cli, fileio
 from slotv_jax.core.xla import XLA_CONFIG
 from slotv_jax.study import cli as study
 from slotv_jax.training import checkpoint, evaluate
@@ -64,7 +65,12 @@ def _parse_args(argv):
         "--set", action="append", default=[], metavar="KEY=VALUE",
         help="override any TrainConfig field, e.g. --set hidden=256,128 --set learning_rate=0.01",
     )  # fmt: skip
-    ap.add_argument("--resume", action="store_true", help="continue from --out if it exists")
+    ap.add_argument(
+        "--resume", action="store_true", help="continue the checkpoint at --out if it exists"
+    )
+    ap.add_argument(
+        "--overwrite", action="store_true", help="replace the checkpoint at --out (not --resume)"
+    )
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     if args.study is None and (args.data is None or args.labeler is None):
@@ -74,19 +80,30 @@ def _parse_args(argv):
     return args
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
-    """CLI entry point: train, checkpoint after every epoch, report test accuracies."""
+    """CLI entry point: train, checkpoint after every epoch, report test accuracies.
+
+    Before any work it checks ``--out`` (:func:`slotv_jax.fileio.check_output_dir`): an
+    existing checkpoint is continued with ``--resume`` or replaced with ``--overwrite``;
+    anything else in the way is refused.
+    """
     args = _parse_args(argv)
-    print(XLA_CONFIG.summary(), flush=True)
-    try:
-        cfg = config_lib.preset(args.preset, args.method, model=args.model)
-    except ValueError as e:
-        raise SystemExit(f"python -m slotv_jax.train: {e}") from e
+    if args.epochs is not None and args.epochs < 1:
+        raise cli.InputError(f"--epochs: expected an integer >= 1, got {args.epochs}")
+    cfg = config_lib.preset(args.preset, args.method, model=args.model)
     if args.epochs is not None:
         cfg = dataclasses.replace(cfg, epochs=args.epochs)
     if args.compute_dtype is not None:
         cfg = dataclasses.replace(cfg, compute_dtype=args.compute_dtype)
     cfg = config_lib.apply_overrides(cfg, args.set)
+    fileio.check_output_dir(
+        args.out, ours=checkpoint.exists, resume=args.resume, overwrite=args.overwrite,
+        resume_hint="pass --resume to continue training it",
+    )  # fmt: skip
+    if args.overwrite:
+        args.resume = False
+    print(XLA_CONFIG.summary(), flush=True)
     if args.study is not None:
         return study.train_main(cfg, args)
     out = Path(args.out)

@@ -11,9 +11,11 @@ A checkpoint is a directory:
 
 Writes are atomic: everything goes to a temporary sibling directory that is
 renamed into place; an existing checkpoint is swapped out only after the new one
-is complete. Loading checks the saved shapes against the model the config
-builds (and, for resuming, against the caller's config) and raises ValueError
-naming the mismatch.
+is complete (:func:`slotv_jax.fileio.replace_dir`). Anything at the path that is
+not a checkpoint (a file, a user's directory) is never replaced. Loading checks
+the saved shapes against the model the config builds (and, for resuming, against
+the caller's config) and raises ValueError naming the mismatch; a missing path
+raises FileNotFoundError, truncated files a ValueError that says so.
 
 >>> observer = load_observer("runs/slotv_effdist")        # doctest: +SKIP
 >>> logits = observer(xyz, goals, goal_mask)              # (8,), padded slots −∞
@@ -25,7 +27,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import uuid
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -37,6 +38,7 @@ import orbax.checkpoint as ocp
 from flax import nnx
 from jaxtyping import Array, Bool, Float
 
+from slotv_jax.core import fileio
 from slotv_jax.observers import models
 from slotv_jax.training import trainer as train_lib
 from slotv_jax.training.config import TrainConfig
@@ -102,8 +104,12 @@ def save(
     if want != got:
         raise ValueError(_mismatch("state", want, got, cfg))
     flat = jax.device_get(flat)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".{path.name}.tmp-{uuid.uuid4().hex[:8]}"
+    if path.is_symlink() or (path.exists() and not exists(path) and any(path.iterdir())):
+        raise fileio.OutputError(
+            f"checkpoint {path}: something that is not a slotv_jax checkpoint is there; "
+            "it is left untouched: choose another path"
+        )  # an empty directory is fine; a file or a user's directory is never replaced
+    tmp = fileio.temp_dir_beside(path)
     try:
         ckptr = ocp.StandardCheckpointer()
         ckptr.save(tmp / STATE_DIR, flat)
@@ -116,14 +122,10 @@ def save(
             "meta": dict(meta or {}),
             "arrays": got,
         }
-        (tmp / CONFIG_FILE).write_text(json.dumps(doc, indent=2, sort_keys=True, default=str))
-        if path.exists():
-            old = path.parent / f".{path.name}.old-{uuid.uuid4().hex[:8]}"
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
+        fileio.write_text(tmp / CONFIG_FILE, json.dumps(doc, indent=2, sort_keys=True, default=str))
+        if path.is_dir() and not exists(path):
+            path.rmdir()  # empty (checked above)
+        fileio.replace_dir(tmp, path)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
@@ -132,12 +134,15 @@ def save(
 
 def _read_doc(path: Path) -> dict:
     f = path / CONFIG_FILE
+    if not path.exists():
+        raise FileNotFoundError(f"checkpoint {path}: does not exist")
     if not f.is_file() or not (path / STATE_DIR).is_dir():
         raise ValueError(
             f"checkpoint {path}: not a slotv_jax checkpoint (missing {CONFIG_FILE} or {STATE_DIR}/)"
         )
-    doc = json.loads(f.read_text())
-    if doc.get("format") != FORMAT:
+    doc = fileio.read_json(f)
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        doc = {} if not isinstance(doc, dict) else doc
         raise ValueError(f"checkpoint {path}: format {doc.get('format')!r}, expected {FORMAT!r}")
     return doc
 
@@ -203,9 +208,11 @@ def restore(path: str | os.PathLike, cfg: TrainConfig | None = None):
     ckptr = ocp.StandardCheckpointer()
     try:
         flat = ckptr.restore(path / STATE_DIR, abstract)
-    except ValueError as e:
+    except Exception as e:  # the layout matched config.json, so the data itself is bad
+        first = str(e).strip().splitlines()[0][:300] if str(e).strip() else type(e).__name__
         raise ValueError(
-            f"checkpoint {path}: stored arrays do not fit the config's model: {e}"
+            f"checkpoint {path}: the stored arrays in {STATE_DIR}/ are truncated or corrupt "
+            f"({first})"
         ) from e
     finally:
         ckptr.close()

@@ -1,0 +1,342 @@
+"""``python -m slotv_jax.render``: render trajectories as MP4, GIF or PNG (SPEC §11).
+
+Sources (one of):
+
+- ``--data DIR --split NAME --index I``: a dataset split (``slotv_jax.data``);
+- ``--npz FILE --index I``: the labelers CLI's input format (``xyz (N, T, 3)``,
+  ``goals``, ``goal_mask``, optional ``t`` and ``q (N, T, 7)``);
+- ``--study FILE --index I``: a study file (:func:`slotv_jax.study.load_study`), its
+  goal names available as labels (``--labels names``);
+- ``--plans FILE --problem I [--planner NAME]``: a planning run's ``plans.npz``
+  (``goals (P, 8, 3)``, ``goal_mask (P, 8)``, ``target (P,)``, ``family (P,)``,
+  ``names (K,)`` planner names, ``q (K, P, T, 7)``, ``xyz (K, P, T, 3)``); without
+  ``--planner`` every planner side by side (``--layout overlay``: in one scene).
+
+A TCP path without joints (``--npz`` without ``q``, ``--study``) goes through the
+project's inverse kinematics (:func:`slotv_jax.kinematics.solve_path_ik`, from
+``Q_HOME``) first. ``--index`` (and ``--problem``) take ``I``, ``A:B`` or ``I,J,K``;
+several items go into ``--out DIR`` as ``<source>_<i>.<--format>``, through one renderer,
+with a progress bar. One item goes to ``--out FILE``, whose suffix picks the format:
+``.mp4`` (H.264), ``.gif``, or ``.png`` (the last frame; ``--sheet N``: N frames in a
+grid). Everything is checked before any rendering: an input error prints one line
+``error: ...`` and exits with 2.
+
+    python -m slotv_jax.render --data data/quick --split position_test --index 0 --out a.mp4
+    python -m slotv_jax.render --plans plans.npz --problem 3 --tau 0.5 --out compare.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import jax
+import numpy as np
+from tqdm.auto import tqdm
+
+from slotv_jax.core import cli, fileio
+from slotv_jax.data import SPLITS, load_split
+from slotv_jax.render.camera import CAMERAS, FreeCamera
+from slotv_jax.render.compare import LAYOUTS, PALETTE, compare_frames
+from slotv_jax.render.frames import (
+    MotionRenderer,
+    RenderBackendError,
+    check_motion,
+    check_size,
+    check_timing,
+    motion_frames,
+)
+from slotv_jax.render.writers import SUFFIXES, check_output, contact_sheet, write_png, write_video
+from slotv_jax.robot import kinematics
+from slotv_jax.study import load_study
+
+IK_WARN = 5e-3  # metres: a TCP path the IK misses by more is reported
+LABEL_CHOICES = ("letters", "names", "none")
+
+
+@dataclasses.dataclass(frozen=True)
+class Item:
+    """One picture or clip to render: one motion, or several compared."""
+
+    key: str  # names the output file: <key>.<format>
+    qs: tuple[np.ndarray, ...]  # (T, 7) joint paths, one per motion
+    goals: np.ndarray  # (8, 3)
+    goal_mask: np.ndarray  # (8,)
+    target: int  # the target goal slot
+    t: np.ndarray | None = None  # (T,) sample times of a single motion
+    names: tuple[str, ...] = ()  # motion names (compared planners)
+    rgbas: tuple[tuple, ...] | None = None  # their trace colours
+    goal_names: tuple[str, ...] = ()  # labels of the real goals, where the source has them
+
+
+def parse_indices(text: str, n: int, what: str) -> list[int]:
+    """``I``, ``A:B`` (B excluded) or ``I,J,K`` → indices, each in 0..n−1."""
+    try:
+        if ":" in text:
+            a, b = text.split(":")
+            idx = list(range(int(a or 0), int(b) if b else n))
+        else:
+            idx = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise cli.InputError(f"{what}: expected I, A:B or I,J,K, got {text!r}") from None
+    if not idx or any(not 0 <= i < n for i in idx):
+        raise cli.InputError(f"{what} {text}: expected indices in 0..{n - 1}")
+    return idx
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``WxH`` → (W, H)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+        return check_size((w, h))
+    except ValueError:
+        raise cli.InputError(f"--size: expected WxH in 16..4096 pixels, got {text!r}") from None
+
+
+def _ik(xyz: np.ndarray, what: str) -> np.ndarray:
+    """Joint path of a TCP path (warm-started IK from Q_HOME); warns on a large miss."""
+    res = jax.jit(kinematics.solve_path_ik)(np.asarray(xyz, np.float32))
+    worst = float(np.max(res.residual))
+    if worst > IK_WARN:
+        print(f"warning: {what}: IK misses the path by up to {worst * 1e3:.1f} mm", file=sys.stderr)
+    return np.asarray(res.q, np.float64)
+
+
+def _data_items(args) -> list[Item]:
+    if args.split not in SPLITS:
+        raise cli.InputError(f"--split: expected one of {list(SPLITS)}, got {args.split!r}")
+    sp = load_split(args.data, args.split)
+    idx = parse_indices(args.index or "0", len(sp), "--index")
+    return [
+        Item(f"{args.split}_{i:04d}", (sp.q[i],), sp.goals[i], sp.goal_mask[i], int(sp.target[i]))
+        for i in idx
+    ]
+
+
+def _npz_items(args) -> list[Item]:
+    z = fileio.load_npz(args.npz)
+    for k in ("xyz", "goals", "goal_mask"):
+        if k not in z:
+            raise cli.InputError(f"--npz {args.npz}: missing array {k!r}; it holds {sorted(z)}")
+    xyz = z["xyz"]
+    if xyz.ndim != 3 or xyz.shape[-1] != 3:
+        raise cli.InputError(f"--npz {args.npz}: xyz: expected (N, T, 3), got {xyz.shape}")
+    n = xyz.shape[0]
+    idx = parse_indices(args.index or "0", n, "--index")
+    goals, mask = z["goals"], z["goal_mask"]
+    target = z.get("target")
+    items = []
+    for i in idx:
+        g = goals[i] if goals.ndim == 3 else goals
+        m = mask[i] if mask.ndim == 2 else mask
+        t = None if "t" not in z else (z["t"][i] if z["t"].ndim == 2 else z["t"])
+        q = z["q"][i] if "q" in z else None
+        if q is None:
+            try:
+                check_motion(np.zeros((xyz.shape[1], 7)), g, m, t=t)
+                kinematics.check_ik_inputs(xyz[i], kinematics.Q_HOME)
+            except ValueError as e:
+                raise cli.InputError(f"--npz {args.npz} [{i}]: {e}") from None
+            q = _ik(xyz[i], f"--npz {args.npz} [{i}]")
+        tgt = -1 if target is None else int(np.ravel(target)[i if np.size(target) > 1 else 0])
+        items.append(Item(f"{Path(args.npz).stem}_{i:04d}", (q,), g, m, tgt, t=t))
+    return items
+
+
+def _study_items(args) -> list[Item]:
+    st = load_study(args.study)
+    idx = parse_indices(args.index or "0", st.n_trajectories, "--index")
+    items = []
+    for i in idx:
+        n = int(st.length[i])
+        t = None if st.t is None else st.t[i, :n]
+        names = ()
+        if st.goal_names is not None:
+            names = tuple(str(s) for s in st.goal_names[i][st.goal_mask[i]])
+        q = _ik(st.xyz[i, :n], f"--study {args.study} [{i}]")
+        key = st.trajectory_ids[i] if st.trajectory_ids else f"{i:04d}"
+        items.append(
+            Item(f"study_{key}", (q,), st.goals[i], st.goal_mask[i], -1, t=t, goal_names=names)
+        )
+    return items
+
+
+PLAN_ARRAYS = ("goals", "goal_mask", "target", "names", "q")
+
+
+def _plans_items(args) -> list[Item]:
+    z = fileio.load_npz(args.plans)
+    missing = [k for k in PLAN_ARRAYS if k not in z]
+    if missing:
+        raise cli.InputError(
+            f"--plans {args.plans}: missing arrays {missing}; it holds {sorted(z)}"
+        )
+    q, names = z["q"], [str(s) for s in z["names"]]
+    if q.ndim != 4 or q.shape[0] != len(names) or q.shape[-1] != 7:
+        raise cli.InputError(
+            f"--plans {args.plans}: q: expected (K={len(names)}, P, T, 7), got {q.shape}"
+        )
+    idx = parse_indices(args.problem or "0", q.shape[1], "--problem")
+    ks = list(range(len(names)))
+    if args.planner is not None:
+        if args.planner not in names:
+            raise cli.InputError(f"--planner: expected one of {names}, got {args.planner!r}")
+        ks = [names.index(args.planner)]
+    stem = Path(args.plans).stem
+    suffix = f"_{args.planner}" if args.planner else ""
+    return [
+        Item(
+            f"{stem}_{p:04d}{suffix}",
+            tuple(q[k, p] for k in ks),
+            z["goals"][p],
+            z["goal_mask"][p],
+            int(z["target"][p]),
+            names=tuple(names[k] for k in ks),
+            rgbas=tuple(PALETTE[k % len(PALETTE)] for k in ks),
+        )
+        for p in idx
+    ]
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m slotv_jax.render",
+        description="Render trajectories of the Panda in its scene as MP4, GIF or PNG "
+        "(needs OpenGL: MUJOCO_GL=egl on a headless machine).",
+    )
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--data", type=Path, help="dataset directory (with --split)")
+    src.add_argument("--npz", type=Path, help="a .npz in the labelers CLI's input format")
+    src.add_argument("--study", type=Path, help="a study file (slotv_jax.study)")
+    src.add_argument("--plans", type=Path, help="a planning run's plans.npz")
+    p.add_argument("--split", help="dataset split name (with --data)")
+    p.add_argument("--index", help="trajectory: I, A:B or I,J,K (default 0)")
+    p.add_argument("--problem", help="planning problem: I, A:B or I,J,K (with --plans)")
+    p.add_argument("--planner", help="one planner of --plans (default: all, compared)")
+    p.add_argument("--layout", default="side", choices=LAYOUTS, help="how planners are compared")
+    p.add_argument("--tau", type=float, default=1.0, help="show the motion up to τ in (0, 1]")
+    p.add_argument("--camera", default="observer", help=f"{', '.join(CAMERAS)} or free")
+    for f, d in (("lookat", "0.45,0,0.15"), ("distance", "1.6")):
+        p.add_argument(f"--{f}", default=d, help=f"free camera {f} (default {d})")
+    p.add_argument("--azimuth", type=float, default=180.0, help="free camera azimuth (deg)")
+    p.add_argument("--elevation", type=float, default=-30.0, help="free camera elevation (deg)")
+    p.add_argument("--size", default="640x360", help="frame size WxH (default 640x360)")
+    p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
+    p.add_argument("--duration", type=float, default=3.0, help="seconds of the whole motion")
+    p.add_argument("--hold", type=float, default=1.0, help="seconds the last frame is held")
+    p.add_argument("--labels", default="letters", choices=LABEL_CHOICES, help="goal labels")
+    p.add_argument("--mark-target", action="store_true", help="draw a disc under the target")
+    p.add_argument("--no-trace", action="store_true", help="do not draw the TCP's path")
+    p.add_argument("--shadows", action="store_true", help="render shadows (slower on a CPU)")
+    p.add_argument("--sheet", type=int, help="with a .png: N frames in a grid, not the last")
+    p.add_argument("--out", required=True, type=Path, help="output file, or folder for several")
+    p.add_argument("--format", default="mp4", choices=[s[1:] for s in SUFFIXES])
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def _camera(args):
+    if args.camera == "free":
+        try:
+            lookat = tuple(float(v) for v in args.lookat.split(","))
+            return FreeCamera(lookat, float(args.distance), args.azimuth, args.elevation)
+        except ValueError as e:
+            raise cli.InputError(f"--camera free: {e}") from None
+    if args.camera not in CAMERAS:
+        raise cli.InputError(f"--camera: expected one of {[*CAMERAS, 'free']}, got {args.camera!r}")
+    return args.camera
+
+
+def _labels(args, item: Item):
+    if args.labels == "names":
+        if not item.goal_names:
+            raise cli.InputError(f"--labels names: {item.key} has no goal names; use letters")
+        return list(item.goal_names)
+    return None
+
+
+def _outputs(args, items: list[Item]) -> list[Path]:
+    """The output file of every item, checked (output rule) before any rendering."""
+    single = len(items) == 1 and args.out.suffix != ""
+    if single:
+        paths = [args.out]
+    else:
+        if args.out.suffix:
+            raise cli.InputError(
+                f"--out {args.out}: {len(items)} items need a folder (and --format), not a file"
+            )
+        paths = [args.out / f"{it.key}.{args.format}" for it in items]
+    for path in paths:
+        check_output(path, overwrite=args.overwrite)
+    if args.sheet is not None and (args.sheet < 1 or any(p.suffix != ".png" for p in paths)):
+        raise cli.InputError("--sheet: expected N >= 1 with a .png output")
+    return paths
+
+
+@cli.command
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse, load and check everything, then render and write each item."""
+    args = _parser().parse_args(argv)
+    if (args.data is None) != (args.split is None):
+        raise cli.InputError("--data and --split: expected both or neither")
+    if args.plans is None and (args.problem or args.planner):
+        raise cli.InputError("--problem and --planner: only with --plans")
+    size = parse_size(args.size)
+    check_timing(args.tau, args.fps, args.duration, args.hold)
+    camera = _camera(args)
+    load = {"data": _data_items, "npz": _npz_items, "study": _study_items, "plans": _plans_items}
+    items = next(f(args) for k, f in load.items() if getattr(args, k) is not None)
+    paths = _outputs(args, items)
+    for it in items:
+        for q in it.qs:
+            try:
+                check_motion(q, it.goals, it.goal_mask, t=it.t, labels=_labels(args, it))
+            except ValueError as e:
+                raise cli.InputError(f"{it.key}: {e}") from None
+    kw = {
+        "camera": camera,
+        "tau": args.tau,
+        "size": size,
+        "fps": args.fps,
+        "duration": args.duration,
+        "hold": args.hold,
+        "trace": not args.no_trace,
+    }
+    try:
+        renderer = MotionRenderer(size, shadows=args.shadows)
+    except RenderBackendError as e:
+        raise cli.InputError(str(e)) from None
+    with renderer:
+        for it, path in tqdm(list(zip(items, paths, strict=True)), disable=args.quiet, unit="clip"):
+            target = it.target if args.mark_target and it.target >= 0 else None
+            common = {
+                **kw,
+                "labels": _labels(args, it),
+                "show_labels": args.labels != "none",
+                "target": target,
+                "renderer": renderer,
+            }
+            if len(it.qs) == 1 and not it.names:
+                frames = motion_frames(it.qs[0], it.goals, it.goal_mask, t=it.t, **common)
+            else:
+                layout = args.layout
+                frames = compare_frames(
+                    it.qs,
+                    it.goals,
+                    it.goal_mask,
+                    names=it.names,
+                    rgbas=it.rgbas,
+                    layout=layout,
+                    **common,
+                )
+            if path.suffix == ".png" and args.sheet:
+                write_png(path, contact_sheet(frames, args.sheet, cols=min(args.sheet, 4)))
+            else:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                write_video(path, frames, args.fps)
+    print(f"wrote {len(paths)} file(s): {paths[0]}{' ...' if len(paths) > 1 else ''}")
+    return 0

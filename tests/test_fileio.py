@@ -1,0 +1,139 @@
+"""The output rule, the readers and the CLI error style (slotv_jax.fileio, slotv_jax.cli)."""
+
+import os
+import zipfile
+
+import numpy as np
+import pytest
+
+from slotv_jax.core import cli, fileio
+
+
+def _ours(p):
+    return (p / "marker.json").is_file()
+
+
+def test_output_dir_rule(tmp_path):
+    assert fileio.check_output_dir(tmp_path / "new" / "deeper", ours=_ours) == "new"
+    (tmp_path / "empty").mkdir()
+    assert fileio.check_output_dir(tmp_path / "empty", ours=_ours) == "new"
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "thesis.tex").write_text("mine")
+    for kw in ({}, {"resume": True}, {"overwrite": True}):
+        with pytest.raises(fileio.OutputError, match=r"--out .*user: a non-empty directory"):
+            fileio.check_output_dir(user, ours=_ours, **kw)
+    ours = tmp_path / "ours"
+    ours.mkdir()
+    (ours / "marker.json").write_text("{}")
+    with pytest.raises(fileio.OutputError, match=r"--resume.*--overwrite"):
+        fileio.check_output_dir(ours, ours=_ours)
+    assert fileio.check_output_dir(ours, ours=_ours, resume=True) == "resume"
+    assert fileio.check_output_dir(ours, ours=_ours, resume=True, overwrite=True) == "overwrite"
+    f = tmp_path / "file"
+    f.write_text("x")
+    with pytest.raises(fileio.OutputError, match="is a file, not a directory"):
+        fileio.check_output_dir(f, ours=_ours, overwrite=True)
+    with pytest.raises(fileio.OutputError, match=r"file, not a directory"):
+        fileio.check_output_dir(f / "sub", ours=_ours)
+    assert f.read_text() == "x" and (user / "thesis.tex").read_text() == "mine"
+    assert sorted(os.listdir(tmp_path)) == ["empty", "file", "ours", "user"]  # no probe left
+
+
+def test_output_file_rule(tmp_path):
+    assert fileio.check_output_file(tmp_path / "a.npz") == "new"
+    (tmp_path / "a.npz").write_bytes(b"user")
+    with pytest.raises(fileio.OutputError, match="exists; pass --overwrite"):
+        fileio.check_output_file(tmp_path / "a.npz")
+    assert fileio.check_output_file(tmp_path / "a.npz", overwrite=True) == "overwrite"
+    with pytest.raises(fileio.OutputError, match="is a directory"):
+        fileio.check_output_file(tmp_path, overwrite=True)
+    with pytest.raises(fileio.OutputError, match="file, not a directory"):
+        fileio.check_output_file(tmp_path / "a.npz" / "b.npz")
+
+
+def test_unwritable_places_are_caught_even_for_root(tmp_path):
+    # chmod does not stop root; /proc and a read-only mount do, and so does a file parent
+    with pytest.raises(fileio.OutputError, match="cannot write in /proc"):
+        fileio.check_output_dir("/proc/slotv_out", ours=_ours)
+    with pytest.raises(fileio.OutputError, match="cannot write in /proc"):
+        fileio.check_output_file("/proc/labels.npz")
+
+
+def test_replace_dir_keeps_a_complete_output(tmp_path):
+    out = tmp_path / "ckpt"
+    for text in ("first", "second"):
+        tmp = fileio.temp_dir_beside(out)
+        (tmp / "config.json").write_text(text)
+        fileio.replace_dir(tmp, out)
+        assert (out / "config.json").read_text() == text
+    assert os.listdir(tmp_path) == ["ckpt"]  # no hidden .old / .tmp leftovers
+    (tmp_path / "f").write_text("user")
+    tmp = fileio.temp_dir_beside(tmp_path / "f")
+    with pytest.raises(fileio.OutputError):
+        fileio.replace_dir(tmp, tmp_path / "f")
+    assert (tmp_path / "f").read_text() == "user"
+
+
+def test_load_npz_names_every_kind_of_bad_file(tmp_path):
+    good = tmp_path / "good.npz"
+    np.savez(good, x=np.arange(500.0), y=np.ones(3, np.int32))
+    got = fileio.load_npz(good)
+    np.testing.assert_array_equal(got["x"], np.arange(500.0))
+    raw = good.read_bytes()
+    bad = tmp_path / "bad.npz"
+    for n in (0, 2, 30, len(raw) // 2, len(raw) - 5):
+        bad.write_bytes(raw[:n])
+        with pytest.raises(ValueError, match=r"bad\.npz.*(empty|truncated)"):
+            fileio.load_npz(bad)
+    bad.write_text("x,y,z\n1,2,3\n")
+    with pytest.raises(ValueError, match=r"not an \.npz file \(not a zip archive"):
+        fileio.load_npz(bad)
+    np.save(tmp_path / "a.npy", np.ones(3))
+    with pytest.raises(ValueError, match=r"a \.npy array"):
+        fileio.load_npz(tmp_path / "a.npy")
+    with zipfile.ZipFile(bad, "w") as z:  # a zip whose member is not an array
+        z.writestr("x.npy", b"garbage")
+    with pytest.raises(ValueError, match=r"bad\.npz, array 'x'"):
+        fileio.load_npz(bad)
+    np.savez(bad, x=np.array([{}], dtype=object))
+    with pytest.raises(ValueError, match="Python objects"):
+        fileio.load_npz(bad)
+    with pytest.raises(FileNotFoundError, match=r"missing\.npz"):
+        fileio.load_npz(tmp_path / "missing.npz")
+
+
+def test_read_json_and_text(tmp_path):
+    p = tmp_path / "c.json"
+    p.write_text('{"a": [1, 2')
+    with pytest.raises(ValueError, match=r"c\.json, line 1, column \d+: .*truncated"):
+        fileio.read_json(p)
+    p.write_bytes(b"\xef\xbb\xbftrajectory,x\n1,2\n")
+    assert fileio.read_text(p).startswith("trajectory,x")
+    p.write_bytes(b"a,b\n1,2\n3,\xe9\n")
+    with pytest.raises(ValueError, match=r"c\.json, line 3: byte 0xe9 is not UTF-8"):
+        fileio.read_text(p)
+
+
+def test_cli_command_reports_input_errors_in_one_line(capsys):
+    @cli.command
+    def bad_input(argv=None):
+        raise cli.InputError("--n: expected an integer >= 1, got 0")
+
+    @cli.command
+    def missing(argv=None):
+        open("/nonexistent/slotv.npz")
+
+    @cli.command
+    def bug(argv=None):
+        raise TypeError("a real bug")
+
+    with pytest.raises(SystemExit) as e:
+        bad_input([])
+    assert e.value.code == 2
+    assert capsys.readouterr().err == "error: --n: expected an integer >= 1, got 0\n"
+    with pytest.raises(SystemExit):
+        missing([])
+    assert capsys.readouterr().err == "error: /nonexistent/slotv.npz: no such file or directory\n"
+    with pytest.raises(TypeError, match="a real bug"):
+        bug([])

@@ -1,0 +1,102 @@
+"""Every command as a user runs it: a file in the way survives byte for byte, an unwritable
+``--out`` fails in seconds before any work, and input errors are one line ``error: ...``
+with exit code 2 (SPEC §11). Each run is a fresh ``python -m`` process; every case here
+fails before JAX does any work, so a run costs about its import time."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+FAST_S = 30.0  # an import of JAX on a busy 2-core machine, not a dataset, labels or training
+
+
+def run(*argv: str, cwd: Path) -> tuple[int, str, float]:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu"}
+    env.pop("SLOTV_JAX_TRACEBACK", None)
+    t0 = time.perf_counter()
+    r = subprocess.run(
+        [sys.executable, "-m", *argv], cwd=cwd, env=env, capture_output=True, text=True,
+        timeout=120,
+    )  # fmt: skip
+    return r.returncode, r.stderr, time.perf_counter() - t0
+
+
+def snapshot(root: Path) -> dict[str, bytes | None]:
+    """Every path under ``root`` (hidden ones too) with its bytes (None for a directory)."""
+    return {
+        str(p.relative_to(root)): None if p.is_dir() else p.read_bytes()
+        for p in sorted(root.rglob("*"))
+    }
+
+
+def assert_one_line_error(rc: int, err: str, *pieces: str) -> None:
+    lines = [ln for ln in err.splitlines() if ln.startswith("error: ")]
+    assert rc == 2, (rc, err)
+    assert len(lines) == 1 and "Traceback" not in err, err
+    for piece in pieces:
+        assert piece in lines[0], (piece, lines[0])
+
+
+TRAIN = ("slotv_jax.train", "--data", "nodata", "--labeler", "dragan", "--method", "slotv")
+
+
+def test_train_never_replaces_what_it_did_not_write(tmp_path):
+    user_dir = tmp_path / "results"
+    user_dir.mkdir()
+    (user_dir / "thesis.tex").write_bytes(b"\x00my only copy\xff")
+    (tmp_path / "notes.txt").write_bytes(b"do not lose me\n")
+    ckpt = tmp_path / "ckpt"  # a checkpoint of ours (its marker files)
+    (ckpt / "state").mkdir(parents=True)
+    (ckpt / "config.json").write_text('{"format": "slotv_jax.checkpoint/1"}')
+    before = snapshot(tmp_path)
+
+    rc, err, _ = run(*TRAIN, "--out", "results", cwd=tmp_path)
+    assert_one_line_error(rc, err, "--out results", "did not write")
+    rc, err, _ = run(*TRAIN, "--out", "notes.txt", "--overwrite", cwd=tmp_path)
+    assert_one_line_error(rc, err, "--out notes.txt", "is a file")
+    rc, err, _ = run(*TRAIN, "--out", "ckpt", cwd=tmp_path)
+    assert_one_line_error(rc, err, "--out ckpt", "--resume", "--overwrite")
+    rc, err, secs = run(*TRAIN, "--out", "/proc/ckpt", cwd=tmp_path)  # root cannot write here
+    assert_one_line_error(rc, err, "--out /proc/ckpt", "cannot write in /proc")
+    assert secs < FAST_S, secs
+    assert snapshot(tmp_path) == before  # byte for byte, and no hidden leftovers
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        (*TRAIN, "--out", "{bad}/ckpt"),
+        ("slotv_jax.data", "--preset", "quick", "--out", "{bad}/data"),
+        ("slotv_jax.labelers", "--in", "nothing.npz", "--out", "{bad}/labels.npz"),
+        ("slotv_jax.study", "import", "--trajectories", "t.csv", "--goals", "g.csv",
+         "--answers", "a.csv", "--out", "{bad}/study.npz"),
+        ("slotv_jax.experiments.table1", "--preset", "quick", "--out", "{bad}/t1"),
+    ],
+    ids=["train", "data", "labelers", "study-import", "table1"],
+)  # fmt: skip
+def test_unwritable_out_fails_in_seconds_before_any_work(tmp_path, argv):
+    # chmod does not stop root (CI runs as root); a regular file as the parent does
+    (tmp_path / "afile").write_text("x")
+    rc, err, secs = run(*(a.replace("{bad}", "afile") for a in argv), cwd=tmp_path)
+    assert_one_line_error(rc, err, "--out", "is a file, not a directory")
+    assert secs < FAST_S, secs
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]  # nothing generated
+
+
+def test_file_outputs_are_replaced_only_with_overwrite(tmp_path):
+    (tmp_path / "labels.npz").write_bytes(b"user data")
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "readme.md").write_bytes(b"mine")
+    before = snapshot(tmp_path)
+    rc, err, _ = run("slotv_jax.labelers", "--in", "x.npz", "--out", "labels.npz", cwd=tmp_path)
+    assert_one_line_error(rc, err, "labels.npz", "--overwrite")
+    rc, err, _ = run("slotv_jax.data", "--out", "data", cwd=tmp_path)
+    assert_one_line_error(rc, err, "--out data", "did not write")
+    assert snapshot(tmp_path) == before

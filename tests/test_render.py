@@ -1,0 +1,274 @@
+"""Rendering (slotv_jax.render) on the CPU through EGL (MUJOCO_GL=egl, set in conftest).
+
+What is drawn is checked against the numbers it came from: the TCP of MJX kinematics,
+projected through the MJX camera, lands on the pixel where MuJoCo draws the gripper; a
+clip cut at τ ends on the full clip's frame at τ; videos decode to the frames written.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import mujoco
+import numpy as np
+import pytest
+from PIL import Image
+
+from slotv_jax import render
+from slotv_jax.render import frames as frames_lib
+from slotv_jax.render import overlay, writers
+from slotv_jax.robot import kinematics
+from slotv_jax.world import scene
+
+SIZE = (160, 96)  # small frames keep the software rasteriser fast
+PIXEL_TOL = 1.0  # pixels: marker centroid vs. projected TCP
+Q_A = np.array([0.3, -0.2, 0.1, -2.0, 0.05, 1.9, 0.7])  # a reachable pose over the goal table
+GOALS = np.zeros((8, 3), np.float32)
+GOALS[:3] = [[0.45, -0.25, 0.025], [0.55, 0.0, 0.025], [0.40, 0.25, 0.025]]
+MASK = np.arange(8) < 3
+
+
+def _path(n=12):
+    """A joint path from Q_HOME to Q_A."""
+    a = np.linspace(0, 1, n)[:, None]
+    return (1 - a) * kinematics.Q_HOME + a * Q_A
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    with render.MotionRenderer(SIZE) as r:
+        yield r
+
+
+@pytest.fixture(scope="module")
+def mjx_ref():
+    """MJX kinematics of the scene model at Q_A (one compiled call): the TCP and the
+    three cameras, as slotv_jax.scene.Camera (the reference render.camera is checked on)."""
+    m = kinematics.mj_model(kinematics.SCENE_XML)
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, kinematics.TCP_SITE)
+
+    def fk(mx, q):
+        d = kinematics.mjx.kinematics(mx, kinematics.mjx.make_data(mx).replace(qpos=q))
+        d = kinematics.mjx.camlight(mx, d)
+        return d.site_xpos[site], d.cam_xpos, d.cam_xmat
+
+    tcp, pos, mat = kinematics.host_eval(fk, m, np.asarray(Q_A, np.float32))
+    cams = {
+        n: scene.Camera(
+            pos=pos[i], rot=mat[i].reshape(3, 3), fovy=m.cam_fovy[i], resolution=np.zeros(2)
+        )
+        for i, n in enumerate(render.CAMERAS)
+    }
+    return np.asarray(tcp, np.float64), cams
+
+
+def _mjx_pixel(point, cam, size):
+    """Pixel of a world point through an MJX-posed camera (independent of render.camera)."""
+    uv, _ = scene.project(np.asarray(point, np.float64), cam)
+    w, h = size
+    f = (h / 2) / np.tan(np.deg2rad(float(cam.fovy)) / 2)
+    return np.array([w / 2 + f * float(uv[0]), h / 2 - f * float(uv[1])])
+
+
+def _centroid(mask):
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.mean() + 0.5, ys.mean() + 0.5])
+
+
+@pytest.mark.parametrize("camera", ["observer", "observer_side"])
+def test_tcp_projects_onto_the_drawn_gripper(mjx_ref, camera):
+    """A marker sphere drawn at the TCP has its centroid within a pixel of the MJX TCP
+    projected through the MJX camera, and that pixel lies between the gripper's fingers."""
+    size = (640, 360)
+    tcp, cams = mjx_ref
+    with render.MotionRenderer(size) as r:
+        q = Q_A
+        seg = r.frame(q, camera, segmentation=True)
+        robot = r.model.geom_bodyid > 0
+        robot &= r.model.body_mocapid[r.model.geom_bodyid] < 0
+        r.model.geom_group[robot] = 3  # hidden (MjvOption shows groups 0-2): no occlusion
+        plain = r.frame(q, camera).astype(int)
+        marked = r.frame(q, camera, markers=[(tcp, 0.006, (1, 0, 1, 1))]).astype(int)
+    changed = np.abs(marked - plain).sum(-1) > 30
+    assert changed.sum() > 10  # the marker is visible
+    want = _mjx_pixel(tcp, cams[camera], size)
+    np.testing.assert_allclose(_centroid(changed), want, atol=PIXEL_TOL)
+    # render.pixels (MuJoCo C camera) agrees with the MJX camera
+    got, depth = render.pixels(tcp[None], camera, size)
+    np.testing.assert_allclose(got[0], want, atol=0.05)
+    assert depth[0] > 0
+    # the finger geoms (the two small boxes of the hand) are drawn around the TCP's pixel
+    m = r.model
+    hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "hand")
+    fingers = [g for g in range(m.ngeom) if m.geom_bodyid[g] == hand and m.geom_size[g, 0] < 0.015]
+    assert len(fingers) == 2
+    is_finger = (seg[..., 1] == mujoco.mjtObj.mjOBJ_GEOM) & np.isin(seg[..., 0], fingers)
+    ys, xs = np.nonzero(is_finger)
+    assert xs.min() - 1 <= want[0] <= xs.max() + 2 and ys.min() - 1 <= want[1] <= ys.max() + 2
+    d = np.hypot(xs + 0.5 - want[0], ys + 0.5 - want[1])
+    assert d.min() < 12.0  # 2 cm (half the finger gap) at 1.2 m is about 8 px
+
+
+def test_free_camera_projection_matches_the_drawn_marker(renderer, mjx_ref):
+    cam = render.FreeCamera(lookat=(0.4, 0.1, 0.2), distance=1.4, azimuth=150.0, elevation=-25.0)
+    tcp, _ = mjx_ref
+    marker = [(tcp, 0.012, (1, 0, 1, 1))]
+    shown = renderer.model.geom_group.copy()
+    robot = (renderer.model.geom_bodyid > 0) & (
+        renderer.model.body_mocapid[renderer.model.geom_bodyid] < 0
+    )
+    renderer.model.geom_group[robot] = 3  # hidden: the marker is seen whole
+    try:
+        plain = renderer.frame(Q_A, cam).astype(int)
+        marked = renderer.frame(Q_A, cam, markers=marker).astype(int)
+    finally:
+        renderer.model.geom_group[:] = shown
+    changed = np.abs(marked - plain).sum(-1) > 30
+    assert changed.sum() > 4
+    got, _ = render.pixels(tcp[None], cam, SIZE)
+    np.testing.assert_allclose(_centroid(changed), got[0], atol=PIXEL_TOL)
+
+
+def test_frame_times_by_hand():
+    s = render.frame_times(0.5, fps=4, duration=2, hold=0.5)
+    np.testing.assert_array_equal(s, [0, 0.125, 0.25, 0.375, 0.5, 0.5, 0.5])
+    s = render.frame_times(0.3, fps=10, duration=1, hold=0)  # 0.3 * 10 = 3 frames after 0
+    np.testing.assert_allclose(s, [0, 0.1, 0.2, 0.3])
+    s = render.frame_times(0.33, fps=10, duration=1, hold=0)  # the last frame at τ itself
+    np.testing.assert_allclose(s, [0, 0.1, 0.2, 0.3, 0.33])
+
+
+def test_tau_cut_ends_on_the_full_clips_frame(renderer):
+    q = _path()
+    kw = {"size": SIZE, "fps": 10, "duration": 1.0, "hold": 0.3, "renderer": renderer}
+    full = render.motion_frames(q, GOALS, MASK, tau=1.0, target=1, **kw)
+    cut = render.motion_frames(q, GOALS, MASK, tau=0.5, target=1, **kw)
+    assert full.shape == (11 + 3, SIZE[1], SIZE[0], 3)
+    assert cut.shape == (6 + 3, SIZE[1], SIZE[0], 3)
+    np.testing.assert_array_equal(cut[5], full[5])  # the frame at τ = 0.5
+    np.testing.assert_array_equal(cut[5:], np.broadcast_to(full[5], cut[5:].shape))  # held
+    assert np.abs(full[10].astype(int) - full[5]).sum() > 0  # the robot moved on after τ
+    still = render.still(q, GOALS, MASK, tau=0.5, size=SIZE, target=1, renderer=renderer)
+    np.testing.assert_array_equal(still, cut[-1])
+
+
+def test_labels_stand_above_their_cubes(renderer, mjx_ref):
+    names = ["A", "Bo", "C"]
+    layer = overlay.label_layer(SIZE, GOALS, MASK, names, "observer")
+    anchor = GOALS[:3] + np.array([0, 0, overlay.LABEL_LIFT])
+    xy = np.stack([_mjx_pixel(p, mjx_ref[1]["observer"], SIZE) for p in anchor])
+    opaque = layer[..., 3] > 200
+    for x, y in xy:  # every label box covers its projected anchor
+        assert opaque[int(y), int(x)]
+    assert not opaque[: int(xy[:, 1].min()) - 15].any()  # nothing far above the labels
+    f = render.motion_frames(
+        _path(), GOALS, MASK, size=SIZE, fps=2, duration=1, hold=0, renderer=renderer
+    )
+    g = render.motion_frames(
+        _path(),
+        GOALS,
+        MASK,
+        size=SIZE,
+        fps=2,
+        duration=1,
+        hold=0,
+        renderer=renderer,
+        show_labels=False,
+    )
+    differ = np.abs(f[-1].astype(int) - g[-1]).sum(-1) > 0
+    assert differ.any() and not (differ & ~(layer[..., 3] > 0)).any()  # labels only where drawn
+
+
+@pytest.mark.parametrize("suffix", [".mp4", ".gif"])
+def test_video_decodes_with_size_and_count(tmp_path, renderer, suffix):
+    clip = render.motion_frames(
+        _path(), GOALS, MASK, size=SIZE, fps=10, duration=0.8, hold=0.2, renderer=renderer
+    )
+    out = render.write_video(tmp_path / f"clip{suffix}", clip, fps=10)
+    back = render.read_video(out)
+    if suffix == ".gif":  # GIF merges repeated frames into one shown longer: expand them
+        with Image.open(out) as im:
+            ms = [(im.seek(i), im.info["duration"])[1] for i in range(im.n_frames)]
+        back = np.repeat(back, np.round(np.asarray(ms) / 100).astype(int), axis=0)
+    assert back.shape == clip.shape
+    err = np.abs(back.astype(int) - clip).mean()
+    assert err < (4.0 if suffix == ".mp4" else 12.0)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary left
+
+
+def test_png_and_contact_sheet(tmp_path, renderer):
+    clip = render.motion_frames(
+        _path(), GOALS, MASK, size=SIZE, fps=5, duration=1, hold=0, renderer=renderer
+    )
+    sheet = render.contact_sheet(clip, n=4, cols=2, pad=3)
+    h, w = SIZE[1], SIZE[0]
+    assert sheet.shape == (2 * h + 3 * 3, 2 * w + 3 * 3, 3)
+    np.testing.assert_array_equal(sheet[3 : 3 + h, 3 : 3 + w], clip[0])
+    np.testing.assert_array_equal(sheet[6 + h : 6 + 2 * h, 6 + w : 6 + 2 * w], clip[-1])
+    render.write_png(tmp_path / "s.png", sheet)
+    np.testing.assert_array_equal(render.read_video(tmp_path / "s.png")[0], sheet)
+
+
+def _no_rendering(monkeypatch):
+    def boom(*a, **k):
+        raise AssertionError("rendering started before the input was checked")
+
+    monkeypatch.setattr(frames_lib.MotionRenderer, "__init__", boom)
+
+
+@pytest.mark.parametrize(
+    ("change", "name"),
+    [
+        ({"q": np.where(np.arange(7) == 2, np.nan, _path())}, "q"),
+        ({"q": _path()[:, :6]}, "q"),
+        ({"camera": "ceiling"}, "camera"),
+        ({"tau": 0.0}, "tau"),
+        ({"tau": 1.2}, "tau"),
+        ({"tau": float("nan")}, "tau"),
+        ({"size": (8, 8)}, "size"),
+        ({"labels": ["A", "B"]}, "labels"),
+        ({"target": 5}, "target"),
+        ({"goal_mask": np.zeros(8, bool)}, "goal_mask"),
+    ],
+)
+def test_bad_input_is_named_before_rendering(monkeypatch, change, name):
+    _no_rendering(monkeypatch)
+    kw = {"q": _path(), "goals": GOALS, "goal_mask": MASK, **change}
+    with pytest.raises(ValueError, match=rf"^{name}:"):
+        render.motion_frames(kw.pop("q"), kw.pop("goals"), kw.pop("goal_mask"), **kw)
+
+
+def test_unwritable_output_is_named(tmp_path):
+    with pytest.raises(ValueError, match=r"^--out .*a.avi: expected a file ending in .mp4"):
+        writers.check_output(tmp_path / "a.avi")
+    (tmp_path / "d.mp4").mkdir()
+    with pytest.raises(ValueError, match=r"^--out .*d.mp4: is a directory"):
+        writers.check_output(tmp_path / "d.mp4")
+    (tmp_path / "f").write_text("")
+    with pytest.raises(ValueError, match=r"^--out .*is a file, not a directory"):
+        writers.check_output(tmp_path / "f" / "a.mp4")
+    (tmp_path / "old.gif").write_text("")
+    with pytest.raises(ValueError, match=r"^--out .*old.gif: the file exists"):
+        writers.check_output(tmp_path / "old.gif")
+    writers.check_output(tmp_path / "old.gif", overwrite=True)
+    with pytest.raises(ValueError, match=r"^--out .*cannot write in /proc"):
+        writers.check_output("/proc/a.mp4")
+
+
+def test_missing_gl_backend_is_explained(monkeypatch):
+    def no_gl(*a, **k):
+        raise ImportError("Cannot find libEGL")
+
+    monkeypatch.setattr(mujoco, "Renderer", no_gl)
+    with pytest.raises(render.RenderBackendError, match=r"MUJOCO_GL.*libegl1 libgl1-mesa-dri"):
+        render.MotionRenderer(SIZE)
+
+
+def test_the_library_never_imports_the_renderer():
+    code = (
+        "import sys, slotv_jax, slotv_jax.data, slotv_jax.planning; "
+        "print(any(m.startswith('slotv_jax.render') for m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -1,0 +1,150 @@
+"""``python -m slotv_jax.render`` (run in-process): every source, and errors before rendering."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slotv_jax import data, render, study
+from slotv_jax.render import cli
+from slotv_jax.render import frames as frames_lib
+from slotv_jax.robot import kinematics
+
+SIZE = (64, 48)
+FAST = ["--size", "64x48", "--fps", "5", "--duration", "1", "--hold", "0.2", "--quiet"]
+GOALS = np.zeros((8, 3), np.float32)
+GOALS[:3] = [[0.45, -0.25, 0.025], [0.55, 0.0, 0.025], [0.40, 0.25, 0.025]]
+MASK = np.arange(8) < 3
+
+
+def _path(end, n=10):
+    a = np.linspace(0, 1, n)[:, None]
+    return ((1 - a) * kinematics.Q_HOME + a * np.asarray(end)).astype(np.float32)
+
+
+Q1 = _path([0.3, -0.2, 0.1, -2.0, 0.05, 1.9, 0.7])
+Q2 = _path([-0.3, 0.1, 0.0, -2.2, 0.0, 2.2, 0.8])
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """A two-trajectory position_test split written by data.save_split."""
+    out = tmp_path_factory.mktemp("data")
+    q = np.stack([Q1, Q2])
+    with render.MotionRenderer(SIZE) as r:
+        xyz = np.stack([r.tcp_path(qi) for qi in q]).astype(np.float32)
+    y = np.where(MASK, 1 / 3, 0).astype(np.float32)
+    split = data.Split(
+        name="position_test",
+        xyz=xyz,
+        q=q,
+        target=np.array([1, 2], np.int32),
+        env_id=np.zeros(2, np.int32),
+        n_via=np.ones(2, np.int32),
+        residual=np.zeros(2, np.float32),
+        scene_goals=GOALS[None],
+        scene_mask=MASK[None],
+        labels={n: np.stack([y, y]) for n in data.LABELER_NAMES},
+        meta={},
+    )
+    data.save_split(out, split, data.DataConfig(preset="tiny", n_train=2, n_eval=2))
+    return out
+
+
+def test_a_dataset_trajectory_to_mp4(dataset, tmp_path):
+    out = tmp_path / "a.mp4"
+    args = ["--data", str(dataset), "--split", "position_test", "--index", "1", "--out", str(out)]
+    assert cli.main([*args, *FAST]) == 0
+    clip = render.read_video(out)
+    assert clip.shape == (6 + 1, SIZE[1], SIZE[0], 3)  # 0, 0.2, ..., 1 and one held frame
+    want = render.motion_frames(Q2, GOALS, MASK, size=SIZE, fps=5, duration=1, hold=0.2)
+    assert np.abs(clip.astype(int) - want).mean() < 6.0
+
+
+def test_several_trajectories_into_a_folder(dataset, tmp_path):
+    args = ["--data", str(dataset), "--split", "position_test", "--index", "0:2", "--tau", "0.5"]
+    assert cli.main([*args, "--out", str(tmp_path / "stills"), "--format", "png", *FAST]) == 0
+    for i, q in enumerate((Q1, Q2)):
+        got = render.read_video(tmp_path / "stills" / f"position_test_{i:04d}.png")[0]
+        np.testing.assert_array_equal(got, render.still(q, GOALS, MASK, tau=0.5, size=SIZE))
+
+
+def test_plans_side_by_side_and_one_planner(tmp_path):
+    plans = tmp_path / "plans.npz"
+    np.savez(
+        plans,
+        goals=np.stack([GOALS, GOALS]),
+        goal_mask=np.stack([MASK, MASK]),
+        target=np.array([0, 1]),
+        family=np.array(["dragan", "dragan"]),
+        names=np.array(["straight", "oracle"]),
+        q=np.stack([np.stack([Q1, Q2]), np.stack([Q2, Q1])]),
+        xyz=np.zeros((2, 2, 10, 3), np.float32),
+    )
+    both = tmp_path / "both.png"
+    assert cli.main(["--plans", str(plans), "--problem", "1", "--out", str(both), *FAST]) == 0
+    img = render.read_video(both)[0]
+    assert img.shape[1] == 2 * SIZE[0] + render.compare.GAP
+    one = tmp_path / "one.png"
+    args = ["--plans", str(plans), "--problem", "1", "--planner", "oracle", "--out", str(one)]
+    assert cli.main([*args, *FAST]) == 0
+    right = img[:, SIZE[0] + render.compare.GAP :]
+    np.testing.assert_array_equal(render.read_video(one)[0][:, :, :3], right)  # same panel
+
+
+def test_a_study_file_through_ik_with_goal_names(tmp_path):
+    with render.MotionRenderer(SIZE) as r:
+        xyz = r.tcp_path(Q1)[None].astype(np.float32)
+    names = np.array(["cup", "box", "pen", "", "", "", "", ""])
+    st = study.make_study(xyz, GOALS, MASK, np.array([0]), np.eye(8)[None, 1], goal_names=names)
+    study.save_study(tmp_path / "s.npz", st)
+    out = tmp_path / "s.png"
+    args = ["--study", str(tmp_path / "s.npz"), "--labels", "names", "--out", str(out)]
+    assert cli.main([*args, *FAST]) == 0
+    got = render.read_video(out)[0]
+    want = render.still(Q1, GOALS, MASK, size=SIZE, labels=["cup", "box", "pen"])
+    assert np.abs(got.astype(int) - want).mean() < 1.0  # the IK's joints draw the same picture
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--camera", "ceiling"], "--camera: expected one of"),
+        (["--tau", "0"], "tau: expected a normalised time in (0, 1]"),
+        (["--tau", "1.5"], "tau: expected"),
+        (["--size", "10x10"], "--size: expected WxH"),
+        (["--index", "7"], "--index 7: expected indices in 0..1"),
+        (["--split", "nope"], "--split: expected one of"),
+        (["--out", "/proc/a.mp4"], "--out /proc/a.mp4: cannot write in /proc"),
+        (["--out", "a.avi"], "expected a file ending in .mp4 or .gif or .png"),
+        (["--labels", "names"], "--labels names: position_test_0000 has no goal names"),
+        (["--index", "0:2", "--out", "x.mp4"], "2 items need a folder"),
+    ],
+)
+def test_bad_input_is_one_line_before_rendering(
+    dataset, tmp_path, monkeypatch, capsys, args, message
+):
+    def boom(*a, **k):
+        raise AssertionError("rendering started before the input was checked")
+
+    monkeypatch.setattr(frames_lib.MotionRenderer, "__init__", boom)
+    monkeypatch.chdir(tmp_path)
+    base = {"--data": str(dataset), "--split": "position_test", "--out": "a.mp4"}
+    for k, v in zip(args[::2], args[1::2], strict=True):
+        base[k] = v
+    with pytest.raises(SystemExit) as e:
+        cli.main([*(x for kv in base.items() for x in kv), "--quiet"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
+
+
+def test_nan_joints_in_an_npz_are_named(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(frames_lib.MotionRenderer, "__init__", None)  # must not be reached
+    q = np.stack([Q1, Q2])
+    q[1, 4, 2] = np.nan
+    np.savez(tmp_path / "t.npz", xyz=np.zeros((2, 10, 3)), goals=GOALS, goal_mask=MASK, q=q)
+    with pytest.raises(SystemExit):
+        cli.main(["--npz", str(tmp_path / "t.npz"), "--index", "0:2", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert err.startswith("error: t_0001: q: expected finite values"), err
