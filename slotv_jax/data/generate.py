@@ -46,8 +46,9 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
+from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
 from slotv_jax.core.validation import G_MAX
-from slotv_jax.data.config import LABELER_NAMES, SPLITS, DataConfig, LabelConfig
+from slotv_jax.data.config import DataConfig, LabelConfig
 from slotv_jax.data.storage import _TRAJ_ARRAYS, Split, _check_dir_config, load_split, save_split
 from slotv_jax.observers.labelling import label_all
 from slotv_jax.robot import kinematics

@@ -34,10 +34,11 @@ import numpy as np
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.core import cli, fileio
 from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
-from slotv_jax.training import distributed, evaluate, parallel, schedule, types
+from slotv_jax.training import distributed, evaluate, parallel, schedule
 from slotv_jax.training import trainer as train
 from slotv_jax.training.config import MODELS
 
@@ -91,8 +92,8 @@ def run(
     )
     if writer:
         distributed.barrier("sample_efficiency dataset")
-    tdata = types.prepare(dataset["train"], labeler)
-    vdata = types.prepare(dataset["trajectory_val"], labeler)
+    tdata = train.prepare(dataset["train"], labeler)
+    vdata = train.prepare(dataset["trajectory_val"], labeler)
     val_size = min(val_size, len(dataset["trajectory_val"]))
     rows: list[dict] = []
     summary: dict[str, dict] = {}
@@ -242,6 +243,7 @@ def replot(out: Path) -> None:
     plot(rows, doc["summary"], doc, out / "sample_efficiency.png")
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.sample_efficiency",
@@ -282,6 +284,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             p.error(f"--{name.replace('_', '-')}: expected an integer >= 1")
     suffix = "" if args.model == "mlp" else f"_{args.model}"
     out = args.out or Path("runs") / f"sample_efficiency_{args.preset}{suffix}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
     doc = run(
         args.preset,
         out,

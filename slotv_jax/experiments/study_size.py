@@ -65,11 +65,12 @@ from tqdm.auto import tqdm
 import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax import study
+from slotv_jax.core import cli, fileio
 from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
 from slotv_jax.training import config as config_lib
 from slotv_jax.training import evaluate
-from slotv_jax.training import types as train
+from slotv_jax.training import trainer as train
 
 UPDATES_QUICK = 2000  # updates per cell of the quick preset (module docstring)
 INF = 0  # the "participants" value of the P = ∞ curve (train on the labeler's distribution)
@@ -721,8 +722,11 @@ def _parse_args(argv):
     return ap.parse_args(argv)
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
+    stem = "study_size" if args.preset == "quick" else f"study_size_{args.preset}"
+    fileio.check_output_files(args.out, [f"{stem}.{x}" for x in ("json", "md", "png")])
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)
     kw: dict = {}
     if args.n_grid:

@@ -38,14 +38,13 @@ from tqdm.auto import tqdm
 import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
+from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.core.fileio import write_text
 from slotv_jax.training import config as train_config
-from slotv_jax.training import distributed, evaluate, parallel, schedule, types
+from slotv_jax.training import distributed, evaluate, parallel, schedule
 from slotv_jax.training import trainer as train
 
-LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
 METHODS = ("slotv", "trex")
-SPLITS = ("train", "trajectory_test", "position_test", "goal_count_test")
 SPLIT_TITLES = {
     "train": "train",
     "trajectory_test": "trajectory",
@@ -74,7 +73,7 @@ PAPER = {
 PAPER_TABLE = {
     (lab, meth, split): PAPER[(lab, meth)][i]
     for (lab, meth) in PAPER
-    for i, split in enumerate(SPLITS)
+    for i, split in enumerate(TEST_SPLITS)
 }
 
 
@@ -209,8 +208,8 @@ def render_table(summary: list[dict]) -> str:
         "| T-REX (ours) | T-REX (paper) | Δ |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for lab in LABELERS:
-        for i, split in enumerate(SPLITS):
+    for lab in LABELER_NAMES:
+        for i, split in enumerate(TEST_SPLITS):
             row = [LABELER_TITLES[lab] if i == 0 else "", SPLIT_TITLES[split]]
             for meth in METHODS:
                 s = by.get((lab, meth, split))
@@ -236,7 +235,7 @@ def run(
     cfg: Table1Config,
     out: Path,
     *,
-    labelers: Sequence[str] = LABELERS,
+    labelers: Sequence[str] = LABELER_NAMES,
     methods: Sequence[str] = METHODS,
     cache: Path = Path("data"),
     progress: bool = True,
@@ -308,7 +307,7 @@ def run(
         doc["cells"].extend(
             {"labeler": lab, "method": meth, "split": split, "trial": trial,
              "accuracy": float(accs[split][i])}
-            for split in SPLITS
+            for split in TEST_SPLITS
         )  # fmt: skip
         doc["timing"]["cells"].append(
             {"labeler": lab, "method": meth, "trial": trial,
@@ -358,15 +357,15 @@ def _single_device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_
         else:
             units.append((lab, meth, [trial]))
     # Each labeler's splits are validated and trimmed once and shared by both methods.
-    prepared: dict[tuple[str, str], types.TrainData] = {}
+    prepared: dict[tuple[str, str], train.TrainData] = {}
 
-    def split_data(lab: str, split: str, size: int | None = None) -> types.TrainData:
+    def split_data(lab: str, split: str, size: int | None = None) -> train.TrainData:
         if prepared and next(iter(prepared))[0] != lab:
             prepared.clear()  # one labeler's arrays at a time
         if (lab, split) not in prepared:
-            prepared[(lab, split)] = types.prepare(dataset[split], lab)
+            prepared[(lab, split)] = train.prepare(dataset[split], lab)
         data = prepared[(lab, split)]
-        return data if size is None else types.subset(data, size)
+        return data if size is None else train.subset(data, size)
 
     for lab, meth, trials in units:
 
@@ -384,7 +383,7 @@ def _single_device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_
                 split: np.asarray(
                     evaluate.accuracy(tc, state.params, split_data(lab, split, used.get(split)))
                 ).reshape(-1)
-                for split in SPLITS
+                for split in TEST_SPLITS
             }
             t_total = time.perf_counter() - t_cell
             times = {"prepare_s": t_prep, "train_s": t_train, "total_s": t_total}
@@ -398,16 +397,16 @@ def _device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_dev: in
     :func:`slotv_jax.parallel.groups`, each trained side by side and evaluated where it
     trained. The trajectories are shared and each unit has its labeler's labels."""
 
-    shared: dict[str, types.TrainData] = {}
+    shared: dict[str, train.TrainData] = {}
     labels: dict[tuple[str, str], np.ndarray] = {}
 
     def arrays(split: str, labs: Sequence[str], size: int | None = None):
         for lab in labs:
             if (lab, split) not in labels:
-                d = types.prepare(dataset[split], lab)  # validates this labeler's labels
+                d = train.prepare(dataset[split], lab)  # validates this labeler's labels
                 labels[(lab, split)] = np.asarray(d.labels)
                 shared.setdefault(split, d)
-        d = shared[split] if size is None else types.subset(shared[split], size)
+        d = shared[split] if size is None else train.subset(shared[split], size)
         n = d.xyz.shape[0]
         return d, np.stack([labels[(lab, split)][:n] for lab in labs])
 
@@ -428,7 +427,7 @@ def _device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_dev: in
                 t_train = time.perf_counter() - t_cell - t_prep
                 used = {"train": tc.n_used(len(tdata.xyz))}
                 accs = {}
-                for split in SPLITS:
+                for split in TEST_SPLITS:
                     d, lab_arr = arrays(split, labs, used.get(split))
                     accs[split] = parallel.group_accuracy(tc, state.params, d, mesh, labels=lab_arr)
                 loss = distributed.fetch(metrics.loss)  # (padded runs, E, K): the first are ours
@@ -520,7 +519,7 @@ def report(doc: dict) -> str:
             "",
             *note,
             f"Accuracy (SPEC §8) as mean ± SD over trials; the paper's values (10 trials) "
-            f"in parentheses. {len(doc['cells']) // len(SPLITS)} trained models, "
+            f"in parentheses. {len(doc['cells']) // len(TEST_SPLITS)} trained models, "
             f"{per_cell:.1f} s per cell on average (training and evaluation).",
             "",
             f"jax {env.get('jax')}, flax {env.get('flax')}, mujoco {env.get('mujoco')}, "
@@ -532,11 +531,6 @@ def report(doc: dict) -> str:
     )
 
 
-def is_results_dir(path: Path) -> bool:
-    """True if ``path`` holds an experiment's ``results.json`` (the marker of our output)."""
-    return (Path(path) / "results.json").is_file()
-
-
 @cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
@@ -544,7 +538,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         description="Reproduce Table 1 of the SLOT-V paper.",
     )
     p.add_argument("--preset", choices=sorted(PRESETS), default="quick")
-    p.add_argument("--labelers", nargs="+", choices=LABELERS, default=list(LABELERS))
+    p.add_argument("--labelers", nargs="+", choices=LABELER_NAMES, default=list(LABELER_NAMES))
     p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     p.add_argument("--trials", type=int, help="trials per cell (default: the preset's)")
     p.add_argument("--out", type=Path, help="results directory (default: runs/table1_<preset>)")
@@ -595,7 +589,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.merge and args.out is None:
         raise cli.InputError("--merge needs --out")
     # a results directory of ours is resumed (finished cells are kept); else refused
-    fileio.check_output_dir(out, ours=is_results_dir, resume=True)
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)
     distributed.init_from_args(args)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     if args.merge:

@@ -27,15 +27,12 @@ import numpy as np
 
 from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
+from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.core.xla import XLA_CONFIG
-from slotv_jax.study import cli as study
+from slotv_jax.study import cli as study_cli
 from slotv_jax.training import checkpoint, evaluate
 from slotv_jax.training import config as config_lib
-from slotv_jax.training.trainer import make_train, packed_trainer
-from slotv_jax.training.types import prepare, trim_goals
-
-LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
-TEST_SPLITS = ("train", "trajectory_test", "position_test", "goal_count_test")
+from slotv_jax.training.trainer import make_train, packed_trainer, prepare, trim_goals
 
 
 def _parse_args(argv):
@@ -44,7 +41,7 @@ def _parse_args(argv):
         description="Train one SLOT-V or T-REX model on a generated dataset and save a checkpoint.",
     )
     ap.add_argument("--data", help="dataset directory (python -m slotv_jax.data)")
-    ap.add_argument("--labeler", choices=LABELERS)
+    ap.add_argument("--labeler", choices=LABELER_NAMES)
     ap.add_argument(
         "--study", help="train on a study file instead (.npz, python -m slotv_jax.study import)"
     )
@@ -84,7 +81,7 @@ def _parse_args(argv):
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry point: train, checkpoint after every epoch, report test accuracies.
 
-    Before any work it checks ``--out`` (:func:`slotv_jax.fileio.check_output_dir`): an
+    Before any work it checks ``--out`` (:func:`slotv_jax.core.fileio.check_output_dir`): an
     existing checkpoint is continued with ``--resume`` or replaced with ``--overwrite``;
     anything else in the way is refused.
     """
@@ -105,7 +102,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.resume = False
     print(XLA_CONFIG.summary(), flush=True)
     if args.study is not None:
-        return study.train_main(cfg, args)
+        return study_cli.train_main(cfg, args)
     out = Path(args.out)
 
     train_split = data_lib.load_split(args.data, "train")
@@ -148,3 +145,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     checkpoint.save(out, cfg, state, meta=meta)
     print(json.dumps({"checkpoint": str(out), "accuracy": acc}, indent=2))
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
