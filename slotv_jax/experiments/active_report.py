@@ -14,6 +14,7 @@ MODEL_TITLES = {"mlp": "SLOT-V (paper MLP)", "slotv_plus": "SLOT-V+", "dragan": 
 STRATEGY_COLORS = {
     "random": "black",
     "uncertainty": "tab:orange",
+    "margin": "tab:red",
     "bald": "tab:blue",
     "bald_fantasy": "tab:green",
     "bald_cluster": "tab:purple",
