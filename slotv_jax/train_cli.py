@@ -29,10 +29,8 @@ from slotv_jax import checkpoint, cli, evaluate, fileio, study
 from slotv_jax import config as config_lib
 from slotv_jax import data as data_lib
 from slotv_jax._xla import XLA_CONFIG
+from slotv_jax.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.train import make_train, packed_trainer, prepare, trim_goals
-
-LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
-TEST_SPLITS = ("train", "trajectory_test", "position_test", "goal_count_test")
 
 
 def _parse_args(argv):
@@ -41,7 +39,7 @@ def _parse_args(argv):
         description="Train one SLOT-V or T-REX model on a generated dataset and save a checkpoint.",
     )
     ap.add_argument("--data", help="dataset directory (python -m slotv_jax.data)")
-    ap.add_argument("--labeler", choices=LABELERS)
+    ap.add_argument("--labeler", choices=LABELER_NAMES)
     ap.add_argument(
         "--study", help="train on a study file instead (.npz, python -m slotv_jax.study import)"
     )

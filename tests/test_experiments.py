@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from slotv_jax import data
+from slotv_jax import data, defaults
 from slotv_jax.experiments import hparam_search, sample_efficiency, table1
 
 REPO = Path(__file__).resolve().parent.parent
@@ -44,8 +44,8 @@ def _check_schema(doc: dict) -> None:
     assert {"jax", "devices", "mujoco", "flax"} <= set(doc["environment"])
     for c in doc["cells"]:
         assert set(c) == {"labeler", "method", "split", "trial", "accuracy"}
-        assert c["labeler"] in table1.LABELERS and c["method"] in table1.METHODS
-        assert c["split"] in table1.SPLITS and isinstance(c["trial"], int)
+        assert c["labeler"] in defaults.LABELER_NAMES and c["method"] in table1.METHODS
+        assert c["split"] in defaults.TEST_SPLITS and isinstance(c["trial"], int)
         assert 0.0 <= c["accuracy"] <= 1.0
     for s in doc["summary"]:
         assert set(s) == {"labeler", "method", "split", "mean", "sd", "n"}
@@ -61,9 +61,9 @@ def test_table1_results_schema_and_report(cache, tmp_path):
     _check_schema(doc)
     on_disk = json.loads((tmp_path / "results.json").read_text())
     _check_schema(on_disk)
-    assert len(on_disk["cells"]) == 2 * cfg.trials * len(table1.SPLITS)
+    assert len(on_disk["cells"]) == 2 * cfg.trials * len(defaults.TEST_SPLITS)
     assert {(s["method"], s["split"]) for s in on_disk["summary"]} == {
-        (m, s) for m in ("slotv", "trex") for s in table1.SPLITS
+        (m, s) for m in ("slotv", "trex") for s in defaults.TEST_SPLITS
     }
     md = (tmp_path / "table1.md").read_text()
     assert "0.996 (0.005)" in md and "EffDist" in md  # the paper's value beside ours
@@ -132,7 +132,7 @@ def test_killed_run_resumes_without_recomputing(cache, tmp_path):
     assert final["cells"][: len(killed["cells"])] == killed["cells"]
     keys = [(c["labeler"], c["method"], c["trial"]) for c in final["timing"]["cells"]]
     assert len(keys) == len(set(keys)) == 2 * 2 * 2
-    assert len(final["cells"]) == 8 * len(table1.SPLITS)
+    assert len(final["cells"]) == 8 * len(defaults.TEST_SPLITS)
     assert (out / "table1.md").exists()
     assert not list(out.glob(".*tmp"))
 
@@ -267,7 +267,7 @@ def test_interrupted_multi_device_run_resumes_without_recomputing(cache, tmp_pat
     _check_schema(final)
     assert final["timing"]["cells"][:4] == killed["timing"]["cells"]
     assert final["cells"][: len(killed["cells"])] == killed["cells"]
-    assert len(final["cells"]) == 8 * len(table1.SPLITS)
+    assert len(final["cells"]) == 8 * len(defaults.TEST_SPLITS)
 
 
 MULTI_PROCESS = [

@@ -96,6 +96,10 @@ def test_plans_side_by_side_and_one_planner(tmp_path):
     assert cli.main([*args, *FAST]) == 0
     right = img[:, SIZE[0] + render.compare.GAP :]
     np.testing.assert_array_equal(render.read_video(one)[0][:, :, :3], right)  # same panel
+    swapped = tmp_path / "swapped.png"
+    args = ["--plans", str(plans), "--problem", "1", "--planner", "oracle,straight"]
+    assert cli.main([*args, "--out", str(swapped), *FAST]) == 0
+    np.testing.assert_array_equal(render.read_video(swapped)[0][:, : SIZE[0]], right)
 
 
 def test_a_study_file_through_ik_with_goal_names(tmp_path):
@@ -168,12 +172,15 @@ def test_planning_figure_rows_and_panels(tmp_path):
         q=np.stack([np.stack([Q1, Q2, Q1])] * 3 + [np.stack([Q1, Q2, np.full_like(Q1, np.nan)])]),
     )
     z = dict(np.load(plans))
-    assert planning_render.default_problems(z["family"]) == [0, 2]
+    assert planning_render.default_problems(z["family"]) == [0]  # nikolaidis has no 2nd problem
+    fams = np.array(["d"] * 4 + ["n"] * 4)
+    assert planning_render.default_problems(fams) == [0, 5, 2]
     assert planning_render.choose_planners(z, [0, 2]) == [0, 1, 2]
     assert planning_render.choose_planners(z, [0, 2], ["archetype", "oracle"]) == [1]  # NaN out
     assert planning_render.choose_planners(z, [0, 1], ["archetype", "oracle"]) == [3, 1]
     out = tmp_path / "fig.png"
-    assert planning_render.main(["--plans", str(plans), "--out", str(out), "--size", "64x48"]) == 0
+    args = ["--plans", str(plans), "--out", str(out), "--size", "64x48", "--problems", "0,2"]
+    assert planning_render.main(args) == 0
     img = render.read_video(out)[0]
     bar = render.overlay.title(np.zeros((48, 64, 3), np.uint8), "x").shape[0]
     assert img.shape[:2] == (

@@ -151,11 +151,12 @@ def main(argv=None) -> int:
     xyz, goals, mask = synthetic(args.n, args.T)
     cam = scene_camera("observer")
     cam_pos, cam_rot = np.asarray(cam.pos, np.float64), np.asarray(cam.rot, np.float64)
+    b = L.DEFAULT_BETAS  # the public labelers' temperatures, where none is given
     numpy_fns = {
-        "dragan": np_dragan,
-        "nikolaidis": lambda x, g, m: np_nikolaidis(x, g, m, cam_pos, cam_rot),
-        "effdist": np_effdist,
-        "fastapp": np_fastapp,
+        "dragan": functools.partial(np_dragan, beta=b["dragan"]),
+        "nikolaidis": lambda x, g, m: np_nikolaidis(x, g, m, cam_pos, cam_rot, b["nikolaidis"]),
+        "effdist": functools.partial(np_effdist, beta=b["effdist"]),
+        "fastapp": functools.partial(np_fastapp, beta=b["fastapp"]),
     }
     public = {n: functools.partial(L.LABELERS[n], camera=cam) for n in ["nikolaidis"]}
     public.update({n: L.LABELERS[n] for n in L.LABELER_NAMES if n != "nikolaidis"})

@@ -42,8 +42,9 @@ import slotv_jax
 from slotv_jax import cli, evaluate, fileio, train
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
+from slotv_jax.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.experiments import sample_efficiency, table1
-from slotv_jax.experiments.table1 import LABELER_TITLES, LABELERS, SPLIT_TITLES, SPLITS
+from slotv_jax.experiments.table1 import LABELER_TITLES, SPLIT_TITLES
 from slotv_jax.fileio import save_figure, write_text
 
 MODELS = train_config.MODELS
@@ -73,7 +74,7 @@ def run(
     *,
     trials: int,
     models: Sequence[str] = MODELS,
-    labelers: Sequence[str] = LABELERS,
+    labelers: Sequence[str] = LABELER_NAMES,
     repeats: int = 3,
     every: int = 2,
     cache: Path = Path("data"),
@@ -112,7 +113,7 @@ def run(
         jax.block_until_ready(states)
         seconds = time.perf_counter() - t0
         accs = {}
-        for split in SPLITS:
+        for split in TEST_SPLITS:
             size = tc.n_used(len(dataset["train"])) if split == "train" else None
             d = train.prepare(dataset[split], lab, size=size)
             accs[split] = np.asarray(evaluate.accuracy(tc, states.params, d)).reshape(-1)
@@ -129,7 +130,7 @@ def run(
     for lab, model in bar:
         bar.set_postfix_str(f"{lab}/{model}")
         accs, fitted, seconds = fit_and_score(lab, model, configs[model], list(range(trials)))
-        for split in SPLITS:
+        for split in TEST_SPLITS:
             for t in range(trials):
                 doc["cells"].append(
                     {"labeler": lab, "model": model, "split": split, "trial": t,
@@ -152,7 +153,7 @@ def run(
         epochs = max(1, round(updates / (n // base.batch_size)))
         tc = dataclasses.replace(base, train_size=n, epochs=epochs)
         accs, fitted, _ = fit_and_score(lab, model, tc, list(range(trials)))
-        for split in SPLITS:
+        for split in TEST_SPLITS:
             m_, s_ = _mean_sd(accs[split])
             doc["few_labels"].append(
                 {"labeler": lab, "model": model, "fraction": f"1/{k}", "train_size": n,
@@ -259,13 +260,13 @@ def report(doc: dict) -> str:
     labels; sample efficiency."""
     by = {(s["labeler"], s["model"], s["split"]): s for s in doc["summary"]}
     models = list(doc["config"]["train"])
-    labelers = sorted({s["labeler"] for s in doc["summary"]}, key=LABELERS.index)
+    labelers = sorted({s["labeler"] for s in doc["summary"]}, key=LABELER_NAMES.index)
     lines = [
         "| labeler | split | " + " | ".join(MODEL_TITLES[m] for m in models) + " |",
         "|---|---|" + "---|" * len(models),
     ]
     for lab in labelers:
-        for i, split in enumerate(SPLITS):
+        for i, split in enumerate(TEST_SPLITS):
             row = [LABELER_TITLES[lab] if i == 0 else "", SPLIT_TITLES[split]]
             for m in models:
                 s = by.get((lab, m, split))
@@ -294,7 +295,7 @@ def report(doc: dict) -> str:
         few.setdefault((r["labeler"], r["model"], r["fraction"]), {})[r["split"]] = r
     for (lab, m, frac), d in few.items():
         r0 = next(iter(d.values()))
-        accs = [f"{d[s]['mean']:.3f} ± {d[s]['sd']:.3f}" for s in SPLITS[1:]]
+        accs = [f"{d[s]['mean']:.3f} ± {d[s]['sd']:.3f}" for s in TEST_SPLITS[1:]]
         flines.append(f"| {LABELER_TITLES[lab]} | {MODEL_TITLES[m]} | {r0['train_size']} "
                       f"({frac}) | {r0['epochs']} | " + " | ".join(accs) + " |")  # fmt: skip
 
@@ -360,7 +361,7 @@ def plot(doc: dict, out: Path, path: Path) -> None:
     ax = axes[0]
     by = {(s["labeler"], s["model"], s["split"]): s for s in doc["summary"]}
     models = list(doc["config"]["train"])
-    labelers = sorted({s["labeler"] for s in doc["summary"]}, key=LABELERS.index)
+    labelers = sorted({s["labeler"] for s in doc["summary"]}, key=LABELER_NAMES.index)
     width = 0.8 / len(models)
     colors = dict(zip(MODELS, ("tab:blue", "tab:orange", "tab:green", "tab:red"), strict=True))
     for j, m in enumerate(models):
@@ -409,7 +410,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--preset", choices=sorted(table1.PRESETS), default="quick")
     p.add_argument("--trials", type=int, help="trials per cell (default: the preset's)")
     p.add_argument("--models", nargs="+", choices=MODELS, default=list(MODELS))
-    p.add_argument("--labelers", nargs="+", choices=LABELERS, default=list(LABELERS))
+    p.add_argument("--labelers", nargs="+", choices=LABELER_NAMES, default=list(LABELER_NAMES))
     p.add_argument("--repeats", type=int, default=3, help="sample-efficiency repeats")
     p.add_argument("--every", type=int, default=2, help="archetype validation interval (updates)")
     p.add_argument("--out", type=Path, help="default: runs/explainable_<preset>")

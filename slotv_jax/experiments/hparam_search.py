@@ -46,8 +46,9 @@ import slotv_jax
 from slotv_jax import cli, evaluate, fileio, parallel, train
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
+from slotv_jax.defaults import LABELER_NAMES
 from slotv_jax.experiments import table1
-from slotv_jax.experiments.table1 import LABELERS, dataset_dir
+from slotv_jax.experiments.table1 import dataset_dir
 from slotv_jax.fileio import write_text
 
 PHASES = {
@@ -428,7 +429,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--preset", choices=sorted(PRESETS), default="quick")
     p.add_argument("--rollouts", type=int, help="rollouts per phase (default: the preset's)")
-    p.add_argument("--labeler", choices=LABELERS, default="dragan")
+    p.add_argument("--labeler", choices=LABELER_NAMES, default="dragan")
     p.add_argument("--phases", nargs="+", choices=list(PHASES), default=list(PHASES))
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, help="default: runs/hparam_search_<preset>")

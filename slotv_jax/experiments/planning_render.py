@@ -11,7 +11,7 @@ motion up to τ (default 0.6: what an observer has seen before the end, when a l
 motion should already give its goal away), with the TCP's path so far, the target's cube
 on a white disc and the cubes lettered, from the ``observer_angle`` camera (45° round
 from the ``observer`` camera, so that the paths are not seen end-on). By default it
-shows the first problem of each family (labeler), up to three.
+shows three problems, the families (labelers) in turn (:func:`default_problems`).
 """
 
 from __future__ import annotations
@@ -31,11 +31,16 @@ from slotv_jax.render.overlay import title
 
 
 def default_problems(family: np.ndarray, n: int = 3) -> list[int]:
-    """The first problem of each family, in order of appearance, at most ``n``."""
-    seen: dict[str, int] = {}
-    for i, f in enumerate(family):
-        seen.setdefault(str(f), i)
-    return sorted(seen.values())[:n]
+    """``n`` problems taking the families in turn (in order of appearance), row r its
+    r-th problem: different scenes when the families share their problems' order."""
+    fams = list(dict.fromkeys(str(f) for f in family))
+    rows = {f: [i for i, g in enumerate(family) if str(g) == f] for f in fams}
+    out = []
+    for r in range(n):
+        idx = rows[fams[r % len(fams)]]
+        if r < len(idx) and idx[r] not in out:
+            out.append(idx[r])
+    return out
 
 
 DEFAULT_PLANNERS = ("straight", "oracle", "slotv", "slotv_plus")  # shown when present
@@ -110,7 +115,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m slotv_jax.experiments.planning_render")
     p.add_argument("--plans", required=True, type=Path, help="a planning run's plans.npz")
     p.add_argument("--out", required=True, type=Path, help="output .png")
-    p.add_argument("--problems", help="I, A:B or I,J,K (default: first of each family, <= 3)")
+    p.add_argument("--problems", help="I, A:B or I,J,K (default: 3, the families in turn)")
     p.add_argument("--planners", help=f"comma-separated (default: {','.join(DEFAULT_PLANNERS)})")
     p.add_argument("--tau", type=float, default=0.6, help="show the motions up to τ")
     p.add_argument("--camera", default="observer_angle", choices=CAMERAS, help="scene camera")

@@ -39,11 +39,10 @@ import slotv_jax
 from slotv_jax import cli, evaluate, fileio, parallel, train
 from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
+from slotv_jax.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.fileio import write_text
 
-LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
 METHODS = ("slotv", "trex")
-SPLITS = ("train", "trajectory_test", "position_test", "goal_count_test")
 SPLIT_TITLES = {
     "train": "train",
     "trajectory_test": "trajectory",
@@ -72,7 +71,7 @@ PAPER = {
 PAPER_TABLE = {
     (lab, meth, split): PAPER[(lab, meth)][i]
     for (lab, meth) in PAPER
-    for i, split in enumerate(SPLITS)
+    for i, split in enumerate(TEST_SPLITS)
 }
 
 
@@ -207,8 +206,8 @@ def render_table(summary: list[dict]) -> str:
         "| T-REX (ours) | T-REX (paper) | Δ |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for lab in LABELERS:
-        for i, split in enumerate(SPLITS):
+    for lab in LABELER_NAMES:
+        for i, split in enumerate(TEST_SPLITS):
             row = [LABELER_TITLES[lab] if i == 0 else "", SPLIT_TITLES[split]]
             for meth in METHODS:
                 s = by.get((lab, meth, split))
@@ -234,7 +233,7 @@ def run(
     cfg: Table1Config,
     out: Path,
     *,
-    labelers: Sequence[str] = LABELERS,
+    labelers: Sequence[str] = LABELER_NAMES,
     methods: Sequence[str] = METHODS,
     cache: Path = Path("data"),
     progress: bool = True,
@@ -306,7 +305,7 @@ def run(
         doc["cells"].extend(
             {"labeler": lab, "method": meth, "split": split, "trial": trial,
              "accuracy": float(accs[split][i])}
-            for split in SPLITS
+            for split in TEST_SPLITS
         )  # fmt: skip
         doc["timing"]["cells"].append(
             {"labeler": lab, "method": meth, "trial": trial,
@@ -382,7 +381,7 @@ def _single_device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_
                 split: np.asarray(
                     evaluate.accuracy(tc, state.params, split_data(lab, split, used.get(split)))
                 ).reshape(-1)
-                for split in SPLITS
+                for split in TEST_SPLITS
             }
             t_total = time.perf_counter() - t_cell
             times = {"prepare_s": t_prep, "train_s": t_train, "total_s": t_total}
@@ -426,7 +425,7 @@ def _device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_dev: in
                 t_train = time.perf_counter() - t_cell - t_prep
                 used = {"train": tc.n_used(len(tdata.xyz))}
                 accs = {}
-                for split in SPLITS:
+                for split in TEST_SPLITS:
                     d, lab_arr = arrays(split, labs, used.get(split))
                     accs[split] = parallel.group_accuracy(tc, state.params, d, mesh, labels=lab_arr)
                 loss = parallel.fetch(metrics.loss)  # (padded runs, E, K): the first are ours
@@ -518,7 +517,7 @@ def report(doc: dict) -> str:
             "",
             *note,
             f"Accuracy (SPEC §8) as mean ± SD over trials; the paper's values (10 trials) "
-            f"in parentheses. {len(doc['cells']) // len(SPLITS)} trained models, "
+            f"in parentheses. {len(doc['cells']) // len(TEST_SPLITS)} trained models, "
             f"{per_cell:.1f} s per cell on average (training and evaluation).",
             "",
             f"jax {env.get('jax')}, flax {env.get('flax')}, mujoco {env.get('mujoco')}, "
@@ -537,7 +536,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         description="Reproduce Table 1 of the SLOT-V paper.",
     )
     p.add_argument("--preset", choices=sorted(PRESETS), default="quick")
-    p.add_argument("--labelers", nargs="+", choices=LABELERS, default=list(LABELERS))
+    p.add_argument("--labelers", nargs="+", choices=LABELER_NAMES, default=list(LABELER_NAMES))
     p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     p.add_argument("--trials", type=int, help="trials per cell (default: the preset's)")
     p.add_argument("--out", type=Path, help="results directory (default: runs/table1_<preset>)")
