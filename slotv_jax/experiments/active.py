@@ -386,6 +386,13 @@ def comparisons(doc: dict) -> list[dict]:
         )
         a, b = rnd["answers_to_target"], c["answers_to_target"]
         c["ratio_random_over_this"] = None if a is None or b is None else a / b
+        # random's seeds that never reached it needed more than the largest size: a bound
+        low = [c["answers_max"] if p is None else p for p in rnd["per_seed"]]
+        c["ratio_at_least"] = (
+            float(np.mean(low)) / b
+            if a is None and b is not None and rnd["seeds_reached"]
+            else None
+        )
     return out
 
 

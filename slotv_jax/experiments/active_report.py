@@ -82,10 +82,13 @@ def report(doc: dict, stem: str, command: str) -> str:
     ]
     for c in doc["comparisons"]:
         ratio = c["ratio_random_over_this"]
+        shown = "—" if ratio is None else f"{ratio:.2f}"
+        if c.get("ratio_at_least") is not None:
+            shown = f"≥ {c['ratio_at_least']:.2f}"
         lines.append(
             f"| {c['setting']} | {c['labeler']} | {MODEL_TITLES[c['model']]} | "
             f"{c['target']:.0%} | {c['strategy']} | {fmt_answers(c['answers_to_target'])} | "
-            f"{c['seeds_reached']}/{c['seeds']} | {'—' if ratio is None else f'{ratio:.2f}'} "
+            f"{c['seeds_reached']}/{c['seeds']} | {shown} "
             f"| {c['final_accuracy']:.3f} |"
         )
     lines += [
@@ -93,7 +96,8 @@ def report(doc: dict, stem: str, command: str) -> str:
         "Answers to the target: per seed, the first round at or above it, interpolated "
         "linearly in log answers from the round before; 'not reached' when a seed stays "
         "below it up to the largest size. 'random / this' > 1 means fewer answers than "
-        "random selection in the same run.",
+        "random selection in the same run; '≥' a lower bound where random missed the target "
+        "in some seed (counted at the largest size).",
         "",
         "## Best strategy against random",
         "",
@@ -116,6 +120,14 @@ def report(doc: dict, stem: str, command: str) -> str:
             continue
         best = min(hit, key=lambda c: c["answers_to_target"])
         r = best["ratio_random_over_this"]
+        if r is None and best.get("ratio_at_least") is not None:
+            lines.append(
+                f"- {name}: best {best['strategy']} {fmt_answers(best['answers_to_target'])} "
+                f"answers; random did not reach the target in every seed: random / best "
+                f"**≥ {best['ratio_at_least']:.2f}** (its unreached seeds counted at the "
+                "largest size)."
+            )
+            continue
         lines.append(
             f"- {name}: best {best['strategy']} {fmt_answers(best['answers_to_target'])} answers, "
             f"random {fmt_answers(rnd['answers_to_target'])}"
@@ -174,6 +186,7 @@ NOTES = [
 def plot(doc: dict, path: Path) -> None:
     """Accuracy against answers, one panel per group, mean ± SD over seeds per strategy."""
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -193,6 +206,9 @@ def plot(doc: dict, path: Path) -> None:
             ax.fill_between(x, m - sd, m + sd, color=col, alpha=0.15, linewidth=0)
         ax.axhline(target, color="grey", linestyle="--", linewidth=0.8)
         ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        step = 1 if len(x) <= 6 else 2  # label every size, or every other one
+        ax.set_xticks(x[::step], [f"{v:,.0f}" for v in x[::step]], fontsize=7)
         ax.set_title(
             f"{grp['setting']}: {grp['labeler']}, {MODEL_TITLES[grp['model']]}", fontsize=9
         )
