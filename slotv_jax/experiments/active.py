@@ -416,7 +416,10 @@ def run(
     if doc.get("config") != conf:
         doc = {"preset": cfg.preset, "config": conf, "groups": [], "timing": {}}
     doc["environment"] = data_lib.environment()
-    doc["machine"] = f"{platform.machine()}, {os.cpu_count()} CPUs ({platform.processor() or '?'})"
+    dev = jax.devices()[0]
+    doc["machine"] = (
+        f"{platform.machine()}, {os.cpu_count()} CPUs, {dev.platform}: {dev.device_kind}"
+    )
     doc["xla"] = slotv_jax.XLA_CONFIG.summary()
     t_start = time.perf_counter()
     load = {"cpus": os.cpu_count(), "start": os.getloadavg()[0]}

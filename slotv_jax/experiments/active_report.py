@@ -14,6 +14,7 @@ MODEL_TITLES = {"mlp": "SLOT-V (paper MLP)", "slotv_plus": "SLOT-V+", "dragan": 
 STRATEGY_COLORS = {
     "random": "black",
     "uncertainty": "tab:orange",
+    "margin": "tab:red",
     "bald": "tab:blue",
     "bald_fantasy": "tab:green",
     "bald_cluster": "tab:purple",
@@ -33,6 +34,10 @@ def fmt_answers(x: float | None) -> str:
     return "not reached" if x is None else f"{x:,.0f}"
 
 
+def _points(stride: int) -> str:
+    return "every point" if stride == 1 else f"every {stride}th point"
+
+
 def report(doc: dict, stem: str, command: str) -> str:
     """The Markdown report, rendered from the results document alone."""
     cfg, env = doc["config"], doc["environment"]
@@ -49,7 +54,7 @@ def report(doc: dict, stem: str, command: str) -> str:
         f"{cfg['updates']} (labels) and {cfg.get('study_updates', cfg['updates'])} (study) "
         "updates per round (warm start), batch "
         f"{cfg['train']['mlp']['batch_size']}; each round scores {cfg['subset']:,} unasked "
-        f"motions; every {cfg['stride']}{'st' if cfg['stride'] == 1 else 'th'} point of each "
+        f"motions; {_points(cfg['stride'])} of each "
         f"motion; dataset preset `{cfg['data']['preset']}` ({cfg['data']['n_train']:,} "
         "training motions = the pool).",
         f"- Labels setting: labelled motions {list(cfg['label_sizes'])}, target "
@@ -147,6 +152,22 @@ NOTES = [
     "- Member 0 of each ensemble is an ordinary training run on the answers so far (no "
     "bootstrap): its accuracy is the observer the study would deliver. The other members "
     "only feed the criteria.",
+    "- Why the criteria differ. `margin` asks about motions near the observer's decision "
+    "between two goals, which is what held-out accuracy (the argmax) measures. `uncertainty` "
+    "(entropy) also rewards motions whose guesses spread over many goals. The BALD family "
+    "asks about what the ensemble members disagree on; with few answers that is the "
+    "atypical motions, which teach little about the typical held-out motion (the "
+    "cold-start problem of disagreement-based selection; an ensemble of a few members is a "
+    "coarse posterior).",
+    "- What bounds the ratios. (1) Seeds: a strategy's answers to the target vary between "
+    "seeds by a factor of up to 5 (`per_seed` in the JSON), so with 3 seeds a ratio is "
+    "known to about ±50 %. (2) Training: each round trains a fixed number of updates, so "
+    "the smallest sizes are limited by training as well as by data, and a group whose "
+    "accuracy still climbs at its largest size (the paper MLP on single guesses) is "
+    "limited by training throughout. (3) The grid: sizes double between rounds; answers to "
+    "the target are interpolated between them. (4) The pool subset: each round scores "
+    "`subset` unasked motions, and picks up to half of them at the largest step, where "
+    "any criterion is close to random.",
 ]
 
 
