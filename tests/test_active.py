@@ -1,4 +1,4 @@
-"""Active selection (slotv_jax.selection, slotv_jax.experiments.active): the criteria
+"""Active selection (slotv_jax.study.selection, slotv_jax.experiments.active): the criteria
 against hand-computed two-goal pools, determinism, the vmapped ensemble against a loop
 over members, and the experiment's bookkeeping."""
 
@@ -11,8 +11,9 @@ import optax
 import pytest
 from flax import nnx
 
-from slotv_jax import config, selection
 from slotv_jax.experiments import active
+from slotv_jax.study import selection
+from slotv_jax.training import config
 
 EPS = 1e-6  # "certain" members give the other goal this probability
 H = lambda p: -sum(q * math.log(q) for q in p if q > 0)  # noqa: E731  float64 entropy
@@ -64,6 +65,21 @@ def test_criteria_match_hand_computed_values():
     w = jnp.array([0.5, 0.5, 0.0, 0.0])
     bw = np.asarray(selection.bald(logp, w), np.float64)
     np.testing.assert_allclose(bw[[1, 3]], [0.0, math.log(2) - H([0.9, 0.1])], atol=2e-6)
+
+
+def test_margin_prefers_a_tie_of_two_goals_to_a_flat_spread():
+    p = np.array([[[0.5, 0.5, 0.0], [0.4, 0.3, 0.3], [0.9, 0.05, 0.05]]])  # (E=1, C=3, G=3)
+    with np.errstate(divide="ignore"):
+        logp = jnp.asarray(np.log(p), jnp.float32)
+    np.testing.assert_allclose(np.asarray(selection.margin(logp)), [1.0, 0.9, 0.15], atol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(selection.uncertainty(logp)),
+        [H([0.5, 0.5]), H([0.4, 0.3, 0.3]), H([0.9, 0.05, 0.05])],
+        atol=1e-6,
+    )
+    avail = jnp.ones(3, bool)
+    assert int(SELECT("margin", jax.random.key(0), logp, avail, 1)[0]) == 0
+    assert int(SELECT("uncertainty", jax.random.key(0), logp, avail, 1)[0]) == 1
 
 
 def test_strategies_pick_the_informative_motions():

@@ -3,7 +3,7 @@
 The paper's second limitation (§VI): SLOT-V needs "about 10,000 unique examples" for
 80 %, and "it would be interesting to see if this number can be reduced … by more
 intelligently sampling trajectories". This experiment runs pool-based active learning
-(:mod:`slotv_jax.selection`) with each strategy, side by side, in two settings:
+(:mod:`slotv_jax.study.selection`) with each strategy, side by side, in two settings:
 
 - ``labels`` (the paper's): the pool is the ``train`` split, an answer is the
   hand-crafted labeler's distribution of a whole motion (Dragan, Nikolaidis), the
@@ -59,12 +59,15 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import cli, evaluate, fileio, selection, train
-from slotv_jax import config as config_lib
 from slotv_jax import data as data_lib
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments.active_report import fmt_answers, render, stem_of, target_of
 from slotv_jax.experiments.table1 import dataset_dir
-from slotv_jax.fileio import write_text
+from slotv_jax.study import selection
+from slotv_jax.training import config as config_lib
+from slotv_jax.training import evaluate
+from slotv_jax.training import trainer as train
 
 
 @dataclasses.dataclass(frozen=True)
@@ -386,6 +389,13 @@ def comparisons(doc: dict) -> list[dict]:
         )
         a, b = rnd["answers_to_target"], c["answers_to_target"]
         c["ratio_random_over_this"] = None if a is None or b is None else a / b
+        # random's seeds that never reached it needed more than the largest size: a bound
+        low = [c["answers_max"] if p is None else p for p in rnd["per_seed"]]
+        c["ratio_at_least"] = (
+            float(np.mean(low)) / b
+            if a is None and b is not None and rnd["seeds_reached"]
+            else None
+        )
     return out
 
 
@@ -416,7 +426,10 @@ def run(
     if doc.get("config") != conf:
         doc = {"preset": cfg.preset, "config": conf, "groups": [], "timing": {}}
     doc["environment"] = data_lib.environment()
-    doc["machine"] = f"{platform.machine()}, {os.cpu_count()} CPUs ({platform.processor() or '?'})"
+    dev = jax.devices()[0]
+    doc["machine"] = (
+        f"{platform.machine()}, {os.cpu_count()} CPUs, {dev.platform}: {dev.device_kind}"
+    )
     doc["xla"] = slotv_jax.XLA_CONFIG.summary()
     t_start = time.perf_counter()
     load = {"cpus": os.cpu_count(), "start": os.getloadavg()[0]}
