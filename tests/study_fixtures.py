@@ -20,11 +20,11 @@ import numpy as np
 from PIL import Image
 
 from slotv_jax import kinematics, render
-from slotv_jax.study_web import stimuli
+from slotv_jax.study import stimuli
 
 SIZE = (64, 48)
 ROOT = str(Path(__file__).resolve().parents[1])
-SERVE_MODULE = "slotv_jax.study_web"
+SERVE_MODULE = "slotv_jax.study"
 
 
 class DotRenderer:

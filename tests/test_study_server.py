@@ -14,10 +14,10 @@ from starlette.testclient import TestClient
 from study_fixtures import write_dot_set
 
 from slotv_jax import study
-from slotv_jax.study_web import design, export, stimuli
-from slotv_jax.study_web.server import COOKIE, MAX_BODY, make_app
-from slotv_jax.study_web.service import StudyService
-from slotv_jax.study_web.storage import SQLiteStorage
+from slotv_jax.study import design, export, stimuli
+from slotv_jax.study.database import SQLiteStorage
+from slotv_jax.study.server import COOKIE, MAX_BODY, make_app
+from slotv_jax.study.service import StudyService
 
 ADMIN = "admin-token-for-tests-0123456789"
 

@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
         "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
-SIMULATE = "python -m slotv_jax.study_web simulate"
+SIMULATE = "python -m slotv_jax.study simulate"
 
 
 @pytest.fixture(scope="module")

@@ -49,14 +49,15 @@ import numpy as np
 import starlette
 import uvicorn
 
-from slotv_jax import cli, render  # render first: it picks MUJOCO_GL=egl before MuJoCo loads
+from slotv_jax import render  # render first: it picks MUJOCO_GL=egl before MuJoCo loads
 from slotv_jax.benchmarks._machine import cpu_model
+from slotv_jax.core import cli
 from slotv_jax.kinematics import Q_HOME
-from slotv_jax.study_web import client
-from slotv_jax.study_web.make_stimuli import SceneRenderer
-from slotv_jax.study_web.stimuli import cross_specs, write_stimulus_set
+from slotv_jax.study import client
+from slotv_jax.study.make_stimuli import SceneRenderer
+from slotv_jax.study.stimuli import cross_specs, write_stimulus_set
 
-SERVE = [sys.executable, "-m", "slotv_jax.study_web", "serve"]
+SERVE = [sys.executable, "-m", "slotv_jax.study", "serve"]
 
 
 def stimulus_set(out: Path, n: int = 10) -> None:

@@ -49,8 +49,9 @@ from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from slotv_jax.study_web.export import TABLES, tables
-from slotv_jax.study_web.service import (
+from slotv_jax.study.database import Conflict
+from slotv_jax.study.export import TABLES, tables
+from slotv_jax.study.service import (
     CONFIDENCE,
     ID_PARAMS,
     MAX_RESPONSE_MS,
@@ -59,7 +60,6 @@ from slotv_jax.study_web.service import (
     StudyService,
     Unauthorized,
 )
-from slotv_jax.study_web.storage import Conflict
 
 STATIC = Path(__file__).with_name("static")
 COOKIE = "slotv_study"

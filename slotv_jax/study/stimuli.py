@@ -77,14 +77,14 @@ import numpy as np
 from jaxtyping import Bool, Float, UInt8
 from tqdm.auto import tqdm
 
-from slotv_jax.fileio import (
+from slotv_jax.core.fileio import (
     atomic_write,
     check_output_dir,
     replace_dir,
     temp_dir_beside,
     write_text,
 )
-from slotv_jax.study_web.design import KINDS
+from slotv_jax.study.design import KINDS
 
 FORMAT = "slotv_jax.study.stimuli/1"
 MANIFEST = "manifest.json"

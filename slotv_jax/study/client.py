@@ -29,7 +29,7 @@ import httpx
 import numpy as np
 
 from slotv_jax import labelers
-from slotv_jax.study_web import stimuli
+from slotv_jax.study import stimuli
 
 Guesser = Callable[[dict, bytes], str]  # (trial state, still bytes) -> goal label
 

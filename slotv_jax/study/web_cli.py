@@ -12,15 +12,14 @@ from pathlib import Path
 import httpx
 import uvicorn
 
-from slotv_jax.study_web import client
-from slotv_jax.study_web import export as export_lib
-from slotv_jax.study_web.server import make_app
-from slotv_jax.study_web.service import StudyService
-from slotv_jax.study_web.storage import SYNC, connect
+from slotv_jax.study import client, make_stimuli
+from slotv_jax.study import export as export_lib
+from slotv_jax.study.database import SYNC, connect
+from slotv_jax.study.server import make_app
+from slotv_jax.study.service import StudyService
 
 
-def add_commands(sub) -> None:
-    """Add ``serve``, ``export`` and ``simulate`` to the study CLI's subparsers."""
+def _add_web_commands(sub) -> None:
     serve = sub.add_parser("serve", help="run the study server (participant page at /)")
     serve.add_argument("--stimuli", required=True, help="the study folder (stimulus sets)")
     serve.add_argument("--db", required=True, help="SQLite file of the answers (created if new)")
@@ -109,15 +108,11 @@ def simulate_main(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv=None) -> int:
-    """``stimuli``, ``serve`` and ``export`` on their own (until they join the study CLI)."""
-    from slotv_jax.study_web import make_stimuli
+COMMANDS = {"stimuli": make_stimuli.stimuli_main, "serve": serve_main,
+            "export": export_main, "simulate": simulate_main}  # fmt: skip
 
-    ap = argparse.ArgumentParser(prog="python -m slotv_jax.study")
-    sub = ap.add_subparsers(dest="command", required=True)
-    add_commands(sub)
+
+def add_commands(sub) -> None:
+    """Add ``stimuli``, ``serve``, ``export`` and ``simulate`` to the study CLI's subparsers."""
     make_stimuli.add_command(sub)
-    args = ap.parse_args(argv)
-    run = {"serve": serve_main, "export": export_main, "simulate": simulate_main,
-           "stimuli": make_stimuli.stimuli_main}  # fmt: skip
-    return run[args.command](args)
+    _add_web_commands(sub)

@@ -38,16 +38,16 @@ from jaxtyping import Float, UInt8
 from tqdm.auto import tqdm
 
 from slotv_jax import render  # first: it picks MUJOCO_GL=egl before MuJoCo loads
+from slotv_jax.core.fileio import check_output_dir, load_npz
 from slotv_jax.data import SPLITS, Split, load_split
-from slotv_jax.fileio import check_output_dir, load_npz
 from slotv_jax.render.overlay import LABEL_LIFT
-from slotv_jax.study import load_study
-from slotv_jax.study_web.stimuli import (
+from slotv_jax.study.stimuli import (
     MANIFEST,
     Motion,
     cross_specs,
     write_stimulus_set,
 )
+from slotv_jax.study.storage import load_study
 
 IK_TOLERANCE = 5e-3  # metres: a TCP path the IK misses by more is refused
 DEFAULTS = {"size": (480, 270), "fps": 25.0, "duration": 3.0, "hold": 0.5}
