@@ -19,7 +19,9 @@ the same points and goals). A later round is written so (the arrays as for round
     r, folder = next_round(stimdir)                   # (1, stimdir/round-1), ...
     write_stimulus_set(folder, q=q, xyz=xyz, goals=goals, goal_mask=mask, ids=ids,
                        specs=specs, targets=targets, round_=r,
-                       render=make_stimuli.SceneRenderer.like(stimdir)) Beside round 0 lie the files a researcher edits:
+                       render=make_stimuli.SceneRenderer.like(stimdir))
+
+Beside round 0 lie the files a researcher edits:
 
 - ``consent.html`` and ``instructions.html``: HTML fragments shown before the trials;
 - ``study.json``: settings, ``{"title", "trials_per_participant" (null: every
