@@ -11,7 +11,7 @@ or ``python -m slotv_jax.labelers`` would otherwise find their own module alread
 imported by the package and warn (runpy's RuntimeWarning) before running it twice.
 """
 
-from slotv_jax._xla import XLA_CONFIG, XlaConfig
+from slotv_jax.core.xla import XLA_CONFIG, XlaConfig
 
 __version__ = "0.1.0"
 __all__ = ["XLA_CONFIG", "XlaConfig", "__version__", "load_observer"]
@@ -19,7 +19,7 @@ __all__ = ["XLA_CONFIG", "XlaConfig", "__version__", "load_observer"]
 
 def __getattr__(name: str):
     if name == "load_observer":
-        from slotv_jax.checkpoint import load_observer  # lazy: see the module docstring
+        from slotv_jax.training.checkpoint import load_observer  # lazy: see the module docstring
 
         return load_observer
     raise AttributeError(f"module 'slotv_jax' has no attribute {name!r}")

@@ -1,293 +1,53 @@
-"""Franka Emika Panda kinematics through MuJoCo MJX.
+"""Franka Emika Panda kinematics (SPEC §1, §9) under their public name.
 
-Forward kinematics comes from ``mjx.kinematics`` on the MJCF in
-``franka_assets/panda.xml`` (written from Franka's modified DH table, SPEC §1).
-The TCP Jacobian is the geometric one built from the same call's joint anchors
-and axes: for a hinge j with world axis w_j through anchor a_j,
-``∂p/∂q_j = w_j × (p − a_j)`` and ``∂z/∂q_j = w_j × z`` for the tool axis z.
-
-Inverse kinematics is damped least squares on the position task. A soft
-tool-down preference and a pull towards ``Q_HOME`` act only in the null space of
-the position task, and every solve ends with position-only iterations, so the
-soft terms never cost position accuracy. Joint limits are an active set: a joint
-on a limit that a step would push outwards is locked for that step, and every
-iterate is clipped.
-
-Everything here is a pure function of arrays; nothing is jitted. Batch with
-``jax.vmap`` and compile with ``jax.jit`` at the call site:
-
->>> import jax, slotv_jax.kinematics as K
->>> K.tcp_position(K.Q_HOME)  # doctest: +SKIP
-Array([0.3069, 0., 0.4869], dtype=float32)
->>> qs = jax.random.uniform(jax.random.key(0), (1000, 7), minval=K.Q_MIN, maxval=K.Q_MAX)
->>> jax.jit(jax.vmap(K.tcp_position))(qs).shape
-(1000, 3)
+The code lives in :mod:`slotv_jax.robot.kinematics`; this module keeps the public names of
+SPEC §9 (``slotv_jax.kinematics.tcp_position``, ``slotv_jax.kinematics.Q_HOME``).
 """
 
-from __future__ import annotations
-
-import contextlib
-import dataclasses
-import functools
-import io
-from pathlib import Path
-from typing import NamedTuple
-
-import jax
-import jax.numpy as jnp
-import mujoco
-import numpy as np
-from jaxtyping import Array, Float
-
-from slotv_jax import validation
-
-with contextlib.redirect_stdout(io.StringIO()):
-    # mujoco.mjx prints a notice when the optional warp backend is absent.
-    from mujoco import mjx
-
-ASSETS_DIR = Path(__file__).resolve().parent.parent / "franka_assets"
-PANDA_XML = ASSETS_DIR / "panda.xml"
-SCENE_XML = ASSETS_DIR / "scene.xml"
-TCP_SITE = "tcp"
-
-NQ = 7
-Q_HOME = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])
-Q_MIN = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
-Q_MAX = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
-TOOL_DOWN = np.array([0.0, 0.0, -1.0])
-
-
-@functools.cache
-def mj_model(path: str | Path = PANDA_XML) -> mujoco.MjModel:
-    """The compiled MuJoCo model (cached per path)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"MJCF not found: {path}")
-    return mujoco.MjModel.from_xml_path(str(path))
-
-
-@functools.cache
-def _mjx_panda() -> tuple[mjx.Model, mjx.Data, int]:
-    m = mj_model(PANDA_XML)
-    if m.nq != NQ:
-        raise ValueError(f"{PANDA_XML}: expected {NQ} joints, got nq={m.nq}")
-    with jax.ensure_compile_time_eval():  # concrete arrays even if first called under a trace
-        mx = mjx.put_model(m)
-        d0 = mjx.make_data(mx)
-    return mx, d0, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, TCP_SITE)
-
-
-class TcpState(NamedTuple):
-    """TCP pose and its Jacobians at one configuration."""
-
-    pos: Float[Array, "3"]  # TCP position, world frame (m)
-    rot: Float[Array, "3 3"]  # world-from-tool rotation; column 2 is the tool z axis
-    jac_pos: Float[Array, "3 7"]  # ∂pos/∂q (m/rad)
-    jac_axis: Float[Array, "3 7"]  # ∂(tool z axis)/∂q (1/rad)
-
-
-def _tcp_state(mx: mjx.Model, d0: mjx.Data, site: int, q) -> TcpState:
-    d = mjx.kinematics(mx, d0.replace(qpos=jnp.asarray(q, d0.qpos.dtype)))
-    pos = d.site_xpos[site]
-    rot = d.site_xmat[site].reshape(3, 3)
-    axes, anchors = d.xaxis, d.xanchor  # (7, 3) each: hinge axes and points, world frame
-    jac_pos = jnp.cross(axes, pos - anchors).T
-    jac_axis = jnp.cross(axes, rot[:, 2]).T
-    return TcpState(pos, rot, jac_pos, jac_axis)
-
-
-def tcp_state(q: Float[Array, "7"]) -> TcpState:
-    """TCP pose and Jacobians from one ``mjx.kinematics`` call (no validation)."""
-    return _tcp_state(*_mjx_panda(), q)
-
-
-def host_eval(fn, model: mujoco.MjModel, *args):
-    """``fn(mjx.put_model(model), *args)`` as one compiled call on the CPU, as NumPy arrays.
-
-    For the scene's constants (the home TCP, camera poses). Evaluated op by op, MJX
-    compiles every small operation separately, which takes about 10 s on a GPU; one
-    compiled CPU call takes about a second, and gives the same constant on every machine.
-    Works when first called under a trace (the result is concrete).
-    """
-    try:
-        cpu = jax.devices("cpu")[0]
-    except RuntimeError:  # JAX_PLATFORMS without the CPU: the default device then
-        cpu = jax.devices()[0]
-    with jax.ensure_compile_time_eval(), jax.default_device(cpu):
-        mx = mjx.put_model(model, device=cpu)
-        out = jax.jit(fn)(mx, *(jax.device_put(a, cpu) for a in args))
-        return jax.tree.map(np.asarray, out)
-
-
-@functools.cache
-def home_tcp() -> np.ndarray:
-    """TCP(Q_HOME) (m), from MJX, as a constant (every trajectory starts here)."""
-    m = mj_model(PANDA_XML)
-    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, TCP_SITE)
-
-    def pos(mx, q):
-        return _tcp_state(mx, mjx.make_data(mx), site, q).pos
-
-    return host_eval(pos, m, np.asarray(Q_HOME, np.float32))
-
-
-def _check_q(q) -> None:
-    validation.check_array("q", q, (NQ,))
-
-
-def tcp_position(q: Float[Array, "7"]) -> Float[Array, "3"]:
-    """TCP position (m, world frame) of joint configuration ``q`` (rad), via MJX.
-
-    Example: ``tcp_position(Q_HOME) ≈ (0.3069, 0.0, 0.4869)``.
-    """
-    _check_q(q)
-    return tcp_state(q).pos
-
-
-def tcp_pose(q: Float[Array, "7"]) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
-    """TCP position (m) and world-from-tool rotation matrix of ``q`` (rad), via MJX."""
-    _check_q(q)
-    s = tcp_state(q)
-    return s.pos, s.rot
-
-
-# --------------------------------------------------------------------------- IK
-
-
-@dataclasses.dataclass(frozen=True)
-class IKConfig:
-    """Damped-least-squares IK settings."""
-
-    iters: int = 6  # iterations with the null-space soft terms, per target
-    refine_iters: int = 4  # position-only iterations that finish every solve
-    damping: float = 1e-3  # λ (m) in (J Jᵀ + λ² I)⁻¹
-    max_step: float = 0.4  # largest joint step per iteration (rad)
-    tool_down_gain: float = 0.5  # null-space step towards the tool z axis pointing down
-    posture_gain: float = 0.1  # null-space step towards Q_HOME
-
-    def __post_init__(self):
-        for f in ("iters", "refine_iters"):
-            if int(getattr(self, f)) < 0:
-                raise ValueError(f"IKConfig.{f}: expected >= 0, got {getattr(self, f)}")
-        for f in ("damping", "max_step"):
-            validation.check_positive(f"IKConfig.{f}", getattr(self, f))
-        for f in ("tool_down_gain", "posture_gain"):
-            if not getattr(self, f) >= 0:
-                raise ValueError(f"IKConfig.{f}: expected >= 0, got {getattr(self, f)}")
-
-
-def _solve_spd3(a: Float[Array, "3 3"], b: Float[Array, "3"]) -> Float[Array, "3"]:
-    """Solve a 3×3 symmetric positive-definite system by the adjugate (vmap-friendly)."""
-    c0 = jnp.cross(a[1], a[2])
-    c1 = jnp.cross(a[2], a[0])
-    c2 = jnp.cross(a[0], a[1])
-    det = jnp.dot(a[0], c0)
-    return (c0 * b[0] + c1 * b[1] + c2 * b[2]) / det
-
-
-def _ik_step(
-    q: Float[Array, "7"], target: Float[Array, "3"], cfg: IKConfig, soft
-) -> Float[Array, "7"]:
-    """One damped-least-squares step; ``soft`` (0 or 1, may be traced) adds the null-space terms.
-
-    Joint limits are handled as an active set: a joint sitting at a limit that the
-    descent direction pushes further out is locked (its Jacobian column and soft-term
-    entry zeroed) and the step is solved with the other joints. Clipping alone would
-    break the null-space property of the soft terms at a limit.
-    """
-    s = tcp_state(q)
-    eye = jnp.eye(3, dtype=q.dtype)
-    err = target - s.pos
-    # Secondary objectives: tool axis towards straight down, posture towards Q_HOME.
-    axis_err = s.rot[:, 2] - jnp.asarray(TOOL_DOWN, q.dtype)
-    secondary = -cfg.tool_down_gain * (s.jac_axis.T @ axis_err)
-    secondary = secondary + cfg.posture_gain * (jnp.asarray(Q_HOME, q.dtype) - q)
-
-    def solve(free):  # free: (7,) 1 for joints that may move
-        j = s.jac_pos * free
-        jjt = j @ j.T + cfg.damping**2 * eye
-        dq = j.T @ _solve_spd3(jjt, err)
-        dq2 = free * secondary
-        dq2 = dq2 - j.T @ _solve_spd3(jjt, j @ dq2)  # project onto the null space of j
-        return dq + soft * dq2
-
-    # Active set by the sign of the descent direction at the bound (the KKT rule for box
-    # constraints): g = Jᵀ err is the steepest descent of ½‖err‖², plus the soft terms.
-    lo, hi = jnp.asarray(Q_MIN, q.dtype), jnp.asarray(Q_MAX, q.dtype)
-    g = s.jac_pos.T @ err + soft * secondary
-    blocked = ((q <= lo + _AT_LIMIT) & (g < 0)) | ((q >= hi - _AT_LIMIT) & (g > 0))
-    dq = solve(1 - blocked.astype(q.dtype))
-    step = jnp.max(jnp.abs(dq))
-    dq = dq * jnp.minimum(1.0, cfg.max_step / jnp.maximum(step, 1e-12))
-    return jnp.clip(q + dq, lo, hi)
-
-
-_AT_LIMIT = 1e-5  # rad: a joint this close to a limit counts as sitting on it
-
-
-def _iterate(q: Float[Array, "7"], target: Float[Array, "3"], cfg: IKConfig) -> Float[Array, "7"]:
-    # One loop (one trace of the kinematics): soft iterations first, then position-only ones.
-    def body(i, q):
-        return _ik_step(q, target, cfg, (i < cfg.iters).astype(q.dtype))
-
-    return jax.lax.fori_loop(0, cfg.iters + cfg.refine_iters, body, q)
-
-
-def solve_ik(
-    target: Float[Array, "3"], q0: Float[Array, "7"], cfg: IKConfig = IKConfig()
-) -> tuple[Float[Array, "7"], Float[Array, ""]]:
-    """Joint configuration reaching ``target`` (m), started from ``q0`` (rad).
-
-    Returns ``(q, residual)`` with ``residual = ‖tcp_position(q) − target‖`` (m).
-    Pure; batch with ``vmap``. Joint limits hold exactly: a joint on a limit that the
-    step would push outwards is locked for that step (an active set), and iterates are
-    clipped.
-    """
-    validation.check_array("target", target, (3,))
-    _check_q0(q0)
-    q = _iterate(jnp.asarray(q0), target, cfg)
-    return q, jnp.linalg.norm(tcp_state(q).pos - target)
-
-
-class PathIK(NamedTuple):
-    """Result of :func:`solve_path_ik`."""
-
-    q: Float[Array, "T 7"]  # joint configurations (rad)
-    xyz: Float[Array, "T 3"]  # executed TCP positions FK(q) (m)
-    residual: Float[Array, " T"]  # ‖xyz − path‖ per point (m)
-
-
-def solve_path_ik(
-    path: Float[Array, "T 3"], q0: Float[Array, "7"] = Q_HOME, cfg: IKConfig = IKConfig()
-) -> PathIK:
-    """IK for every point of a path, warm-started along it from ``q0``.
-
-    Each solve starts from the previous point's solution, so a few iterations
-    per point suffice for densely sampled paths. Returns the joint configurations, the executed TCP
-    positions and the per-point position residuals.
-    """
-    check_ik_inputs(path, q0)
-    path = jnp.asarray(path)
-    q0 = jnp.asarray(q0, path.dtype)
-
-    def body(q, target):
-        q = _iterate(q, target, cfg)
-        return q, q
-
-    _, qs = jax.lax.scan(body, q0, path)
-    xyz = jax.vmap(lambda q: tcp_state(q).pos)(qs)
-    return PathIK(qs, xyz, jnp.linalg.norm(xyz - path, axis=-1))
-
-
-def check_ik_inputs(path, q0) -> None:
-    """Boundary checks of the IK functions (values only when concrete, so jit/vmap work)."""
-    validation.check_array("path", path, (None, 3))
-    _check_q0(q0)
-
-
-def _check_q0(q0) -> None:
-    validation.check_array("q0", q0, (NQ,))
-    if validation.is_concrete(q0):
-        q = np.asarray(q0)
-        if np.any(q < Q_MIN - 1e-9) or np.any(q > Q_MAX + 1e-9):
-            raise ValueError("q0: expected joint values within the Panda's limits Q_MIN..Q_MAX")
+from slotv_jax.robot.kinematics import (
+    ASSETS_DIR,
+    NQ,
+    PANDA_XML,
+    Q_HOME,
+    Q_MAX,
+    Q_MIN,
+    SCENE_XML,
+    TCP_SITE,
+    TOOL_DOWN,
+    IKConfig,
+    PathIK,
+    TcpState,
+    check_ik_inputs,
+    home_tcp,
+    host_eval,
+    mj_model,
+    solve_ik,
+    solve_path_ik,
+    tcp_pose,
+    tcp_position,
+    tcp_state,
+)
+
+__all__ = [
+    "ASSETS_DIR",
+    "NQ",
+    "PANDA_XML",
+    "Q_HOME",
+    "Q_MAX",
+    "Q_MIN",
+    "SCENE_XML",
+    "TCP_SITE",
+    "TOOL_DOWN",
+    "IKConfig",
+    "PathIK",
+    "TcpState",
+    "check_ik_inputs",
+    "home_tcp",
+    "host_eval",
+    "mj_model",
+    "solve_ik",
+    "solve_path_ik",
+    "tcp_pose",
+    "tcp_position",
+    "tcp_state",
+]

@@ -1,4 +1,4 @@
-"""Active selection (slotv_jax.selection, slotv_jax.experiments.active): the criteria
+"""Active selection (slotv_jax.study.selection, slotv_jax.experiments.active): the criteria
 against hand-computed two-goal pools, determinism, the vmapped ensemble against a loop
 over members, and the experiment's bookkeeping."""
 
@@ -11,8 +11,9 @@ import optax
 import pytest
 from flax import nnx
 
-from slotv_jax import config, selection
 from slotv_jax.experiments import active
+from slotv_jax.study import selection
+from slotv_jax.training import config
 
 EPS = 1e-6  # "certain" members give the other goal this probability
 H = lambda p: -sum(q * math.log(q) for q in p if q > 0)  # noqa: E731  float64 entropy

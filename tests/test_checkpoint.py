@@ -13,7 +13,8 @@ import pytest
 from test_train import synthetic_split
 
 import slotv_jax
-from slotv_jax import checkpoint, config, train
+from slotv_jax.training import checkpoint, config, types
+from slotv_jax.training import trainer as train
 
 FD_TOL = 1e-6  # float64 directional derivative against central differences (relative)
 F32_GRAD_TOL = 1e-3  # float32 gradient against the float64 one (relative to its norm)
@@ -38,7 +39,7 @@ def one_epoch(trainer):
 def test_save_load_gives_identical_logits(tmp_path, split, method):
     cfg = cfg_for(method, epochs=1)
     trainer = train.make_train(cfg, progress=False)
-    data = train.prepare(split, "effdist")
+    data = types.prepare(split, "effdist")
     state, _ = jax.jit(trainer.train)(jax.random.key(0), data)
     path = checkpoint.save(tmp_path / "ck", cfg, state, meta={"labeler": "effdist"})
     assert checkpoint.exists(path)
@@ -69,7 +70,7 @@ def test_save_load_gives_identical_logits(tmp_path, split, method):
 def test_resume_continues_exactly(tmp_path, split, method):
     cfg = cfg_for(method)
     trainer = train.make_train(cfg, progress=False)
-    data = train.prepare(split, "effdist")
+    data = types.prepare(split, "effdist")
     step = one_epoch(trainer)
     s0 = trainer.init(jax.random.key(4))
     s1, _ = step(s0, data)
@@ -128,7 +129,7 @@ def test_mismatched_checkpoints_fail_clearly(tmp_path, split):
 def test_observer_gradient_matches_finite_differences(tmp_path, split, method):
     cfg = cfg_for(method, epochs=1)
     trainer = train.make_train(cfg, progress=False)
-    state, _ = jax.jit(trainer.train)(jax.random.key(1), train.prepare(split, "effdist"))
+    state, _ = jax.jit(trainer.train)(jax.random.key(1), types.prepare(split, "effdist"))
     path = checkpoint.save(tmp_path / "ck", cfg, state)
     observer = slotv_jax.load_observer(path)
     xyz, goals, mask = split.xyz[5], split.goals[5], split.goal_mask[5]

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from slotv_jax import data
-from slotv_jax.trajectories import TrajectoryConfig
+from slotv_jax.data import cli as data_cli
+from slotv_jax.world.trajectories import TrajectoryConfig
 
 GOAL_COUNTS = {
     "train": {2, 3, 5, 6},
@@ -174,10 +175,10 @@ def test_resume_skips_finished_splits_and_refuses_other_configs(tiny_data, tiny_
 def test_cli_generate_and_relabel(tmp_path, tiny_data):
     args = ["--out", str(tmp_path), "--splits", "goal_count_test", "--n-eval", "100"]
     args += ["--n-train", "300", "--chunk-size", "512"]
-    assert data.main(args) == 0
+    assert data_cli.main(args) == 0
     split = data.load_split(tmp_path, "goal_count_test")
     assert len(split) == 100 and split.meta["config"]["preset"] == "quick"
-    assert data.main(["--out", str(tmp_path), "--splits", "goal_count_test", "--relabel",
+    assert data_cli.main(["--out", str(tmp_path), "--splits", "goal_count_test", "--relabel",
                       "--beta-dragan", "1.0"]) == 0  # fmt: skip
     relabelled = data.load_split(tmp_path, "goal_count_test")
     assert relabelled.meta["label_config"]["beta_dragan"] == 1.0

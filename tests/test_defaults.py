@@ -6,7 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slotv_jax import data, defaults, labelers, scene
+from slotv_jax import data
+from slotv_jax.core import defaults
+from slotv_jax.labelers import cli as labelers_cli
+from slotv_jax.observers import labelers, labelling
+from slotv_jax.world import scene
 
 ROWS = 8  # trajectories compared per split
 
@@ -65,9 +69,9 @@ def test_label_all_and_the_command_line_default_to_the_table(tmp_path):
     goals = np.zeros((8, 3), np.float32)
     goals[:3] = [[0.4, 0.3, 0.025], [0.5, 0.0, 0.025], [0.6, -0.3, 0.025]]
     mask = np.arange(8) < 3
-    y = labelers.label_all(xyz, goals, mask, progress=False)
+    y = labelling.label_all(xyz, goals, mask, progress=False)
     np.savez(tmp_path / "in.npz", xyz=xyz, goals=goals, goal_mask=mask)
-    assert labelers.main(["--in", str(tmp_path / "in.npz"), "--out", str(tmp_path / "out.npz"),
+    assert labelers_cli.main(["--in", str(tmp_path / "in.npz"), "--out", str(tmp_path / "out.npz"),
                           "--quiet"]) == 0  # fmt: skip
     with np.load(tmp_path / "out.npz") as f:
         for name in defaults.LABELER_NAMES:

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from slotv_jax import data, defaults
+from slotv_jax import data
+from slotv_jax.core import defaults
 from slotv_jax.experiments import hparam_search, sample_efficiency, table1
 
 REPO = Path(__file__).resolve().parent.parent
@@ -218,7 +219,7 @@ FOUR_DEVICE_RESUME = textwrap.dedent(
     import json
     from pathlib import Path
     import jax
-    from slotv_jax import parallel
+    from slotv_jax.training import parallel
     from slotv_jax.experiments import table1
     assert jax.device_count() == 4
     out, cache = Path({out!r}), Path({cache!r})

@@ -7,8 +7,10 @@ import json
 import pytest
 from test_experiments import cache  # noqa: F401  (the tiny dataset, cached as table1 finds it)
 
-from slotv_jax import data, defaults, trajectories
+from slotv_jax import data
+from slotv_jax.core import defaults
 from slotv_jax.experiments import fidelity, table1
+from slotv_jax.world import trajectories
 
 
 def _differences(a: data.DataConfig, b: data.DataConfig) -> set[str]:

@@ -1,4 +1,5 @@
-"""The output rule, the readers and the CLI error style (slotv_jax.fileio, slotv_jax.cli)."""
+"""The output rule, the readers and the CLI error style (slotv_jax.core.fileio,
+slotv_jax.core.cli)."""
 
 import os
 import zipfile
@@ -6,7 +7,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from slotv_jax import cli, fileio
+from slotv_jax.core import cli, fileio
 
 
 def _ours(p):

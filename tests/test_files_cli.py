@@ -107,7 +107,9 @@ def test_file_outputs_are_replaced_only_with_overwrite(tmp_path):
 
 
 def test_input_errors_are_one_line_in_every_main(tmp_path, capsys):
-    from slotv_jax import data, study, train_cli
+    from slotv_jax.data import cli as data
+    from slotv_jax.study import cli as study_cli
+    from slotv_jax.train import cli as train_cli
 
     np.savez(tmp_path / "s.npz", x=np.arange(100.0))
     raw = (tmp_path / "s.npz").read_bytes()
@@ -115,9 +117,9 @@ def test_input_errors_are_one_line_in_every_main(tmp_path, capsys):
     (tmp_path / "text.npz").write_text("trajectory,x,y,z\n")
     (tmp_path / "empty").mkdir()
     cases = [
-        (study.main, ["show", str(tmp_path / "s.npz")], "s.npz: truncated or corrupt"),
-        (study.main, ["show", str(tmp_path / "text.npz")], "not an .npz file (not a zip"),
-        (study.main, ["show", str(tmp_path / "nope.npz")], "nope.npz: no such file"),
+        (study_cli.main, ["show", str(tmp_path / "s.npz")], "s.npz: truncated or corrupt"),
+        (study_cli.main, ["show", str(tmp_path / "text.npz")], "not an .npz file (not a zip"),
+        (study_cli.main, ["show", str(tmp_path / "nope.npz")], "nope.npz: no such file"),
         (data.main, ["--out", str(tmp_path / "empty"), "--relabel"], "no dataset splits"),
         (train_cli.main, ["--study", str(tmp_path / "s.npz"), "--method", "slotv", "--out",
                           str(tmp_path / "ck"), "--epochs", "0"], "--epochs: expected"),

@@ -24,9 +24,9 @@ OPTIONAL = ("matplotlib", "scipy")
 EXCEPTIONS = {
     # PEP 562 load_observer: `import slotv_jax` stays cheap and `python -m slotv_jax.X`
     # does not find X already imported (see slotv_jax/__init__.py).
-    ("slotv_jax", "slotv_jax.checkpoint"): "lazy package attribute",
+    ("slotv_jax", "slotv_jax.training.checkpoint"): "lazy package attribute",
     # Consulted only when JAX is already imported: _xla must not import JAX itself.
-    ("slotv_jax._xla", "jax._src"): "probe of an already imported JAX",
+    ("slotv_jax.core.xla", "jax._src"): "probe of an already imported JAX",
 }
 
 
@@ -132,7 +132,11 @@ def test_find_cycle_finds_one():
 
 def test_module_level_imports_are_acyclic():
     graph = import_graph()
-    assert {"slotv_jax.types", "slotv_jax.evaluate", "slotv_jax.train"} <= set(graph)
+    assert {
+        "slotv_jax.training.types",
+        "slotv_jax.training.evaluate",
+        "slotv_jax.training.trainer",
+    } <= set(graph)
     cycle = find_cycle(graph)
     assert cycle is None, "import cycle: " + " -> ".join(cycle)
 
@@ -153,12 +157,18 @@ def test_dependencies_point_down():
                 todo.extend(graph[u])
         return False
 
-    assert not reaches("slotv_jax.evaluate", "slotv_jax.train")
-    assert not reaches("slotv_jax.train", "slotv_jax.checkpoint")
-    assert not reaches("slotv_jax.train", "slotv_jax.study")
-    assert not reaches("slotv_jax.types", "slotv_jax.models")
-    for user in ("evaluate", "train", "checkpoint", "parallel", "study"):
-        assert reaches(f"slotv_jax.{user}", "slotv_jax.types"), user
+    assert not reaches("slotv_jax.training.evaluate", "slotv_jax.training.trainer")
+    assert not reaches("slotv_jax.training.trainer", "slotv_jax.training.checkpoint")
+    assert not reaches("slotv_jax.training.trainer", "slotv_jax.study")
+    assert not reaches("slotv_jax.training.types", "slotv_jax.observers.models")
+    for user in (
+        "training.evaluate",
+        "training.trainer",
+        "training.checkpoint",
+        "training.parallel",
+        "study",
+    ):
+        assert reaches(f"slotv_jax.{user}", "slotv_jax.training.types"), user
 
 
 def test_no_imports_inside_functions():
@@ -180,15 +190,15 @@ def test_no_imports_inside_functions():
 
 
 def test_fresh_interpreter_loads_low_modules_alone():
-    """``import slotv_jax.evaluate`` works on its own and loads neither training nor
+    """``import slotv_jax.training.evaluate`` works on its own and loads neither training nor
     checkpoints; ``slotv_jax.load_observer`` is there; ``import slotv_jax`` loads no JAX."""
     code = (
         "import sys, slotv_jax; assert 'jax' not in sys.modules, 'import slotv_jax loads JAX'; "
-        "import slotv_jax.evaluate; "
-        "bad = [m for m in ('slotv_jax.train', 'slotv_jax.checkpoint', 'slotv_jax.study', "
-        "'slotv_jax.data') if m in sys.modules]; assert not bad, bad; "
+        "import slotv_jax.training.evaluate; "
+        "bad = [m for m in ('slotv_jax.training.trainer', 'slotv_jax.training.checkpoint', "
+        "'slotv_jax.study', 'slotv_jax.data') if m in sys.modules]; assert not bad, bad; "
         "from slotv_jax import load_observer; "
-        "assert load_observer is slotv_jax.checkpoint.load_observer; print('ok')"
+        "assert load_observer is slotv_jax.training.checkpoint.load_observer; print('ok')"
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-2000:]

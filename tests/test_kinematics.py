@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import ref_kinematics as ref
 
-from slotv_jax import kinematics as K
+from slotv_jax.robot import kinematics as K
 
 SEED = 20261121
 N_CONFIGS = 1000  # random in-limit configurations for FK

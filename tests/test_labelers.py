@@ -13,10 +13,12 @@ import pytest
 import ref_labelers as ref
 
 import slotv_jax  # noqa: F401  (applies the XLA CPU setting before JAX starts)
-from slotv_jax import labelers as L
-from slotv_jax import scene
-from slotv_jax.defaults import BETAS_V1
-from slotv_jax.kinematics import SCENE_XML
+from slotv_jax.core.defaults import BETAS_V1
+from slotv_jax.labelers import cli as labelers_cli
+from slotv_jax.observers import labelers as L
+from slotv_jax.observers import labelling
+from slotv_jax.robot.kinematics import SCENE_XML
+from slotv_jax.world import scene
 
 REF_TOL = 1e-6  # agreement with the float64 reference (acceptance criterion)
 SUM_TOL = 1e-6  # float32 labels sum to 1 over the real goals within this
@@ -243,7 +245,7 @@ def test_clock_offsets_do_not_cost_float32_precision(name):
     y_uniform = np.asarray(call(name, xyz, goals, mask, beta=beta))
     np.testing.assert_allclose(y, y_uniform, rtol=0, atol=1e-6)
     kw = {"labelers": (name,), f"beta_{name}": beta, "progress": False}
-    y_bulk = L.label_all(xyz[None], goals, mask, t=t, **kw)[name]
+    y_bulk = labelling.label_all(xyz[None], goals, mask, t=t, **kw)[name]
     np.testing.assert_allclose(y_bulk[0], y, rtol=0, atol=1e-6)
 
 
@@ -433,7 +435,7 @@ def test_nikolaidis_points_behind_the_camera():
     assert not bool(jax.jit(L.depth_ok, static_argnums=3)(behind, goals, mask, "observer"))
     assert bool(L.depth_ok(xyz, goals, mask, OBSERVER))
     with pytest.raises(ValueError, match="xyz"):
-        L.label_all(behind[None], goals, mask, progress=False)
+        labelling.label_all(behind[None], goals, mask, progress=False)
 
 
 def test_label_all_nikolaidis_checks_the_points_of_uniform_labels():
@@ -445,7 +447,7 @@ def test_label_all_nikolaidis_checks_the_points_of_uniform_labels():
     pos, axis = np.asarray(OBSERVER.pos, np.float64), np.asarray(OBSERVER.rot[:, 2], np.float64)
 
     def label(x, g=goals, m=mask):
-        return L.label_all(x, g, m, chunk_size=4, labelers=("nikolaidis",), progress=False)
+        return labelling.label_all(x, g, m, chunk_size=4, labelers=("nikolaidis",), progress=False)
 
     behind = xyz.copy()
     behind[5, 40] = pos + 0.5 * axis  # in the second chunk
@@ -521,7 +523,7 @@ def test_overflowing_coordinates_raise_naming_xyz(name):
     with pytest.raises(ValueError, match=r"^xyz: .*overflow"):
         call(name, huge, goals, mask, cam)
     with pytest.raises(ValueError, match=r"^xyz: .*trajectory 1\b"):
-        L.label_all(
+        labelling.label_all(
             np.stack([xyz, huge]), goals, mask, labelers=(name,), camera=cam, progress=False
         )
     # Under jit nothing can raise: the NaN shows there, as documented.
@@ -537,7 +539,7 @@ def test_label_all_bad_inputs_raise():
     def raises(match, x=xyz, g=goals, m=mask, **kw):
         kw.setdefault("chunk_size", 2)
         with pytest.raises(ValueError, match=match):
-            L.label_all(x, g, m, progress=False, **kw)
+            labelling.label_all(x, g, m, progress=False, **kw)
 
     bad = xyz.copy()
     bad[3, 7, 0] = np.nan
@@ -569,15 +571,17 @@ def test_label_all_catches_every_non_finite_point(labelers):
                 bad = xyz.copy()
                 bad[2, point, coord] = value
                 with pytest.raises(ValueError, match=r"xyz: expected finite.*trajectory 2\b"):
-                    L.label_all(bad, goals, mask, chunk_size=2, labelers=labelers, progress=False)
+                    labelling.label_all(
+                        bad, goals, mask, chunk_size=2, labelers=labelers, progress=False
+                    )
     huge = xyz.copy()
     huge[1, 5, 0] = 3e19  # finite, but its squared distances overflow float32
     with pytest.raises(ValueError, match=r"xyz.*trajectory 1\b"):
-        L.label_all(huge, goals, mask, chunk_size=2, labelers=labelers, progress=False)
+        labelling.label_all(huge, goals, mask, chunk_size=2, labelers=labelers, progress=False)
     bad_goal = goals.copy()
     bad_goal[3, 1, 2] = np.nan  # a real goal
     with pytest.raises(ValueError, match=r"goals: expected finite.*trajectory 3\b"):
-        L.label_all(xyz, bad_goal, mask, chunk_size=2, labelers=labelers, progress=False)
+        labelling.label_all(xyz, bad_goal, mask, chunk_size=2, labelers=labelers, progress=False)
 
 
 def test_label_all_reports_the_first_bad_trajectory_in_input_order():
@@ -591,10 +595,10 @@ def test_label_all_reports_the_first_bad_trajectory_in_input_order():
     xyz[9, 0, 0] = np.nan
     for labelers in (("effdist",), ("dragan", "nikolaidis")):
         with pytest.raises(ValueError, match=r"xyz.*trajectory 9\b"):
-            L.label_all(xyz, goals, mask, chunk_size=2, labelers=labelers, progress=False)
+            labelling.label_all(xyz, goals, mask, chunk_size=2, labelers=labelers, progress=False)
     xyz[9, 0, 0] = 0.5
     with pytest.raises(ValueError, match=r"goals.*trajectory 13\b"):
-        L.label_all(xyz, goals, mask, chunk_size=2, progress=False)
+        labelling.label_all(xyz, goals, mask, chunk_size=2, progress=False)
 
 
 # ------------------------------------------------------------- bulk labelling
@@ -605,9 +609,9 @@ def test_label_all_matches_per_trajectory_labelers_and_compiles_once():
     N, chunk = 11, 4  # three chunks, the last one padded
     cases = [random_case(rng) for _ in range(N)]
     xyz, goals, mask = (np.stack(c) for c in zip(*cases, strict=True))
-    before = L._TRACES["label_chunk"]
-    y = L.label_all(xyz, goals, mask, chunk_size=chunk, progress=False)
-    assert L._TRACES["label_chunk"] == before + 1  # one trace for all four chunks
+    before = labelling._TRACES["label_chunk"]
+    y = labelling.label_all(xyz, goals, mask, chunk_size=chunk, progress=False)
+    assert labelling._TRACES["label_chunk"] == before + 1  # one trace for all four chunks
     assert sorted(y) == sorted(ALL)
     for name in ALL:
         assert y[name].shape == (N, 8) and y[name].dtype == np.float32
@@ -616,7 +620,7 @@ def test_label_all_matches_per_trajectory_labelers_and_compiles_once():
         assert np.all(y[name][~mask] == 0.0)
 
     # New data, new betas, same shapes: no retrace.
-    y2 = L.label_all(
+    y2 = labelling.label_all(
         xyz[::-1],
         goals[::-1],
         mask[::-1],
@@ -627,7 +631,7 @@ def test_label_all_matches_per_trajectory_labelers_and_compiles_once():
         beta_effdist=4.0,
         beta_fastapp=6.0,
     )
-    assert L._TRACES["label_chunk"] == before + 1
+    assert labelling._TRACES["label_chunk"] == before + 1
     np.testing.assert_allclose(
         y2["dragan"][0], np.asarray(L.dragan(xyz[-1], goals[-1], mask[-1], beta=2.0)), atol=1e-6
     )
@@ -640,7 +644,7 @@ def test_label_all_large_beta_and_far_goals():
     goals[4, 1] = [-2.0, 0.0, 0.025]  # a real goal far from the others, in the second chunk
     # Logits up to β · 2 · 2.6 m: beyond float32's exp range without a max shift.
     for beta in (30.0, 1e4):
-        y = L.label_all(
+        y = labelling.label_all(
             xyz,
             goals,
             mask,
@@ -663,13 +667,15 @@ def test_label_all_shared_goals_time_stamps_and_subsets():
     _, goals, mask = random_case(rng, n_goals=4)
     t = np.cumsum(rng.uniform(0.1, 1.0, (5, 12)), axis=1)
     v1 = {"beta_fastapp": BETAS_V1["fastapp"], "beta_effdist": BETAS_V1["effdist"]}
-    y = L.label_all(xyz, goals, mask, t=t, labelers=("fastapp", "effdist"), progress=False, **v1)
+    y = labelling.label_all(
+        xyz, goals, mask, t=t, labelers=("fastapp", "effdist"), progress=False, **v1
+    )
     assert sorted(y) == ["effdist", "fastapp"]
     for i in range(5):
         for name in ("fastapp", "effdist"):
             one = jcall(name, xyz[i], goals, mask, t=t[i], beta=BETAS_V1[name])
             np.testing.assert_allclose(y[name][i], np.asarray(one), atol=1e-6)
-    empty = L.label_all(xyz[:0], goals, mask, progress=False)
+    empty = labelling.label_all(xyz[:0], goals, mask, progress=False)
     assert all(v.shape == (0, 8) for v in empty.values())
 
 
@@ -679,11 +685,14 @@ def test_command_line(tmp_path):
     _, goals, mask = random_case(rng, n_goals=3, contiguous=True)
     src, dst = tmp_path / "trajs.npz", tmp_path / "labels.npz"
     np.savez(src, xyz=xyz, goals=goals, goal_mask=mask)
-    assert L.main(["--in", str(src), "--out", str(dst), "--quiet", "--beta-dragan", "2.5"]) == 0
+    assert (
+        labelers_cli.main(["--in", str(src), "--out", str(dst), "--quiet", "--beta-dragan", "2.5"])
+        == 0
+    )
     with np.load(dst, allow_pickle=False) as f:
         out = {k: f[k] for k in f.files}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["labels.npz", "trajs.npz"]  # no temp left
-    expect = L.label_all(xyz, goals, mask, progress=False, beta_dragan=2.5)
+    expect = labelling.label_all(xyz, goals, mask, progress=False, beta_dragan=2.5)
     for name in ALL:
         np.testing.assert_array_equal(out[f"y_{name}"], expect[name])
     assert float(out["beta_dragan"]) == 2.5
@@ -691,11 +700,11 @@ def test_command_line(tmp_path):
 
     np.savez(src, xyz=xyz, goals=goals)  # no goal_mask
     with pytest.raises(SystemExit):
-        L.main(["--in", str(src), "--out", str(dst), "--quiet", "--overwrite"])
+        labelers_cli.main(["--in", str(src), "--out", str(dst), "--quiet", "--overwrite"])
     with pytest.raises(SystemExit):  # no such file
-        L.main(["--in", str(tmp_path / "missing.npz"), "--out", str(dst), "--overwrite"])
+        labelers_cli.main(["--in", str(tmp_path / "missing.npz"), "--out", str(dst), "--overwrite"])
     bad = xyz.copy()
     bad[0, 0, 0] = np.nan
     np.savez(src, xyz=bad, goals=goals, goal_mask=mask)
     with pytest.raises(SystemExit):
-        L.main(["--in", str(src), "--out", str(dst), "--quiet", "--overwrite"])
+        labelers_cli.main(["--in", str(src), "--out", str(dst), "--quiet", "--overwrite"])

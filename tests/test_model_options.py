@@ -18,7 +18,10 @@ from flax import nnx
 from test_models import REF_TOL, TRANS_TOL, scene_and_path
 from test_train import assert_packed_equals_dense, synthetic_split
 
-from slotv_jax import checkpoint, config, models, parametric, study, train
+from slotv_jax import study
+from slotv_jax.observers import models, parametric
+from slotv_jax.training import checkpoint, config, types
+from slotv_jax.training import trainer as train
 
 OPTIONS = {  # name -> TrainConfig overrides
     "softplus": dict(activation="softplus"),
@@ -167,7 +170,7 @@ def test_prefix_scores_with_plus(method):
 def test_packed_updates_exact_and_reach_the_new_parameters():
     """SLOT-V+ updates on the real pairs equal the all-slots update, and the gradient reaches
     α."""
-    data = train.trim_goals(train.prepare(synthetic_split(0, 64), "effdist"))
+    data = types.trim_goals(types.prepare(synthetic_split(0, 64), "effdist"))
     cfg = config.quick("slotv", hidden=(16, 8), batch_size=16, train_size=None,
                        **OPTIONS["plus"])  # fmt: skip
     trainer = train.make_train(cfg, progress=False)
@@ -184,7 +187,7 @@ def test_checkpoint_round_trip_and_mismatch(tmp_path):
     split = synthetic_split(2, 64)
     cfg = config.quick("slotv", hidden=(16, 8), batch_size=16, epochs=1, train_size=None,
                        **OPTIONS["softplus_plus"])  # fmt: skip
-    state, _ = train.train_trials(cfg, train.prepare(split, "effdist"), [0], progress=False)
+    state, _ = train.train_trials(cfg, types.prepare(split, "effdist"), [0], progress=False)
     state = train.select_trial(state, 0)
     path = checkpoint.save(tmp_path / "plus", cfg, state)
     assert json.loads((path / checkpoint.CONFIG_FILE).read_text())["config"]["time_weight"]
@@ -198,7 +201,7 @@ def test_checkpoint_round_trip_and_mismatch(tmp_path):
         checkpoint.restore(path, dataclasses.replace(cfg, start_term=False))
     # a config edited to claim time weights its parameters lack: they do not fit
     bare = dataclasses.replace(cfg, time_weight=False, start_term=False)
-    state, _ = train.train_trials(bare, train.prepare(split, "effdist"), [0], progress=False)
+    state, _ = train.train_trials(bare, types.prepare(split, "effdist"), [0], progress=False)
     plain = checkpoint.save(tmp_path / "plain", bare, train.select_trial(state, 0))
     edited = json.loads((plain / checkpoint.CONFIG_FILE).read_text())
     edited["config"]["time_weight"] = True

@@ -11,7 +11,8 @@ import pytest
 from flax import nnx
 
 import slotv_jax  # noqa: F401  (applies the XLA CPU setting before JAX starts)
-from slotv_jax import config, models
+from slotv_jax.observers import models
+from slotv_jax.training import config
 
 REF_TOL = 2e-5  # float32 model against the float64 NumPy reference (relative to max |s|)
 INV_TOL = 1e-6  # probabilities under padding changes / slot moves

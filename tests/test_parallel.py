@@ -16,24 +16,24 @@ import textwrap
 import pytest
 
 import slotv_jax  # noqa: F401  (applies the XLA CPU setting before JAX starts)
-from slotv_jax import parallel
+from slotv_jax.training import parallel, schedule
 
 COLLECTIVES = ("all-reduce", "all-gather", "collective-permute", "all-to-all", "reduce-scatter")
 
 
 def test_plan_hand_cases():
-    assert parallel.plan(10, 4) == [(4, 4), (4, 4), (2, 2)]  # 10 trials on 4 devices
-    assert parallel.plan(8, 4) == [(4, 4), (4, 4)]
-    assert parallel.plan(3, 4) == [(3, 4)]  # padded to 4, one run per device
-    assert parallel.plan(1, 4) == [(1, 1)]  # one run: its batch over all 4 devices
-    assert parallel.plan(5, 6) == [(5, 6)]
-    assert parallel.plan(4, 6) == [(4, 6)]
-    assert parallel.plan(3, 6) == [(3, 3)]  # two devices per run
-    assert parallel.plan(3, 1) == [(1, 1)] * 3  # one device: one unit at a time
-    assert parallel.plan(0, 4) == []
-    assert parallel.groups(list("abcde"), 2) == [(["a", "b"], 2), (["c", "d"], 2), (["e"], 1)]
+    assert schedule.plan(10, 4) == [(4, 4), (4, 4), (2, 2)]  # 10 trials on 4 devices
+    assert schedule.plan(8, 4) == [(4, 4), (4, 4)]
+    assert schedule.plan(3, 4) == [(3, 4)]  # padded to 4, one run per device
+    assert schedule.plan(1, 4) == [(1, 1)]  # one run: its batch over all 4 devices
+    assert schedule.plan(5, 6) == [(5, 6)]
+    assert schedule.plan(4, 6) == [(4, 6)]
+    assert schedule.plan(3, 6) == [(3, 3)]  # two devices per run
+    assert schedule.plan(3, 1) == [(1, 1)] * 3  # one device: one unit at a time
+    assert schedule.plan(0, 4) == []
+    assert schedule.groups(list("abcde"), 2) == [(["a", "b"], 2), (["c", "d"], 2), (["e"], 1)]
     with pytest.raises(ValueError, match="n_devices"):
-        parallel.plan(3, 0)
+        schedule.plan(3, 0)
     with pytest.raises(ValueError, match="seeds"):
         parallel.seeds_array([1, -2])
 
@@ -44,7 +44,8 @@ FOUR_DEVICES = textwrap.dedent(
     import numpy as np, jax, jax.numpy as jnp
     from jax.sharding import NamedSharding, PartitionSpec as P
     import slotv_jax
-    from slotv_jax import evaluate, parallel, train
+    from slotv_jax.training import evaluate, parallel, schedule
+    from slotv_jax.training import trainer as train
     sys.path.insert(0, {tests!r})
     from test_train import assert_same_run, effdist_np, probabilities, small_cfg, synthetic_split
     assert jax.device_count() == 4, jax.devices()
@@ -66,7 +67,7 @@ FOUR_DEVICES = textwrap.dedent(
     # 4 runs side by side, one per device, without communication; equal to one by one.
     for method in ("slotv",):
         cfg = small_cfg(method)
-        mesh = parallel.unit_mesh(4, cfg.batch_size)
+        mesh = schedule.unit_mesh(4, cfg.batch_size)
         assert dict(mesh.shape) == {{"trial": 4, "data": 1}}
         state, metrics = parallel.train_group(cfg, data, [0, 1, 2, 3], mesh)
         for leaf in jax.tree.leaves(state.params):
@@ -94,9 +95,9 @@ FOUR_DEVICES = textwrap.dedent(
     y = {{b: effdist_np(split.xyz.astype(np.float64), split.goals.astype(np.float64),
                         split.goal_mask, beta=b).astype(np.float32) for b in (2.0, 5.0, 20.0)}}
     labels = np.stack([y[20.0], y[2.0], y[5.0]])
-    state, _ = parallel.train_group(cfg, data, [7, 8, 9], parallel.unit_mesh(4, 16), labels=labels)
+    state, _ = parallel.train_group(cfg, data, [7, 8, 9], schedule.unit_mesh(4, 16), labels=labels)
     assert jax.tree.leaves(state.params)[0].shape[0] == 4  # padded: run 3 repeats run 2
-    acc = parallel.group_accuracy(cfg, state.params, data, parallel.unit_mesh(4, 16), labels=labels)
+    acc = parallel.group_accuracy(cfg, state.params, data, schedule.unit_mesh(4, 16), labels=labels)
     for i, (seed, b) in enumerate(zip([7, 8, 9], [20.0, 2.0, 5.0])):
         d = data._replace(labels=jnp.asarray(y[b]))
         mine = jax.tree.map(lambda x: x[i : i + 1], state.params)
@@ -104,7 +105,7 @@ FOUR_DEVICES = textwrap.dedent(
         check_same(cfg, mine, ref_params, d)
         ref = evaluate.accuracy(cfg, ref_params, d, mesh=train.make_mesh(16, one))
         np.testing.assert_array_equal(acc[i : i + 1], ref)
-    mesh = parallel.unit_mesh(1, cfg.batch_size)
+    mesh = schedule.unit_mesh(1, cfg.batch_size)
     assert dict(mesh.shape) == {{"trial": 1, "data": 4}}
     state, _ = parallel.train_group(cfg, data, [3], mesh)
     assert len(jax.tree.leaves(state.params)[1].sharding.device_set) == 4
@@ -112,7 +113,7 @@ FOUR_DEVICES = textwrap.dedent(
 
     # Six runs with in-loop validation (sample efficiency): padded to 8, two per device.
     cfg = small_cfg("slotv", eval_every=4, eval_size=64, epochs=1, train_size=128)
-    state, metrics = parallel.train_group(cfg, data, range(6), parallel.unit_mesh(4, 16), val=data)
+    state, metrics = parallel.train_group(cfg, data, range(6), schedule.unit_mesh(4, 16), val=data)
     assert metrics.eval_accuracy.shape[0] == 8
     assert all(s.data.shape[0] == 2 for s in metrics.eval_accuracy.addressable_shards)
     ref_state, ref = train.train_trials(cfg, data, range(6), val=data, progress=False,
@@ -130,7 +131,7 @@ FOUR_DEVICES = textwrap.dedent(
         lambda event, duration, **kw: compiled.append(kw.get("fun_name"))
         if event.endswith("backend_compile_duration") else None)
     g = train.trim_goals(data).goals.shape[1]
-    mesh = parallel.unit_mesh(4, cfg.batch_size)
+    mesh = schedule.unit_mesh(4, cfg.batch_size)
     assert parallel.precompile_group(cfg, len(data.xyz), data.xyz.shape[1], g, mesh)
     assert compiled.count("jit(train_run)") == 1
     labels4 = np.stack([np.asarray(data.labels)] * 4)

@@ -16,17 +16,11 @@ import numpy as np
 import pytest
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
-from slotv_jax import (
-    checkpoint,
-    config,
-    evaluate,
-    labelers,
-    models,
-    parametric,
-    scene,
-    train,
-    train_cli,
-)
+from slotv_jax.observers import archetypes, labelers, models, parametric
+from slotv_jax.train import cli as train_cli
+from slotv_jax.training import checkpoint, config, evaluate, types
+from slotv_jax.training import trainer as train
+from slotv_jax.world import scene
 
 PROB_TOL = 2e-6  # float32 probabilities of two implementations of one formula (absolute)
 FD_TOL = 1e-6  # float64 gradient against central differences (relative to its norm)
@@ -133,10 +127,10 @@ def test_observer_camera_pose_by_hand():
 def test_mixture_at_pure_terms_is_effdist_or_fastapp(batch):
     xyz, goals, mask = batch
     pure = {
-        "effdist": parametric.DistanceApproachMixture(
+        "effdist": archetypes.DistanceApproachMixture(
             beta_effdist=20.0, beta_fastapp=0.0, alpha_effdist=0.0
         ),
-        "fastapp": parametric.DistanceApproachMixture(
+        "fastapp": archetypes.DistanceApproachMixture(
             beta_effdist=0.0, beta_fastapp=20.0, alpha_fastapp=1.0
         ),
     }
@@ -151,7 +145,7 @@ def test_mixture_terms_by_hand():
     # two points on a line towards goal 0 at x = 1: d_0 = (1, 0.5), d_1 = (1, 1.118)
     xyz = jnp.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]])
     goals = jnp.zeros((8, 3)).at[0].set([1.0, 0.0, 0.0]).at[1].set([1.0, 1.0, 0.0])
-    e, f = parametric.DistanceApproachMixture(alpha_effdist=0.0).terms(xyz, goals)
+    e, f = archetypes.DistanceApproachMixture(alpha_effdist=0.0).terms(xyz, goals)
     d1 = math.hypot(0.5, 1.0)
     np.testing.assert_allclose(e[:2], [-(1 + 0.5) / 2, -(math.sqrt(2) + d1) / 2], rtol=1e-6)
     np.testing.assert_allclose(f[:2], [0.5, math.sqrt(2) - d1], rtol=1e-5)  # Δt = 1
@@ -179,7 +173,7 @@ def test_parameters_constrained_and_described():
     _, rot = v.camera()  # looking straight down: still a right-handed frame
     np.testing.assert_allclose(np.asarray(rot).T @ np.asarray(rot), np.eye(3), atol=1e-6)
     assert "yaw 45.0°" in parametric.LearnableViewpoint().describe()
-    m = parametric.DistanceApproachMixture(beta_effdist=3.0, beta_fastapp=1.0)
+    m = archetypes.DistanceApproachMixture(beta_effdist=3.0, beta_fastapp=1.0)
     assert m.parameters()["effdist_share"] == pytest.approx(0.75, rel=1e-6)
     assert "75.0%" in m.describe()
 
@@ -193,7 +187,7 @@ def test_parameters_constrained_and_described():
         (parametric.LearnableViewpoint, {"pitch": 2.0}, "pitch"),
         (parametric.LearnableViewpoint, {"distance": 0.5}, "distance"),
         (parametric.LearnableViewpoint, {"beta": float("nan")}, "beta"),
-        (parametric.DistanceApproachMixture, {"beta_effdist": 0.0, "beta_fastapp": 0.0}, "beta"),
+        (archetypes.DistanceApproachMixture, {"beta_effdist": 0.0, "beta_fastapp": 0.0}, "beta"),
     ],
 )
 def test_bad_initial_values_raise(cls, kw, match):
@@ -203,7 +197,7 @@ def test_bad_initial_values_raise(cls, kw, match):
 
 def test_unknown_archetype_and_config_validation():
     with pytest.raises(ValueError, match="model"):
-        parametric.make_archetype("gaussian")
+        archetypes.make_archetype("gaussian")
     with pytest.raises(ValueError, match=r"TrainConfig\.model"):
         config.TrainConfig(model="gaussian")
     with pytest.raises(ValueError, match="T-REX trains only the MLP"):
@@ -224,7 +218,7 @@ def test_unknown_archetype_and_config_validation():
 @pytest.mark.parametrize("name", ARCHETYPES)
 def test_jit_vmap_and_grad_wrt_xyz(batch, name):
     xyz, goals, mask = batch
-    model = parametric.make_archetype(name)
+    model = archetypes.make_archetype(name)
     eager = np.asarray(model(xyz[:8], goals[:8], mask[:8]))
     per = np.stack([np.asarray(model(xyz[i], goals[i], mask[i])) for i in range(8)])
     observer = checkpoint.make_observer(config.TrainConfig(model=name), _params(model))
@@ -264,7 +258,7 @@ def _params(model):
 
 def fit(cfg, xyz, goals, mask, labels, seed=0):
     """Train ``cfg`` (an archetype) with the library's training path; return the model."""
-    data = train.make_data(xyz, goals, mask, labels)
+    data = types.make_data(xyz, goals, mask, labels)
     states, _ = train.train_trials(cfg, data, [seed], progress=False)
     params = train.select_trial(states.params, 0)
     return train.make_train(cfg, progress=False).model(params), params
@@ -287,7 +281,7 @@ def test_dragan_recovers_beta(recovery_set):
     model, params = fit(cfg, xyz, goals, mask, label(fn, xyz, goals, mask))
     p = model.parameters()
     assert abs(p["beta"] - beta) / beta < 0.05, p
-    acc = evaluate.accuracy(cfg, params, train.make_data(vx, vg, vm, label(fn, vx, vg, vm)))
+    acc = evaluate.accuracy(cfg, params, types.make_data(vx, vg, vm, label(fn, vx, vg, vm)))
     assert acc >= 0.95, (acc, p)
 
 
@@ -325,7 +319,7 @@ def test_checkpoint_round_trip_and_wrong_archetype(tmp_path, batch):
     cfg = config.archetype("quick", "dragan", train_size=None, epochs=1)
     y = label(lambda x, g, m: labelers.dragan(x, g, m, beta=20.0), xyz, goals, mask)
     trainer = train.make_train(cfg, progress=False)
-    state, _ = jax.jit(trainer.train)(jax.random.key(0), train.make_data(xyz, goals, mask, y))
+    state, _ = jax.jit(trainer.train)(jax.random.key(0), types.make_data(xyz, goals, mask, y))
     path = checkpoint.save(tmp_path / "ck", cfg, state)
     doc = json.loads((path / "config.json").read_text())
     assert doc["config"]["model"] == "dragan"
@@ -353,7 +347,7 @@ def test_checkpoint_round_trip_and_wrong_archetype(tmp_path, batch):
 def test_archetype_checkpoint_resumes_exactly(tmp_path, batch):
     xyz, goals, mask = batch
     y = label(lambda x, g, m: labelers.effdist(x, g, m, beta=20.0), xyz, goals, mask)
-    data = train.make_data(xyz, goals, mask, y)
+    data = types.make_data(xyz, goals, mask, y)
     cfg = config.archetype("quick", "mixture", train_size=None, epochs=2)
     trainer = train.make_train(cfg, progress=False)
     full, _ = jax.jit(trainer.train)(jax.random.key(1), data)
@@ -405,6 +399,6 @@ def test_make_model_dispatch():
 
     for name in ARCHETYPES:
         m = models.make_model(config.TrainConfig(model=name), nnx.Rngs(0))
-        assert type(m) is parametric.ARCHETYPES[name] and m.name == name
+        assert type(m) is archetypes.ARCHETYPES[name] and m.name == name
     cfg = dataclasses.replace(config.quick("slotv"), hidden=(8, 4))
     assert isinstance(models.make_model(cfg, 0), models.SlotV)

@@ -23,8 +23,12 @@ import numpy as np
 import pytest
 import ref_labelers
 
-from slotv_jax import kinematics, labelers, planning, scene
-from slotv_jax.defaults import BETAS_V1
+from slotv_jax import planning
+from slotv_jax.core.defaults import BETAS_V1
+from slotv_jax.observers import labelers
+from slotv_jax.planning import planner as planning_planner
+from slotv_jax.robot import kinematics
+from slotv_jax.world import scene
 
 REPO = Path(__file__).resolve().parent.parent
 N_PROBLEMS = 200
@@ -217,7 +221,7 @@ def test_gradient_matches_finite_differences_float64(straight):
             cfg = planning.PlannerConfig()
             obs = planning.labeler_observer("dragan", beta=BETA)
             f = jax.jit(jax.value_and_grad(lambda z: planning.objective(obs, p64, z, cfg)))
-            z0 = planning._initial_z(p64.q)
+            z0 = planning_planner._initial_z(p64.q)
             rng = np.random.default_rng(0)
             t = np.linspace(0, np.pi, z0.shape[0])[:, None]
             # At the straight line, and bent so far that the table penalty is active.
@@ -231,8 +235,8 @@ def test_gradient_matches_finite_differences_float64(straight):
                     h = 1e-6
                     fd = (f(z + h * v)[0] - f(z - h * v)[0]) / (2 * h)
                     assert float(fd) == pytest.approx(float(jnp.sum(g * v)), rel=FD_TOL, abs=1e-9)
-            xyz = planning._fk(planning._joints(z0 + bend, p64.q[0], p64.q[-1]))
-            assert planning._table_penalty(xyz, p64, cfg) > 0  # the penalty term was tested
+            xyz = planning_planner._fk(planning_planner._joints(z0 + bend, p64.q[0], p64.q[-1]))
+            assert planning_planner._table_penalty(xyz, p64, cfg) > 0  # the penalty term was tested
         finally:
             kinematics._mjx_panda.cache_clear()
 
@@ -303,7 +307,8 @@ def test_bad_input(planner, problems):
 @pytest.mark.slow
 def test_readme_example(tmp_path, monkeypatch, tiny_data):
     """Runs the README's planning block verbatim, with a tiny observer at ckpt/dragan."""
-    from slotv_jax import checkpoint, config, train
+    from slotv_jax.training import checkpoint, config
+    from slotv_jax.training import trainer as train
 
     text = (REPO / "README.md").read_text()
     block = re.search(

@@ -10,9 +10,11 @@ import jax
 import numpy as np
 import pytest
 
-from slotv_jax import data, labelers, scene
-from slotv_jax.defaults import BETAS_V1, DEFAULT_BETAS
+from slotv_jax import data
+from slotv_jax.core.defaults import BETAS_V1, DEFAULT_BETAS
 from slotv_jax.experiments import planning as exp
+from slotv_jax.observers import labelers
+from slotv_jax.world import scene
 
 
 def _case():

@@ -19,8 +19,11 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 import slotv_jax
-from slotv_jax import checkpoint, config, study, train
-from slotv_jax import labelers as L
+from slotv_jax import study
+from slotv_jax.observers import labelers as L
+from slotv_jax.observers import labelling
+from slotv_jax.training import checkpoint, config
+from slotv_jax.training import trainer as train
 
 # ------------------------------------------------------------------ labelers
 
@@ -66,7 +69,7 @@ def test_label_all_matches_the_single_labelers(ms):
     xyz = np.stack([m[0] for m in ms])
     goals = np.stack([m[1] for m in ms])
     mask = np.stack([m[2] for m in ms])
-    y = L.label_all(xyz, goals, mask, progress=False)
+    y = labelling.label_all(xyz, goals, mask, progress=False)
     for name in L.LABELER_NAMES:
         for i in range(3):
             want = np.asarray(call(name, xyz[i], goals[i], mask[i]))
@@ -121,7 +124,7 @@ def test_bad_input_is_named(m, kind, name, i):
     if kind not in ("shape", "nan"):
         b = {"beta_" + name: beta}
         with pytest.raises(ValueError) as e:
-            L.label_all(xyz[None], goals, mask, labelers=name, progress=False, **b)
+            labelling.label_all(xyz[None], goals, mask, labelers=name, progress=False, **b)
         assert str(e.value).startswith("beta_" + name if arg == "beta" else arg), str(e.value)
 
 

@@ -15,9 +15,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from slotv_jax import kinematics, render, scene
+from slotv_jax import render
 from slotv_jax.render import frames as frames_lib
 from slotv_jax.render import overlay, writers
+from slotv_jax.robot import kinematics
+from slotv_jax.world import scene
 
 SIZE = (160, 96)  # small frames keep the software rasteriser fast
 PIXEL_TOL = 1.0  # pixels: marker centroid vs. projected TCP

@@ -9,10 +9,11 @@ import sys
 import numpy as np
 import pytest
 
-from slotv_jax import data, kinematics, render, study
+from slotv_jax import data, render, study
 from slotv_jax.experiments import planning_render
 from slotv_jax.render import cli
 from slotv_jax.render import frames as frames_lib
+from slotv_jax.robot import kinematics
 
 SIZE = (64, 48)
 FAST = ["--size", "64x48", "--fps", "5", "--duration", "1", "--hold", "0.2", "--quiet"]

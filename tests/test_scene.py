@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from slotv_jax import scene as S
+from slotv_jax.world import scene as S
 
 CFG = S.SceneConfig()
 

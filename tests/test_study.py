@@ -17,7 +17,12 @@ import pytest
 from flax import nnx
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
-from slotv_jax import config, models, study, train, train_cli
+from slotv_jax import study
+from slotv_jax.observers import models
+from slotv_jax.study import cli as study_cli
+from slotv_jax.train import cli as train_cli
+from slotv_jax.training import checkpoint, config, losses, types
+from slotv_jax.training import trainer as train
 
 REL_TOL = 2e-5  # float32 loss against the float64 reference
 ROOT = Path(__file__).resolve().parents[1]
@@ -146,7 +151,7 @@ def test_csv_and_json_import(tmp_path):
     np.testing.assert_array_equal(sj.xyz, s.xyz)
     # the import command reports what it read and writes a loadable file
     out = tmp_path / "s.npz"
-    assert study.main(["import", "--trajectories", str(tables[0]), "--goals", str(tables[1]),
+    assert study_cli.main(["import", "--trajectories", str(tables[0]), "--goals", str(tables[1]),
                        "--answers", str(tables[2]), "--out", str(out)]) == 0  # fmt: skip
     np.testing.assert_array_equal(study.load_study(out).counts, s.counts)
 
@@ -351,7 +356,9 @@ def test_one_answer_per_row_is_plain_cross_entropy():
     assert abs(got - np.mean(ce)) <= REL_TOL * np.mean(ce)
     # and the library's own SLOT-V loss with one-hot labels agrees
     onehot = jnp.asarray(np.eye(8)[guess][:, : d.goals.shape[1]], jnp.float32)
-    plain = float(train.slotv_loss(model, d.xyz, d.goals, d.goal_mask, onehot, backward="autodiff"))
+    plain = float(
+        losses.slotv_loss(model, d.xyz, d.goals, d.goal_mask, onehot, backward="autodiff")
+    )
     assert abs(got - plain) <= REL_TOL * plain
 
 
@@ -449,7 +456,7 @@ def test_cli_training_then_load_observer(small, tmp_path, capsys):
     meta = json.loads((out / "config.json").read_text())["meta"]
     assert meta["study"] == str(path) and "train_metrics" in meta
     observer = slotv_jax.load_observer(out)
-    _, state, _ = __import__("slotv_jax.checkpoint").checkpoint.restore(out)
+    _, state, _ = checkpoint.restore(out)
     model = nnx.merge(nnx.split(_model("slotv"))[0], state.params)
     n = 3
     xyz = small.xyz[n, : small.length[n]]
@@ -488,7 +495,7 @@ def test_study_trainer_matches_train_trials():
     labels = np.exp(logits - logits.max(-1, keepdims=True))
     labels = (labels / labels.sum(-1, keepdims=True)).astype(np.float32)
     cfg = config.quick("slotv", hidden=(16, 8), batch_size=8, epochs=3, train_size=None)
-    data = train.make_data(xyz, goals, mask, labels)
+    data = types.make_data(xyz, goals, mask, labels)
     st, _ = train.train_trials(cfg, data, [3], progress=False)
     s = study.make_study(xyz, goals, mask, np.arange(48), probs=labels, n_answers=np.ones(48))
     got = study.train_study(cfg, s, jax.random.key(3), progress=False)

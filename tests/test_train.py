@@ -18,7 +18,9 @@ import pytest
 from flax import nnx
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
-from slotv_jax import config, evaluate, train, train_cli
+from slotv_jax.train import cli as train_cli
+from slotv_jax.training import config, evaluate, losses, types
+from slotv_jax.training import trainer as train
 
 PROB_TOL = 1e-5  # goal probabilities of two runs that differ only in summation order
 STEP_FRAC = 1e-2  # their parameters differ by less than this fraction of one update (lr)
@@ -172,7 +174,7 @@ def test_slotv_learns_effdist(tiny_data):
     """Acceptance: ≥ 0.95 test accuracy on EffDist labels (which V can represent exactly),
     trained on the 300 trajectories of the generated tiny dataset."""
     cfg = small_cfg("slotv", hidden=(64, 32), epochs=20)
-    data = train.prepare(tiny_data["train"], "effdist")
+    data = types.prepare(tiny_data["train"], "effdist")
     state, metrics = train.train_trials(cfg, data, [0], progress=False)
     kl = excess_loss(metrics.loss[0], data.labels)
     assert kl[-1, -1] < 0.5 * kl[0, 0], kl  # the removable part of the loss at least halves
@@ -183,7 +185,7 @@ def test_slotv_learns_effdist(tiny_data):
 
 def test_trex_learns_well_above_chance(tiny_data):
     cfg = small_cfg("trex", hidden=(32, 32), epochs=12, batch_size=32)
-    data = train.prepare(tiny_data["train"], "effdist")
+    data = types.prepare(tiny_data["train"], "effdist")
     state, metrics = train.train_trials(cfg, data, [0], progress=False)
     loss = np.asarray(metrics.loss[0])
     assert loss[-3:].mean() < 0.7 * loss[0, :1].mean(), loss  # BCE falls
@@ -231,7 +233,7 @@ def test_cli_trains_checkpoints_and_resumes(tiny_data, tiny_cfg, tmp_path, capsy
 def test_vmapped_trials_equal_one_by_one(tiny, method):
     tr, _ = tiny
     cfg = small_cfg(method, epochs=1, train_size=128)
-    data = train.prepare(tr, "effdist")
+    data = types.prepare(tr, "effdist")
     states, metrics = train.train_trials(cfg, data, [3, 7], progress=False)
     trainer = train.make_train(cfg, progress=False)
     f = jax.jit(trainer.train)
@@ -254,14 +256,14 @@ def test_trim_goals_cuts_only_unused_slots():
     mask[0, [0, 1]] = True
     mask[1, [0, 4]] = True  # a gap: slot 4 is real, so slots 0..4 stay
     labels = np.where(mask, 0.5, 0.0).astype(np.float32)
-    d = train.TrainData(xyz, goals, mask, labels)
-    t = train.trim_goals(d)
+    d = types.TrainData(xyz, goals, mask, labels)
+    t = types.trim_goals(d)
     assert t.goals.shape == (2, 5, 3) and t.goal_mask.shape == (2, 5) and t.labels.shape == (2, 5)
     np.testing.assert_array_equal(t.goals, goals[:, :5])
     np.testing.assert_array_equal(t.goal_mask, mask[:, :5])
     assert t.xyz is xyz
     full = d._replace(goal_mask=np.ones((2, 8), bool))
-    assert train.trim_goals(full) is full
+    assert types.trim_goals(full) is full
 
 
 @pytest.mark.parametrize("method", ["slotv", "trex"])
@@ -270,15 +272,15 @@ def test_training_on_trimmed_goal_slots_is_the_same_run(tiny, method):
     slots is the same run, and so is the accuracy."""
     tr, te = tiny
     cfg = small_cfg(method, epochs=1, train_size=128)
-    data = train.prepare(tr, "effdist")
-    assert train.trim_goals(data).goals.shape[1] == 6
+    data = types.prepare(tr, "effdist")
+    assert types.trim_goals(data).goals.shape[1] == 6
     states, _ = train.train_trials(cfg, data, [5], progress=False)
     trainer = train.make_train(cfg, progress=False)
     full, _ = jax.jit(trainer.train)(jax.random.key(5), data)  # 8 slots
     p_trim = train.select_trial(states.params, 0)
     pa, pb = probabilities(cfg, p_trim, data), probabilities(cfg, full.params, data)
     assert_same_run(cfg, p_trim, full.params, pa, pb)
-    test = train.prepare(te, "effdist")
+    test = types.prepare(te, "effdist")
     ev = trainer.replicate(trainer.eval_data(test, size=len(te)))  # 8 slots, untrimmed
     np.testing.assert_allclose(
         evaluate.accuracy(cfg, full.params, test), float(jax.jit(trainer.accuracy)(full.params, ev))
@@ -290,10 +292,10 @@ def assert_packed_equals_dense(model, batch, cap: int, backward: str = "autodiff
     equal the all-slots update's; returns the all-slots gradient."""
 
     def dense(m):
-        return train.slotv_loss(m, *batch, backward="autodiff")
+        return losses.slotv_loss(m, *batch, backward="autodiff")
 
     def pack(m):
-        return train.slotv_loss_packed(m, *batch, capacity=cap, backward=backward)
+        return losses.slotv_loss_packed(m, *batch, capacity=cap, backward=backward)
 
     (la, ga), (lb, gb) = (nnx.value_and_grad(f)(model) for f in (dense, pack))
     np.testing.assert_allclose(float(lb), float(la), rtol=1e-6)
@@ -308,7 +310,7 @@ def test_packed_slotv_updates_are_exact(tiny):
     all-slots update."""
     tr, _ = tiny
     cfg = small_cfg("slotv", epochs=3, train_size=None)
-    data = train.trim_goals(train.prepare(tr, "effdist"))
+    data = types.trim_goals(types.prepare(tr, "effdist"))
     trainer = train.make_train(cfg, progress=False)
     keys = jax.vmap(train.Trainer.state_key)(train.trial_keys([0, 1]))
     cap = trainer.pair_capacity(keys, data.goal_mask, range(cfg.epochs))
@@ -336,7 +338,8 @@ TWO_DEVICES = textwrap.dedent(
     import json, sys
     import numpy as np, jax
     import slotv_jax
-    from slotv_jax import config, train
+    from slotv_jax.training import config
+    from slotv_jax.training import trainer as train
     sys.path.insert(0, {tests!r})
     from test_train import synthetic_split
     assert jax.device_count() == 2, jax.devices()
@@ -390,8 +393,8 @@ def test_one_and_two_devices_give_the_same_params():
 
 def test_eval_every_k_updates(tiny):
     tr, te = tiny
-    data = train.prepare(tr, "effdist")
-    val = train.prepare(te, "effdist")
+    data = types.prepare(tr, "effdist")
+    val = types.prepare(te, "effdist")
     # 10 updates per epoch, k = 3: validations after 3, 6, 9 updates of each epoch, then a tail
     cfg = small_cfg("slotv", epochs=2, train_size=160, eval_every=3, eval_size=50)
     _, metrics = train.train_trials(cfg, data, [0], val=val, progress=False)
@@ -405,7 +408,7 @@ def test_eval_every_k_updates(tiny):
     cfg = dataclasses.replace(cfg, eval_every=5)
     states, metrics = train.train_trials(cfg, data, [0], val=val, progress=False)
     np.testing.assert_array_equal(metrics.eval_updates[0], [[5, 10], [15, 20]])
-    sub = train.subset(val, 50)
+    sub = types.subset(val, 50)
     final = evaluate.accuracy(cfg, train.select_trial(states.params, 0), sub)
     assert float(metrics.eval_accuracy[0, -1, -1]) == pytest.approx(float(final), abs=1e-6)
     init = train.make_train(cfg, progress=False).init(jax.random.key(0))
@@ -425,7 +428,7 @@ def test_progress_reaches_the_host(tiny):
 
     spy = Spy("test", cfg.batch_size)
     trainer = dataclasses.replace(train.make_train(cfg, progress=True), progress=spy)
-    _, metrics = jax.jit(trainer.train)(jax.random.key(0), train.prepare(tr, "effdist"))
+    _, metrics = jax.jit(trainer.train)(jax.random.key(0), types.prepare(tr, "effdist"))
     jax.block_until_ready(metrics)
     # 10 updates per epoch in blocks of 4: reports after 4, 8, 10 | 14, 18, 20
     assert [u for u, _, _ in seen] == [4, 8, 10, 14, 18, 20]
@@ -436,11 +439,11 @@ def test_progress_reaches_the_host(tiny):
 def test_training_compiles_once_per_config(tiny):
     tr, _ = tiny
     cfg = small_cfg("trex", epochs=1, train_size=64)
-    a = train.prepare(tr, "effdist")
-    b = train.make_data(
+    a = types.prepare(tr, "effdist")
+    b = types.make_data(
         tr.xyz[::-1], tr.goals[::-1], tr.goal_mask[::-1], tr.labels["effdist"][::-1]
     )
-    slots = [train.trim_goals(train.subset(d, 64)).goals.shape for d in (a, b)]
+    slots = [types.trim_goals(types.subset(d, 64)).goals.shape for d in (a, b)]
     assert slots[0] == slots[1]  # the same shapes after cutting unused goal slots
     train.train_trials(cfg, a, 2, progress=False)
     train.train_trials(cfg, b, [5, 6], progress=False)
@@ -456,8 +459,8 @@ def test_precompile_is_reused_by_train_trials(tiny):
     second compilation of it, and the same result as a run compiled on the spot."""
     tr, _ = tiny
     cfg = small_cfg("trex", epochs=1, train_size=48, hidden=(24, 8))
-    data = train.prepare(tr, "effdist")
-    g = train.trim_goals(train.subset(data, 48)).goals.shape[1]
+    data = types.prepare(tr, "effdist")
+    g = types.trim_goals(types.subset(data, 48)).goals.shape[1]
     compiled = []
 
     def listen(event, duration, **kw):
@@ -529,30 +532,30 @@ def test_prepare_rejects_bad_inputs(tiny):
     tr, _ = tiny
     y = tr.labels["effdist"]
     ok = (tr.xyz, tr.goals, tr.goal_mask, y)
-    train.make_data(*ok)
+    types.make_data(*ok)
     bad_xyz = tr.xyz.copy()
     bad_xyz[2, 5, 0] = np.nan
     with pytest.raises(ValueError, match="xyz: expected finite"):
-        train.make_data(bad_xyz, *ok[1:])
+        types.make_data(bad_xyz, *ok[1:])
     with pytest.raises(ValueError, match="xyz"):
-        train.make_data(tr.xyz[:, :, :2], *ok[1:])
+        types.make_data(tr.xyz[:, :, :2], *ok[1:])
     no_goal = tr.goal_mask.copy()
     no_goal[3] = False
     with pytest.raises(ValueError, match=r"goal_mask.*none"):
-        train.make_data(tr.xyz, tr.goals, no_goal, np.where(no_goal, y, 0))
+        types.make_data(tr.xyz, tr.goals, no_goal, np.where(no_goal, y, 0))
     with pytest.raises(ValueError, match=r"labels.*sum to 1"):
-        train.make_data(*ok[:3], y * 0.5)
+        types.make_data(*ok[:3], y * 0.5)
     neg = y.copy()
     neg[0, 0] = -0.1
     neg[0, 1] += 0.1
     with pytest.raises(ValueError, match=r"labels.*>= 0"):
-        train.make_data(*ok[:3], neg)
+        types.make_data(*ok[:3], neg)
     pad = y.copy()
     pad[0, 7] = 0.01 if not tr.goal_mask[0, 7] else 0
     with pytest.raises(ValueError, match=r"labels.*padded"):
-        train.make_data(*ok[:3], pad)
+        types.make_data(*ok[:3], pad)
     with pytest.raises(ValueError, match="labeler"):
-        train.prepare(tr, "dragan")
+        types.prepare(tr, "dragan")
     with pytest.raises(ValueError, match="no full batch"):
         cfg = small_cfg("slotv", batch_size=64, train_size=32)
-        train.train_trials(cfg, train.prepare(tr, "effdist"), 1, progress=False)
+        train.train_trials(cfg, types.prepare(tr, "effdist"), 1, progress=False)

@@ -8,8 +8,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from slotv_jax import kinematics as K
-from slotv_jax import trajectories as T
+from slotv_jax.robot import kinematics as K
+from slotv_jax.world import trajectories as T
 
 MAX_RESIDUAL = 2e-3  # m, SPEC §3 rejection threshold
 SPACING_SPREAD = 1e-3  # relative spread of arc-length spacing, issue 2
@@ -61,7 +61,7 @@ def test_resample_polyline_hand_case():
 
 
 def _scene(split, i=0):
-    from slotv_jax.scene import Scene
+    from slotv_jax.world.scene import Scene
 
     return Scene(
         goals=jnp.asarray(split.scene_goals[i]),
@@ -180,7 +180,7 @@ def test_dataset_trajectories_are_executed_paths(tiny_data):
 
 
 def test_sample_trajectory_deterministic_and_tool_down(tiny_data):
-    from slotv_jax.scene import Scene
+    from slotv_jax.world.scene import Scene
 
     s = Scene(
         goals=jnp.asarray(tiny_data["train"].scene_goals[1]),

@@ -13,7 +13,7 @@ import sys
 
 import pytest
 
-from slotv_jax import _xla
+from slotv_jax.core import xla as _xla
 
 EMITTERS = "--xla_cpu_use_fusion_emitters=false"
 WIDTH = "--xla_cpu_prefer_vector_width=512"

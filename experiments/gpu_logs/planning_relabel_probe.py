@@ -29,11 +29,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from slotv_jax import checkpoint, planning, train, types
-from slotv_jax import config as C
 from slotv_jax import data as data_lib
+from slotv_jax import planning
 from slotv_jax.experiments import planning as PE
 from slotv_jax.experiments.table1 import dataset_dir
+from slotv_jax.training import checkpoint, types
+from slotv_jax.training import config as C
+from slotv_jax.training import trainer as train
+from slotv_jax.training import types as training_types
 
 T0 = time.perf_counter()
 preset, family, rounds, rep = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
@@ -109,7 +112,7 @@ def fit(tc, data, seed=0):
 
 for method in methods:
     tc = cfg.train[method]
-    base = train.prepare(tr, family, size=tc.train_size)
+    base = training_types.prepare(tr, family, size=tc.train_size)
     tc = dataclasses.replace(tc, train_size=None)
     planners = {b: planner_for(tc, b) for b in set(budgets) | {cfg.planner.budget}}
     data, extra = base, []
@@ -130,7 +133,7 @@ for method in methods:
 # reference: the dragan archetype fitted with SLOT-V's loss
 if family == "dragan" and "arch" in sys.argv[7:]:
     ta = C.archetype("paper" if preset == "paper" else "quick", "dragan")
-    params = fit(ta, train.prepare(tr, family))
+    params = fit(ta, training_types.prepare(tr, family))
     planners = {cfg.planner.budget: planner_for(ta, cfg.planner.budget)}
     report("dragan archetype (SLOT-V loss)", ta, params, planners)
 log("done")

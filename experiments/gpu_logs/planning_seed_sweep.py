@@ -42,8 +42,10 @@ import sys
 from flax import nnx
 from planning_probe_setup import EVAL_SPLITS, Problems
 
-from slotv_jax import checkpoint, evaluate, models, train, types
-from slotv_jax import config as C
+from slotv_jax.observers import models
+from slotv_jax.training import checkpoint, evaluate, types
+from slotv_jax.training import config as C
+from slotv_jax.training import trainer as train
 
 preset, family, n_seeds = sys.argv[1], sys.argv[2], int(sys.argv[3])
 P = Problems(preset, family)

@@ -42,13 +42,15 @@ import optax
 from flax import nnx
 from planning_probe_setup import EVAL_SPLITS, Problems
 
-from slotv_jax import checkpoint, evaluate, models, train, types
-from slotv_jax import config as C
+from slotv_jax.observers import models
+from slotv_jax.training import checkpoint, evaluate, losses, types
+from slotv_jax.training import config as C
+from slotv_jax.training import trainer as train
 
 preset, family, specs = sys.argv[1], sys.argv[2], sys.argv[3:]
 P = Problems(preset, family)
 
-ORIG_MK = train.make_optimizer
+ORIG_MK = losses.make_optimizer
 EMA_DECAYS = (0.9998, 0.99995)
 ALL = {}  # (label, variant) -> parameters of every seed
 
@@ -94,11 +96,11 @@ for spec in specs:
     data = types.prepare(P.ds["train"], family, size=tc.train_size)
     tc = dataclasses.replace(tc, train_size=None)
     train._make_train.cache_clear()
-    train.make_optimizer = ORIG_MK
+    losses.make_optimizer = ORIG_MK
     if label.startswith("cos"):
-        train.make_optimizer = cosine(tc.epochs * tc.steps_per_epoch(data.xyz.shape[0]))
+        losses.make_optimizer = cosine(tc.epochs * tc.steps_per_epoch(data.xyz.shape[0]))
     elif label.startswith("ema"):
-        train.make_optimizer = with_ema
+        losses.make_optimizer = with_ema
     f32 = dataclasses.replace(tc, compute_dtype="float32")
     for seed in [int(x) for x in seeds.split(",")]:
         t0 = time.time()

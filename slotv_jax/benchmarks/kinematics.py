@@ -50,12 +50,12 @@ import mujoco
 import numpy as np
 
 import slotv_jax
-from slotv_jax import cli
-from slotv_jax import kinematics as K
-from slotv_jax import scene as S
-from slotv_jax import trajectories as T
-from slotv_jax._xla import OPT_OUT_VAR, SETTINGS
 from slotv_jax.benchmarks._machine import cpu_model
+from slotv_jax.core import cli
+from slotv_jax.core.xla import OPT_OUT_VAR, SETTINGS
+from slotv_jax.robot import kinematics as K
+from slotv_jax.world import scene as S
+from slotv_jax.world import trajectories as T
 
 RESULT_TAG = "KINEMATICS_BENCHMARK_RESULT "
 N_SCENES = 250

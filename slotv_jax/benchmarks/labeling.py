@@ -44,10 +44,11 @@ import jaxlib
 import numpy as np
 
 import slotv_jax
-from slotv_jax import cli
-from slotv_jax import labelers as L
 from slotv_jax.benchmarks._machine import cpu_model
-from slotv_jax.scene import camera as scene_camera
+from slotv_jax.core import cli
+from slotv_jax.observers import labelers as L
+from slotv_jax.observers import labelling
+from slotv_jax.world.scene import camera as scene_camera
 
 HOME = np.array([0.3069, 0.0, 0.4869])  # TCP(q_home), SPEC §1
 
@@ -207,13 +208,13 @@ def main(argv=None) -> int:
         f_256 = jax.jit(jax.vmap(public[name]), compiler_options={VECTOR_WIDTH: 256})
         run_256 = host(f_256, dev)
         run_256()  # compile
-        L.label_all(*warm, labelers=(name,), **kw)
+        labelling.label_all(*warm, labelers=(name,), **kw)
         results = measure(
             lambda f=f_np: np.stack([f(x64[i], g64[i], mask[i]) for i in range(m)]),
             run_pub,
-            lambda n=name: L.label_all(*dev, labelers=(n,), **kw),
+            lambda n=name: labelling.label_all(*dev, labelers=(n,), **kw),
             run_pub_np,
-            lambda n=name: L.label_all(xyz, goals, mask, labelers=(n,), **kw),
+            lambda n=name: labelling.label_all(xyz, goals, mask, labelers=(n,), **kw),
             run_256,
         )
         (y_np, np_wall, np_cpu), (y_pub, pub_w, pub_c), (y_all, all_w, all_c) = results[:3]
@@ -237,15 +238,15 @@ def main(argv=None) -> int:
 
     four = jax.jit(jax.vmap(lambda x, g, m_: {n: f(x, g, m_) for n, f in public.items()}))
     host(four, dev)()  # compile
-    L.label_all(*warm, **kw)
+    labelling.label_all(*warm, **kw)
     each = [host(jax.jit(jax.vmap(f)), dev) for f in public.values()]
     for f in each:
         f()  # compile
     (_, four_wall, four_cpu), (_, each_wall, each_cpu), (_, all_wall, all_cpu), all_np = measure(
         host(four, dev),
         lambda: [f() for f in each],
-        lambda: L.label_all(*dev, **kw),
-        lambda: L.label_all(xyz, goals, mask, **kw),
+        lambda: labelling.label_all(*dev, **kw),
+        lambda: labelling.label_all(xyz, goals, mask, **kw),
     )
     print(
         f"\nall four labelers, {args.n:,} trajectories of {args.T} points (after compilation), "

@@ -35,9 +35,12 @@ import jax
 import numpy as np
 
 import slotv_jax
-from slotv_jax import cli, kinematics, planning, scene
+from slotv_jax import planning
 from slotv_jax.benchmarks._machine import cpu_model
-from slotv_jax.defaults import BETAS_V1
+from slotv_jax.core import cli
+from slotv_jax.core.defaults import BETAS_V1
+from slotv_jax.robot import kinematics
+from slotv_jax.world import scene
 
 # Franka's modified DH table (SPEC §1): a, d, alpha per joint; then the flange and the TCP.
 _DH = np.array(

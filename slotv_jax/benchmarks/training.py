@@ -56,9 +56,11 @@ import numpy as np
 import optax
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
-from slotv_jax import cli, config, fileio, train
-from slotv_jax.models import BACKWARDS
-from slotv_jax.train import default_backward, packs_updates
+from slotv_jax.core import cli, fileio
+from slotv_jax.observers.models import BACKWARDS
+from slotv_jax.training import config
+from slotv_jax.training import trainer as train
+from slotv_jax.training.trainer import default_backward, packs_updates
 
 T = 100
 G = 8

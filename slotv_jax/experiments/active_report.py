@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slotv_jax.fileio import save_figure, write_text
+from slotv_jax.core.fileio import save_figure, write_text
 
 MODEL_TITLES = {"mlp": "SLOT-V (paper MLP)", "slotv_plus": "SLOT-V+", "dragan": "Dragan archetype"}
 STRATEGY_COLORS = {

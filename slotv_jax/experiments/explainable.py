@@ -39,13 +39,15 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import cli, evaluate, fileio, train
-from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
-from slotv_jax.defaults import LABELER_NAMES, TEST_SPLITS
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
+from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.experiments import sample_efficiency, table1
 from slotv_jax.experiments.table1 import LABELER_TITLES, SPLIT_TITLES
-from slotv_jax.fileio import save_figure, write_text
+from slotv_jax.training import config as train_config
+from slotv_jax.training import evaluate
+from slotv_jax.training import trainer as train
 
 MODELS = train_config.MODELS
 MODEL_TITLES = {

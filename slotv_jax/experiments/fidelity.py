@@ -64,10 +64,10 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import cli, fileio
-from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
-from slotv_jax.defaults import LABELER_NAMES, TEST_SPLITS
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
+from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.experiments import label_report, table1
 from slotv_jax.experiments.table1 import (
     LABELER_TITLES,
@@ -75,8 +75,8 @@ from slotv_jax.experiments.table1 import (
     PAPER_TABLE,
     SPLIT_TITLES,
 )
-from slotv_jax.fileio import save_figure, write_text
-from slotv_jax.trajectories import SPEC_VIA_BOX, TABLE_VIA_BOX
+from slotv_jax.training import config as train_config
+from slotv_jax.world.trajectories import SPEC_VIA_BOX, TABLE_VIA_BOX
 
 FACTORS = ("via", "beta", "box", "timing", "defaults")
 FACTOR_TITLES = {

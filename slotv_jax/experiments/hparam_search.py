@@ -43,13 +43,15 @@ from jax.sharding import Mesh
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import cli, evaluate, fileio, parallel, train
-from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
-from slotv_jax.defaults import LABELER_NAMES
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.defaults import LABELER_NAMES
+from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import dataset_dir
-from slotv_jax.fileio import write_text
+from slotv_jax.training import config as train_config
+from slotv_jax.training import distributed, evaluate, parallel
+from slotv_jax.training import trainer as train
 
 PHASES = {
     "slotv_large_batch": ("slotv", (64, 128, 256, 512)),
@@ -173,7 +175,7 @@ def run(
     """
 
     t_start = time.perf_counter()
-    writer = parallel.is_writer()
+    writer = distributed.is_writer()
     if writer:
         out.mkdir(parents=True, exist_ok=True)
     path = out / "rollouts.json"
@@ -187,7 +189,7 @@ def run(
     doc.setdefault("invocations", [])
     dcfg = table1.PRESETS[cfg.preset]().data
     if not writer:
-        parallel.barrier("hparam_search dataset")
+        distributed.barrier("hparam_search dataset")
     dataset = data_lib.generate_dataset(
         dcfg,
         dataset_dir(cache, dcfg),
@@ -195,13 +197,13 @@ def run(
         progress=progress and writer,
     )
     if writer:
-        parallel.barrier("hparam_search dataset")
+        distributed.barrier("hparam_search dataset")
     t_data = time.perf_counter() - t_start
     tdata = train.trim_goals(train.prepare(dataset["train"], labeler, size=cfg.train_size))
     vdata = train.trim_goals(train.prepare(dataset["trajectory_val"], labeler))
     everything = [(p, i) for p in phases for i in range(cfg.rollouts)]
     finished = {(r["phase"], r["index"]) for r in doc["rollouts"]}
-    done = parallel.broadcast(np.array([job in finished for job in everything]))
+    done = distributed.broadcast(np.array([job in finished for job in everything]))
     todo = [job for job, d in zip(everything, done, strict=True) if not d]
 
     def order(job):
@@ -442,9 +444,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--report", type=Path,
                    help="also write the Markdown summary here (e.g. "
                    "experiments/hparam_search_paper.md)")  # fmt: skip
-    parallel.add_cli_args(p)
+    distributed.add_cli_args(p)
     args = p.parse_args(argv)
-    parallel.init_from_args(args)
+    distributed.init_from_args(args)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     if args.time_limit is not None and not args.time_limit >= 0:
         p.error("--time-limit: expected a number of seconds >= 0")
@@ -464,7 +466,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     t0 = time.perf_counter()
     doc = run(cfg, out, labeler=args.labeler, phases=args.phases, cache=args.cache,
               time_limit_s=args.time_limit, command=command.strip())  # fmt: skip
-    if not parallel.is_writer():
+    if not distributed.is_writer():
         return 0
     summary = (out / "summary.md").read_text()
     if args.report is not None:

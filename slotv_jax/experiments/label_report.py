@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from slotv_jax import cli, fileio
 from slotv_jax import data as data_lib
-from slotv_jax.fileio import save_figure, write_text
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.fileio import save_figure, write_text
 
 LABELERS = data_lib.LABELER_NAMES  # dragan, nikolaidis, effdist, fastapp
 TITLES = {

@@ -75,12 +75,16 @@ from flax import nnx
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import checkpoint, cli, evaluate, fileio, labelers, models, planning, train
-from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
+from slotv_jax import planning
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.fileio import atomic_write, write_text
 from slotv_jax.experiments.planning_report import FIGURES, render, report, write_doc
 from slotv_jax.experiments.table1 import dataset_dir
-from slotv_jax.fileio import atomic_write, write_text
+from slotv_jax.observers import labelers, labelling, models
+from slotv_jax.training import checkpoint, evaluate
+from slotv_jax.training import config as train_config
+from slotv_jax.training import trainer as train
 
 FAMILIES = ("dragan", "nikolaidis")  # the true labelers; each is its own family's oracle
 METHODS = ("slotv", "trex")  # the learned observers of SPEC's `planners` rows
@@ -309,7 +313,7 @@ def true_labels(
     datasets'), float32, compiled and batched (:func:`slotv_jax.labelers.label_all`)."""
     beta = labelers.DEFAULT_BETAS[labeler] if beta is None else beta
     kw = {f"beta_{labeler}": beta, "camera": camera}
-    return labelers.label_all(xyz, goals, goal_mask, labelers=(labeler,), progress=False, **kw)[
+    return labelling.label_all(xyz, goals, goal_mask, labelers=(labeler,), progress=False, **kw)[
         labeler
     ]
 

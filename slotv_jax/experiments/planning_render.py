@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slotv_jax import cli, fileio
+from slotv_jax.core import cli, fileio
 from slotv_jax.render import compare, writers
 from slotv_jax.render.camera import CAMERAS, View
 from slotv_jax.render.cli import PLAN_ARRAYS, parse_indices, parse_size

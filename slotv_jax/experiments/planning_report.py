@@ -19,10 +19,10 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from slotv_jax import cli, fileio
-from slotv_jax.fileio import save_figure, write_text
-from slotv_jax.kinematics import home_tcp
-from slotv_jax.scene import camera, project
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.fileio import save_figure, write_text
+from slotv_jax.robot.kinematics import home_tcp
+from slotv_jax.world.scene import camera, project
 
 TITLES = {"straight": "straight line", "dragan": "Dragan (oracle)",
           "nikolaidis": "Nikolaidis (oracle)", "slotv": "SLOT-V", "trex": "T-REX",

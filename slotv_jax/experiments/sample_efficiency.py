@@ -33,12 +33,14 @@ import jax
 import numpy as np
 
 import slotv_jax
-from slotv_jax import cli, evaluate, fileio, parallel, train
 from slotv_jax import data as data_lib
-from slotv_jax.config import MODELS
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
-from slotv_jax.fileio import save_figure, write_text
+from slotv_jax.training import distributed, evaluate, parallel, schedule
+from slotv_jax.training import trainer as train
+from slotv_jax.training.config import MODELS
 
 LABELER = "dragan"
 
@@ -77,11 +79,11 @@ def run(
         t1 = table1.with_compute_dtype(t1, compute_dtype)
     t1 = table1.with_model(t1, model)
     dcfg = t1.data
-    writer = parallel.is_writer()
+    writer = distributed.is_writer()
     if writer:
         out.mkdir(parents=True, exist_ok=True)
     else:  # process 0 generates (or loads) first: on a shared disk, once
-        parallel.barrier("sample_efficiency dataset")
+        distributed.barrier("sample_efficiency dataset")
     dataset = data_lib.generate_dataset(
         dcfg,
         dataset_dir(cache, dcfg),
@@ -89,7 +91,7 @@ def run(
         progress=progress and writer,
     )
     if writer:
-        parallel.barrier("sample_efficiency dataset")
+        distributed.barrier("sample_efficiency dataset")
     tdata = train.prepare(dataset["train"], labeler)
     vdata = train.prepare(dataset["trajectory_val"], labeler)
     val_size = min(val_size, len(dataset["trajectory_val"]))
@@ -151,7 +153,7 @@ def run(
         "summary": summary,
         "environment": data_lib.environment(),
     }
-    if parallel.is_writer():
+    if distributed.is_writer():
         write_text(out / "sample_efficiency.csv", _csv(rows))
         write_text(out / "sample_efficiency.json", json.dumps(doc, indent=1))
         plot(rows, summary, doc, out / "sample_efficiency.png")
@@ -170,10 +172,10 @@ def train_repeats(cfg, tdata, vdata, repeats: int, *, progress: bool = True):
     if n_dev == 1:
         _, m = train.train_trials(cfg, tdata, list(range(repeats)), val=vdata, progress=progress)
         return jax.tree.map(np.asarray, m)
-    mesh = parallel.unit_mesh(n_dev, cfg.batch_size)
+    mesh = schedule.unit_mesh(n_dev, cfg.batch_size)
     show = progress and jax.process_count() == 1
     _, m = parallel.train_group(cfg, tdata, range(repeats), mesh, val=vdata, progress=show)
-    return jax.tree.map(lambda x: parallel.fetch(x)[:repeats], m)
+    return jax.tree.map(lambda x: distributed.fetch(x)[:repeats], m)
 
 
 def _csv(rows: list[dict]) -> str:
@@ -264,7 +266,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "archetype (SPEC §10); T-REX keeps its network",
     )
     p.add_argument("--replot", action="store_true", help="only redraw the PNG of --out")
-    parallel.add_cli_args(p)
+    distributed.add_cli_args(p)
     args = p.parse_args(argv)
     if args.replot:
         if args.out is None:
@@ -272,7 +274,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         replot(args.out)
         print(f"wrote {args.out}/sample_efficiency.png")
         return 0
-    parallel.init_from_args(args)
+    distributed.init_from_args(args)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     t0 = time.perf_counter()
     repeats = args.repeats or (10 if args.preset == "paper" else 3)
@@ -295,7 +297,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         compute_dtype=args.compute_dtype,
         model=args.model,
     )
-    if not parallel.is_writer():
+    if not distributed.is_writer():
         return 0
     for method, s in doc["summary"].items():
         hit = s["examples_to_threshold_mean_curve"]

@@ -63,11 +63,14 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import cli, evaluate, fileio, study, train
-from slotv_jax import config as config_lib
 from slotv_jax import data as data_lib
+from slotv_jax import study
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
-from slotv_jax.fileio import save_figure, write_text
+from slotv_jax.training import config as config_lib
+from slotv_jax.training import evaluate
+from slotv_jax.training import trainer as train
 
 UPDATES_QUICK = 2000  # updates per cell of the quick preset (module docstring)
 INF = 0  # the "participants" value of the P = ∞ curve (train on the labeler's distribution)

@@ -36,11 +36,13 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import slotv_jax
-from slotv_jax import cli, evaluate, fileio, parallel, train
-from slotv_jax import config as train_config
 from slotv_jax import data as data_lib
-from slotv_jax.defaults import LABELER_NAMES, TEST_SPLITS
-from slotv_jax.fileio import write_text
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
+from slotv_jax.core.fileio import write_text
+from slotv_jax.training import config as train_config
+from slotv_jax.training import distributed, evaluate, parallel, schedule
+from slotv_jax.training import trainer as train
 
 METHODS = ("slotv", "trex")
 SPLIT_TITLES = {
@@ -260,7 +262,7 @@ def run(
     """
 
     t_start = time.perf_counter()
-    writer = parallel.is_writer()
+    writer = distributed.is_writer()
     if writer:
         out.mkdir(parents=True, exist_ok=True)
     doc = load_results(out, cfg)
@@ -268,7 +270,7 @@ def run(
 
     everything = [(lab, meth, t) for lab in labelers for meth in methods for t in range(cfg.trials)]
     finished = {(c["labeler"], c["method"], c["trial"]) for c in doc["cells"]}
-    done_mask = parallel.broadcast(np.array([u in finished for u in everything]))
+    done_mask = distributed.broadcast(np.array([u in finished for u in everything]))
     todo = [u for u, d in zip(everything, done_mask, strict=True) if not d]
     if writer and len(todo) < len(everything):
         print(f"resuming {out}: reusing {len(everything) - len(todo)} finished trial(s) of "
@@ -282,10 +284,10 @@ def run(
     t0 = time.perf_counter()
     ddir = dataset_dir(cache, cfg.data)
     if not writer:  # process 0 generates (or loads) first: on a shared disk, once
-        parallel.barrier("table1 dataset")
+        distributed.barrier("table1 dataset")
     dataset = data_lib.generate_dataset(cfg.data, ddir, progress=progress and writer)
     if writer:
-        parallel.barrier("table1 dataset")
+        distributed.barrier("table1 dataset")
     doc["timing"]["data_s"] = time.perf_counter() - t0
     doc["dataset"] = str(ddir)
     for meth, job in compiling.items():
@@ -320,7 +322,7 @@ def run(
     for meth, units, run_step in steps(cfg, dataset, todo, vmap_trials, n_dev):
         expect = last.get(meth, 0.0)
         stop = time_limit_s is not None and time.perf_counter() - t_start + expect > time_limit_s
-        if parallel.broadcast(np.array(stop)):
+        if distributed.broadcast(np.array(stop)):
             doc["timing"]["stopped_by_time_limit"] = True
             print(f"table1: stopping at the time limit ({time_limit_s:.0f} s); "
                   f"{left} cells left, rerun to continue", file=sys.stderr)  # fmt: skip
@@ -411,11 +413,11 @@ def _device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_dev: in
     for meth in dict.fromkeys(m for _, m, _ in todo):
         units = [(lab, t) for lab, m, t in todo if m == meth]
         tc = cfg.train[meth]
-        for group, t in parallel.groups(units, n_dev):
+        for group, t in schedule.groups(units, n_dev):
 
             def step(group=group, t=t, tc=tc):
                 labs = [lab for lab, _ in group]
-                mesh = parallel.unit_mesh(t, tc.batch_size)
+                mesh = schedule.unit_mesh(t, tc.batch_size)
                 t_cell = time.perf_counter()
                 tdata, tlabels = arrays("train", labs)
                 t_prep = time.perf_counter() - t_cell
@@ -428,7 +430,7 @@ def _device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_dev: in
                 for split in TEST_SPLITS:
                     d, lab_arr = arrays(split, labs, used.get(split))
                     accs[split] = parallel.group_accuracy(tc, state.params, d, mesh, labels=lab_arr)
-                loss = parallel.fetch(metrics.loss)  # (padded runs, E, K): the first are ours
+                loss = distributed.fetch(metrics.loss)  # (padded runs, E, K): the first are ours
                 t_total = time.perf_counter() - t_cell
                 times = {"prepare_s": t_prep, "train_s": t_train, "total_s": t_total}
                 return accs, loss, times
@@ -455,7 +457,7 @@ def _precompile_in_background(cfg: Table1Config, methods: Sequence[str], n_dev: 
                 parallel.precompile_group,
                 cfg.train[m],
                 *shape,
-                parallel.unit_mesh(n_dev, cfg.train[m].batch_size),
+                schedule.unit_mesh(n_dev, cfg.train[m].batch_size),
             )
             for m in methods
         }
@@ -580,7 +582,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="stop before a trial (group) that would end after this many seconds; "
         "rerun the same command to continue",
     )
-    parallel.add_cli_args(p)
+    distributed.add_cli_args(p)
     args = p.parse_args(argv)
     suffix = "" if args.model == "mlp" else f"_{args.model}"
     out = args.out or Path("runs") / f"table1_{args.preset}{suffix}"
@@ -588,7 +590,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise cli.InputError("--merge needs --out")
     # a results directory of ours is resumed (finished cells are kept); else refused
     fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)
-    parallel.init_from_args(args)
+    distributed.init_from_args(args)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     if args.merge:
         try:
@@ -623,7 +625,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         vmap_trials=args.vmap_trials,
         time_limit_s=args.time_limit,
     )
-    if not parallel.is_writer():
+    if not distributed.is_writer():
         return 0
     print()
     print(render_table(doc["summary"]))

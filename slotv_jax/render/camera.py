@@ -30,7 +30,8 @@ import mujoco
 import numpy as np
 from jaxtyping import Float
 
-from slotv_jax import kinematics, scene
+from slotv_jax.robot import kinematics
+from slotv_jax.world import scene
 
 CAMERAS = ("observer", "observer_angle", "observer_side")  # the named cameras of scene.xml
 

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from slotv_jax import cli, fileio, kinematics
+from slotv_jax.core import cli, fileio
 from slotv_jax.data import SPLITS, load_split
 from slotv_jax.render.camera import CAMERAS, FreeCamera
 from slotv_jax.render.compare import LAYOUTS, PALETTE, compare_frames
@@ -51,6 +51,7 @@ from slotv_jax.render.frames import (
     motion_frames,
 )
 from slotv_jax.render.writers import SUFFIXES, check_output, contact_sheet, write_png, write_video
+from slotv_jax.robot import kinematics
 from slotv_jax.study import load_study
 
 IK_WARN = 5e-3  # metres: a TCP path the IK misses by more is reported

@@ -39,11 +39,12 @@ import mujoco
 import numpy as np
 from jaxtyping import Bool, Float, UInt8
 
-from slotv_jax import kinematics, validation
+from slotv_jax.core import validation
+from slotv_jax.core.validation import G_MAX
 from slotv_jax.render.backend import RenderBackendError, backend_message
 from slotv_jax.render.camera import View, check_view, scene_model
 from slotv_jax.render.overlay import draw_goal_labels
-from slotv_jax.validation import G_MAX
+from slotv_jax.robot import kinematics
 
 MAX_SIDE = 4096  # largest frame width or height (pixels)
 HIDDEN_Z = -10.0  # height (m) that unused cubes are moved to: below the floor, out of sight

@@ -30,7 +30,7 @@ import numpy as np
 from jaxtyping import UInt8
 from PIL import Image
 
-from slotv_jax.fileio import OutputError, atomic_write, check_output_file
+from slotv_jax.core.fileio import OutputError, atomic_write, check_output_file
 from slotv_jax.render.overlay import title
 
 VIDEO_SUFFIXES = (".mp4", ".gif")

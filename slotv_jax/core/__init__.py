@@ -1,0 +1,3 @@
+"""The ground floor: atomic file writes (:mod:`.fileio`), input checks (:mod:`.validation`) and the
+XLA CPU settings (:mod:`.xla`). Imports nothing else of slotv_jax.
+"""

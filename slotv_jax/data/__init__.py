@@ -1,0 +1,60 @@
+"""The seven dataset splits of SPEC §7: configs (:mod:`.config`), generation
+(:mod:`.generate`), storage (:mod:`.storage`) and the command line (:mod:`.cli`, ``python -m
+slotv_jax.data``).
+
+This package re-exports the public names of its modules, so ``slotv_jax.data.load_split``
+(SPEC §9) and ``slotv_jax.data.quick()`` read as before.
+"""
+
+from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
+from slotv_jax.data.config import (
+    DATA_DISTRIBUTIONS,
+    GENERATOR_VERSION,
+    LABELS_V1,
+    PRESETS,
+    DataConfig,
+    LabelConfig,
+    paper,
+    quick,
+    with_distribution,
+)
+from slotv_jax.data.generate import (
+    generate_dataset,
+    generate_split,
+    make_tiny_dataset,
+    relabel,
+    sample_scene_sets,
+)
+from slotv_jax.data.storage import (
+    FORMAT_VERSION,
+    Split,
+    environment,
+    is_dataset_dir,
+    load_split,
+    save_split,
+)
+
+__all__ = [
+    "DATA_DISTRIBUTIONS",
+    "FORMAT_VERSION",
+    "GENERATOR_VERSION",
+    "LABELER_NAMES",
+    "LABELS_V1",
+    "PRESETS",
+    "SPLITS",
+    "DataConfig",
+    "LabelConfig",
+    "Split",
+    "environment",
+    "generate_dataset",
+    "generate_split",
+    "is_dataset_dir",
+    "load_split",
+    "make_tiny_dataset",
+    "paper",
+    "quick",
+    "relabel",
+    "sample_scene_sets",
+    "save_split",
+    "with_distribution",
+]

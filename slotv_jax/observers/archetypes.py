@@ -1,0 +1,145 @@
+"""The archetype registry and the distance/approach mixture: :data:`ARCHETYPES` names the three
+parametric observers of :mod:`slotv_jax.observers.parametric` that ``TrainConfig.model``
+selects.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from slotv_jax.observers.parametric import (
+    LearnableDragan,
+    LearnableViewpoint,
+    _alpha_words,
+    _Archetype,
+    _check,
+    _distances,
+    _inv_softplus,
+    _log,
+    _log_one_minus_t,
+    _param,
+    _value,
+    time_weights,
+)
+
+# ------------------------------------------------------------------ distance/approach mixture
+
+
+class DistanceApproachMixture(_Archetype):
+    """A learned combination of an EffDist-like and a FastApp-like observer (SPEC §4.3, §4.4).
+
+    With d_k(i) = ‖p_i − g_k‖ (m) at t_i = i/(T − 1)::
+
+        E_k = −Σ_i u_i d_k(i),                        u_i ∝ (1 − t_i)^α_E,  Σ u = 1   (m)
+        F_k = Σ_{i≥1} v_i (d_k(i−1) − d_k(i)) / Δt,   v_i ∝ (1 − t_i)^α_F,  Σ v = 1   (m)
+        s_k = β_E E_k + β_F F_k
+
+    E is minus the time-weighted mean distance to the goal, F the time-weighted mean
+    approach speed (m per unit of normalised time, i.e. metres over the whole motion), so
+    both temperatures are per metre and the EffDist share β_E / (β_E + β_F) says which
+    term the observer follows. β_E = β, α_E = 0, β_F = 0 is ``labelers.effdist`` at β;
+    β_E = 0, β_F = β, α_F = 1 is ``labelers.fastapp`` at β (as log-probabilities up to
+    a constant per trajectory).
+
+    Parameters: β_E, β_F ≥ 0 (``exp``; 0 at −∞), α_E, α_F ≥ 0 (``softplus``). Defaults:
+    β_E = β_F = 5 (an even mix) and α_E = α_F = 1.
+
+    >>> m = DistanceApproachMixture()
+    >>> round(m.parameters()["effdist_share"], 2)
+    0.5
+    """
+
+    name = "mixture"
+
+    def __init__(
+        self,
+        *,
+        beta_effdist: float = 5.0,
+        beta_fastapp: float = 5.0,
+        alpha_effdist: float = 1.0,
+        alpha_fastapp: float = 1.0,
+    ):
+        _check("beta_effdist", beta_effdist, strict=False)
+        _check("beta_fastapp", beta_fastapp, strict=False)
+        if not beta_effdist + beta_fastapp > 0:
+            raise ValueError("beta_effdist, beta_fastapp: expected at least one > 0")
+        _check("alpha_effdist", alpha_effdist, strict=False)
+        _check("alpha_fastapp", alpha_fastapp, strict=False)
+        self.log_beta_effdist = _param(_log(beta_effdist))
+        self.log_beta_fastapp = _param(_log(beta_fastapp))
+        self.raw_alpha_effdist = _param(_inv_softplus(alpha_effdist))
+        self.raw_alpha_fastapp = _param(_inv_softplus(alpha_fastapp))
+
+    def _constrained(self) -> dict[str, Array]:
+        return {
+            "beta_effdist": jnp.exp(_value(self.log_beta_effdist)),
+            "beta_fastapp": jnp.exp(_value(self.log_beta_fastapp)),
+            "alpha_effdist": jax.nn.softplus(_value(self.raw_alpha_effdist)),
+            "alpha_fastapp": jax.nn.softplus(_value(self.raw_alpha_fastapp)),
+        }
+
+    def terms(
+        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"]
+    ) -> tuple[Float[Array, "... G"], Float[Array, "... G"]]:
+        """The two terms (E, F), in metres, before their temperatures."""
+        p = self._constrained()
+        d = _distances(xyz, goals)  # (..., T, G)
+        T = d.shape[-2]
+        u = time_weights(p["alpha_effdist"], T, d.dtype)
+        v = jax.nn.softmax(p["alpha_fastapp"] * _log_one_minus_t(T, d.dtype)[1:])
+        e = -jnp.einsum("...tg,t->...g", d, u, precision=jax.lax.Precision.HIGHEST)
+        approach = d[..., :-1, :] - d[..., 1:, :]  # (..., T−1, G)
+        f = jnp.einsum("...tg,t->...g", approach, v, precision=jax.lax.Precision.HIGHEST)
+        return e, f * (T - 1)
+
+    def scores(
+        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], goal_mask, **_
+    ) -> Float[Array, "... G"]:
+        """s_k = β_E E_k + β_F F_k on real goals, 0 on padded slots."""
+        p = self._constrained()
+        e, f = self.terms(xyz, goals)
+        return jnp.where(goal_mask, p["beta_effdist"] * e + p["beta_fastapp"] * f, 0.0)
+
+    def parameters(self) -> dict[str, float]:
+        """The fitted values: beta_effdist, beta_fastapp (1/m), alpha_effdist, alpha_fastapp,
+        and effdist_share = β_E / (β_E + β_F)."""
+        p = self._scalar_parameters()
+        p["effdist_share"] = p["beta_effdist"] / (p["beta_effdist"] + p["beta_fastapp"])
+        return p
+
+    def describe(self) -> str:
+        """The fitted parameters with their units, in words."""
+        p = self.parameters()
+        return "\n".join(
+            [
+                "Distance/approach mixture observer (EffDist-like + FastApp-like terms):",
+                f"  share of the distance (EffDist) term {p['effdist_share']:.1%}, of the "
+                f"approach (FastApp) term {1 - p['effdist_share']:.1%};",
+                f"  distance term: temperature β_E = {p['beta_effdist']:.3g} per metre of "
+                f"time-weighted mean distance, time weighting (1 − t)^α_E with "
+                f"α_E = {p['alpha_effdist']:.3g}: " + _alpha_words(p["alpha_effdist"]),
+                f"  approach term: temperature β_F = {p['beta_fastapp']:.3g} per metre of "
+                f"time-weighted mean approach (over the whole motion), time weighting "
+                f"(1 − t)^α_F with α_F = {p['alpha_fastapp']:.3g}: "
+                + _alpha_words(p["alpha_fastapp"]),
+            ]
+        )
+
+
+# ------------------------------------------------------------------ registry
+
+ARCHETYPES: dict[str, type[_Archetype]] = {
+    "dragan": LearnableDragan,
+    "viewpoint": LearnableViewpoint,
+    "mixture": DistanceApproachMixture,
+}
+
+
+def make_archetype(name: str, **init) -> _Archetype:
+    """The archetype called ``name`` ("dragan", "viewpoint" or "mixture") at its default
+    (or ``init``) parameters. Archetypes are deterministic: no random initialisation."""
+    if name not in ARCHETYPES:
+        raise ValueError(f"model: expected one of {tuple(ARCHETYPES)}, got {name!r}")
+    return ARCHETYPES[name](**init)

@@ -1,0 +1,40 @@
+"""Legible motion planning for the Panda with any observer model (:mod:`.planner`).
+
+This package re-exports the planner's public names.
+"""
+
+from slotv_jax.planning.planner import (
+    MAX_RESIDUAL,
+    Diagnostics,
+    Observer,
+    PlannerConfig,
+    PlanResult,
+    Problem,
+    check_observer,
+    check_problems,
+    labeler_observer,
+    make_planner,
+    metric_inverse,
+    objective,
+    plan,
+    predictability_cost,
+    straight_line,
+)
+
+__all__ = [
+    "MAX_RESIDUAL",
+    "Diagnostics",
+    "Observer",
+    "PlanResult",
+    "PlannerConfig",
+    "Problem",
+    "check_observer",
+    "check_problems",
+    "labeler_observer",
+    "make_planner",
+    "metric_inverse",
+    "objective",
+    "plan",
+    "predictability_cost",
+    "straight_line",
+]

@@ -1,0 +1,597 @@
+"""Legible motion planning for the Panda with any observer model.
+
+The planner maximises the legibility of a target goal, log P(target | ξ), under an
+observer: any callable ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
+The four hand-crafted labelers qualify through log y (:func:`labeler_observer`), and
+so do the learned observers of :func:`slotv_jax.load_observer` (SLOT-V and T-REX).
+It bounds the loss of efficiency as Dragan & Srinivasa do ("Generating Legible
+Motion", RSS 2013): a trust region on the predictability cost,
+
+    C(ξ) = ½ ∫₀¹ ‖ξ'(t)‖² dt ≈ ½ Σ_i ‖p_{i+1} − p_i‖² / Δt      (m², Δt = 1/(T − 1))
+    maximise  L(ξ) = log P(target | ξ)   subject to   C(ξ) ≤ C(ξ_straight) + budget,
+
+where p_i is the TCP position of waypoint i. For a path of length ℓ at constant
+speed C = ½ ℓ², so the straight line at constant speed is the minimiser of C and a
+budget b lets the path grow to at most √(ℓ² + 2b) (a budget of 0.05 m² takes a 0.5 m
+straight line to at most 0.59 m).
+
+Why joint space. The decision variables are the joint configurations of the interior
+waypoints, and the path the observer sees is their MJX forward kinematics. So the
+path is executable by construction: every waypoint has a configuration, the
+gradient flows end to end through FK (no IK inside the loop, no IK failure after
+it), and the joint limits hold by a smooth reparameterisation,
+
+    q = q_mid + q_half · tanh(z),    q_mid = (q_max + q_min)/2,  q_half = (q_max − q_min)/2,
+
+which maps every real z inside the limits. The alternative, optimising Cartesian
+points and solving IK afterwards, can produce a path the arm cannot follow (or one
+whose IK drifts more than the 2 mm tolerance), and the legibility it optimised is
+not the legibility of the executed motion.
+
+Endpoints. q_0 is the start configuration (``Q_HOME`` for the start TCP(q_home)),
+and q_{T−1} is the project's IK solution for the target goal, within 2 mm; both stay
+fixed. The interior waypoints start from the straight line: the Cartesian straight
+line from the start to the target, resampled by arc length and solved by the
+project's warm-started IK (:func:`slotv_jax.kinematics.solve_path_ik`).
+
+The step (Dragan & Srinivasa's covariant trust-region update). Each iteration takes
+g = ∇_z L̃ (L̃ = L minus a table-clearance penalty) and h = ∇_z C and moves
+
+    z ← z + s · A⁻¹ (g − λ h),     s = α_k / √(gᵀ A⁻¹ g),
+    λ = max(0, (C(ξ) + s hᵀA⁻¹g − κ) / (s hᵀA⁻¹h)),      κ = C(ξ_straight) + budget,
+
+with A = KᵀK the finite-difference smoothness metric of the interior waypoints (K the
+first-difference operator with the endpoints fixed; the same metric as CHOMP, Ratliff
+et al. 2009), so that a step is a smooth deformation of the whole path rather than a
+kink at one waypoint. λ is the Lagrange multiplier that keeps the linearised
+constraint C ≤ κ; s normalises the step to length α_k in the A-norm, with α_k
+decaying linearly over a fixed number of iterations (``lax.scan``: one compilation).
+The gripper must stay above the goal table, TCP z ≥ ``clearance``, except within
+``exempt_radius`` of the target (where it grasps): a smooth quadratic penalty keeps it
+there, and the returned plan is the best *feasible* iterate (highest L among the
+iterates that satisfy the trust region and the clearance), so both constraints hold
+exactly on the result. The straight line is feasible, so there always is one.
+
+Everything is a pure function of arrays; batch it with ``vmap`` over problems and
+compile it with ``jit``. :func:`make_planner` is the validated, compiled entry point:
+
+>>> import jax
+>>> from slotv_jax import labelers, planning, scene
+>>> s = scene.sample_scene(jax.random.key(0), 3)
+>>> planner = planning.make_planner(planning.labeler_observer("dragan"))  # doctest: +SKIP
+>>> res = planner(s.goals[None], s.goal_mask[None], jax.numpy.array([1]))  # doctest: +SKIP
+>>> res.xyz.shape, res.q.shape, bool(res.feasible[0])  # doctest: +SKIP
+((1, 100, 3), (1, 100, 7), True)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable, Mapping
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+from slotv_jax.core import validation
+from slotv_jax.core.validation import G_MAX
+from slotv_jax.observers import labelers
+from slotv_jax.robot import kinematics
+from slotv_jax.world.scene import camera as scene_camera
+from slotv_jax.world.trajectories import resample_polyline
+
+__all__ = [
+    "Diagnostics",
+    "PlanResult",
+    "PlannerConfig",
+    "Problem",
+    "check_observer",
+    "labeler_observer",
+    "make_planner",
+    "metric_inverse",
+    "objective",
+    "plan",
+    "predictability_cost",
+    "straight_line",
+]
+
+Observer = Callable[[Array, Array, Array], Array]  # (T, 3), (8, 3), (8,) -> logits (8,)
+
+MAX_RESIDUAL = 2e-3  # m: the start and the target must be reached this closely (SPEC §3)
+_RATIO_CLIP = 1.0 - 1e-5  # |tanh z| of the initial path: joints on a limit start just inside
+
+
+@dataclasses.dataclass(frozen=True)
+class PlannerConfig:
+    """Settings of the legible planner (defaults are the experiment's)."""
+
+    n_points: int = 100  # waypoints of the path, endpoints included (the datasets' T)
+    iters: int = 50  # covariant steps (fixed: one compilation)
+    budget: float = 0.05  # trust region: C(ξ) ≤ C(ξ_straight) + budget (m²)
+    step: float = 0.02  # α_0: first step length in the A-norm of z
+    step_end: float = 0.1  # α decays linearly to step · step_end at the last iteration
+    clearance: float = 0.05  # TCP height above the goal table (m); the cubes' tops
+    exempt_radius: float = 0.08  # no clearance needed this close to the target (m)
+    clearance_margin: float = 0.005  # the penalty pushes to clearance + this (m)
+    table_weight: float = 1e4  # weight of the quadratic clearance penalty (1/m²)
+    ik: kinematics.IKConfig = dataclasses.field(  # the datasets' per-point IK (SPEC §3)
+        default_factory=lambda: kinematics.IKConfig(iters=2, refine_iters=1)
+    )
+
+    def __post_init__(self):
+        for f in ("n_points", "iters"):
+            v = getattr(self, f)
+            if not isinstance(v, int | np.integer) or v < (3 if f == "n_points" else 1):
+                lo = 3 if f == "n_points" else 1
+                raise ValueError(f"PlannerConfig.{f}: expected an integer >= {lo}, got {v!r}")
+        if not (np.isfinite(self.budget) and self.budget > 0):
+            raise ValueError(
+                f"budget: expected a finite trust-region budget > 0 (m²), got {self.budget!r}"
+            )
+        for f in ("step", "step_end", "exempt_radius", "table_weight"):
+            validation.check_positive(f"PlannerConfig.{f}", getattr(self, f))
+        for f in ("clearance", "clearance_margin"):
+            v = getattr(self, f)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"PlannerConfig.{f}: expected a finite number >= 0, got {v!r}")
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+class Problem(NamedTuple):
+    """One planning problem and its straight-line initialisation (see :func:`straight_line`)."""
+
+    goals: Float[Array, "8 3"]  # goal positions (m); padded slots ignored
+    goal_mask: Bool[Array, " 8"]  # real goal slots
+    target: Int[Array, ""]  # the goal slot to make legible
+    start: Float[Array, " 3"]  # requested start TCP position (m)
+    q: Float[Array, "T 7"]  # straight-line joints: q[0] start, q[-1] the target's IK (rad)
+    xyz: Float[Array, "T 3"]  # executed straight line FK(q) (m)
+    start_residual: Float[Array, ""]  # ‖FK(q[0]) − start‖ (m)
+    target_residual: Float[Array, ""]  # ‖FK(q[-1]) − goals[target]‖ (m)
+
+
+class Diagnostics(NamedTuple):
+    """How a plan was found and how well it keeps the constraints."""
+
+    objective: Float[Array, " K"]  # log P(target | ξ) under the observer, per iterate (K = iters+1)
+    cost_history: Float[Array, " K"]  # predictability cost C per iterate (m²)
+    objective_straight: Float[Array, ""]  # log P(target | ξ_straight) under the observer
+    cost: Float[Array, ""]  # C of the returned plan (m²)
+    cost_straight: Float[Array, ""]  # C of the straight line (m²)
+    cost_limit: Float[Array, ""]  # κ = C(ξ_straight) + budget (m²)
+    best_iter: Int[Array, ""]  # which iterate was returned (0: the straight line)
+    start_residual: Float[Array, ""]  # ‖FK(q_0) − start‖ (m)
+    target_residual: Float[Array, ""]  # ‖FK(q_{T−1}) − goal‖ (m)
+    joint_margin: Float[Array, ""]  # min over waypoints and joints of the distance to a limit (rad)
+    table_clearance: Float[Array, ""]  # min TCP z outside the exempt radius, minus clearance (m)
+    feasible: Bool[Array, ""]  # all constraints hold (see :func:`plan`)
+
+
+class PlanResult(NamedTuple):
+    """A planned motion: the executed TCP path, its joints and the diagnostics."""
+
+    xyz: Float[Array, "T 3"]  # executed TCP path FK(q) (m)
+    q: Float[Array, "T 7"]  # joint configurations (rad)
+    diagnostics: Diagnostics
+
+    @property
+    def feasible(self) -> Bool[Array, ""]:
+        return self.diagnostics.feasible
+
+
+# ------------------------------------------------------------------- observers
+
+
+def labeler_observer(name: str, *, beta: float | None = None, camera: str = "observer") -> Observer:
+    """A hand-crafted labeler as an observer: ``logits = log y`` (−∞ on padded slots).
+
+    softmax(log y) = y over the real goals, so the planner's objective
+    log softmax(logits)[target] is log y_target. ``name`` is one of dragan, nikolaidis,
+    effdist, fastapp (SPEC §4); ``beta`` defaults to the SPEC's; ``camera`` is the
+    Nikolaidis viewpoint.
+
+    >>> obs = labeler_observer("dragan")
+    >>> obs.name
+    'dragan'
+    """
+    if name not in labelers.LABELER_NAMES:
+        raise ValueError(f"name: expected one of {labelers.LABELER_NAMES}, got {name!r}")
+    beta = labelers.DEFAULT_BETAS[name] if beta is None else beta
+    validation.check_positive("beta", beta)
+    fn = labelers.LABELERS[name]
+    kw = {"beta": beta}
+    if name == "nikolaidis":
+        cam = scene_camera(camera)
+        fn = functools.partial(fn, camera=cam)
+
+    def observer(xyz, goals, goal_mask):
+        y = fn(xyz, goals, goal_mask, **kw)
+        mask = jnp.asarray(goal_mask).astype(bool)
+        # log of exact zeros on padding would give a NaN gradient (0/0): mask instead.
+        return jnp.where(mask, jnp.log(jnp.where(mask, y, 1.0)), -jnp.inf)
+
+    observer.name = name  # type: ignore[attr-defined]
+    return observer
+
+
+def check_observer(observer: Observer, n_points: int = 100) -> None:
+    """Raise ValueError unless ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,))``
+    returns one float logit per goal slot, shape (8,) (checked abstractly, no compute)."""
+    if not callable(observer):
+        raise ValueError(f"observer: expected a callable, got {type(observer).__name__}")
+    args = (
+        jax.ShapeDtypeStruct((n_points, 3), jnp.float32),
+        jax.ShapeDtypeStruct((G_MAX, 3), jnp.float32),
+        jax.ShapeDtypeStruct((G_MAX,), jnp.bool_),
+    )
+    try:
+        out = jax.eval_shape(observer, *args)
+    except Exception as e:
+        raise ValueError(
+            f"observer: calling it on xyz ({n_points}, 3), goals (8, 3), goal_mask (8,) failed: {e}"
+        ) from e
+    shape = getattr(out, "shape", None)
+    if shape != (G_MAX,) or not jnp.issubdtype(getattr(out, "dtype", np.int32), jnp.floating):
+        raise ValueError(
+            f"observer: expected float logits of shape ({G_MAX},) for one trajectory, got "
+            f"{'a ' + type(out).__name__ if shape is None else f'shape {shape} {out.dtype}'}"
+        )
+
+
+# ----------------------------------------------------------------- the maths
+
+
+def predictability_cost(xyz: Float[Array, "T 3"]) -> Float[Array, ""]:
+    """Dragan & Srinivasa's predictability cost C(ξ) = ½ ∫₀¹ ‖ξ'(t)‖² dt (m²).
+
+    Discretised on t_i = i/(T − 1): ``C = ½ (T − 1) Σ_i ‖p_{i+1} − p_i‖²``. A straight
+    line of length ℓ at constant speed has C = ½ ℓ², the least of any path between its ends.
+
+    >>> import jax.numpy as jnp
+    >>> float(predictability_cost(jnp.linspace(jnp.zeros(3), jnp.array([0.3, 0.4, 0.0]), 11)))
+    0.125
+    """
+    T = xyz.shape[0]
+    return 0.5 * (T - 1) * jnp.sum(jnp.diff(xyz, axis=0) ** 2)
+
+
+def metric_inverse(n: int) -> np.ndarray:
+    """A⁻¹ for the finite-difference metric A = KᵀK of ``n`` interior waypoints (float64).
+
+    With both endpoints fixed, A = tridiag(−1, 2, −1) (n × n), and its inverse is the
+    discrete Green's function (A⁻¹)_ij = min(i, j) (n + 1 − max(i, j)) / (n + 1), i, j = 1..n.
+
+    >>> metric_inverse(2) * 3
+    array([[2., 1.],
+           [1., 2.]])
+    """
+    i = np.arange(1, n + 1, dtype=np.float64)
+    return np.minimum.outer(i, i) * (n + 1 - np.maximum.outer(i, i)) / (n + 1)
+
+
+def _limits(dtype):
+    lo = jnp.asarray(kinematics.Q_MIN, dtype)
+    hi = jnp.asarray(kinematics.Q_MAX, dtype)
+    return (hi + lo) / 2, (hi - lo) / 2
+
+
+def _joints(z: Float[Array, "n 7"], q_start, q_end) -> Float[Array, "T 7"]:
+    mid, half = _limits(z.dtype)
+    return jnp.concatenate([q_start[None], mid + half * jnp.tanh(z), q_end[None]])
+
+
+def _fk(q: Float[Array, "T 7"]) -> Float[Array, "T 3"]:
+    return jax.vmap(lambda x: kinematics.tcp_state(x).pos)(q)
+
+
+def _initial_z(q: Float[Array, "T 7"]) -> Float[Array, "n 7"]:
+    mid, half = _limits(q.dtype)
+    return jnp.arctanh(jnp.clip((q[1:-1] - mid) / half, -_RATIO_CLIP, _RATIO_CLIP))
+
+
+def _legibility(observer: Observer, xyz, problem: Problem) -> Float[Array, ""]:
+    """log P(target | ξ) = log softmax(observer logits)[target] over the real goals."""
+    logits = observer(xyz, problem.goals, problem.goal_mask)
+    logits = jnp.where(problem.goal_mask, logits, -jnp.inf)
+    return jax.nn.log_softmax(logits)[problem.target]
+
+
+def _exempt(xyz, problem: Problem, cfg: PlannerConfig) -> Bool[Array, " T"]:
+    goal = problem.goals[problem.target]
+    return jnp.linalg.norm(xyz - goal, axis=-1) < cfg.exempt_radius
+
+
+def _table_penalty(xyz, problem: Problem, cfg: PlannerConfig) -> Float[Array, ""]:
+    short = jax.nn.relu(cfg.clearance + cfg.clearance_margin - xyz[:, 2])
+    return cfg.table_weight * jnp.sum(jnp.where(_exempt(xyz, problem, cfg), 0.0, short**2))
+
+
+def _clearance(xyz, problem: Problem, cfg: PlannerConfig) -> Float[Array, ""]:
+    """min TCP z outside the exempt radius, minus the clearance (≥ 0: the table is kept)."""
+    z = jnp.where(_exempt(xyz, problem, cfg), jnp.inf, xyz[:, 2])
+    return jnp.min(z) - cfg.clearance
+
+
+def objective(
+    observer: Observer, problem: Problem, z: Float[Array, "n 7"], cfg: PlannerConfig
+) -> Float[Array, ""]:
+    """The function the planner ascends: log P(target | ξ(z)) minus the clearance penalty.
+
+    ``ξ(z) = FK(q(z))`` with ``q(z) = [q_start, q_mid + q_half tanh(z), q_end]`` (the
+    endpoints from ``problem.q``). Exposed for checking its gradient.
+    """
+    xyz = _fk(_joints(z, problem.q[0], problem.q[-1]))
+    return _legibility(observer, xyz, problem) - _table_penalty(xyz, problem, cfg)
+
+
+# ------------------------------------------------------------------ problems
+
+
+def straight_line(
+    goals: Float[Array, "8 3"],
+    goal_mask: Bool[Array, " 8"],
+    target: Int[Array, ""],
+    start: Float[Array, " 3"] | None = None,
+    cfg: PlannerConfig = PlannerConfig(),
+) -> Problem:
+    """The planning problem with its straight-line initialisation (pure; vmap to batch).
+
+    The Cartesian line from ``start`` (default TCP(q_home), reached by ``Q_HOME``) to
+    ``goals[target]``, ``cfg.n_points`` points equally spaced by arc length, solved by the
+    warm-started path IK from the start configuration; the last configuration is then
+    refined by :func:`slotv_jax.kinematics.solve_ik` (10 iterations) onto the goal. No
+    value checks here: :func:`make_planner` rejects unreachable starts and targets.
+    """
+    goals = jnp.asarray(goals)
+    dtype = goals.dtype
+    goal = goals[target]
+    q_home = jnp.asarray(kinematics.Q_HOME, dtype)
+    home = jnp.asarray(kinematics.home_tcp(), dtype)
+    start = home if start is None else jnp.asarray(start, dtype)
+    # The home TCP starts from Q_HOME itself; another start from its IK solution.
+    q_ik, _ = kinematics.solve_ik(start, q_home)
+    q_start = jnp.where(jnp.all(start == home), q_home, q_ik)
+    path = resample_polyline(jnp.stack([start, goal]), cfg.n_points)
+    ik = kinematics.solve_path_ik(path, q_start, cfg.ik)
+    q_end, _ = kinematics.solve_ik(goal, ik.q[-1])
+    q = ik.q.at[0].set(q_start).at[-1].set(q_end)
+    xyz = _fk(q)
+    return Problem(
+        goals=goals,
+        goal_mask=jnp.asarray(goal_mask).astype(bool),
+        target=jnp.asarray(target, jnp.int32),
+        start=start,
+        q=q,
+        xyz=xyz,
+        start_residual=jnp.linalg.norm(xyz[0] - start),
+        target_residual=jnp.linalg.norm(xyz[-1] - goal),
+    )
+
+
+# ------------------------------------------------------------------- planner
+
+
+def plan(observer: Observer, problem: Problem, cfg: PlannerConfig = PlannerConfig()) -> PlanResult:
+    """Plan the most legible motion to ``problem.target`` within the trust region (pure).
+
+    Ascends :func:`objective` from the straight line with ``cfg.iters`` covariant
+    trust-region steps (module docstring) and returns the best feasible iterate:
+    highest log P(target | ξ) among iterates with C(ξ) ≤ C(ξ_straight) + budget and
+    TCP z ≥ clearance outside the exempt radius. ``feasible`` also requires the start
+    and the target within 2 mm, the joints within their limits and finite values.
+    Batch it with ``jax.vmap(plan, in_axes=(None, 0, None))`` over problems.
+    """
+    q_start, q_end = problem.q[0], problem.q[-1]
+    z0 = _initial_z(problem.q)
+    dtype = z0.dtype
+    m_inv = jnp.asarray(metric_inverse(z0.shape[0]), dtype)
+    tiny = jnp.finfo(dtype).tiny
+
+    def path(z):
+        return _fk(_joints(z, q_start, q_end))
+
+    def penalised(xyz):
+        return _legibility(observer, xyz, problem) - _table_penalty(xyz, problem, cfg)
+
+    # C of the straight line, from the problem's FK: the only FK outside the loop below.
+    cost0 = predictability_cost(problem.xyz)
+    kappa = cost0 + cfg.budget
+    # Aim the linearised constraint a little inside κ: C is convex in the positions, so a
+    # step onto the linearised boundary lands slightly outside it.
+    kappa_aim = kappa - 0.02 * cfg.budget
+
+    def ok(xyz, cost):
+        return (cost <= kappa) & (_clearance(xyz, problem, cfg) >= 0) & jnp.all(jnp.isfinite(xyz))
+
+    def step(carry, k):
+        z, best, c_lin, alpha_prev, curv = carry
+        xyz, pull = jax.vjp(path, z)
+        g_xyz = jax.grad(penalised)(xyz)
+        cost, h_xyz = jax.value_and_grad(predictability_cost)(xyz)
+        val = _legibility(observer, xyz, problem)
+        # Keep the best feasible iterate (z, its path, log P, iteration).
+        better = ok(xyz, cost) & (val > best[2])
+        best = jax.tree.map(lambda new, old: jnp.where(better, new, old), (z, xyz, val, k), best)
+        # C is not linear in z: the last step raised it by its linear prediction plus a
+        # second-order part; per unit α², that part predicts the next step's.
+        curv = jnp.where(k > 0, jnp.maximum(cost - c_lin, 0.0) / alpha_prev**2, curv)
+        # Covariant step in the metric A, with Dragan's multiplier for the trust region.
+        g, h = jax.vmap(lambda c: pull(c)[0])(jnp.stack([g_xyz, h_xyz]))
+        mg, mh = m_inv @ g, m_inv @ h
+        gmg, hmh, hmg = jnp.sum(g * mg), jnp.sum(h * mh), jnp.sum(h * mg)
+        frac = jnp.minimum(k / max(cfg.iters - 1, 1), 1.0)
+        alpha = cfg.step * (1.0 - (1.0 - cfg.step_end) * frac)
+        s = alpha / jnp.sqrt(gmg + tiny)
+        lam = jnp.maximum(0.0, (cost + curv * alpha**2 - kappa_aim + s * hmg) / (s * hmh + tiny))
+        dz = s * (mg - lam * mh)
+        c_lin = cost + jnp.sum(h * dz)
+        padded = jnp.pad(dz, ((1, 1), (0, 0)))  # ‖dz‖_A² = ‖K dz‖², endpoints fixed
+        alpha_eff = jnp.sqrt(jnp.sum(jnp.diff(padded, axis=0) ** 2) + tiny)
+        z_new = z + dz
+        z_new = jnp.where(jnp.all(jnp.isfinite(z_new)), z_new, z)
+        return (z_new, best, c_lin, alpha_eff, curv), (val, cost)
+
+    best0 = (z0, problem.xyz, jnp.asarray(-jnp.inf, dtype), jnp.asarray(0, jnp.int32))
+    zero = jnp.zeros((), dtype)
+    # iters steps, plus one more evaluation of the last iterate (its step is discarded).
+    ks = jnp.arange(cfg.iters + 1, dtype=jnp.int32)
+    init = (z0, best0, cost0, jnp.ones((), dtype), zero)
+    (_, (best_z, xyz, _, best_k), *_), (vals, costs) = jax.lax.scan(step, init, ks)
+
+    q = _joints(best_z, q_start, q_end)
+    cost = predictability_cost(xyz)
+    lo = jnp.asarray(kinematics.Q_MIN, dtype)
+    hi = jnp.asarray(kinematics.Q_MAX, dtype)
+    margin = jnp.min(jnp.minimum(q - lo, hi - q))
+    clear = _clearance(xyz, problem, cfg)
+    start_res = jnp.linalg.norm(xyz[0] - problem.start)
+    target_res = jnp.linalg.norm(xyz[-1] - problem.goals[problem.target])
+    feasible = (
+        ok(xyz, cost)
+        & (margin >= 0)
+        & (start_res <= MAX_RESIDUAL)
+        & (target_res <= MAX_RESIDUAL)
+        & jnp.all(jnp.isfinite(q))
+    )
+    diag = Diagnostics(
+        objective=vals,
+        cost_history=costs,
+        objective_straight=vals[0],
+        cost=cost,
+        cost_straight=cost0,
+        cost_limit=kappa,
+        best_iter=best_k,
+        start_residual=start_res,
+        target_residual=target_res,
+        joint_margin=margin,
+        table_clearance=clear,
+        feasible=feasible,
+    )
+    return PlanResult(xyz=xyz, q=q, diagnostics=diag)
+
+
+# ------------------------------------------------------------ the entry point
+
+
+def _check_targets(goals, goal_mask, target) -> np.ndarray:
+    t = np.asarray(target)
+    if t.dtype.kind not in "iu" and not (t.dtype.kind == "f" and np.all(t == np.round(t))):
+        raise ValueError(f"target: expected integer goal slots, got dtype {t.dtype}")
+    t = t.astype(np.int64)
+    n = np.shape(goals)[0]
+    if t.shape != (n,):
+        raise ValueError(f"target: expected shape ({n},) (one slot per problem), got {t.shape}")
+    mask = np.asarray(goal_mask, bool)
+    bad = (t < 0) | (t >= G_MAX)
+    bad |= ~mask[np.arange(n), np.clip(t, 0, G_MAX - 1)]
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(
+            f"target: problem {i} asks for slot {int(t[i])}, which is not a real goal "
+            f"(its real slots are {np.flatnonzero(mask[i]).tolist()})"
+        )
+    return t
+
+
+def make_planner(
+    observer: Observer | Mapping[str, Observer], cfg: PlannerConfig = PlannerConfig()
+) -> Callable[..., PlanResult]:
+    """A validated, compiled, batched planner for one observer or a set of named observers.
+
+    Returns ``planner(goals (B, 8, 3), goal_mask (B, 8), target (B,), start=None,
+    observer=None) -> PlanResult`` with a leading problem axis on every field; ``start``
+    is ``(B, 3)`` (default TCP(q_home)). Given a mapping of observers, ``observer=`` names
+    the one to plan with (default: the first). All of them share one compiled program:
+    the observer is a ``lax.switch`` on an unbatched index, so the forward kinematics and
+    its gradient, most of the compilation, are compiled once whatever the observer. Two
+    compiled functions in all (the straight lines, the planner) per batch size.
+
+    Raises ValueError naming the argument for: an observer that does not return (8,)
+    logits; NaN/inf or badly shaped goals, masks or starts; a target slot that is not a
+    real goal; a start or target that IK cannot reach within 2 mm; an unknown observer
+    name. (The budget is checked by :class:`PlannerConfig`.)
+
+    ``planner.straight_line(goals, goal_mask, target, start=None)`` gives the straight-line
+    problems (batched; one compiled function for every start) and
+    ``planner.plan_problems(problems, observer=None)`` plans them.
+    """
+    if not isinstance(cfg, PlannerConfig):
+        raise ValueError(f"cfg: expected a PlannerConfig, got {type(cfg).__name__}")
+    observers = dict(observer) if isinstance(observer, Mapping) else {"observer": observer}
+    if not observers:
+        raise ValueError("observer: expected at least one observer")
+    for name, obs in observers.items():
+        try:
+            check_observer(obs, cfg.n_points)
+        except ValueError as e:
+            raise ValueError(f"observer {name!r}: {e}") from None
+    names = tuple(observers)
+    branches = tuple(observers.values())
+
+    def switched(index):
+        if len(branches) == 1:
+            return branches[0]
+        return lambda xyz, g, m: jax.lax.switch(index, branches, xyz, g, m)
+
+    straight = jax.jit(jax.vmap(functools.partial(straight_line, cfg=cfg)))
+    run = jax.jit(
+        lambda problems, index: jax.vmap(lambda p: plan(switched(index), p, cfg))(problems)
+    )
+
+    def index_of(name):
+        if name is None:
+            return 0
+        if name not in names:
+            raise ValueError(f"observer: expected one of {list(names)}, got {name!r}")
+        return names.index(name)
+
+    def plan_problems(problems: Problem, observer: str | None = None) -> PlanResult:
+        return run(problems, jnp.asarray(index_of(observer), jnp.int32))
+
+    def straight_lines(goals, goal_mask, target, start=None) -> Problem:
+        validation.check_goals("goals", goals, goal_mask, batch_shape=(None,))
+        n = int(np.shape(goals)[0])
+        t = jnp.asarray(_check_targets(goals, goal_mask, target), jnp.int32)
+        goals32 = jnp.asarray(goals, jnp.float32)
+        mask = jnp.asarray(goal_mask).astype(bool)
+        if start is None:
+            start = np.broadcast_to(kinematics.home_tcp(), (n, 3))
+        validation.check_array("start", start, (n, 3))
+        problems = straight(goals32, mask, t, jnp.asarray(start, jnp.float32))
+        check_problems(problems)
+        return problems
+
+    def planner(goals, goal_mask, target, start=None, observer=None) -> PlanResult:
+        index = index_of(observer)
+        problems = straight_lines(goals, goal_mask, target, start)
+        return run(problems, jnp.asarray(index, jnp.int32))
+
+    planner.plan_problems = plan_problems  # type: ignore[attr-defined]
+    planner.straight_line = straight_lines  # type: ignore[attr-defined]
+    planner.observers = names  # type: ignore[attr-defined]
+    planner.config = cfg  # type: ignore[attr-defined]
+    return planner
+
+
+def check_problems(problems: Problem) -> None:
+    """Raise ValueError if a (batched, concrete) problem's start or target is out of reach."""
+    for name, res in (("start", problems.start_residual), ("target", problems.target_residual)):
+        r = np.asarray(res, np.float64).reshape(-1)
+        bad = ~(r <= MAX_RESIDUAL)
+        if np.any(bad):
+            i = int(np.flatnonzero(bad)[0])
+            where = np.asarray(problems.start if name == "start" else problems.goals)
+            pos = where.reshape(r.size, -1, 3)[i, 0] if name == "start" else None
+            if name == "target":
+                pos = where.reshape(r.size, G_MAX, 3)[
+                    i, int(np.asarray(problems.target).reshape(-1)[i])
+                ]
+            raise ValueError(
+                f"{name}: problem {i} at {np.round(pos, 4).tolist()} m is out of reach "
+                f"(IK residual {r[i] * 1e3:.1f} mm > {MAX_RESIDUAL * 1e3:.0f} mm)"
+            )

@@ -1,0 +1,139 @@
+"""The command line of studies: ``python -m slotv_jax.study`` (import, show, train, cv;
+stimuli, serve, export, simulate: :mod:`slotv_jax.study.web_cli`)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.fileio import write_text
+from slotv_jax.study import web_cli
+from slotv_jax.study.crossval import cross_validate, cv_table, model_metrics
+from slotv_jax.study.fitting import train_study
+from slotv_jax.study.storage import load_study, save_study
+from slotv_jax.study.tables import read_tables
+from slotv_jax.training import checkpoint
+from slotv_jax.training import config as config_lib
+from slotv_jax.training.config import TrainConfig
+
+# ===================================================================== CLI
+
+
+def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
+    """``python -m slotv_jax.train --study FILE ...``: train on a study, checkpoint every
+    epoch, optionally cross-validate (``--cv K``), and print the metrics. A study with
+    fewer answer rows than the preset's batch trains with the largest power of two that
+    fits (and says so), unless ``--set batch_size=N`` is given."""
+    study = load_study(args.study)
+    if args.condition is not None:
+        study = study.select_condition(args.condition)
+    cfg = dataclasses.replace(cfg, train_size=None)
+    chosen = any(a.split("=", 1)[0].strip() == "batch_size" for a in getattr(args, "set", []))
+    if not chosen and study.n_rows < cfg.batch_size:  # a small study: a batch that fits
+        fit = 1 << (study.n_rows.bit_length() - 1)
+        print(
+            f"batch_size: the study has {study.n_rows} answer rows, fewer than the preset's "
+            f"{cfg.batch_size}; using batch_size={fit} (--set batch_size=N to choose)"
+        )
+        cfg = dataclasses.replace(cfg, batch_size=fit)
+    print(study.summary(), flush=True)
+    print(f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)
+    out = Path(args.out)
+    meta: dict[str, Any] = {"study": str(args.study), "condition": args.condition,
+                            "seed": args.seed}  # fmt: skip
+    state = None
+    if args.resume and checkpoint.exists(out):
+        _, state, old = checkpoint.restore(out, cfg)
+        meta = {**old, **meta}
+        print(f"resuming from {out} after epoch {int(state.epoch)}", flush=True)
+
+    def save(st, loss):
+        print(f"epoch {int(st.epoch)}/{cfg.epochs}: loss {loss:.4f}", flush=True)
+        checkpoint.save(out, cfg, st, meta=meta)
+
+    t0 = time.perf_counter()
+    state = train_study(cfg, study, jax.random.key(args.seed), progress=not args.no_progress,
+                        on_epoch=save, state=state)  # fmt: skip
+    meta["train_seconds"] = round(time.perf_counter() - t0, 2)
+    meta["train_metrics"] = model_metrics(cfg, state.params, study)
+    print(f"training rows: accuracy {meta['train_metrics']['accuracy']:.4f}, NLL per answer "
+          f"{meta['train_metrics']['nll_per_answer']:.4f}", flush=True)  # fmt: skip
+    if args.cv:
+        cv = cross_validate(cfg, study, folds=args.cv, seed=args.seed,
+                            progress=not args.no_progress)  # fmt: skip
+        meta["cross_validation"] = {k: v for k, v in cv.items() if k != "per_fold"}
+        print(cv_table(cv), flush=True)
+    checkpoint.save(out, cfg, state, meta=meta)
+    print(json.dumps({"checkpoint": str(out), "train_seconds": meta["train_seconds"]}))
+    return 0
+
+
+def _parse_args(argv):
+    ap = argparse.ArgumentParser(
+        prog="python -m slotv_jax.study",
+        description="Study data: import answer tables, show a study file, cross-validate; "
+        "run a study: render stimuli, serve them, export the answers, simulate participants.",
+    )
+    sub = ap.add_subparsers(dest="command", required=True)
+    imp = sub.add_parser("import", help="tables (CSV/JSON) -> one study .npz")
+    imp.add_argument("--trajectories", required=True, help="trajectory,x,y,z[,t] per point")
+    imp.add_argument("--goals", required=True, help="[trajectory,]goal,x,y,z per goal")
+    imp.add_argument("--answers", required=True, help="trajectory,guess[,tau,participant,...]")
+    imp.add_argument("--out", required=True, help="study file to write (.npz)")
+    imp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    show = sub.add_parser("show", help="validate a study file and summarise it")
+    show.add_argument("study")
+    cv = sub.add_parser("cv", help="k-fold cross-validation of SLOT-V/T-REX and baselines")
+    cv.add_argument("study")
+    cv.add_argument("--methods", default="slotv", help="comma-separated: slotv,trex")
+    cv.add_argument("--preset", default="quick", choices=tuple(config_lib.PRESETS))
+    cv.add_argument("--folds", type=int, default=5)
+    cv.add_argument("--seed", type=int, default=0)
+    cv.add_argument("--epochs", type=int, default=None)
+    cv.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    cv.add_argument("--condition", default=None)
+    cv.add_argument("--out", default=None, help="write the results as JSON here")
+    cv.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    web_cli.add_commands(sub)
+    return ap.parse_args(argv)
+
+
+@cli.command
+def main(argv: Sequence[str] | None = None) -> int:
+    """CLI: ``import`` (report what was read), ``show``, ``cv``; input errors in one line."""
+    args = _parse_args(argv)
+    if args.command in web_cli.COMMANDS:
+        return web_cli.COMMANDS[args.command](args)
+    if getattr(args, "out", None) is not None:  # before any work
+        fileio.check_output_file(args.out, overwrite=args.overwrite)
+    if args.command == "import":
+        study, report = read_tables(args.trajectories, args.goals, args.answers)
+        save_study(args.out, study)
+        print(report.describe(study))
+        print(f"wrote {args.out}")
+        return 0
+    if args.command == "show":
+        print(load_study(args.study).summary())
+        return 0
+    study = load_study(args.study)
+    if args.condition is not None:
+        study = study.select_condition(args.condition)
+    cfgs = {}
+    for m in args.methods.split(","):
+        c = config_lib.preset(args.preset, m.strip(), train_size=None)
+        if args.epochs is not None:
+            c = dataclasses.replace(c, epochs=args.epochs)
+        cfgs[m.strip()] = config_lib.apply_overrides(c, args.set)
+    cv = cross_validate(cfgs, study, folds=args.folds, seed=args.seed)
+    print(cv_table(cv))
+    if args.out:
+        write_text(args.out, json.dumps(cv, indent=2))
+    return 0

@@ -1,0 +1,1 @@
+"""The command line that trains one observer: ``python -m slotv_jax.train`` (SPEC §9)."""

@@ -1,0 +1,275 @@
+"""Checkpoints (Orbax) and the learned observer as a plain JAX function (SPEC §9).
+
+A checkpoint is a directory:
+
+- ``config.json`` — format tag, the :class:`~slotv_jax.config.TrainConfig` that
+  rebuilds the model, the epoch, free-form ``meta`` (labeler, seed, accuracies),
+  and the path, shape and dtype of every saved array;
+- ``state/`` — an Orbax checkpoint of the parameters, the optimiser state, the
+  epoch counter and the PRNG key (all float32 / int32 / uint32 arrays), stored
+  as a flat dict keyed by each leaf's path in the training state.
+
+Writes are atomic: everything goes to a temporary sibling directory that is
+renamed into place; an existing checkpoint is swapped out only after the new one
+is complete (:func:`slotv_jax.fileio.replace_dir`). Anything at the path that is
+not a checkpoint (a file, a user's directory) is never replaced. Loading checks
+the saved shapes against the model the config builds (and, for resuming, against
+the caller's config) and raises ValueError naming the mismatch; a missing path
+raises FileNotFoundError, truncated files a ValueError that says so.
+
+>>> observer = load_observer("runs/slotv_effdist")        # doctest: +SKIP
+>>> logits = observer(xyz, goals, goal_mask)              # (8,), padded slots −∞
+>>> jax.grad(lambda x: jax.nn.softmax(observer(x, goals, goal_mask))[0])(xyz)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+from flax import nnx
+from jaxtyping import Array, Bool, Float
+
+from slotv_jax.core import fileio
+from slotv_jax.observers import models
+from slotv_jax.training import trainer as train_lib
+from slotv_jax.training.config import TrainConfig
+
+FORMAT = "slotv_jax.checkpoint/1"
+CONFIG_FILE = "config.json"
+STATE_DIR = "state"
+
+
+def _leaf_name(path) -> str:
+    parts = []
+    for k in path:
+        if isinstance(k, jax.tree_util.DictKey):
+            parts.append(str(k.key))
+        elif isinstance(k, jax.tree_util.SequenceKey):
+            parts.append(str(k.idx))
+        elif isinstance(k, jax.tree_util.GetAttrKey):
+            parts.append(k.name)
+        elif isinstance(k, jax.tree_util.FlattenedIndexKey):
+            parts.append(str(k.key))
+        else:
+            parts.append(str(k))
+    return ".".join(parts)
+
+
+def _raw_key(state):
+    """TrainState with its typed PRNG key replaced by the raw uint32 key data."""
+    return state._replace(key=jax.random.key_data(state.key))
+
+
+def _flatten(state) -> dict[str, Any]:
+    """TrainState (with a raw key) → {path: array}."""
+    flat, _ = jax.tree_util.tree_flatten_with_path(state)
+    return {_leaf_name(p): x for p, x in flat}
+
+
+def _template(cfg: TrainConfig):
+    """Abstract TrainState, raw key (shapes and dtypes only), for ``cfg``."""
+    trainer = train_lib.make_train(cfg, progress=False)
+    return jax.eval_shape(lambda k: _raw_key(trainer.init(k)), jax.random.key(0))
+
+
+def _describe(flat: Mapping[str, Any]) -> dict[str, dict]:
+    return {
+        k: {"shape": list(np.shape(v)), "dtype": str(jnp.dtype(v.dtype))} for k, v in flat.items()
+    }
+
+
+def exists(path: str | os.PathLike) -> bool:
+    """True if ``path`` holds a complete checkpoint."""
+    p = Path(path)
+    return (p / CONFIG_FILE).is_file() and (p / STATE_DIR).is_dir()
+
+
+def save(
+    path: str | os.PathLike, cfg: TrainConfig, state, *, meta: Mapping[str, Any] | None = None
+) -> Path:
+    """Write ``state`` (a :class:`~slotv_jax.types.TrainState` of one trial) atomically."""
+    path = Path(path).absolute()
+    flat = _flatten(_raw_key(state))
+    want = _describe(_flatten(_template(cfg)))
+    got = _describe(flat)
+    if want != got:
+        raise ValueError(_mismatch("state", want, got, cfg))
+    flat = jax.device_get(flat)
+    if path.is_symlink() or (path.exists() and not exists(path) and any(path.iterdir())):
+        raise fileio.OutputError(
+            f"checkpoint {path}: something that is not a slotv_jax checkpoint is there; "
+            "it is left untouched: choose another path"
+        )  # an empty directory is fine; a file or a user's directory is never replaced
+    tmp = fileio.temp_dir_beside(path)
+    try:
+        ckptr = ocp.StandardCheckpointer()
+        ckptr.save(tmp / STATE_DIR, flat)
+        ckptr.wait_until_finished()
+        ckptr.close()
+        doc = {
+            "format": FORMAT,
+            "config": cfg.to_dict(),
+            "epoch": int(np.asarray(flat["epoch"])),
+            "meta": dict(meta or {}),
+            "arrays": got,
+        }
+        fileio.write_text(tmp / CONFIG_FILE, json.dumps(doc, indent=2, sort_keys=True, default=str))
+        if path.is_dir() and not exists(path):
+            path.rmdir()  # empty (checked above)
+        fileio.replace_dir(tmp, path)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return path
+
+
+def _read_doc(path: Path) -> dict:
+    f = path / CONFIG_FILE
+    if not path.exists():
+        raise FileNotFoundError(f"checkpoint {path}: does not exist")
+    if not f.is_file() or not (path / STATE_DIR).is_dir():
+        raise ValueError(
+            f"checkpoint {path}: not a slotv_jax checkpoint (missing {CONFIG_FILE} or {STATE_DIR}/)"
+        )
+    doc = fileio.read_json(f)
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        doc = {} if not isinstance(doc, dict) else doc
+        raise ValueError(f"checkpoint {path}: format {doc.get('format')!r}, expected {FORMAT!r}")
+    return doc
+
+
+def _mismatch(what: str, want: dict, got: dict, cfg: TrainConfig) -> str:
+    lines = []
+    for k in sorted(set(want) | set(got)):
+        if want.get(k) != got.get(k):
+            w = want.get(k)
+            g = got.get(k)
+            lines.append(
+                f"  {k}: config builds {w['shape'] if w else 'nothing'}"
+                f"{'' if not w else ' ' + w['dtype']}, {what} has {g['shape'] if g else 'nothing'}"
+                f"{'' if not g else ' ' + g['dtype']}"
+            )
+        if len(lines) >= 6:
+            lines.append("  ...")
+            break
+    return (
+        f"checkpoint {what} does not fit the model of its config (model={cfg.model}, "
+        f"method={cfg.method}, hidden={cfg.hidden}, optimizer={cfg.optimizer}):\n"
+        + "\n".join(lines)
+    )
+
+
+def load_config(path: str | os.PathLike) -> TrainConfig:
+    """The :class:`TrainConfig` stored with a checkpoint."""
+    return TrainConfig.from_dict(_read_doc(Path(path))["config"])
+
+
+def restore(path: str | os.PathLike, cfg: TrainConfig | None = None):
+    """Read a checkpoint: ``(cfg, state, meta)``.
+
+    If ``cfg`` is given (resuming a run), the stored config must describe the same
+    model and optimiser; ``epochs`` and the evaluation/logging fields may differ.
+    Raises ValueError on any mismatch of config or array shapes.
+    """
+    path = Path(path).absolute()
+    doc = _read_doc(path)
+    saved = TrainConfig.from_dict(doc["config"])
+    if cfg is not None and cfg.model != saved.model:
+        raise ValueError(_wrong_model(path, saved.model, cfg.model))
+    if cfg is not None:
+        free = {"epochs", "eval_every", "eval_size", "eval_chunk", "log_every"}
+        a, b = saved.to_dict(), cfg.to_dict()
+        diff = {k: (a[k], b[k]) for k in a if k not in free and a[k] != b[k]}
+        if diff:
+            raise ValueError(
+                f"checkpoint {path}: its config differs from the requested one in "
+                + ", ".join(
+                    f"{k} (saved {v[0]!r}, requested {v[1]!r})" for k, v in sorted(diff.items())
+                )
+            )
+    use = saved if cfg is None else cfg
+    template = _template(use)
+    tflat = _flatten(template)
+    want = _describe(tflat)
+    if want != doc.get("arrays"):
+        raise ValueError(
+            f"checkpoint {path}: " + _mismatch("arrays", want, doc.get("arrays") or {}, use)
+        )
+    abstract = {k: jax.ShapeDtypeStruct(v.shape, v.dtype) for k, v in tflat.items()}
+    ckptr = ocp.StandardCheckpointer()
+    try:
+        flat = ckptr.restore(path / STATE_DIR, abstract)
+    except Exception as e:  # the layout matched config.json, so the data itself is bad
+        first = str(e).strip().splitlines()[0][:300] if str(e).strip() else type(e).__name__
+        raise ValueError(
+            f"checkpoint {path}: the stored arrays in {STATE_DIR}/ are truncated or corrupt "
+            f"({first})"
+        ) from e
+    finally:
+        ckptr.close()
+    leaves_paths, treedef = jax.tree_util.tree_flatten_with_path(template)
+    leaves = [jnp.asarray(flat[_leaf_name(p)]) for p, _ in leaves_paths]
+    state = jax.tree_util.tree_unflatten(treedef, leaves)
+    state = state._replace(key=jax.random.wrap_key_data(state.key))
+    return use, state, doc.get("meta", {})
+
+
+def _wrong_model(path, saved: str, requested: str) -> str:
+    return (
+        f"checkpoint {path}: it holds a {saved!r} observer, not the requested {requested!r} "
+        f"(its config says model={saved!r}); load it without a model, or as {saved!r}"
+    )
+
+
+def make_observer(cfg: TrainConfig, params) -> Callable:
+    """The pure function ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
+
+    SLOT-V: s_k = (1/T) Σ_i V(p_i, g_k); T-REX: R_k = Σ_i r(p_i, g_k) (with the config's
+    options, :class:`slotv_jax.models.SlotV`); padded slots −∞. Shapes are checked on every
+    call; values (NaN, an empty mask) on concrete inputs. Works under ``jit``, ``vmap`` and
+    ``grad`` (w.r.t. ``xyz`` or ``goals``). The function carries its ``config`` and
+    ``params``.
+    """
+    abstract = nnx.eval_shape(lambda: models.make_model(cfg, nnx.Rngs(0)))
+    graphdef, _ = nnx.split(abstract)
+
+    def observer(
+        xyz: Float[Array, "T 3"], goals: Float[Array, "8 3"], goal_mask: Bool[Array, "8"]
+    ) -> Float[Array, "8"]:
+        models.check_observer_inputs(xyz, goals, goal_mask)
+        model = nnx.merge(graphdef, params)
+        return model(jnp.asarray(xyz), jnp.asarray(goals), jnp.asarray(goal_mask, bool))
+
+    observer.config = cfg  # type: ignore[attr-defined]
+    observer.params = params  # type: ignore[attr-defined]
+    if cfg.model != "mlp":  # an archetype explains itself: its fitted parameters
+        fitted = nnx.merge(graphdef, params)
+        observer.describe = fitted.describe  # type: ignore[attr-defined]
+        observer.parameters = fitted.parameters  # type: ignore[attr-defined]
+    return observer
+
+
+def load_observer(path: str | os.PathLike, model: str | None = None) -> Callable:
+    """Load a checkpoint as ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
+
+    The logits are SLOT-V's observer scores (softmax gives P(goal | trajectory)) or
+    T-REX's per-goal returns; padded goals are −∞. The function is pure: use it under
+    ``jit``, ``vmap`` (batch the arguments) and ``grad`` with respect to ``xyz``.
+
+    ``model`` (optional: "mlp", "dragan", "viewpoint", "mixture") is the observer the
+    caller expects; a checkpoint of another one raises ValueError. An archetype's
+    observer also has ``describe()`` and ``parameters()`` (its fitted values, SPEC §10).
+    """
+    cfg, state, _ = restore(path)
+    if model is not None and model != cfg.model:
+        raise ValueError(_wrong_model(Path(path), cfg.model, model))
+    return make_observer(cfg, state.params)
