@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import tempfile
 from collections.abc import Sequence
@@ -77,6 +78,15 @@ def shown_stimuli(stimdir: str | Path) -> set[tuple[str, float]]:
         m = json.loads((stimuli.round_dir(stimdir, r) / stimuli.MANIFEST).read_text())
         out |= {(s["trajectory"], round(float(s["tau"]), 6)) for s in m["stimuli"]}
     return out
+
+
+_SELECT = jax.jit(selection.select, static_argnums=(0, 4))
+
+
+@functools.cache
+def _compiled(sel: selection.Selector):
+    """The selector's jitted ``fit`` and ``log_probs`` (one compilation per selector)."""
+    return jax.jit(sel.fit, static_argnames="updates"), jax.jit(sel.log_probs)
 
 
 def _pad(a: np.ndarray, t: int) -> np.ndarray:
@@ -133,17 +143,12 @@ def choose(
     sel = selection.make_selector(cfg, members, rows)
     key = jax.random.key(seed)
     ens = sel.init(key)
-    ens, _ = jax.jit(sel.fit, static_argnames="updates")(
-        ens, pool, ans, jax.random.fold_in(key, 1), updates=updates
-    )
+    fit, log_probs = _compiled(sel)
+    ens, _ = fit(ens, pool, ans, jax.random.fold_in(key, 1), updates=updates)
     idx = jnp.arange(rows, rows + len(cand))
-    logp = jax.jit(sel.log_probs)(ens.params, pool, idx)
+    logp = log_probs(ens.params, pool, idx)
     k = jax.random.fold_in(key, 2)
-    pick = np.asarray(
-        jax.jit(selection.select, static_argnums=(0, 4))(
-            strategy, k, logp, jnp.ones(len(cand), bool), n
-        )
-    )
+    pick = np.asarray(_SELECT(strategy, k, logp, jnp.ones(len(cand), bool), n))
     crit = {"random": selection.bald, "uncertainty": selection.uncertainty,
             "margin": selection.margin}.get(strategy, selection.bald)  # fmt: skip
     score = np.asarray(crit(logp))
