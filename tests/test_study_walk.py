@@ -29,6 +29,7 @@ CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
         "--disable-component-update", "--disable-sync", "--no-first-run"]  # fmt: skip
 SIMULATE = "python -m slotv_jax.study simulate"
+WAIT_MS = 120_000  # a clip or page on a heavily loaded 2-core machine
 
 
 @pytest.fixture(scope="module")
@@ -48,18 +49,19 @@ def browser():
 
 def take_part(page, url: str, pid: str, *, reload_at=None, back_at=None) -> tuple[str, list]:
     """Click through the study; returns the completion code and (header, goal, confidence)."""
+    page.set_default_timeout(WAIT_MS)
     page.goto(f"{url}/?PROLIFIC_PID={pid}&STUDY_ID=s1&SESSION_ID={pid}-x")
     page.click("#next")  # consent
     page.click("#next")  # instructions: start
     clicked, n = [], 0
     while True:
-        page.wait_for_selector("#still, #code", timeout=30000)
+        page.wait_for_selector("#still, #code", timeout=WAIT_MS)
         if page.query_selector("#code"):
             return page.inner_text("#code"), clicked
         header = page.inner_text("h1")
         if n == reload_at:  # a refresh mid-trial: the same trial again
             page.reload()
-            page.wait_for_selector("#still", timeout=30000)
+            page.wait_for_selector("#still", timeout=WAIT_MS)
             assert page.inner_text("h1") == header
         goals = [b.get_attribute("data-goal") for b in page.query_selector_all(".hotspot")]
         assert len(goals) >= 2 and goals == sorted(goals)
