@@ -54,6 +54,7 @@ from jaxtyping import Array, Bool, Float
 from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers import archetypes, parametric
+from slotv_jax.observers.common import mask_logits as mask_logits
 
 _DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 BACKWARDS = ("autodiff", "fused", "recompute")  # see GoalRelativeMLP.grid
@@ -77,11 +78,6 @@ def _activation(name: str):
     if name not in ACTIVATIONS:
         raise ValueError(f"activation: expected one of {tuple(ACTIVATIONS)}, got {name!r}")
     return ACTIVATIONS[name][0]
-
-
-def mask_logits(scores: Float[Array, "... G"], goal_mask: Bool[Array, "... G"]) -> Array:
-    """Padded goal slots get −∞: softmax then gives them exactly 0."""
-    return jnp.where(goal_mask, scores, -jnp.inf)
 
 
 class GoalRelativeMLP(nnx.Module):

@@ -58,7 +58,7 @@ def predict(scores: Float[Array, "... 8"], goal_mask: Bool[Array, "... 8"]) -> I
 
 def target(labels: Float[Array, "... 8"], goal_mask: Bool[Array, "... 8"]) -> Int[Array, "..."]:
     """argmax over real goals of the labeler's distribution (ties: lowest index)."""
-    return jnp.argmax(jnp.where(goal_mask, labels, -jnp.inf), axis=-1)
+    return jnp.argmax(models.mask_logits(labels, goal_mask), axis=-1)
 
 
 def chunk(data, size: int) -> EvalData:
