@@ -312,10 +312,8 @@ def true_labels(
     ``labeler`` at ``beta`` (default: :data:`slotv_jax.labelers.DEFAULT_BETAS`, the
     datasets'), float32, compiled and batched (:func:`slotv_jax.labelers.label_all`)."""
     beta = labelers.DEFAULT_BETAS[labeler] if beta is None else beta
-    kw = {f"beta_{labeler}": beta, "camera": camera}
-    return labelling.label_all(xyz, goals, goal_mask, labelers=(labeler,), progress=False, **kw)[
-        labeler
-    ]
+    kw = {f"beta_{labeler}": beta, "camera": camera, "labelers": (labeler,), "progress": False}
+    return labelling.label_all(xyz, goals, goal_mask, **kw)[labeler]
 
 
 def path_length(xyz: np.ndarray) -> np.ndarray:
