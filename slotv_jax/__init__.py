@@ -11,9 +11,9 @@ or ``python -m slotv_jax.labelers`` would otherwise find their own module alread
 imported by the package and warn (runpy's RuntimeWarning) before running it twice.
 """
 
+from slotv_jax.core import __version__
 from slotv_jax.core.xla import XLA_CONFIG, XlaConfig
 
-__version__ = "0.1.0"
 __all__ = ["XLA_CONFIG", "XlaConfig", "__version__", "load_observer"]
 
 

@@ -51,9 +51,10 @@ def _targets(node: ast.Import | ast.ImportFrom, module: str) -> list[str]:
         for _ in range(node.level - 1):
             pkg = pkg.rpartition(".")[0]
         base = f"{pkg}.{base}".rstrip(".")
-    out = [base]
-    out += [f"{base}.{a.name}" for a in node.names if f"{base}.{a.name}" in MODULES]
-    return out
+    subs = [f"{base}.{a.name}" for a in node.names if f"{base}.{a.name}" in MODULES]
+    # ``from pkg import sub``: the names come from the submodules (the package's
+    # __init__ runs first for any import of it; that is no dependency on its names)
+    return subs if len(subs) == len(node.names) else [base, *subs]
 
 
 def _is_main_guard(node: ast.stmt) -> bool:
@@ -169,6 +170,40 @@ def test_dependencies_point_down():
         "study",
     ):
         assert reaches(f"slotv_jax.{user}", "slotv_jax.training.types"), user
+
+
+# The package's folders are its layers, bottom up (ARCHITECTURE.md draws them): a module
+# imports only modules of its own folder or of a lower layer. Folders of one layer do not
+# import each other. The public names of SPEC §9 and the commands stand above the library.
+LAYERS = (
+    ("core",),
+    ("robot",),
+    ("world",),
+    ("observers",),
+    ("data", "planning", "training"),
+    ("study",),
+    ("", "labelers", "train", "scene", "kinematics"),  # "": the package's own __init__
+    ("experiments", "benchmarks"),
+)
+
+
+def _folder(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+def test_folders_are_layers():
+    rank = {f: i for i, layer in enumerate(LAYERS) for f in layer}
+    graph = import_graph()
+    unplaced = sorted({_folder(m) for m in graph} - set(rank))
+    assert not unplaced, f"folders missing from LAYERS: {unplaced}"
+    bad = [
+        f"{a} -> {b}"
+        for a, deps in graph.items()
+        for b in deps
+        if _folder(a) != _folder(b) and rank[_folder(b)] >= rank[_folder(a)]
+    ]
+    assert not bad, "imports that do not point down a layer:\n" + "\n".join(sorted(bad))
 
 
 def test_no_imports_inside_functions():

@@ -29,7 +29,6 @@ from slotv_jax.data.generate import (
 from slotv_jax.data.storage import (
     FORMAT_VERSION,
     Split,
-    environment,
     is_dataset_dir,
     load_split,
     save_split,
@@ -46,7 +45,6 @@ __all__ = [
     "DataConfig",
     "LabelConfig",
     "Split",
-    "environment",
     "generate_dataset",
     "generate_split",
     "is_dataset_dir",

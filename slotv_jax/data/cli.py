@@ -9,8 +9,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-import slotv_jax
 from slotv_jax.core import cli, fileio
+from slotv_jax.core.xla import XLA_CONFIG
 from slotv_jax.data.config import (
     DATA_DISTRIBUTIONS,
     LABELER_NAMES,
@@ -54,7 +54,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise cli.InputError(f"--out {args.out}: holds no dataset splits to --relabel")
     # a dataset of ours is resumed (finished splits are kept); anything else is refused
     fileio.check_output_dir(args.out, ours=is_dataset_dir, resume=True)
-    print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
+    print(XLA_CONFIG.summary(), file=sys.stderr)
 
     label_kw = {f"beta_{n}": getattr(args, f"beta_{n}") for n in LABELER_NAMES}
     label_kw["camera"] = args.camera

@@ -7,17 +7,12 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import sys
 import zipfile
 from pathlib import Path
 
-import flax
-import jax
-import mujoco
 import numpy as np
-import optax
 
-import slotv_jax
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import atomic_write
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.data.config import LABELER_NAMES, SPLITS, DataConfig
@@ -98,22 +93,6 @@ def _sha256(a: np.ndarray) -> str:
     h.update(f"{a.dtype.str}{a.shape}".encode())
     h.update(a.tobytes())
     return h.hexdigest()
-
-
-def environment() -> dict:
-    """Library versions and devices, recorded with every output."""
-    return {
-        "slotv_jax": slotv_jax.__version__,
-        "python": sys.version.split()[0],
-        "jax": jax.__version__,
-        "flax": flax.__version__,
-        "optax": optax.__version__,
-        "mujoco": mujoco.__version__,
-        "numpy": np.__version__,
-        "devices": [str(d) for d in jax.devices()],
-        "xla_flags": slotv_jax.XLA_CONFIG.xla_flags,
-        "xla": slotv_jax.XLA_CONFIG.summary(),
-    }
 
 
 def is_dataset_dir(path: str | Path) -> bool:

@@ -40,6 +40,7 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.experiments import sample_efficiency, table1
 from slotv_jax.experiments.table1 import LABELER_TITLES, LABELERS, SPLIT_TITLES, SPLITS
@@ -97,7 +98,7 @@ def run(
             "data_digest": t1.data.digest(),
             "train": {m: c.to_dict() for m, c in configs.items()},
         },
-        "environment": data_lib.environment(),
+        "environment": environment(),
         "cells": [],
         "parameters": [],
         "few_labels": [],

@@ -44,6 +44,7 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import LABELERS, dataset_dir
@@ -183,7 +184,7 @@ def run(
         if (old.get("search"), old.get("labeler")) != (doc["search"], labeler):
             raise ValueError(f"{path}: results of another search config; use another --out")
         doc = old
-    doc["environment"] = data_lib.environment()
+    doc["environment"] = environment()
     doc.setdefault("invocations", [])
     dcfg = table1.PRESETS[cfg.preset]().data
     if not writer:

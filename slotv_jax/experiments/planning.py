@@ -54,6 +54,7 @@ from tqdm.auto import tqdm
 import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax import planning
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import atomic_write, save_figure, write_text
 from slotv_jax.experiments.table1 import dataset_dir
 from slotv_jax.observers import labelers, models
@@ -420,7 +421,7 @@ def run(
     timing["total_s"] = time.perf_counter() - t_start
     doc = {
         "preset": cfg.preset,
-        "environment": data_lib.environment(),
+        "environment": environment(),
         "config": cfg.to_json(),
         "dataset": str(ddir),
         "observers": sources,

@@ -34,6 +34,7 @@ import numpy as np
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
@@ -150,7 +151,7 @@ def run(
         },
         "config": configs,
         "summary": summary,
-        "environment": data_lib.environment(),
+        "environment": environment(),
     }
     if distributed.is_writer():
         write_text(out / "sample_efficiency.csv", _csv(rows))

@@ -65,6 +65,7 @@ from tqdm.auto import tqdm
 import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax import study
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
 from slotv_jax.training import config as config_lib
@@ -165,7 +166,7 @@ def run(cfg: StudySizeConfig, out: Path, *, cache: Path = Path("data"), progress
     doc = json.loads(path.read_text()) if path.exists() else {}
     if doc.get("config") != conf:
         doc = {"preset": cfg.preset, "config": conf, "cells": [], "timing": {}}
-    doc["environment"] = data_lib.environment()
+    doc["environment"] = environment()
     doc["xla"] = slotv_jax.XLA_CONFIG.summary()
     t_start = t0 = time.perf_counter()
     load = {"cpus": os.cpu_count(), "start": os.getloadavg()[0]}

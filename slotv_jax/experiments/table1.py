@@ -38,6 +38,7 @@ from tqdm.auto import tqdm
 import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
 from slotv_jax.training import config as train_config
 from slotv_jax.training import distributed, evaluate, parallel, schedule, types
@@ -267,7 +268,7 @@ def run(
     if writer:
         out.mkdir(parents=True, exist_ok=True)
     doc = load_results(out, cfg)
-    doc["environment"] = data_lib.environment()
+    doc["environment"] = environment()
 
     everything = [(lab, meth, t) for lab in labelers for meth in methods for t in range(cfg.trials)]
     finished = {(c["labeler"], c["method"], c["trial"]) for c in doc["cells"]}
