@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -230,7 +230,7 @@ def _wrong_model(path, saved: str, requested: str) -> str:
     )
 
 
-def make_observer(cfg: TrainConfig, params) -> Callable:
+def make_observer(cfg: TrainConfig, params) -> models.Observer:
     """The pure function ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
 
     SLOT-V: s_k = (1/T) Σ_i V(p_i, g_k); T-REX: R_k = Σ_i r(p_i, g_k) (with the config's
@@ -258,7 +258,7 @@ def make_observer(cfg: TrainConfig, params) -> Callable:
     return observer
 
 
-def load_observer(path: str | os.PathLike, model: str | None = None) -> Callable:
+def load_observer(path: str | os.PathLike, model: str | None = None) -> models.Observer:
     """Load a checkpoint as ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
 
     The logits are SLOT-V's observer scores (softmax gives P(goal | trajectory)) or

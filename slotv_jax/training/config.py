@@ -59,7 +59,7 @@ class TrainConfig:
     hidden: tuple[int, ...] = (1536, 768)  # hidden widths after the r − g layer
     activation: str = "relu"  # of the hidden layers: "relu" (the paper) or "softplus" (smooth)
     start_term: bool = False  # values relative to the start's, f(p_i, g) − f(p_0, g) (models)
-    time_weight: bool = False  # weight the points by (1 − t)^α, α learned (models._Observer)
+    time_weight: bool = False  # weight the points by (1 − t)^α, α learned (models._ScoreNetwork)
     compute_dtype: str = "float32"  # matmul dtype of the hidden layers; params stay float32
     optimizer: str = "rmsprop"  # "rmsprop" or "adam"
     learning_rate: float = 0.005

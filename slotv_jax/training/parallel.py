@@ -17,8 +17,9 @@ independent training runs. There are two ways to give them several devices:
   (experiments/BENCHMARKS.md, "Training"), the GPU is already busy with one.
 
 Both are one 2-D mesh ("trial", "data") of shape (t, d) (:func:`unit_mesh`): a group of
-t runs has its run axis on "trial" and each run's batch on "data". :func:`plan` chooses
-the groups from the number of pending units U and devices N:
+t runs has its run axis on "trial" and each run's batch on "data".
+:func:`slotv_jax.training.schedule.group_sizes` chooses the groups from the number of
+pending units U and devices N:
 
 - while at least N units are pending: groups of t = N, one run per device (d = 1);
 - the last k < N units: one group with t the smallest divisor of N that is ≥ k and
@@ -103,9 +104,10 @@ def train_group(
     ``labels[i]`` when given (several labelers' runs in one group: the trajectories are
     shared). The run axis is padded to a multiple of t = mesh.shape["trial"] (the padding
     runs repeat the last seed and are dropped), so each device row holds the same number of
-    runs (:func:`plan`'s groups: one). Returns states and metrics with that padded leading
-    axis, sharded over "trial": entry i < len(seeds) is run i. (Cutting the padding off
-    on the device would move data between devices, and between hosts under
+    runs (:func:`slotv_jax.training.schedule.group_sizes`: one). Returns states and metrics
+    with that padded leading axis, sharded over "trial": entry i < len(seeds) is run i.
+    (Cutting the padding off on the device would move data between devices, and between
+    hosts under
     ``jax.distributed``; callers cut it after :func:`fetch`.)
     """
     t = int(mesh.shape[TRIAL])
