@@ -57,8 +57,9 @@ import optax
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
 from slotv_jax.observers.models import BACKWARDS
-from slotv_jax.training import config, types
+from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
+from slotv_jax.training import types
 from slotv_jax.training.trainer import default_backward, packs_updates
 
 T = 100
@@ -127,7 +128,7 @@ def paper_pair_capacity(trials: int = 10, preset: str = "paper") -> int:
     (seeds 0..trials−1, the preset's epochs) on synthetic training trajectories (100,000
     for the paper preset, the quick preset's ``train_size``)."""
 
-    cfg = config.PRESETS[preset]("slotv")
+    cfg = train_config.PRESETS[preset]("slotv")
     trainer = train.make_train(cfg, progress=False)
     keys = jax.vmap(train.Trainer.state_key)(train.trial_keys(trials))
     n = cfg.train_size or 100_000
@@ -190,7 +191,7 @@ def build_train(
     ``pairs`` > 0 packs SLOT-V updates to that many (trajectory, goal) pairs
     (:func:`slotv_jax.train.slotv_loss_packed`)."""
 
-    cfg = config.PRESETS[preset](method, compute_dtype=dtype, epochs=1, log_every=steps)
+    cfg = train_config.PRESETS[preset](method, compute_dtype=dtype, epochs=1, log_every=steps)
     cfg = dataclasses.replace(cfg, train_size=None)
     n = steps * cfg.batch_size
     pairs = pairs if method == "slotv" else 0
@@ -288,7 +289,7 @@ def build_eval(method: str, dtype: str, n: int, trim: bool = True, *, preset: st
     """Compile chunked SPEC §8 accuracy over ``n`` trajectories: (``once()``, forward FLOPs
     per call, compile seconds, cfg)."""
 
-    cfg = config.PRESETS[preset](method, compute_dtype=dtype)
+    cfg = train_config.PRESETS[preset](method, compute_dtype=dtype)
     trainer = train.make_train(cfg, progress=False)
     params = trainer.replicate(trainer.init(jax.random.key(0)).params)
     data = synthetic_data(n, seed=1, trim=trim)

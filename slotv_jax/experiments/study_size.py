@@ -68,7 +68,7 @@ from slotv_jax import study
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
-from slotv_jax.training import config as config_lib
+from slotv_jax.training import config as train_config
 from slotv_jax.training import evaluate
 from slotv_jax.training import types as train
 
@@ -100,9 +100,9 @@ class StudySizeConfig:
         """Epochs of ``steps`` updates that give a cell its budget: ⌈updates / steps⌉."""
         return max(1, math.ceil(self.updates / max(steps, 1)))
 
-    def train_config(self, method: str) -> config_lib.TrainConfig:
-        cfg = config_lib.preset(self.train_preset, method, train_size=None)
-        return config_lib.apply_overrides(cfg, self.overrides)
+    def train_config(self, method: str) -> train_config.TrainConfig:
+        cfg = train_config.preset(self.train_preset, method, train_size=None)
+        return train_config.apply_overrides(cfg, self.overrides)
 
     def beta(self) -> float:
         return float(getattr(self.data.labels, f"beta_{self.labeler}"))
@@ -313,7 +313,7 @@ def measure(tr, cfg: StudySizeConfig, *, n: int = 2000, participants: int = 20, 
             taus=taus,
             lapse=cfg.lapse,
         )
-        tc = config_lib.quick("slotv", train_size=None)
+        tc = train_config.quick("slotv", train_size=None)
         runs = []
         for seed in range(2):
             t0 = time.perf_counter()
