@@ -190,7 +190,7 @@ LAYERS = (
     ("observers",),
     ("data", "planning", "training"),
     ("study",),
-    ("", "labelers", "train", "scene", "kinematics"),  # "": the package's own __init__
+    ("", "labelers", "train", "scene", "kinematics", "render"),  # "": the package's __init__
     ("experiments", "benchmarks"),
 )
 
