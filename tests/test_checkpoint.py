@@ -1,5 +1,5 @@
-"""Tests for slotv_jax.checkpoint: save → load → identical logits, exact resume, clear errors
-for mismatched checkpoints, and the loaded observer under jit, vmap and grad (checked
+"""Tests for slotv_jax.training.checkpoint: save → load → identical logits, exact resume, clear
+errors for mismatched checkpoints, and the loaded observer under jit, vmap and grad (checked
 against central finite differences in float64)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The output rule, the readers and the CLI error style (slotv_jax.fileio, slotv_jax.cli)."""
+"""The output rule, the readers and the CLI error style (slotv_jax.core.fileio, slotv_jax.cli)."""
 
 import os
 import zipfile

@@ -1,4 +1,4 @@
-"""Tests for slotv_jax.models: an independent NumPy float64 forward pass, padding
+"""Tests for slotv_jax.observers.models: an independent NumPy float64 forward pass, padding
 invariance, translation invariance, the first-layer rewrite, mixed precision,
 T-REX pair sampling and input validation."""
 

@@ -1,6 +1,6 @@
-"""Tests for slotv_jax.parallel: the group plan, runs side by side on 4 CPU devices (one per
-device, no communication, the same parameters as training one after another), per-run
-labels, padded and batch-parallel groups, and the one-job-per-device dispatcher.
+"""Tests for slotv_jax.training.parallel: the group plan, runs side by side on 4 CPU devices (one
+per device, no communication, the same parameters as training one after another), per-run labels,
+padded and batch-parallel groups, and the one-job-per-device dispatcher.
 
 The multi-device checks run in a fresh process with
 ``XLA_FLAGS=--xla_force_host_platform_device_count=4`` (the flag must be set before JAX

@@ -1,6 +1,6 @@
-"""Tests for slotv_jax.parametric (the observer archetypes, SPEC §10): at their true parameters
-they reproduce the labelers (an independent implementation); they recover known parameters
-from generated labels through the real training pipeline; jit, vmap and grad w.r.t. xyz
+"""Tests for slotv_jax.observers.parametric (the observer archetypes, SPEC §10): at their true
+parameters they reproduce the labelers (an independent implementation); they recover known
+parameters from generated labels through the real training pipeline; jit, vmap and grad w.r.t. xyz
 (against float64 central differences); checkpoints round-trip and a wrong archetype fails
 clearly; configuration and command line."""
 

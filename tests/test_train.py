@@ -1,5 +1,5 @@
-"""Tests for slotv_jax.config, slotv_jax.train and slotv_jax.evaluate: presets, learning on a
-tiny dataset, vmap and multi-device equivalence, in-loop validation, progress reports,
+"""Tests for slotv_jax.training.config, slotv_jax.train and slotv_jax.training.evaluate: presets,
+learning on a tiny dataset, vmap and multi-device equivalence, in-loop validation, progress reports,
 accuracy against a NumPy reference, and input validation."""
 
 from __future__ import annotations

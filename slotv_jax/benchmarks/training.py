@@ -5,7 +5,7 @@
     python -m slotv_jax.benchmarks.training --preset quick --steps 250 --repeats 11 \
         --dtypes float32 --variant-methods slotv,trex    # the CPU's quick sizes, variants
 
-What is timed is the real compiled training loop (:meth:`slotv_jax.train.Trainer.run`):
+What is timed is the real compiled training loop (:meth:`slotv_jax.training.trainer.Trainer.run`):
 one call runs one epoch, a ``lax.scan`` of ``--steps`` updates over synthetic data held
 on the device (no host sync per update, the state donated). Per (method, dtype):
 
@@ -101,7 +101,7 @@ def update_flops(cfg, goal_slots: int = G) -> tuple[float, int]:
 def synthetic_data(n: int, seed: int = 0, trim: bool = True):
     """Random but valid trajectories, scenes (2, 3, 5 or 6 goals, as the training split) and
     label distributions (on the host); ``trim`` cuts the two slots no scene uses, as
-    :func:`slotv_jax.train.train_trials` does."""
+    :func:`slotv_jax.training.trainer.train_trials` does."""
 
     rng = np.random.default_rng(seed)
     counts = rng.choice([2, 3, 5, 6], n)

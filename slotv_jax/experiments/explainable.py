@@ -7,8 +7,8 @@ accuracy and sample efficiency (issue 16, SPEC §10).
 Steps, on the Table 1 dataset of the preset (cached by config digest, as table1):
 
 1. **Table.** For each labeler and each observer model (the MLP and the archetypes of
-   :mod:`slotv_jax.parametric`), train ``--trials`` trials with the preset's config (the
-   MLP: SLOT-V's; an archetype: :func:`slotv_jax.config.archetype`) and score them on the
+   :mod:`slotv_jax.observers.parametric`), train ``--trials`` trials with the preset's config (the
+   MLP: SLOT-V's; an archetype: :func:`slotv_jax.training.config.archetype`) and score them on the
    four Table 1 splits (SPEC §8); record each archetype's fitted parameters.
 2. **Few labels.** Each archetype again, on 1/10 and 1/100 of the MLP's training
    trajectories (its ``train_size``), with as many updates as the preset gives it on the

@@ -44,12 +44,13 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.core import distributed
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import LABELERS, dataset_dir
 from slotv_jax.training import config as train_config
-from slotv_jax.training import distributed, evaluate, parallel, types
+from slotv_jax.training import evaluate, parallel, types
 from slotv_jax.training import trainer as train
 
 PHASES = {
@@ -163,7 +164,7 @@ def run(
 
     Rollouts have different widths and batch sizes, so they cannot share one compiled,
     vmapped function; instead each device (every process's, under ``jax.distributed``)
-    trains one rollout at a time (:func:`slotv_jax.parallel.map_on_devices`): the host
+    trains one rollout at a time (:func:`slotv_jax.training.parallel.map_on_devices`): the host
     dispatches a round of one rollout per device and, while they run, traces and compiles
     the next round (JAX dispatch is asynchronous, so no threads). Pending rollouts are
     ordered by (phase, batch size, widths) so that a round's rollouts take similar times.

@@ -19,7 +19,7 @@ Steps:
    the preset's training config and saved under ``OUT/observers/``. Beside them, in
    ``plus_planners``: SLOT-V+ and T-REX+, the same networks with values relative to the
    start's and learned time weights (``start_term``, ``time_weight``:
-   :class:`slotv_jax.models.SlotV`), which a planner cannot exploit the way it exploits
+   :class:`slotv_jax.observers.models.SlotV`), which a planner cannot exploit the way it exploits
    the paper's score (the paper preset trains SLOT-V+ for 5 epochs: :func:`paper`); in
    ``archetype_planners``: SLOT-V's loss with the family's parametric observer archetype
    (SPEC §10: ``dragan`` for Dragan, ``viewpoint`` for Nikolaidis), which separates what

@@ -34,11 +34,12 @@ import numpy as np
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.core import distributed
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.experiments import table1
 from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
-from slotv_jax.training import distributed, evaluate, parallel, schedule, types
+from slotv_jax.training import evaluate, parallel, schedule, types
 from slotv_jax.training import trainer as train
 from slotv_jax.training.config import MODELS
 
@@ -163,9 +164,9 @@ def run(
 def train_repeats(cfg, tdata, vdata, repeats: int, *, progress: bool = True):
     """The metrics (as NumPy, leading axis: repeat r, trained with seed r) of ``repeats``
     runs with in-loop validation, all in one vmapped call: on one device
-    :func:`slotv_jax.train.train_trials`; on several (every process's) the repeat axis,
+    :func:`slotv_jax.training.trainer.train_trials`; on several (every process's) the repeat axis,
     padded to a multiple of the device count, sharded over them
-    (:func:`slotv_jax.parallel.train_group`; the repeats share every shape, and vmapping
+    (:func:`slotv_jax.training.parallel.train_group`; the repeats share every shape, and vmapping
     them keeps the small in-loop validations batched, as on one device)."""
 
     n_dev = jax.device_count()

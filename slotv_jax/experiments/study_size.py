@@ -85,7 +85,7 @@ class StudySizeConfig:
     n_grid: tuple[int, ...]  # training trajectories N
     participants: tuple[int, ...]  # participants per trajectory P (0: P = ∞, the labels)
     trials: int
-    train_preset: str  # slotv_jax.config preset of both methods
+    train_preset: str  # slotv_jax.training.config preset of both methods
     updates: int  # each cell trains ⌈updates / steps per epoch⌉ epochs (module docstring)
     labeler: str = "dragan"
     taus: tuple[float, ...] = (1.0,)  # normalised times the motion may stop at
@@ -684,7 +684,7 @@ QUICK_BUDGET_NOTE = """\
   above says what doubling them would still add.
 - The study trainer is the ordinary trainer on one answer per trajectory: with the labels
   as one answer's counts and whole motions, `slotv_jax.study.train_study` and
-  `slotv_jax.train.train_trials` (same key, same config) reach the same parameters to
+  `slotv_jax.training.trainer.train_trials` (same key, same config) reach the same parameters to
   float32 rounding (`tests/test_study.py::test_study_trainer_matches_train_trials`,
   rtol 1e-4 after 3 epochs). On the quick data (N = 3,000, the quick preset's 3 epochs =
   279 updates, seeds 0 and 1) the accuracies are 0.577 vs 0.575 and 0.541 vs 0.541; the

@@ -15,7 +15,7 @@ the difference) and writes ``OUT/table1.md``.
 On several devices (and hosts, with ``--coordinator``/``--num-processes``/
 ``--process-id`` or ``--distributed``) the pending trials of each method, all
 labelers together, train side by side, one per device
-(:mod:`slotv_jax.parallel`); each group is written as it finishes.
+(:mod:`slotv_jax.training.parallel`); each group is written as it finishes.
 ``--time-limit SECONDS`` stops before a group that would end later; the same
 command resumes.
 """
@@ -37,11 +37,11 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
-from slotv_jax.core import cli, fileio
+from slotv_jax.core import cli, distributed, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
 from slotv_jax.training import config as train_config
-from slotv_jax.training import distributed, evaluate, parallel, schedule, types
+from slotv_jax.training import evaluate, parallel, schedule, types
 from slotv_jax.training import trainer as train
 
 LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
@@ -125,7 +125,7 @@ PRESETS = {"quick": quick, "paper": paper, "tiny": tiny}
 
 def with_model(cfg: Table1Config, model: str) -> Table1Config:
     """The same run with SLOT-V's network replaced by an observer archetype (SPEC §10,
-    :func:`slotv_jax.config.archetype` of the matching preset; the tiny preset trains it
+    :func:`slotv_jax.training.config.archetype` of the matching preset; the tiny preset trains it
     2 epochs on all its data, as its MLP). T-REX keeps its network. ``"mlp"``: ``cfg``."""
     if model == "mlp":
         return cfg
@@ -251,7 +251,7 @@ def run(
     of each (labeler, method) together in one vmapped call; they are then written, and lost
     to an interruption, together). On several devices (every process's, under
     ``jax.distributed``) the pending trials of each method, all labelers together, train in
-    groups side by side, one per device (:mod:`slotv_jax.parallel`: the trial axis sharded
+    groups side by side, one per device (:mod:`slotv_jax.training.parallel`: the trial axis sharded
     over the devices; a last group smaller than the device count pads or, for one trial,
     splits the batch over the devices). A group's trials are written as soon as it
     finishes; only process 0 writes.
@@ -396,7 +396,7 @@ def _single_device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_
 
 def _device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_dev: int):
     """Several devices: per method, the pending (labeler, trial) units in the groups of
-    :func:`slotv_jax.parallel.groups`, each trained side by side and evaluated where it
+    :func:`slotv_jax.training.parallel.groups`, each trained side by side and evaluated where it
     trained. The trajectories are shared and each unit has its labeler's labels."""
 
     shared: dict[str, types.TrainData] = {}
@@ -443,8 +443,8 @@ def _device_steps(cfg: Table1Config, dataset, todo, vmap_trials: bool, n_dev: in
 def _precompile_in_background(cfg: Table1Config, methods: Sequence[str], n_dev: int = 1) -> dict:
     """Start the ahead-of-time compilation of each method's training function, for the
     shape the training split will have (its size, points, and largest goal count): on one
-    device :func:`slotv_jax.train.precompile`, on several the full group of
-    :func:`slotv_jax.parallel.precompile_group`. Returns the futures."""
+    device :func:`slotv_jax.training.trainer.precompile`, on several the full group of
+    :func:`slotv_jax.training.parallel.precompile_group`. Returns the futures."""
 
     if not methods:
         return {}
@@ -510,8 +510,9 @@ def report(doc: dict) -> str:
         []
         if model == "mlp"
         else [
-            f"The SLOT-V columns are the `{model}` observer archetype (slotv_jax.parametric), "
-            "trained with SLOT-V's loss; the paper's SLOT-V is its network. T-REX is the MLP.",
+            f"The SLOT-V columns are the `{model}` observer archetype "
+            "(slotv_jax.observers.parametric), trained with SLOT-V's loss; the paper's SLOT-V "
+            "is its network. T-REX is the MLP.",
             "",
         ]
     )

@@ -396,7 +396,8 @@ class _ScoreNetwork(nnx.Module):
 
     def point_weights(self, n_points: int) -> Float[Array, " T"] | None:
         """Per-point weights of mean 1, u_i · T with u the normalised (1 − t_i)^α
-        (:func:`slotv_jax.parametric.time_weights`), or None (every point counts the same)."""
+        (:func:`slotv_jax.observers.parametric.time_weights`), or None (every point counts the
+        same)."""
         if self.raw_alpha is None:
             return None
         a = self.alpha
@@ -458,8 +459,8 @@ Observer = Callable[[Array, Array, Array], Array]
 
 
 def make_model(cfg, rngs: nnx.Rngs | jax.Array | int) -> Model:
-    """Build the model a :class:`slotv_jax.config.TrainConfig` describes: its ``model``
-    archetype of :mod:`slotv_jax.parametric` (deterministic, ``rngs`` unused), or for the
+    """Build the model a :class:`slotv_jax.training.config.TrainConfig` describes: its ``model``
+    archetype of :mod:`slotv_jax.observers.parametric` (deterministic, ``rngs`` unused), or for the
     MLP (``model="mlp"``) SLOT-V's or T-REX's network."""
     model = getattr(cfg, "model", "mlp")
     if model != "mlp":

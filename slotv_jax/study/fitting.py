@@ -202,7 +202,7 @@ def train_study(
 
     ``cfg.train_size`` is ignored (every answer row is used). ``on_epoch(state, loss)`` is
     called after each epoch (e.g. to checkpoint). ``state`` resumes a run. Returns the final
-    :class:`slotv_jax.types.TrainState`.
+    :class:`slotv_jax.training.types.TrainState`.
     """
     trainer = study_trainer(cfg)
     data = study_data(study) if isinstance(study, Study) else study

@@ -6,9 +6,9 @@
 
 Trains one model on a generated dataset (or on a study's answers,
 :func:`slotv_jax.study.train_main`), writes an Orbax checkpoint with its JSON config
-after every epoch (:mod:`slotv_jax.checkpoint`), and reports the accuracy on the four
+after every epoch (:mod:`slotv_jax.training.checkpoint`), and reports the accuracy on the four
 Table 1 splits. It drives :mod:`slotv_jax.train`, :mod:`slotv_jax.data`,
-:mod:`slotv_jax.checkpoint` and :mod:`slotv_jax.study`, so it sits above all of them;
+:mod:`slotv_jax.training.checkpoint` and :mod:`slotv_jax.study`, so it sits above all of them;
 ``slotv_jax/train.py`` runs :func:`main` when executed as a script.
 """
 
@@ -84,7 +84,7 @@ def _parse_args(argv):
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry point: train, checkpoint after every epoch, report test accuracies.
 
-    Before any work it checks ``--out`` (:func:`slotv_jax.fileio.check_output_dir`): an
+    Before any work it checks ``--out`` (:func:`slotv_jax.core.fileio.check_output_dir`): an
     existing checkpoint is continued with ``--resume`` or replaced with ``--overwrite``;
     anything else in the way is refused.
     """

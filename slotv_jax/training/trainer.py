@@ -37,7 +37,7 @@ bfloat16; parameters, gradients and optimiser state stay float32.
 
 Implementation choices that do not change the values (up to float rounding):
 ``make_train(backward=...)`` selects how the gradient of the first layers is formed
-(see :meth:`slotv_jax.models.GoalRelativeMLP.grid`; "auto" takes the fastest measured
+(see :meth:`slotv_jax.observers.models.GoalRelativeMLP.grid`; "auto" takes the fastest measured
 one per platform and method, :func:`default_backward`); :func:`train_trials` cuts the
 goal slots no training trajectory uses (:func:`trim_goals`) and, on CPUs, packs SLOT-V
 updates to each batch's real (trajectory, goal) pairs (:func:`slotv_loss_packed`, with a
@@ -86,7 +86,7 @@ from slotv_jax.training.losses import (
 )
 from slotv_jax.training.types import EvalData, Metrics, TrainData, TrainState, subset, trim_goals
 
-# Re-exported: the shared types and their constructors live in slotv_jax.types.
+# Re-exported: the shared types and their constructors live in slotv_jax.training.types.
 from slotv_jax.training.types import make_data as make_data
 from slotv_jax.training.types import prepare as prepare
 
@@ -179,7 +179,7 @@ class Trainer:
     @property
     def n_data(self) -> int:
         """Devices the batch axis is split over: the mesh's "data" axis (a mesh may also
-        have a "trial" axis for independent runs, :mod:`slotv_jax.parallel`)."""
+        have a "trial" axis for independent runs, :mod:`slotv_jax.training.parallel`)."""
         return devices.data_size(self.mesh)
 
     @property
@@ -292,7 +292,7 @@ class Trainer:
 
     def eval_data(self, data: TrainData, size: int | None = None) -> EvalData:
         """The fixed validation subset (first ``size`` or ``cfg.eval_size``), chunked
-        (:func:`slotv_jax.evaluate.eval_data`)."""
+        (:func:`slotv_jax.training.evaluate.eval_data`)."""
         return evaluate.eval_data(self.cfg, self.mesh, data, size)
 
     # ---- the compiled loop
@@ -418,7 +418,7 @@ def make_train(
 
     ``mesh`` defaults to :func:`make_mesh`; ``progress`` reports to a tqdm bar;
     ``backward`` picks the implementation of the first layers' gradient (same values, see
-    :meth:`slotv_jax.models.GoalRelativeMLP.grid`; "auto": :func:`default_backward`);
+    :meth:`slotv_jax.observers.models.GoalRelativeMLP.grid`; "auto": :func:`default_backward`);
     ``packed_pairs`` > 0 computes SLOT-V updates on that many real (trajectory, goal) pairs
     (:func:`slotv_loss_packed`): it must come from :meth:`Trainer.pair_capacity` for the
     runs it trains, as in :func:`train_trials`. ``objective`` trains another loss over
