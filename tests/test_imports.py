@@ -189,7 +189,7 @@ LAYERS = (
     ("world",),
     ("observers",),
     ("data", "planning", "training"),
-    ("study",),
+    ("study", "runs"),
     ("", "labelers", "train", "scene", "kinematics", "render"),  # "": the package's __init__
     ("experiments", "benchmarks"),
 )

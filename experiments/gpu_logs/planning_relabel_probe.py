@@ -32,7 +32,6 @@ import numpy as np
 from slotv_jax import data as data_lib
 from slotv_jax import planning
 from slotv_jax.experiments import planning as PE
-from slotv_jax.experiments.table1 import dataset_dir
 from slotv_jax.training import checkpoint, types
 from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
@@ -55,7 +54,10 @@ def log(*a):
 
 
 ds = data_lib.generate_dataset(
-    cfg.data, dataset_dir(Path("data"), cfg.data), splits=("train", *PE.SPLITS), progress=False
+    cfg.data,
+    data_lib.dataset_dir(Path("data"), cfg.data),
+    splits=("train", *PE.SPLITS),
+    progress=False,
 )
 log("data")
 problems = PE.make_problems(PE.held_out_scenes(cfg, ds))

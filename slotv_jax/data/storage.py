@@ -95,6 +95,12 @@ def _sha256(a: np.ndarray) -> str:
     return h.hexdigest()
 
 
+def dataset_dir(cache: str | Path, cfg: DataConfig) -> Path:
+    """Where a dataset of ``cfg`` is cached below ``cache``: one directory per config digest,
+    ``CACHE/<preset>-<digest>``, so that another config never reuses it."""
+    return Path(cache) / f"{cfg.preset}-{cfg.digest()}"
+
+
 def is_dataset_dir(path: str | Path) -> bool:
     """True if ``path`` holds at least one split written by :func:`save_split` (its marker)."""
     return any((Path(path) / f"{name}.json").is_file() for name in SPLITS)

@@ -47,8 +47,8 @@ from slotv_jax import data as data_lib
 from slotv_jax.core import distributed
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
-from slotv_jax.experiments import table1
-from slotv_jax.experiments.table1 import LABELERS, dataset_dir
+from slotv_jax.runs import presets
+from slotv_jax.runs.presets import LABELERS
 from slotv_jax.training import config as train_config
 from slotv_jax.training import evaluate, parallel, types
 from slotv_jax.training import trainer as train
@@ -187,17 +187,10 @@ def run(
         doc = old
     doc["environment"] = environment()
     doc.setdefault("invocations", [])
-    dcfg = table1.PRESETS[cfg.preset]().data
-    if not writer:
-        distributed.barrier("hparam_search dataset")
-    dataset = data_lib.generate_dataset(
-        dcfg,
-        dataset_dir(cache, dcfg),
-        splits=["train", "trajectory_val"],
-        progress=progress and writer,
+    dcfg = presets.PRESETS[cfg.preset]().data
+    dataset = data_lib.cached_dataset(
+        dcfg, cache, splits=["train", "trajectory_val"], progress=progress
     )
-    if writer:
-        distributed.barrier("hparam_search dataset")
     t_data = time.perf_counter() - t_start
     tdata = types.trim_goals(types.prepare(dataset["train"], labeler, size=cfg.train_size))
     vdata = types.trim_goals(types.prepare(dataset["trajectory_val"], labeler))

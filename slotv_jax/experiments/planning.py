@@ -56,7 +56,6 @@ from slotv_jax import data as data_lib
 from slotv_jax import planning
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import atomic_write, save_figure, write_text
-from slotv_jax.experiments.table1 import dataset_dir
 from slotv_jax.observers import labelers, models
 from slotv_jax.robot.kinematics import home_tcp
 from slotv_jax.training import checkpoint, evaluate, types
@@ -329,7 +328,7 @@ def run(
     timing: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    ddir = dataset_dir(cache, cfg.data)
+    ddir = data_lib.dataset_dir(cache, cfg.data)
     splits = ("train", *SPLITS)
     dataset = data_lib.generate_dataset(cfg.data, ddir, splits=splits, progress=progress)
     timing["data_s"] = time.perf_counter() - t0

@@ -67,7 +67,7 @@ from slotv_jax import data as data_lib
 from slotv_jax import study
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import save_figure, write_text
-from slotv_jax.experiments.table1 import METHOD_TITLES, METHODS, dataset_dir
+from slotv_jax.runs.presets import METHOD_TITLES, METHODS
 from slotv_jax.training import config as train_config
 from slotv_jax.training import evaluate
 from slotv_jax.training import types as train
@@ -170,11 +170,10 @@ def run(cfg: StudySizeConfig, out: Path, *, cache: Path = Path("data"), progress
     doc["xla"] = slotv_jax.XLA_CONFIG.summary()
     t_start = t0 = time.perf_counter()
     load = {"cpus": os.cpu_count(), "start": os.getloadavg()[0]}
-    ddir = dataset_dir(cache, cfg.data)
-    splits = data_lib.generate_dataset(
-        cfg.data, ddir, splits=("train", cfg.eval_split), progress=progress
+    splits = data_lib.cached_dataset(
+        cfg.data, cache, splits=("train", cfg.eval_split), progress=progress
     )
-    doc["dataset"] = str(ddir)
+    doc["dataset"] = str(data_lib.dataset_dir(cache, cfg.data))
     doc["timing"]["data_s"] = time.perf_counter() - t0
     tr = splits["train"]
     n_max = max(cfg.n_grid)
