@@ -28,7 +28,7 @@ import numpy as np
 from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.xla import XLA_CONFIG
-from slotv_jax.study import cli as study
+from slotv_jax.study import cli as study_cli
 from slotv_jax.training import checkpoint, evaluate
 from slotv_jax.training import config as train_config
 from slotv_jax.training.trainer import make_train, packed_trainer
@@ -105,7 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.resume = False
     print(XLA_CONFIG.summary(), flush=True)
     if args.study is not None:
-        return study.train_main(cfg, args)
+        return study_cli.train_main(cfg, args)
     out = Path(args.out)
 
     train_split = data_lib.load_split(args.data, "train")

@@ -11,8 +11,6 @@ from jaxtyping import Array, Float
 
 from slotv_jax.observers import models
 from slotv_jax.training.config import TrainConfig
-from slotv_jax.training.types import make_data as make_data
-from slotv_jax.training.types import prepare as prepare
 
 
 def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
