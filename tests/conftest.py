@@ -7,9 +7,23 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 import slotv_jax  # noqa: F401  (applies the XLA CPU setting before jax starts)
 from slotv_jax import data
+
+# Property tests: derandomised (the same examples on every run and machine, so CI is
+# reproducible) and bounded (a fixed number of examples; no deadline, since the first
+# example of a test pays for JAX compilation). A test may ask for fewer examples.
+settings.register_profile(
+    "slotv_jax",
+    derandomize=True,
+    max_examples=30,
+    deadline=None,
+    print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+settings.load_profile("slotv_jax")
 
 TINY = {"seed": 0, "n_train": 300, "n_eval": 100, "n_train_scenes": 20, "n_new_scenes": 4}
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from slotv_jax import data
+from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.experiments import hparam_search, table1
 from slotv_jax.runs import curves, grid, presets
 
@@ -45,8 +46,8 @@ def _check_schema(doc: dict) -> None:
     assert {"jax", "devices", "mujoco", "flax"} <= set(doc["environment"])
     for c in doc["cells"]:
         assert set(c) == {"labeler", "method", "split", "trial", "accuracy"}
-        assert c["labeler"] in presets.LABELERS and c["method"] in presets.METHODS
-        assert c["split"] in presets.SPLITS and isinstance(c["trial"], int)
+        assert c["labeler"] in LABELER_NAMES and c["method"] in presets.METHODS
+        assert c["split"] in TEST_SPLITS and isinstance(c["trial"], int)
         assert 0.0 <= c["accuracy"] <= 1.0
     for s in doc["summary"]:
         assert set(s) == {"labeler", "method", "split", "mean", "sd", "n"}
@@ -62,9 +63,9 @@ def test_table1_results_schema_and_report(cache, tmp_path):
     _check_schema(doc)
     on_disk = json.loads((tmp_path / "results.json").read_text())
     _check_schema(on_disk)
-    assert len(on_disk["cells"]) == 2 * cfg.trials * len(presets.SPLITS)
+    assert len(on_disk["cells"]) == 2 * cfg.trials * len(TEST_SPLITS)
     assert {(s["method"], s["split"]) for s in on_disk["summary"]} == {
-        (m, s) for m in ("slotv", "trex") for s in presets.SPLITS
+        (m, s) for m in ("slotv", "trex") for s in TEST_SPLITS
     }
     md = (tmp_path / "table1.md").read_text()
     assert "0.996 (0.005)" in md and "EffDist" in md  # the paper's value beside ours
@@ -113,7 +114,8 @@ def test_killed_run_resumes_without_recomputing(cache, tmp_path):
     n_done = len(killed["timing"]["cells"])
     assert 1 <= n_done < 8, "the run should have been killed midway"
 
-    subprocess.run(cmd, cwd=REPO, env=env, check=True, capture_output=True)
+    rerun = subprocess.run(cmd, cwd=REPO, env=env, check=True, capture_output=True, text=True)
+    assert f"reusing {n_done} finished trial(s) of 8" in rerun.stdout  # it says so
     final = json.loads(results.read_text())
     _check_schema(final)
     # Finished cells were kept as they were, and only the missing ones were trained.
@@ -121,7 +123,7 @@ def test_killed_run_resumes_without_recomputing(cache, tmp_path):
     assert final["cells"][: len(killed["cells"])] == killed["cells"]
     keys = [(c["labeler"], c["method"], c["trial"]) for c in final["timing"]["cells"]]
     assert len(keys) == len(set(keys)) == 2 * 2 * 2
-    assert len(final["cells"]) == 8 * len(presets.SPLITS)
+    assert len(final["cells"]) == 8 * len(TEST_SPLITS)
     assert (out / "table1.md").exists()
     assert not list(out.glob(".*tmp"))
 
@@ -255,7 +257,7 @@ def test_interrupted_multi_device_run_resumes_without_recomputing(cache, tmp_pat
     _check_schema(final)
     assert final["timing"]["cells"][:4] == killed["timing"]["cells"]
     assert final["cells"][: len(killed["cells"])] == killed["cells"]
-    assert len(final["cells"]) == 8 * len(presets.SPLITS)
+    assert len(final["cells"]) == 8 * len(TEST_SPLITS)
 
 
 MULTI_PROCESS = [

@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -100,3 +101,57 @@ def test_file_outputs_are_replaced_only_with_overwrite(tmp_path):
     rc, err, _ = run("slotv_jax.data", "--out", "data", cwd=tmp_path)
     assert_one_line_error(rc, err, "--out data", "did not write")
     assert snapshot(tmp_path) == before
+
+
+# ------------------------------------------------- in-process: input errors in one line
+
+
+def test_input_errors_are_one_line_in_every_main(tmp_path, capsys):
+    from slotv_jax.data import cli as data
+    from slotv_jax.study import cli as study_cli
+    from slotv_jax.train import cli as train_cli
+
+    np.savez(tmp_path / "s.npz", x=np.arange(100.0))
+    raw = (tmp_path / "s.npz").read_bytes()
+    (tmp_path / "s.npz").write_bytes(raw[: len(raw) // 2])
+    (tmp_path / "text.npz").write_text("trajectory,x,y,z\n")
+    (tmp_path / "empty").mkdir()
+    cases = [
+        (study_cli.main, ["show", str(tmp_path / "s.npz")], "s.npz: truncated or corrupt"),
+        (study_cli.main, ["show", str(tmp_path / "text.npz")], "not an .npz file (not a zip"),
+        (study_cli.main, ["show", str(tmp_path / "nope.npz")], "nope.npz: no such file"),
+        (data.main, ["--out", str(tmp_path / "empty"), "--relabel"], "no dataset splits"),
+        (train_cli.main, ["--study", str(tmp_path / "s.npz"), "--method", "slotv", "--out",
+                          str(tmp_path / "ck"), "--epochs", "0"], "--epochs: expected"),
+        (train_cli.main, ["--study", str(tmp_path / "s.npz"), "--method", "slotv", "--out",
+                          str(tmp_path / "ck")], "s.npz: truncated or corrupt"),
+    ]  # fmt: skip
+    for main, argv, piece in cases:
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and "error: " in err and piece in err, (argv, err)
+        assert "Traceback" not in err
+    assert not (tmp_path / "ck").exists()  # refused before a checkpoint was started
+
+
+def test_study_table_messages(tmp_path):
+    from slotv_jax import study
+
+    (tmp_path / "t.csv").write_text(
+        "trajectory,x,y,z,t\na,0,0,0,0\na,1,0,0,1\nb,0,1,0,\nb,1,1,0,1\n"
+    )
+    (tmp_path / "g.csv").write_text("goal,x,y,z\nleft,0.5,0.3,0\nright,0.5,-0.3,0\n")
+    (tmp_path / "a.csv").write_text("trajectory,guess,tau\na,left,5\n")
+    with pytest.raises(
+        ValueError, match=r"t\.csv, line 4, field 't': no time stamp.*all-or-nothing"
+    ):
+        study.read_tables(tmp_path / "t.csv", tmp_path / "g.csv", tmp_path / "a.csv")
+    xyz = np.zeros((1, 4, 3), np.float32)
+    xyz[0, :, 0] = np.arange(4)
+    goals = np.zeros((8, 3), np.float32)
+    goals[1, 1] = 1
+    with pytest.raises(ValueError, match=r"tau = 5\.0 is outside.* <= tau <= 1\.0") as e:
+        study.make_study(xyz, goals, np.arange(8) < 2, [0], [[1, 0, 0, 0, 0, 0, 0, 0]],
+                         answer_tau=[5.0])  # fmt: skip
+    assert "np.float64" not in str(e.value)

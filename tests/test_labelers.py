@@ -13,6 +13,7 @@ import pytest
 import ref_labelers as ref
 
 import slotv_jax  # noqa: F401  (applies the XLA CPU setting before JAX starts)
+from slotv_jax.core.defaults import BETAS_V1
 from slotv_jax.labelers import cli as labelers_cli
 from slotv_jax.observers import labelers as L
 from slotv_jax.observers import labelling
@@ -202,9 +203,12 @@ def test_matches_float64_reference_in_float32(name):
     rng = np.random.default_rng(8)
     for n in range(2, 9):
         xyz, goals, mask = random_case(rng, n_goals=n)
-        y = np.asarray(jcall(name, xyz, goals, mask))
+        beta = BETAS_V1[name]  # the first version's default, at which REF_TOL was set
+        y = np.asarray(jcall(name, xyz, goals, mask, beta=beta))
         assert y.dtype == np.float32
-        np.testing.assert_allclose(y, ref_call(name, xyz, goals, mask), rtol=0, atol=REF_TOL)
+        np.testing.assert_allclose(
+            y, ref_call(name, xyz, goals, mask, beta=beta), rtol=0, atol=REF_TOL
+        )
 
 
 @pytest.mark.parametrize("name", ALL)
@@ -214,16 +218,18 @@ def test_time_stamps_match_reference(name):
         for T in (2, 17, 100):
             xyz, goals, mask = random_case(rng, T=T)
             t = np.cumsum(rng.uniform(0.1, 1.0, T)) + 3.0  # irregular, not starting at 0
-            y = np.asarray(jcall(name, xyz, goals, mask, t=t))
+            beta = BETAS_V1[name]
+            y = np.asarray(jcall(name, xyz, goals, mask, t=t, beta=beta))
             np.testing.assert_allclose(
-                y, ref_call(name, xyz, goals, mask, t=t), rtol=0, atol=REF_TOL
+                y, ref_call(name, xyz, goals, mask, t=t, beta=beta), rtol=0, atol=REF_TOL
             )
             # Stamps are normalised: an affine change of clock changes nothing...
-            y_clock = np.asarray(jcall(name, xyz, goals, mask, t=60.0 * t - 7.0))
+            y_clock = np.asarray(jcall(name, xyz, goals, mask, t=60.0 * t - 7.0, beta=beta))
             np.testing.assert_allclose(y_clock, y, rtol=0, atol=1e-12)
             # ...and uniform stamps give the default.
-            y_uniform = np.asarray(jcall(name, xyz, goals, mask, t=np.linspace(0.0, 2.0, T)))
-            y_default = np.asarray(jcall(name, xyz, goals, mask))
+            t_uniform = np.linspace(0.0, 2.0, T)
+            y_uniform = np.asarray(jcall(name, xyz, goals, mask, t=t_uniform, beta=beta))
+            y_default = np.asarray(jcall(name, xyz, goals, mask, beta=beta))
             np.testing.assert_allclose(y_uniform, y_default, rtol=0, atol=1e-12)
 
 
@@ -234,11 +240,12 @@ def test_clock_offsets_do_not_cost_float32_precision(name):
     rng = np.random.default_rng(18)
     xyz, goals, mask = random_case(rng)
     t = 1.7e9 + 0.01 * np.arange(len(xyz))
-    y = np.asarray(call(name, xyz, goals, mask, t=t))
-    np.testing.assert_allclose(y, np.asarray(call(name, xyz, goals, mask)), rtol=0, atol=1e-6)
-    y_bulk = labelling.label_all(xyz[None], goals, mask, t=t, labelers=(name,), progress=False)[
-        name
-    ]
+    beta = BETAS_V1[name]  # the first version's default, at which the tolerance was set
+    y = np.asarray(call(name, xyz, goals, mask, t=t, beta=beta))
+    y_uniform = np.asarray(call(name, xyz, goals, mask, beta=beta))
+    np.testing.assert_allclose(y, y_uniform, rtol=0, atol=1e-6)
+    kw = {"labelers": (name,), f"beta_{name}": beta, "progress": False}
+    y_bulk = labelling.label_all(xyz[None], goals, mask, t=t, **kw)[name]
     np.testing.assert_allclose(y_bulk[0], y, rtol=0, atol=1e-6)
 
 
@@ -659,13 +666,15 @@ def test_label_all_shared_goals_time_stamps_and_subsets():
     xyz = np.stack([random_case(rng, T=12)[0] for _ in range(5)])
     _, goals, mask = random_case(rng, n_goals=4)
     t = np.cumsum(rng.uniform(0.1, 1.0, (5, 12)), axis=1)
-    y = labelling.label_all(xyz, goals, mask, t=t, labelers=("fastapp", "effdist"), progress=False)
+    v1 = {"beta_fastapp": BETAS_V1["fastapp"], "beta_effdist": BETAS_V1["effdist"]}
+    y = labelling.label_all(
+        xyz, goals, mask, t=t, labelers=("fastapp", "effdist"), progress=False, **v1
+    )
     assert sorted(y) == ["effdist", "fastapp"]
     for i in range(5):
         for name in ("fastapp", "effdist"):
-            np.testing.assert_allclose(
-                y[name][i], np.asarray(jcall(name, xyz[i], goals, mask, t=t[i])), atol=1e-6
-            )
+            one = jcall(name, xyz[i], goals, mask, t=t[i], beta=BETAS_V1[name])
+            np.testing.assert_allclose(y[name][i], np.asarray(one), atol=1e-6)
     empty = labelling.label_all(xyz[:0], goals, mask, progress=False)
     assert all(v.shape == (0, 8) for v in empty.values())
 
@@ -686,7 +695,8 @@ def test_command_line(tmp_path):
     expect = labelling.label_all(xyz, goals, mask, progress=False, beta_dragan=2.5)
     for name in ALL:
         np.testing.assert_array_equal(out[f"y_{name}"], expect[name])
-    assert float(out["beta_dragan"]) == 2.5 and float(out["beta_nikolaidis"]) == 7.5
+    assert float(out["beta_dragan"]) == 2.5
+    assert float(out["beta_nikolaidis"]) == L.DEFAULT_BETAS["nikolaidis"]
 
     np.savez(src, xyz=xyz, goals=goals)  # no goal_mask
     with pytest.raises(SystemExit):

@@ -272,3 +272,25 @@ def test_the_library_never_imports_the_renderer():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_compare_layouts(renderer):
+    """Side by side: each panel is that motion's own clip under a title; overlay of two
+    copies of one motion (one colour) is that motion's clip under a legend."""
+    q1, q2 = _path(), _path()[::-1].copy()
+    kw = {"size": SIZE, "fps": 4, "duration": 1, "hold": 0, "renderer": renderer}
+    c = render.compare.PALETTE
+    side = render.compare_frames([q1, q2], GOALS, MASK, names=["a", "b"], **kw)
+    h, w = SIZE[1], SIZE[0]
+    bar = side.shape[1] - h
+    assert side.shape == (5, bar + h, 2 * w + render.compare.GAP, 3)
+    for q, x, rgba in ((q1, 0, c[0]), (q2, w + render.compare.GAP, c[1])):
+        own = render.motion_frames(q, GOALS, MASK, trace_rgba=rgba, **kw)
+        np.testing.assert_array_equal(side[:, bar:, x : x + w], own)
+    over = render.compare_frames(
+        [q1, q1], GOALS, MASK, names=["a", "b"], rgbas=[c[2], c[2]], layout="overlay", **kw
+    )
+    own = render.motion_frames(q1, GOALS, MASK, trace_rgba=c[2], **kw)
+    np.testing.assert_array_equal(over[:, -h:], own)
+    with pytest.raises(ValueError, match=r"^layout:"):
+        render.compare_frames([q1], GOALS, MASK, layout="grid", **kw)

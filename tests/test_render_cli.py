@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
 from slotv_jax import data, render, study
+from slotv_jax.experiments import planning_render
 from slotv_jax.render import cli
 from slotv_jax.render import frames as frames_lib
 from slotv_jax.robot import kinematics
@@ -57,8 +62,10 @@ def test_a_dataset_trajectory_to_mp4(dataset, tmp_path):
     assert cli.main([*args, *FAST]) == 0
     clip = render.read_video(out)
     assert clip.shape == (6 + 1, SIZE[1], SIZE[0], 3)  # 0, 0.2, ..., 1 and one held frame
-    want = render.motion_frames(Q2, GOALS, MASK, size=SIZE, fps=5, duration=1, hold=0.2)
-    assert np.abs(clip.astype(int) - want).mean() < 6.0
+    kw = {"size": SIZE, "fps": 5, "duration": 1, "hold": 0.2}
+    err = [np.abs(clip.astype(int) - render.motion_frames(q, GOALS, MASK, **kw)) for q in (Q2, Q1)]
+    assert err[0].mean() < 8.0  # H.264 in 4:2:0 at 64x48 is lossy (about 6 levels of 255)
+    assert err[0][-1].mean() < 0.7 * err[1][-1].mean()  # trajectory 1 drawn, not 0
 
 
 def test_several_trajectories_into_a_folder(dataset, tmp_path):
@@ -90,6 +97,10 @@ def test_plans_side_by_side_and_one_planner(tmp_path):
     assert cli.main([*args, *FAST]) == 0
     right = img[:, SIZE[0] + render.compare.GAP :]
     np.testing.assert_array_equal(render.read_video(one)[0][:, :, :3], right)  # same panel
+    swapped = tmp_path / "swapped.png"
+    args = ["--plans", str(plans), "--problem", "1", "--planner", "oracle,straight"]
+    assert cli.main([*args, "--out", str(swapped), *FAST]) == 0
+    np.testing.assert_array_equal(render.read_video(swapped)[0][:, : SIZE[0]], right)
 
 
 def test_a_study_file_through_ik_with_goal_names(tmp_path):
@@ -148,3 +159,45 @@ def test_nan_joints_in_an_npz_are_named(tmp_path, monkeypatch, capsys):
         cli.main(["--npz", str(tmp_path / "t.npz"), "--index", "0:2", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert err.startswith("error: t_0001: q: expected finite values"), err
+
+
+def test_planning_figure_rows_and_panels(tmp_path):
+    plans = tmp_path / "plans.npz"
+    np.savez(
+        plans,
+        goals=np.stack([GOALS] * 3),
+        goal_mask=np.stack([MASK] * 3),
+        target=np.array([0, 1, 2]),
+        family=np.array(["dragan", "dragan", "nikolaidis"]),
+        names=np.array(["straight", "oracle", "slotv", "archetype"]),
+        q=np.stack([np.stack([Q1, Q2, Q1])] * 3 + [np.stack([Q1, Q2, np.full_like(Q1, np.nan)])]),
+    )
+    z = dict(np.load(plans))
+    assert planning_render.default_problems(z["family"]) == [0]  # nikolaidis has no 2nd problem
+    fams = np.array(["d"] * 4 + ["n"] * 4)
+    assert planning_render.default_problems(fams) == [0, 5, 2]
+    assert planning_render.choose_planners(z, [0, 2]) == [0, 1, 2]
+    assert planning_render.choose_planners(z, [0, 2], ["archetype", "oracle"]) == [1]  # NaN out
+    assert planning_render.choose_planners(z, [0, 1], ["archetype", "oracle"]) == [3, 1]
+    out = tmp_path / "fig.png"
+    args = ["--plans", str(plans), "--out", str(out), "--size", "64x48", "--problems", "0,2"]
+    assert planning_render.main(args) == 0
+    img = render.read_video(out)[0]
+    bar = render.overlay.title(np.zeros((48, 64, 3), np.uint8), "x").shape[0]
+    assert img.shape[:2] == (
+        2 * (2 * bar + 48) + render.compare.GAP,
+        3 * 64 + 2 * render.compare.GAP,
+    )
+
+
+def test_no_opengl_is_one_line_naming_mujoco_gl(dataset, tmp_path):
+    """A real backend failure: GLFW with no display (as on a headless machine)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["MUJOCO_GL"] = "glfw"
+    args = ["--data", str(dataset), "--split", "position_test", "--out", str(tmp_path / "a.mp4")]
+    cmd = [sys.executable, "-m", "slotv_jax.render", *args]
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr
+    errors = [line for line in out.stderr.splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1 and "MUJOCO_GL=glfw" in errors[0] and "libegl1" in errors[0]
+    assert not (tmp_path / "a.mp4").exists()

@@ -447,9 +447,13 @@ def test_cli_training_then_load_observer(small, tmp_path, capsys):
     path = study.save_study(tmp_path / "s.npz", small)
     out = tmp_path / "ckpt"
     argv = ["--study", str(path), "--method", "slotv", "--out", str(out), "--epochs", "2",
-            "--set", "hidden=16,8", "--set", "batch_size=4", "--no-progress"]  # fmt: skip
+            "--set", "hidden=16,8", "--no-progress"]  # fmt: skip
     assert train_cli.main(argv) == 0
-    assert "NLL per answer" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "NLL per answer" in printed
+    # 14 answer rows, fewer than the preset's batch of 32: the largest power of two that fits
+    assert "the study has 14 answer rows" in printed and "using batch_size=8" in printed
+    assert json.loads((out / "config.json").read_text())["config"]["batch_size"] == 8
     meta = json.loads((out / "config.json").read_text())["meta"]
     assert meta["study"] == str(path) and "train_metrics" in meta
     observer = slotv_jax.load_observer(out)

@@ -51,6 +51,7 @@ import numpy as np
 
 import slotv_jax
 from slotv_jax.benchmarks._machine import cpu_model
+from slotv_jax.core import cli
 from slotv_jax.core.xla import OPT_OUT_VAR, SETTINGS
 from slotv_jax.robot import kinematics as K
 from slotv_jax.world import scene as S
@@ -335,6 +336,7 @@ def report(w: dict, wo: dict, wall_s: float) -> None:
     print(f"# load average after: {_load()}; whole run {wall_s:.0f} s")
 
 
+@cli.command
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.benchmarks.kinematics",

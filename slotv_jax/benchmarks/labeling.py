@@ -45,6 +45,7 @@ import numpy as np
 
 import slotv_jax
 from slotv_jax.benchmarks._machine import cpu_model
+from slotv_jax.core import cli
 from slotv_jax.observers import labelers as L
 from slotv_jax.observers import labelling
 from slotv_jax.world.scene import camera as scene_camera
@@ -128,6 +129,7 @@ def np_fastapp(xyz, goals, mask, beta=5.0):
 VECTOR_WIDTH = "xla_cpu_prefer_vector_width"
 
 
+@cli.command
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.labeling", description=__doc__)
     p.add_argument("--n", type=int, default=160_000, help="trajectories for JAX")
@@ -150,11 +152,12 @@ def main(argv=None) -> int:
     xyz, goals, mask = synthetic(args.n, args.T)
     cam = scene_camera("observer")
     cam_pos, cam_rot = np.asarray(cam.pos, np.float64), np.asarray(cam.rot, np.float64)
+    b = L.DEFAULT_BETAS  # the public labelers' temperatures, where none is given
     numpy_fns = {
-        "dragan": np_dragan,
-        "nikolaidis": lambda x, g, m: np_nikolaidis(x, g, m, cam_pos, cam_rot),
-        "effdist": np_effdist,
-        "fastapp": np_fastapp,
+        "dragan": functools.partial(np_dragan, beta=b["dragan"]),
+        "nikolaidis": lambda x, g, m: np_nikolaidis(x, g, m, cam_pos, cam_rot, b["nikolaidis"]),
+        "effdist": functools.partial(np_effdist, beta=b["effdist"]),
+        "fastapp": functools.partial(np_fastapp, beta=b["fastapp"]),
     }
     public = {n: functools.partial(L.LABELERS[n], camera=cam) for n in ["nikolaidis"]}
     public.update({n: L.LABELERS[n] for n in L.LABELER_NAMES if n != "nikolaidis"})

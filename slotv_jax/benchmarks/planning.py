@@ -37,6 +37,8 @@ import numpy as np
 import slotv_jax
 from slotv_jax import planning
 from slotv_jax.benchmarks._machine import cpu_model
+from slotv_jax.core import cli
+from slotv_jax.core.defaults import BETAS_V1
 from slotv_jax.robot import kinematics
 from slotv_jax.world import scene
 
@@ -52,6 +54,9 @@ _DH = np.array(
         [0.088, 0.0, np.pi / 2],
     ]
 )
+# Both planners optimise and are scored by Dragan at the temperature of the recorded runs
+# (experiments/BENCHMARKS.md), the first version's default.
+BETA = BETAS_V1["dragan"]
 _FLANGE_D = 0.107
 _TCP_D = 0.1034
 
@@ -121,7 +126,7 @@ def scipy_plan(q0: np.ndarray, goals, mask, target, cfg: planning.PlannerConfig)
 
     def f(x):
         xyz = path(x)
-        y = np_dragan(xyz, goals, mask)[target]
+        y = np_dragan(xyz, goals, mask, BETA)[target]
         far = np.linalg.norm(xyz - goal, axis=-1) >= cfg.exempt_radius
         short = np.maximum(cfg.clearance + cfg.clearance_margin - xyz[:, 2], 0.0)[far]
         over = max(cost(xyz) - kappa, 0.0)
@@ -144,7 +149,9 @@ def scipy_plan(q0: np.ndarray, goals, mask, target, cfg: planning.PlannerConfig)
 def quality(xyz, straight_xyz, goals, mask, target, feasible) -> str:
     def y_target(paths):
         rows = zip(paths, goals, mask, target, strict=True)
-        return np.array([np_dragan(np.asarray(x, np.float64), g, m)[t] for x, g, m, t in rows])
+        return np.array(
+            [np_dragan(np.asarray(x, np.float64), g, m, BETA)[t] for x, g, m, t in rows]
+        )
 
     y, y0 = y_target(xyz), y_target(straight_xyz)
     return (
@@ -153,6 +160,7 @@ def quality(xyz, straight_xyz, goals, mask, target, feasible) -> str:
     )
 
 
+@cli.command
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.planning")
     p.add_argument("--n", type=int, default=64, help="problems of the batched call")
@@ -173,7 +181,7 @@ def main(argv=None) -> int:
     print(f"Dragan observer, {cfg.iters} iterations, {cfg.n_points} waypoints, "
           f"budget {cfg.budget} m²\n")  # fmt: skip
     goals, mask, target = sample_problems(max(args.n, args.loop_n, args.scipy_n))
-    planner = planning.make_planner(planning.labeler_observer("dragan"), cfg)
+    planner = planning.make_planner(planning.labeler_observer("dragan", beta=BETA), cfg)
 
     def timed(fn, repeats):
         best = np.inf

@@ -56,10 +56,10 @@ import numpy as np
 import optax
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
+from slotv_jax.core import cli, fileio
 from slotv_jax.observers.models import BACKWARDS
 from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
-from slotv_jax.training import types
 from slotv_jax.training.trainer import default_backward, packs_updates
 
 T = 100
@@ -119,8 +119,8 @@ def synthetic_data(n: int, seed: int = 0, trim: bool = True):
     logits = np.where(mask, rng.normal(size=(n, G)), -np.inf)
     y = np.exp(logits - logits.max(-1, keepdims=True))
     y = (y / y.sum(-1, keepdims=True)).astype(np.float32)
-    data = types.TrainData(xyz, goals, mask, y)
-    return types.trim_goals(data) if trim else data
+    data = train.TrainData(xyz, goals, mask, y)
+    return train.trim_goals(data) if trim else data
 
 
 def paper_pair_capacity(trials: int = 10, preset: str = "paper") -> int:
@@ -329,6 +329,7 @@ def environment() -> dict:
     }
 
 
+@cli.command
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.training")
     ap.add_argument("--device-run", action="store_true", help="accelerator settings + variants")
@@ -365,6 +366,11 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
     ap.add_argument("--profile", default=None, help="dir: HLO + kernel profile of slotv train")
     args = ap.parse_args(argv)
+    if args.json:  # checked before the benchmark; the file is regenerated
+        json_path = pathlib.Path(args.json)
+        fileio.check_output_files(json_path.parent, [json_path.name], what="--json")
+    if args.profile:  # new files are added to the folder
+        fileio.check_output_files(args.profile, [], what="--profile")
 
     gpu = jax.default_backend() != "cpu"
     if args.variant_methods is None:
@@ -462,9 +468,8 @@ def main(argv=None) -> int:
               f"{r.step_ms:.3f} | {r.traj_per_s:,.0f} | {r.flops_per_s / 1e12:.3f} | "
               f"{100 * r.frac:.1f}% (peak {r.peak / 1e12:.2f}) |")  # fmt: skip
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"environment": env, "rows": [dataclasses.asdict(r) for r in rows],
-                       "variants": extra}, f, indent=2)  # fmt: skip
+        doc = {"environment": env, "rows": [dataclasses.asdict(r) for r in rows], "variants": extra}
+        fileio.write_text(args.json, json.dumps(doc, indent=2))
     return 0
 
 

@@ -22,7 +22,7 @@
 >>> check_output_file("labels.npz", overwrite=False)                 # doctest: +SKIP
 
 A violation raises :class:`OutputError` (a ``ValueError``), which
-:func:`slotv_jax.cli.command` prints as one line ``error: ...`` with exit code 2.
+:func:`slotv_jax.core.cli.command` prints as one line ``error: ...`` with exit code 2.
 
 **Readers that name what is wrong:** :func:`read_text` (UTF-8, a byte-order mark
 accepted, a bad byte reported with its file and line), :func:`read_json` (a truncated
@@ -43,7 +43,7 @@ import tempfile
 import uuid
 import zipfile
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO, Literal
 
@@ -133,6 +133,43 @@ def check_output_dir(
     raise OutputError(
         f"{what} {path}: holds an earlier output; {resume_hint}, or pass --overwrite to replace it"
     )
+
+
+# Files whose presence marks a directory as an output of ours: an experiment's results
+# (table1, fidelity, explainable, planning), a search's rollouts, a sample-efficiency run,
+# a checkpoint's config.
+RESULT_MARKERS = (
+    "results.json", "rollouts.json", "sample_efficiency.json", "label_stats.json", "config.json",
+)  # fmt: skip
+
+
+def is_results_dir(path: str | os.PathLike, depth: int = 2) -> bool:
+    """True if ``path`` (or a subdirectory within ``depth`` levels) holds a :data:`RESULT_MARKERS`
+    file: an experiment's output directory, resumed by a rerun."""
+    path = Path(path)
+    if any((path / m).is_file() for m in RESULT_MARKERS):
+        return True
+    return depth > 0 and any(
+        is_results_dir(p, depth - 1) for p in path.iterdir() if p.is_dir() and not p.is_symlink()
+    )
+
+
+def check_output_files(
+    folder: str | os.PathLike, names: Sequence[str], *, what: str = "--out"
+) -> None:
+    """Check, before any work, that the files ``names`` can be written into ``folder``.
+
+    For a command that writes named reports into a shared folder (``experiments/``): the
+    folder is a directory or can be made, it can be written, and no name is a directory.
+    Files of those names are regenerated; nothing else in the folder is touched.
+    """
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{what} {folder}: is a file, not a directory; choose another {what}")
+    _probe_dir(folder, what, folder)
+    for name in names:
+        if (folder / name).is_dir():
+            raise OutputError(f"{what} {folder}: {folder / name} is a directory, not a file")
 
 
 def temp_dir_beside(path: str | os.PathLike) -> Path:

@@ -51,18 +51,38 @@ def check_finite_result(name: str, y, why: str) -> None:
         raise ValueError(f"{name}: {why}")
 
 
+def check_real(name: str, x) -> None:
+    """Raise unless ``x`` holds real numbers (integer or floating dtype): complex values
+    would lose their imaginary part, strings and objects are not coordinates."""
+    dtype = np.dtype(x.dtype) if hasattr(x, "dtype") else np.asarray(x).dtype
+    if dtype.kind not in "iuf":
+        raise ValueError(f"{name}: expected real numbers, got dtype {dtype}")
+
+
 def check_array(name: str, x, shape: Sequence[int | None]) -> None:
-    """Shape check plus finiteness check."""
+    """Shape, dtype (real numbers) and finiteness check."""
     check_shape(name, x, shape)
+    check_real(name, x)
     check_finite(name, x)
 
 
+def _scalar_text(value) -> str:
+    """``value`` for a message: a NumPy scalar as a plain number, not ``np.float64(0.25)``."""
+    return repr(value.item()) if isinstance(value, np.generic) else repr(value)
+
+
 def check_positive(name: str, value) -> None:
-    """Raise unless a concrete scalar is finite and > 0."""
+    """Raise unless a concrete scalar is a real, finite number > 0 (not a string, a bool
+    or a complex number)."""
     if is_concrete(value):
         v = np.asarray(value)
+        if isinstance(value, bool) or v.dtype.kind not in "iuf":
+            raise ValueError(
+                f"{name}: expected a finite number > 0, got {_scalar_text(value)} "
+                f"({type(value).__name__})"
+            )
         if v.ndim != 0 or not np.isfinite(v) or not v > 0:
-            raise ValueError(f"{name}: expected a finite number > 0, got {value!r}")
+            raise ValueError(f"{name}: expected a finite number > 0, got {_scalar_text(value)}")
 
 
 def check_goal_mask(name: str, goal_mask, *, batch_shape: tuple[int, ...] = ()) -> None:
@@ -72,8 +92,11 @@ def check_goal_mask(name: str, goal_mask, *, batch_shape: tuple[int, ...] = ()) 
         return
     m = np.asarray(goal_mask)
     if m.dtype != np.bool_:
-        if not np.all((m == 0) | (m == 1)):
+        if m.dtype.kind not in "iuf":
             raise ValueError(f"{name}: expected booleans (or 0/1), got dtype {m.dtype}")
+        if not np.all((m == 0) | (m == 1)):
+            bad = np.unique(m[(m != 0) & (m != 1)])[:3].tolist()
+            raise ValueError(f"{name}: expected booleans (or 0/1), found the value(s) {bad}")
         m = m.astype(bool)
     # An elementwise fold over the slots: much faster than a reduction over a short axis.
     if not functools.reduce(np.logical_or, [m[..., k] for k in range(G_MAX)]).all():

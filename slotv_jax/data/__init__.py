@@ -6,13 +6,12 @@ This package re-exports the public names of its modules, so ``slotv_jax.data.loa
 (SPEC §9) and ``slotv_jax.data.quick()`` read as before.
 """
 
+from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
 from slotv_jax.data.config import (
     DATA_DISTRIBUTIONS,
     GENERATOR_VERSION,
-    LABELER_NAMES,
     LABELS_V1,
     PRESETS,
-    SPLITS,
     DataConfig,
     LabelConfig,
     paper,

@@ -10,14 +10,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from slotv_jax.core import cli, fileio
+from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
 from slotv_jax.core.xla import XLA_CONFIG
-from slotv_jax.data.config import (
-    DATA_DISTRIBUTIONS,
-    LABELER_NAMES,
-    PRESETS,
-    SPLITS,
-    _config_from_json,
-)
+from slotv_jax.data.config import DATA_DISTRIBUTIONS, PRESETS, _config_from_json
 from slotv_jax.data.generate import generate_dataset, relabel
 from slotv_jax.data.storage import is_dataset_dir, load_split, save_split
 

@@ -47,8 +47,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from slotv_jax.core import distributed
+from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
 from slotv_jax.core.validation import G_MAX
-from slotv_jax.data.config import LABELER_NAMES, SPLITS, DataConfig, LabelConfig
+from slotv_jax.data.config import DataConfig, LabelConfig
 from slotv_jax.data.storage import (
     _TRAJ_ARRAYS,
     Split,

@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import atomic_write
 from slotv_jax.core.validation import G_MAX
-from slotv_jax.data.config import LABELER_NAMES, SPLITS, DataConfig
+from slotv_jax.data.config import DataConfig
 
 FORMAT_VERSION = 1
 
@@ -102,8 +103,9 @@ def dataset_dir(cache: str | Path, cfg: DataConfig) -> Path:
 
 
 def is_dataset_dir(path: str | Path) -> bool:
-    """True if ``path`` holds at least one split written by :func:`save_split` (its marker)."""
-    return any((Path(path) / f"{name}.json").is_file() for name in SPLITS)
+    """True if ``path`` holds a split written by :func:`save_split` (its marker: a split's
+    ``.json`` sidecar, or its ``.npz`` alone if a run stopped between the two)."""
+    return any((Path(path) / f"{n}{x}").is_file() for n in SPLITS for x in (".json", ".npz"))
 
 
 def _check_dir_config(out: Path, cfg: DataConfig) -> None:

@@ -40,12 +40,14 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.runs import curves, presets
-from slotv_jax.runs.presets import LABELER_TITLES, LABELERS, SPLIT_TITLES, SPLITS
+from slotv_jax.runs.presets import LABELER_TITLES, SPLIT_TITLES
 from slotv_jax.training import config as train_config
-from slotv_jax.training import evaluate, types
+from slotv_jax.training import evaluate
 from slotv_jax.training import trainer as train
 
 MODELS = train_config.MODELS
@@ -75,7 +77,7 @@ def run(
     *,
     trials: int,
     models: Sequence[str] = MODELS,
-    labelers: Sequence[str] = LABELERS,
+    labelers: Sequence[str] = LABELER_NAMES,
     repeats: int = 3,
     every: int = 2,
     cache: Path = Path("data"),
@@ -106,15 +108,15 @@ def run(
     mlp_size = t1.train["slotv"].n_used(len(dataset["train"]))
 
     def fit_and_score(lab, model, tc, seeds):
-        tdata = types.prepare(dataset["train"], lab, size=tc.train_size)
+        tdata = train.prepare(dataset["train"], lab, size=tc.train_size)
         t0 = time.perf_counter()
         states, _ = train.train_trials(tc, tdata, seeds, progress=False)
         jax.block_until_ready(states)
         seconds = time.perf_counter() - t0
         accs = {}
-        for split in SPLITS:
+        for split in TEST_SPLITS:
             size = tc.n_used(len(dataset["train"])) if split == "train" else None
-            d = types.prepare(dataset[split], lab, size=size)
+            d = train.prepare(dataset[split], lab, size=size)
             accs[split] = np.asarray(evaluate.accuracy(tc, states.params, d)).reshape(-1)
         fitted = []
         if model != "mlp":
@@ -129,7 +131,7 @@ def run(
     for lab, model in bar:
         bar.set_postfix_str(f"{lab}/{model}")
         accs, fitted, seconds = fit_and_score(lab, model, configs[model], list(range(trials)))
-        for split in SPLITS:
+        for split in TEST_SPLITS:
             for t in range(trials):
                 doc["cells"].append(
                     {"labeler": lab, "model": model, "split": split, "trial": t,
@@ -152,7 +154,7 @@ def run(
         epochs = max(1, round(updates / (n // base.batch_size)))
         tc = dataclasses.replace(base, train_size=n, epochs=epochs)
         accs, fitted, _ = fit_and_score(lab, model, tc, list(range(trials)))
-        for split in SPLITS:
+        for split in TEST_SPLITS:
             m_, s_ = _mean_sd(accs[split])
             doc["few_labels"].append(
                 {"labeler": lab, "model": model, "fraction": f"1/{k}", "train_size": n,
@@ -257,13 +259,13 @@ def report(doc: dict) -> str:
     labels; sample efficiency."""
     by = {(s["labeler"], s["model"], s["split"]): s for s in doc["summary"]}
     models = list(doc["config"]["train"])
-    labelers = sorted({s["labeler"] for s in doc["summary"]}, key=LABELERS.index)
+    labelers = sorted({s["labeler"] for s in doc["summary"]}, key=LABELER_NAMES.index)
     lines = [
         "| labeler | split | " + " | ".join(MODEL_TITLES[m] for m in models) + " |",
         "|---|---|" + "---|" * len(models),
     ]
     for lab in labelers:
-        for i, split in enumerate(SPLITS):
+        for i, split in enumerate(TEST_SPLITS):
             row = [LABELER_TITLES[lab] if i == 0 else "", SPLIT_TITLES[split]]
             for m in models:
                 s = by.get((lab, m, split))
@@ -292,7 +294,7 @@ def report(doc: dict) -> str:
         few.setdefault((r["labeler"], r["model"], r["fraction"]), {})[r["split"]] = r
     for (lab, m, frac), d in few.items():
         r0 = next(iter(d.values()))
-        accs = [f"{d[s]['mean']:.3f} ± {d[s]['sd']:.3f}" for s in SPLITS[1:]]
+        accs = [f"{d[s]['mean']:.3f} ± {d[s]['sd']:.3f}" for s in TEST_SPLITS[1:]]
         flines.append(f"| {LABELER_TITLES[lab]} | {MODEL_TITLES[m]} | {r0['train_size']} "
                       f"({frac}) | {r0['epochs']} | " + " | ".join(accs) + " |")  # fmt: skip
 
@@ -358,7 +360,7 @@ def plot(doc: dict, out: Path, path: Path) -> None:
     ax = axes[0]
     by = {(s["labeler"], s["model"], s["split"]): s for s in doc["summary"]}
     models = list(doc["config"]["train"])
-    labelers = sorted({s["labeler"] for s in doc["summary"]}, key=LABELERS.index)
+    labelers = sorted({s["labeler"] for s in doc["summary"]}, key=LABELER_NAMES.index)
     width = 0.8 / len(models)
     colors = dict(zip(MODELS, ("tab:blue", "tab:orange", "tab:green", "tab:red"), strict=True))
     for j, m in enumerate(models):
@@ -398,6 +400,7 @@ def plot(doc: dict, out: Path, path: Path) -> None:
         plt.close(fig)
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.explainable",
@@ -406,7 +409,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--preset", choices=sorted(presets.PRESETS), default="quick")
     p.add_argument("--trials", type=int, help="trials per cell (default: the preset's)")
     p.add_argument("--models", nargs="+", choices=MODELS, default=list(MODELS))
-    p.add_argument("--labelers", nargs="+", choices=LABELERS, default=list(LABELERS))
+    p.add_argument("--labelers", nargs="+", choices=LABELER_NAMES, default=list(LABELER_NAMES))
     p.add_argument("--repeats", type=int, default=3, help="sample-efficiency repeats")
     p.add_argument("--every", type=int, default=2, help="archetype validation interval (updates)")
     p.add_argument("--out", type=Path, help="default: runs/explainable_<preset>")
@@ -418,6 +421,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if v < 1:
             p.error(f"--{name}: expected an integer >= 1")
     out = args.out or Path("runs") / f"explainable_{args.preset}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
+    print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     doc = run(
         args.preset, out, trials=trials, models=args.models, labelers=args.labelers,
         repeats=args.repeats, every=args.every, cache=args.cache,

@@ -65,11 +65,13 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.core import cli, fileio
+from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.data.stats import split_stats
 from slotv_jax.runs import grid, presets
 from slotv_jax.runs.paper import PAPER_TABLE
-from slotv_jax.runs.presets import LABELER_TITLES, METHOD_TITLES, SPLIT_TITLES, SPLITS
+from slotv_jax.runs.presets import LABELER_TITLES, METHOD_TITLES, SPLIT_TITLES
 from slotv_jax.training import config as train_config
 from slotv_jax.world.trajectories import SPEC_VIA_BOX, TABLE_VIA_BOX
 
@@ -179,7 +181,7 @@ def settings(cfg: FidelityConfig) -> list[Setting]:
         v1 = data_lib.LABELS_V1
         labels = dataclasses.replace(
             base.labels,
-            **{f"beta_{n}": k * getattr(v1, f"beta_{n}") for n in data_lib.LABELER_NAMES},
+            **{f"beta_{n}": k * getattr(v1, f"beta_{n}") for n in LABELER_NAMES},
         )
         out.append((f"beta=x{k:g}", "beta", f"×{k:g}", dataclasses.replace(base, labels=labels)))
     out.append(("box=spec", "box", "SPEC", base))
@@ -227,15 +229,15 @@ def unique_runs(all_settings: Sequence[Setting]) -> dict[str, Setting]:
 
 def _label_stats(ddir: Path) -> dict:
     """:func:`split_stats` of the four Table 1 splits, plus their mean."""
-    per = {name: split_stats(data_lib.load_split(ddir, name)) for name in SPLITS}
+    per = {name: split_stats(data_lib.load_split(ddir, name)) for name in TEST_SPLITS}
     mean = {
         lab: {
-            k: float(np.mean([per[s]["labelers"][lab][k] for s in SPLITS]))
+            k: float(np.mean([per[s]["labelers"][lab][k] for s in TEST_SPLITS]))
             for k in ("entropy_ratio", "margin", "near_tie", "target_agreement", "chance")
         }
         for lab in data_lib.LABELER_NAMES
     }
-    all_agree = float(np.mean([per[s]["all_agree"] for s in SPLITS]))
+    all_agree = float(np.mean([per[s]["all_agree"] for s in TEST_SPLITS]))
     return {"splits": per, "mean": mean, "all_agree": all_agree}
 
 
@@ -392,7 +394,7 @@ def render_markdown(doc: dict, *, command: str = "", wall_s: float | None = None
             f"{r['label_stats']['all_agree']:.3f} |"
         )
     lines += ["", "## Accuracy", ""]
-    split_hdr = " / ".join(SPLIT_TITLES[s] for s in SPLITS)
+    split_hdr = " / ".join(SPLIT_TITLES[s] for s in TEST_SPLITS)
     lines.append(f"Each cell: {split_hdr}, mean over trials (n trials).")
     lines.append("")
     hdr = "| factor | setting | " + " | ".join(
@@ -400,7 +402,7 @@ def render_markdown(doc: dict, *, command: str = "", wall_s: float | None = None
     )
     lines += [hdr + " |", "|---|---|" + "---|" * (len(labs) * len(cfg["methods"]))]
     paper_row = "| paper | | " + " | ".join(
-        " / ".join(f"{PAPER_TABLE[(lab, m, s)][0]:.2f}" for s in SPLITS)
+        " / ".join(f"{PAPER_TABLE[(lab, m, s)][0]:.2f}" for s in TEST_SPLITS)
         for lab in labs
         for m in cfg["methods"]
     )
@@ -409,7 +411,7 @@ def render_markdown(doc: dict, *, command: str = "", wall_s: float | None = None
         cells = []
         for lab in labs:
             for m in cfg["methods"]:
-                a = [_acc(r, lab, m, s) for s in SPLITS]
+                a = [_acc(r, lab, m, s) for s in TEST_SPLITS]
                 if any(x is None for x in a):
                     cells.append("—")
                 else:
@@ -454,7 +456,7 @@ def plot(doc: dict, path: Path) -> None:
             style = "-o" if m == "slotv" else "--s"
             ax.errorbar(x, means, yerr=sds, fmt=style, color=c, capsize=3, ms=4,
                         label=f"{METHOD_TITLES[m]} {LABELER_TITLES[lab]}")  # fmt: skip
-            ref = np.mean([PAPER_TABLE[(lab, m, s)][0] for s in SPLITS])
+            ref = np.mean([PAPER_TABLE[(lab, m, s)][0] for s in TEST_SPLITS])
             ax.axhline(ref, color=c, linestyle=":", linewidth=1)
         ax.set_xticks(x, [r["value"] for r in rows], rotation=30, ha="right")
         ax.set_title(FACTOR_TITLES[factor], fontsize=9)
@@ -487,6 +489,7 @@ def write_report(doc: dict, doc_path: Path, *, command: str = "", wall_s: float 
 # ----------------------------------------------------------------------- CLI
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.fidelity",
@@ -496,7 +499,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="results directory (default: runs/fidelity_<preset>)")
     p.add_argument("--cache", type=Path, default=Path("data"), help="dataset cache directory")
     p.add_argument("--settings", nargs="+", help="run only these settings (default: all)")
-    p.add_argument("--labelers", nargs="+", choices=presets.LABELERS, help="labelers to train")
+    p.add_argument("--labelers", nargs="+", choices=LABELER_NAMES, help="labelers to train")
     p.add_argument("--trials", type=int, help="trials of an ordinary setting")
     p.add_argument("--key-trials", type=int, help=f"trials of {', '.join(KEY_SETTINGS)}")
     p.add_argument("--compute-dtype", choices=("float32", "bfloat16"))
@@ -532,6 +535,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{s.name:>16s}  {s.factor:>6s}  {s.value:<12s} trials {s.trials}")
         return 0
     out = args.out or Path("runs") / f"fidelity_{args.preset}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
+    doc_path = args.doc or (
+        Path("experiments") / "fidelity.md" if args.preset == "paper" else out / "fidelity.md"
+    )
+    fileio.check_output_files(doc_path.parent, [doc_path.name], what="--doc")
     t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     previous = None
@@ -549,9 +557,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ValueError as e:
             p.error(str(e))
     wall = None if args.report_only else time.perf_counter() - t0
-    doc_path = args.doc or (
-        Path("experiments") / "fidelity.md" if args.preset == "paper" else out / "fidelity.md"
-    )
     command = "python -m slotv_jax.experiments.fidelity " + shlex.join(
         sys.argv[1:] if argv is None else list(argv)
     )

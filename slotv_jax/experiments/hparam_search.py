@@ -44,13 +44,13 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
-from slotv_jax.core import distributed
+from slotv_jax.core import cli, distributed, fileio
+from slotv_jax.core.defaults import LABELER_NAMES
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
 from slotv_jax.runs import presets
-from slotv_jax.runs.presets import LABELERS
 from slotv_jax.training import config as train_config
-from slotv_jax.training import evaluate, parallel, types
+from slotv_jax.training import evaluate, parallel
 from slotv_jax.training import trainer as train
 
 PHASES = {
@@ -192,8 +192,8 @@ def run(
         dcfg, cache, splits=["train", "trajectory_val"], progress=progress
     )
     t_data = time.perf_counter() - t_start
-    tdata = types.trim_goals(types.prepare(dataset["train"], labeler, size=cfg.train_size))
-    vdata = types.trim_goals(types.prepare(dataset["trajectory_val"], labeler))
+    tdata = train.trim_goals(train.prepare(dataset["train"], labeler, size=cfg.train_size))
+    vdata = train.trim_goals(train.prepare(dataset["trajectory_val"], labeler))
     everything = [(p, i) for p in phases for i in range(cfg.rollouts)]
     finished = {(r["phase"], r["index"]) for r in doc["rollouts"]}
     done = distributed.broadcast(np.array([job in finished for job in everything]))
@@ -416,6 +416,7 @@ def summarise(doc: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.hparam_search",
@@ -423,7 +424,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--preset", choices=sorted(PRESETS), default="quick")
     p.add_argument("--rollouts", type=int, help="rollouts per phase (default: the preset's)")
-    p.add_argument("--labeler", choices=LABELERS, default="dragan")
+    p.add_argument("--labeler", choices=LABELER_NAMES, default="dragan")
     p.add_argument("--phases", nargs="+", choices=list(PHASES), default=list(PHASES))
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, help="default: runs/hparam_search_<preset>")
@@ -449,6 +450,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         kw["compute_dtype"] = args.compute_dtype
     cfg = PRESETS[args.preset](**kw)
     out = args.out or Path("runs") / f"hparam_search_{args.preset}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
+    if args.report is not None:
+        fileio.check_output_files(args.report.parent, [args.report.name], what="--report")
     command = "python -m slotv_jax.experiments.hparam_search " + " ".join(
         sys.argv[1:] if argv is None else argv
     )

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from slotv_jax import data as data_lib
+from slotv_jax.core import cli, fileio
 from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.data.stats import NEAR_TIE, collect
 
@@ -328,6 +329,7 @@ def write_report(
     return stats
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line: load the splits of ``--data`` and write the report to ``--out``."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -340,6 +342,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--splits", nargs="+", choices=data_lib.SPLITS, default=list(data_lib.SPLITS))
     p.add_argument("--date", help="date to print in the report (default: today)")
     args = p.parse_args(argv)
+    fileio.check_output_files(args.out, ["labels.md", "labels.png"])  # regenerated
     splits = {name: data_lib.load_split(args.data, name) for name in args.splits}
     command = shlex.join(["python", "-m", "slotv_jax.experiments.label_report", *argv])
     stats = write_report(splits, args.out, command=command, date=args.date)

@@ -19,20 +19,44 @@ Steps:
    the preset's training config and saved under ``OUT/observers/``. Beside them, in
    ``plus_planners``: SLOT-V+ and T-REX+, the same networks with values relative to the
    start's and learned time weights (``start_term``, ``time_weight``:
-   :class:`slotv_jax.observers.models.SlotV`), which a planner cannot exploit the way it exploits
+   :class:`slotv_jax.models.SlotV`), which a planner cannot exploit the way it exploits
    the paper's score (the paper preset trains SLOT-V+ for 5 epochs: :func:`paper`); in
    ``archetype_planners``: SLOT-V's loss with the family's parametric observer archetype
    (SPEC §10: ``dragan`` for Dragan, ``viewpoint`` for Nikolaidis), which separates what
    the loss learns from what a network can represent;
 4. every observer plans every problem with :mod:`slotv_jax.planning` (one compiled
-   program for all observers), and every plan is scored by the TRUE hand-crafted
-   labeler of its family: mean and SD of y_target, the rate at which the target is the
-   labeler's argmax, the path-length ratio to the straight line, feasibility, how
-   often the plan's true legibility fell below the straight line's, and the fraction
-   of the oracle's gain (mean y_target over the straight line) each learned observer
-   keeps;
-5. ``OUT/results.json`` (SPEC §10 schema plus these extras), ``OUT/plans.npz`` (every
-   plan), figures rendered from those files and ``OUT/planning.md``.
+   program for all observers). One temperature per family rules the oracle planner and
+   the scoring: the dataset's (``cfg.data.labels``, SPEC §4 "Default temperatures"), the
+   temperature of the labels the learned observers were trained on, recorded as
+   ``config.scoring_betas``. Every plan is scored by that labeler: mean and SD of
+   y_target, the rate at which the target is the labeler's argmax, the path-length ratio
+   to the straight line, feasibility, how often the plan's true legibility fell below the
+   straight line's, and the fraction of the oracle's gain (mean y_target over the straight
+   line) each learned observer keeps;
+5. ``OUT/results.json`` (SPEC §10 schema plus these extras), ``OUT/plans.npz`` (example
+   plans, below), the figures rendered from those two files and ``OUT/planning.md``
+   rendered from ``results.json``.
+
+``plans.npz`` (read with ``allow_pickle=False``; no object arrays) holds the plans of
+every planner for up to :data:`N_SAVED` problems per family: the first problems of
+evenly spaced held-out scenes with at least three goals, the same problems for both
+families (P = 2 × that number, the Dragan family's rows first)::
+
+    goals      (P, 8, 3) float32   goal positions (m)
+    goal_mask  (P, 8)    bool      real goal slots
+    target     (P,)      int32     the goal slot moved to
+    family     (P,)      unicode   the labeler family: dragan or nikolaidis
+    beta       (P,)      float32   the temperature that scored the row (config.scoring_betas)
+    problem    (P,)      int32     index of the problem in the run (every (scene, goal) pair)
+    split      (P,)      unicode   position_test or goal_count_test
+    scene      (P,)      int32     scene index within the split
+    names      (K,)      unicode   planners: straight, oracle (the family's labeler), slotv,
+                                   trex, slotv_plus, trex_plus, archetype (those of the run)
+    q          (K, P, T, 7) float32  joint configurations of planner k's plan (rad)
+    xyz        (K, P, T, 3) float32  its executed TCP path FK(q) (m)
+    y          (K, P, 8)    float32  its labels under the family's labeler at ``beta``
+
+A planner missing for a family (an archetype left out) has NaN rows.
 """
 
 from __future__ import annotations
@@ -40,7 +64,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -54,15 +77,14 @@ from tqdm.auto import tqdm
 import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax import planning
+from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
-from slotv_jax.core.fileio import atomic_write, save_figure, write_text
-from slotv_jax.observers import labelers, models
-from slotv_jax.robot.kinematics import home_tcp
-from slotv_jax.training import checkpoint, evaluate, types
+from slotv_jax.core.fileio import atomic_write, write_text
+from slotv_jax.experiments.planning_report import FIGURES, render, report, write_doc
+from slotv_jax.observers import labelers, labelling, models
+from slotv_jax.training import checkpoint, evaluate
 from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
-from slotv_jax.world import scene
-from slotv_jax.world.scene import camera, project
 
 FAMILIES = ("dragan", "nikolaidis")  # the true labelers; each is its own family's oracle
 METHODS = ("slotv", "trex")  # the learned observers of SPEC's `planners` rows
@@ -72,11 +94,7 @@ PLUS = {"slotv_plus": "slotv", "trex_plus": "trex"}
 ARCHETYPES = {"dragan": "dragan", "nikolaidis": "viewpoint"}  # family -> archetype model
 LEARNED = (*METHODS, *PLUS, "archetype")
 SPLITS = ("position_test", "goal_count_test")
-TITLES = {"straight": "straight line", "dragan": "Dragan (oracle)",
-          "nikolaidis": "Nikolaidis (oracle)", "slotv": "SLOT-V", "trex": "T-REX",
-          "slotv_plus": "SLOT-V+ (start term, time weights)",
-          "trex_plus": "T-REX+ (start term, time weights)",
-          "archetype": "SLOT-V loss, archetype"}  # fmt: skip
+N_SAVED = 8  # problems per family whose plans go to plans.npz
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,9 +138,16 @@ class PlanningConfig:
         """``(method, family)`` of every learned observer of the run."""
         return [(m, f) for f in FAMILIES for m in self.methods(f)]
 
+    def scoring_betas(self) -> dict[str, float]:
+        """β of each family's labeler, for its oracle planner and for scoring every plan:
+        the dataset's, which labelled the learned observers' training data."""
+        betas = self.data.labels.betas()
+        return {f: betas[f] for f in FAMILIES}
+
     def to_json(self) -> dict:
         return {
             "preset": self.preset,
+            "scoring_betas": self.scoring_betas(),
             "data": self.data.to_json(),
             "data_digest": self.data.digest(),
             "train": {m: c.to_dict() for m, c in self.train.items()},
@@ -148,11 +173,8 @@ def paper() -> PlanningConfig:
     """Paper-size data and observers (use a GPU), 60 held-out scenes per split (>= 500
     problems: about 4 goals per position_test scene and 6 per goal_count_test scene).
 
-    SLOT-V+ trains 5 of the paper's 15 epochs **[choice]**. Measured on an H100
-    (experiments/planning_paper.md): its held-out accuracy is the same, and its plans keep
-    more of the Nikolaidis oracle's gain (eight trainings: 79–90 %, mean 83 %; fifteen
-    trainings of 15 epochs: 75–89 %, mean 79 %). The longer run fits detail of the value
-    field that the planner's gradient then follows away from the labeler's.
+    SLOT-V+ trains 5 of the paper's 15 epochs **[choice]**: as accurate on held-out data,
+    and its plans kept more of the Nikolaidis oracle's gain (experiments/planning_paper.md).
     """
     t = {m: train_config.paper(m) for m in METHODS}
     a = {f: train_config.archetype("paper", m) for f, m in ARCHETYPES.items()}
@@ -239,7 +261,7 @@ def train_observer(
     ``labeler`` labels; save it to ``out``."""
     tc = cfg.observer_config(method, labeler)
     t0 = time.perf_counter()
-    data = types.prepare(train_split, labeler, size=tc.train_size)
+    data = train.prepare(train_split, labeler, size=tc.train_size)
     state, _ = train.train_trials(tc, data, [cfg.seed], progress=False)
     state = train.select_trial(state, 0)
     jax.block_until_ready(state)
@@ -269,6 +291,12 @@ def observer_facts(observer, labeler: str, splits: dict) -> dict:
     return facts
 
 
+def oracles(cfg: PlanningConfig) -> dict[str, planning.Observer]:
+    """The hand-crafted observer of each family at the dataset's temperature and camera."""
+    cam, betas = cfg.data.labels.camera, cfg.scoring_betas()
+    return {f: planning.labeler_observer(f, beta=betas[f], camera=cam) for f in FAMILIES}
+
+
 def observer_key(name: str, family: str) -> str:
     """Key of an observer in the planner: the labelers by name, learned ones by method/family."""
     return name if name in FAMILIES else f"{name}/{family}"
@@ -277,15 +305,17 @@ def observer_key(name: str, family: str) -> str:
 # --------------------------------------------------------------------- scores
 
 
-def true_labels(labeler: str, xyz, goals, goal_mask) -> np.ndarray:
-    """The true hand-crafted labels ``(N, 8)`` of planned paths (compiled, batched)."""
-    fn = labelers.LABELERS[labeler]
-    if labeler == "nikolaidis":
-        cam = scene.camera("observer")
-        return np.asarray(
-            jax.jit(jax.vmap(lambda x, g, m: fn(x, g, m, cam)))(xyz, goals, goal_mask)
-        )
-    return np.asarray(jax.jit(jax.vmap(fn))(xyz, goals, goal_mask))
+def true_labels(
+    labeler: str, xyz, goals, goal_mask, *, beta: float | None = None, camera: str = "observer"
+) -> np.ndarray:
+    """The labels ``(N, 8)`` of planned paths ``xyz (N, T, 3)`` under the hand-crafted
+    ``labeler`` at ``beta`` (default: :data:`slotv_jax.labelers.DEFAULT_BETAS`, the
+    datasets'), float32, compiled and batched (:func:`slotv_jax.labelers.label_all`)."""
+    beta = labelers.DEFAULT_BETAS[labeler] if beta is None else beta
+    kw = {f"beta_{labeler}": beta, "camera": camera}
+    return labelling.label_all(xyz, goals, goal_mask, labelers=(labeler,), progress=False, **kw)[
+        labeler
+    ]
 
 
 def path_length(xyz: np.ndarray) -> np.ndarray:
@@ -309,6 +339,27 @@ def summarise(observer: str, labeler: str, y, y_straight, argmax_ok, length_rati
         "lowered_rate": float(np.mean(y < y_straight)),
         "raised_rate": float(np.mean(y > y_straight)),
     }
+
+
+def plan_row(name: str, family: str, res, y_all, y_straight, len_straight, problems) -> dict:
+    """:func:`summarise` of one planner's plans ``res`` (a :class:`planning.PlanResult`
+    batch) with their true labels ``y_all (N, 8)``, plus what the planner itself saw and
+    the constraints of its worst plan."""
+    target = problems["target"]
+    rows = np.arange(len(target))
+    y = y_all[rows, target]
+    d = res.diagnostics
+    row = summarise(name, family, y, y_straight, y_all.argmax(-1) == target,
+                    path_length(res.xyz) / len_straight, d.feasible)  # fmt: skip
+    obj = np.asarray(d.objective)
+    row["observer_p_target_straight"] = float(np.exp(obj[:, 0]).mean())
+    row["observer_p_target_plan"] = float(np.exp(obj[rows, np.asarray(d.best_iter)]).mean())
+    row["max_target_residual_m"] = float(np.max(d.target_residual))
+    row["min_joint_margin_rad"] = float(np.min(d.joint_margin))
+    row["min_table_clearance_m"] = float(np.min(d.table_clearance))
+    row["max_cost_over_limit_m2"] = float(np.max(d.cost - d.cost_limit))
+    row["by_split"] = {s: float(y[problems["split"] == i].mean()) for i, s in enumerate(SPLITS)}
+    return row
 
 
 # ------------------------------------------------------------------------ run
@@ -337,9 +388,10 @@ def run(
     problems = make_problems(held_out_scenes(cfg, dataset))
     timing["scenes_s"] = time.perf_counter() - t0
 
-    # Observers: the two labelers, and the learned ones per family (given or trained here).
+    # Observers: the oracles, and the learned ones (given, or trained here on the dataset).
+    betas, camera = cfg.scoring_betas(), cfg.data.labels.camera
+    observers = oracles(cfg)
     checkpoints = dict(checkpoints or {})
-    observers: dict[str, planning.Observer] = {f: planning.labeler_observer(f) for f in FAMILIES}
     sources: dict[str, dict] = {}
     timing["train_s"] = 0.0
     for method, family in cfg.learned():
@@ -357,9 +409,12 @@ def run(
 
     # Plans: one compiled program for every observer.
     planner = planning.make_planner(observers, cfg.planner)
+    n_obs = len(planner.observers)
+    note = f"planning: compiling one program for {n_obs} observers (a minute or two on a CPU)"
+    print(note, file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     straight = planner.straight_line(problems["goals"], problems["goal_mask"], problems["target"])
-    jax.block_until_ready(straight)
+    straight = jax.device_get(straight)
     timing["straight_line_s"] = time.perf_counter() - t0
     plans: dict[str, planning.PlanResult] = {}
     timing["plan_s"] = {}
@@ -368,51 +423,31 @@ def run(
         plans[name] = jax.device_get(planner.plan_problems(straight, observer=name))
         timing["plan_s"][name] = time.perf_counter() - t0
 
-    # Scores under the true labelers.
+    # Scores under the labeler of each family at the dataset's temperature.
     goals, mask, target = problems["goals"], problems["goal_mask"], problems["target"]
-    rows = np.arange(len(target))
-    xyz_straight = np.asarray(straight.xyz)
-    len_straight = path_length(xyz_straight)
-    arrays: dict[str, np.ndarray] = {**problems, "xyz/straight": xyz_straight}
-    planners, plus_planners, archetype_planners = [], [], []
-    gains: dict[str, dict] = {}
+    len_straight = path_length(straight.xyz)
+    rows: dict[str, list[dict]] = {"planners": [], "plus_planners": [], "archetype_planners": []}
+    labels: dict[tuple[str, str], np.ndarray] = {}
+    gains: dict[str, float | None] = {}
     for family in FAMILIES:
-        y_s_all = true_labels(family, xyz_straight, goals, mask)
-        y_s = y_s_all[rows, target]
-        arrays[f"y_{family}/straight"] = y_s_all
-        ok_s = np.asarray(jax.device_get(straight.target_residual)) <= planning.MAX_RESIDUAL
-        planners.append(summarise("straight", family, y_s, y_s, y_s_all.argmax(-1) == target,
-                                  np.ones_like(len_straight), ok_s))  # fmt: skip
+        y_s_all = true_labels(family, straight.xyz, goals, mask, beta=betas[family], camera=camera)
+        y_s = y_s_all[np.arange(len(target)), target]
+        labels[family, "straight"] = y_s_all
+        ok_s = np.asarray(straight.target_residual) <= planning.MAX_RESIDUAL
+        ones = np.ones_like(len_straight)
+        argmax = y_s_all.argmax(-1) == target
+        rows["planners"].append(summarise("straight", family, y_s, y_s, argmax, ones, ok_s))
         for name in (family, *cfg.methods(family)):
-            key = observer_key(name, family)
-            res = plans[key]
-            y_all = true_labels(family, res.xyz, goals, mask)
-            y = y_all[rows, target]
-            arrays[f"xyz/{key}"] = np.asarray(res.xyz)
-            arrays[f"y_{family}/{key}"] = y_all
-            ratio = path_length(res.xyz) / len_straight
-            ok = res.diagnostics.feasible
-            row = summarise(name, family, y, y_s, y_all.argmax(-1) == target, ratio, ok)
-            d = res.diagnostics
-            obj = np.asarray(d.objective)
-            row["observer_p_target_straight"] = float(np.exp(obj[:, 0]).mean())
-            row["observer_p_target_plan"] = float(np.exp(obj[rows, np.asarray(d.best_iter)]).mean())
-            row["max_target_residual_m"] = float(np.max(d.target_residual))
-            row["min_joint_margin_rad"] = float(np.min(d.joint_margin))
-            row["min_table_clearance_m"] = float(np.min(d.table_clearance))
-            row["max_cost_over_limit_m2"] = float(np.max(d.cost - d.cost_limit))
-            row["by_split"] = {
-                s: float(y[problems["split"] == i].mean()) for i, s in enumerate(SPLITS)
-            }
+            res = plans[observer_key(name, family)]
+            y_all = true_labels(family, res.xyz, goals, mask, beta=betas[family], camera=camera)
+            labels[family, name] = y_all
+            row = plan_row(name, family, res, y_all, y_s, len_straight, problems)
             if name == "archetype":
                 row["model"] = cfg.observer_config(name, family).model
-                archetype_planners.append(row)
-            elif name in PLUS:
-                plus_planners.append(row)
-            else:
-                planners.append(row)
-        oracle_gain = next(r for r in planners if r["observer"] == family)["mean_gain"]
-        for r in planners + plus_planners + archetype_planners:
+            group = "archetype_planners" if name == "archetype" else "planners"
+            rows["plus_planners" if name in PLUS else group].append(row)
+        oracle_gain = next(r for r in rows["planners"] if r["observer"] == family)["mean_gain"]
+        for r in (r for group in rows.values() for r in group):
             if r["labeler"] == family and r["observer"] in LEARNED:
                 r["oracle_gain_kept"] = r["mean_gain"] / oracle_gain if oracle_gain > 0 else None
                 gains[f"{r['observer']}/{family}"] = r["oracle_gain_kept"]
@@ -428,204 +463,62 @@ def run(
         "n_problems_by_split": {
             s: int((problems["split"] == i).sum()) for i, s in enumerate(SPLITS)
         },
-        "planners": planners,
-        # SLOT-V+ and T-REX+: learned start term and time weights (not SPEC `planners` rows)
-        "plus_planners": plus_planners,
-        # SLOT-V's loss with the family's parametric archetype (not a SPEC `planners` row)
-        "archetype_planners": archetype_planners,
+        # SPEC's rows; SLOT-V+ and T-REX+ (learned start term and time weights); SLOT-V's
+        # loss with the family's parametric archetype (the last two not SPEC rows)
+        **rows,
         "oracle_gain_kept": gains,
         "timing": timing,
     }
     write_text(out / "results.json", json.dumps(doc, indent=1))
-    atomic_write(out / "plans.npz", lambda f: np.savez_compressed(f, **arrays))
+    saved = saved_plans(cfg, problems, straight, plans, labels)
+    atomic_write(out / "plans.npz", lambda f: np.savez_compressed(f, **saved))
     render(out, cfg.n_examples)
     write_text(out / "planning.md", report(doc))
     return doc
 
 
-# ------------------------------------------------------------------- figures
-
-
-def _plan_keys(family: str, plans: dict) -> list[tuple[str, str]]:
-    names = (family, *LEARNED)
-    keys = [(n, observer_key(n, family)) for n in names]
-    return [("straight", "straight"), *((n, k) for n, k in keys if f"xyz/{k}" in plans)]
-
-
-_COLOURS = {"straight": "0.4", "dragan": "C3", "nikolaidis": "C3", "slotv": "C0", "trex": "C2",
-            "slotv_plus": "C9", "trex_plus": "C8", "archetype": "C1"}  # fmt: skip
-
-
-def all_rows(doc: dict) -> list[dict]:
-    """Every planner row of a results document: SPEC's, the ``+`` and the archetype ones."""
-    return doc["planners"] + doc.get("plus_planners", []) + doc.get("archetype_planners", [])
-
-
-def example_indices(plans: dict, n: int) -> list[int]:
-    """Problems shown in the scene figure: the first problem of evenly spaced scenes with
-    at least three goals (deterministic)."""
-    many = np.flatnonzero(plans["goal_mask"].sum(-1) >= 3)
-    first = [i for i in many if i == 0 or plans["scene"][i] != plans["scene"][i - 1]
-             or plans["split"][i] != plans["split"][i - 1]]  # fmt: skip
-    first = first or list(range(len(plans["target"])))
+def example_indices(problems: dict, n: int) -> list[int]:
+    """The first problem of ``n`` evenly spaced scenes with at least three goals
+    (deterministic; all scenes if none has three)."""
+    split, scene_ = problems["split"], problems["scene"]
+    many = np.flatnonzero(problems["goal_mask"].sum(-1) >= 3)
+    first = [i for i in many if i == 0 or scene_[i] != scene_[i - 1] or split[i] != split[i - 1]]
+    first = first or list(range(len(problems["target"])))
     pick = np.linspace(0, len(first) - 1, min(n, len(first))).round().astype(int)
     return [int(first[i]) for i in pick]
 
 
-def render(out: Path, n_examples: int = 3) -> None:
-    """``scenes.png`` (top view, Dragan family; observer view, Nikolaidis family) and
-    ``bars.png`` (true legibility per planner ± SD), from ``plans.npz``/``results.json``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    with np.load(out / "plans.npz", allow_pickle=False) as f:
-        plans = {k: f[k] for k in f.files}
-    doc = json.loads((out / "results.json").read_text())
-    idx = example_indices(plans, n_examples)
-    cam = camera("observer")
-    cam64 = jax.tree.map(lambda a: np.asarray(a, np.float64), cam)
-    fig, axes = plt.subplots(len(idx), 2, figsize=(11, 4.2 * len(idx)), squeeze=False)
-    for row, i in enumerate(idx):
-        g, m, t = plans["goals"][i], plans["goal_mask"][i], int(plans["target"][i])
-        for col, family in enumerate(FAMILIES):
-            ax = axes[row, col]
-            y = plans[f"y_{family}/{family}"][i]  # the oracle plan's true labels
-            for name, key in _plan_keys(family, plans):
-                xyz = plans[f"xyz/{key}"][i]
-                pts = xyz[:, :2] if col == 0 else project(xyz.astype(np.float64), cam64)[0]
-                yt = plans[f"y_{family}/{key}"][i, t]
-                ax.plot(pts[:, 0], pts[:, 1], color=_COLOURS[name], lw=1.6,
-                        ls="--" if name == "straight" else "-",
-                        label=f"{TITLES[name]}: y = {yt:.2f}")  # fmt: skip
-            gp = g[m, :2] if col == 0 else project(g[m].astype(np.float64), cam64)[0]
-            sc = ax.scatter(gp[:, 0], gp[:, 1], c=y[m], cmap="viridis", vmin=0, vmax=1, s=120,
-                            marker="s", edgecolors="k", zorder=3)  # fmt: skip
-            k = int(np.flatnonzero(m).tolist().index(t))
-            ax.scatter(gp[k, 0], gp[k, 1], marker="*", s=260, c="w", edgecolors="k", zorder=4)
-            home = np.asarray(home_tcp(), np.float64)
-            hp = home[:2] if col == 0 else project(home[None], cam64)[0][0]
-            ax.plot(*hp, "ko", ms=5)
-            split = SPLITS[int(plans["split"][i])]
-            if col == 0:
-                title = f"{split} scene {int(plans['scene'][i])}: top view, Dragan"
-                ax.set(xlabel="x (m)", ylabel="y (m)", aspect="equal", title=title)
-            else:
-                ax.set(xlabel="u (image plane)", ylabel="v", aspect="equal",
-                       title="observer camera view, Nikolaidis")  # fmt: skip
-            ax.legend(fontsize=7, loc="best", framealpha=0.6)
-            fig.colorbar(sc, ax=ax, shrink=0.7, label="true y of the oracle plan")
-    fig.tight_layout()
-    save_figure(fig, out / "scenes.png", dpi=90)
-    plt.close(fig)
-
-    fig, axes = plt.subplots(1, len(FAMILIES), figsize=(10, 3.8), sharey=True)
-    for ax, family in zip(axes, FAMILIES, strict=True):
-        rows = [r for r in all_rows(doc) if r["labeler"] == family]
-        names = [_title(r).replace(" loss, ", " loss,\n") for r in rows]
-        ax.bar(names, [r["mean_y_target"] for r in rows], yerr=[r["sd_y_target"] for r in rows],
-               color=[_COLOURS[r["observer"]] for r in rows], capsize=4)  # fmt: skip
-        ax.set(title=f"true {family} legibility (n = {rows[0]['n']})", ylabel="mean y_target ± SD")
-        ax.tick_params(axis="x", rotation=25)
-    fig.tight_layout()
-    save_figure(fig, out / "bars.png", dpi=100)
-    plt.close(fig)
+def saved_plans(cfg: PlanningConfig, problems: dict, straight, plans: dict, labels: dict) -> dict:
+    """The arrays of ``plans.npz`` (module docstring) for the :func:`example_indices`."""
+    idx = example_indices(problems, N_SAVED)
+    names = ("straight", "oracle", *dict.fromkeys(m for f in FAMILIES for m in cfg.methods(f)))
+    fams = [f for f in FAMILIES for _ in idx]
+    probs = np.asarray(idx * len(FAMILIES), np.int32)
+    T = np.shape(straight.xyz)[1]
+    q = np.full((len(names), len(probs), T, 7), np.nan, np.float32)
+    xyz = np.full((len(names), len(probs), T, 3), np.nan, np.float32)
+    y = np.full((len(names), len(probs), problems["goals"].shape[1]), np.nan, np.float32)
+    for k, name in enumerate(names):
+        for p, (family, i) in enumerate(zip(fams, probs, strict=True)):
+            key = {"straight": "straight", "oracle": family}.get(name, name)
+            res = straight if key == "straight" else plans.get(observer_key(key, family))
+            if res is not None:
+                q[k, p], xyz[k, p], y[k, p] = res.q[i], res.xyz[i], labels[family, key][i]
+    betas = cfg.scoring_betas()
+    return {
+        **{k: problems[k][probs] for k in ("goals", "goal_mask", "target", "scene")},
+        "family": np.asarray(fams, str),
+        "beta": np.asarray([betas[f] for f in fams], np.float32),
+        "problem": probs,
+        "split": np.asarray([SPLITS[s] for s in problems["split"][probs]], str),
+        "names": np.asarray(names, str),
+        "q": q,
+        "xyz": xyz,
+        "y": y,
+    }
 
 
-# -------------------------------------------------------------------- report
-
-
-def _title(row: dict) -> str:
-    if row["observer"] == "archetype":
-        return f"SLOT-V loss, {row['model']} archetype"
-    return TITLES[row["observer"]]
-
-
-def report(doc: dict, figures: str = "") -> str:
-    """The Markdown report of a run (``figures``: path prefix of the two PNGs)."""
-    env, t, cfg = doc["environment"], doc["timing"], doc["config"]
-    lines = [
-        f"# Legible planning with learned observers ({doc['preset']} preset)",
-        "",
-        "Every plan is scored by the TRUE hand-crafted labeler of its family. `y_target` is "
-        "the labeler's probability of the goal the robot moves to; argmax: the target is the "
-        "labeler's most likely goal; length ratio: path length over the straight line's; "
-        "lowered: fraction of problems where the plan's true y_target is below the straight "
-        "line's; gain kept: (mean y − straight) / (oracle mean y − straight).",
-        "",
-        f"{doc['n_problems']} problems: every (scene, goal) pair of "
-        + ", ".join(f"{n} in {s}" for s, n in doc["n_problems_by_split"].items())
-        + f" ({cfg['n_scenes']} held-out scenes per split), start TCP(q_home). Planner: "
-        f"{cfg['planner']['iters']} covariant steps, trust-region budget "
-        f"{cfg['planner']['budget']} m² on C = ½∫‖ξ'‖²dt, clearance "
-        f"{cfg['planner']['clearance']} m.",
-        "",
-        "| true labeler | observer planned with | mean y_target ± SD | argmax rate | length ratio "
-        "| feasible | lowered | raised | gain kept | observer's own P(target): straight → plan |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    every = all_rows(doc)
-    for r in sorted(every, key=lambda r: FAMILIES.index(r["labeler"])):
-        kept = r.get("oracle_gain_kept")
-        own = (
-            f"{r['observer_p_target_straight']:.3f} → {r['observer_p_target_plan']:.3f}"
-            if "observer_p_target_plan" in r
-            else "—"
-        )
-        lines.append(
-            f"| {r['labeler']} | {_title(r)} | {r['mean_y_target']:.3f} ± "
-            f"{r['sd_y_target']:.3f} | {r['argmax_rate']:.3f} | {r['length_ratio']:.3f} | "
-            f"{r['feasible_rate']:.3f} | {r['lowered_rate']:.3f} | {r['raised_rate']:.3f} | "
-            f"{'—' if kept is None else f'{kept:.0%}'} | {own} |"
-        )
-    plan_s = sum(t["plan_s"].values())
-
-    def worst(field, pick):
-        return pick(r[field] for r in every if field in r)
-
-    lines += [
-        "",
-        f"![true legibility per planner]({figures}bars.png)",
-        "",
-        f"![example scenes]({figures}scenes.png)",
-        "",
-        "Constraints on every returned plan (worst case over problems and observers): "
-        f"target residual {worst('max_target_residual_m', max) * 1e3:.2f} mm; joint-limit "
-        f"margin {worst('min_joint_margin_rad', min):.4f} rad; TCP height above the "
-        f"clearance {worst('min_table_clearance_m', min) * 1e3:.1f} mm; trust region "
-        f"C − κ {worst('max_cost_over_limit_m2', max):.2e} m² (≤ 0 holds).",
-        "",
-        f"Timing: total {t['total_s']:.0f} s = data {t['data_s']:.0f} s, observer training "
-        f"{t['train_s']:.0f} s, straight lines {t['straight_line_s']:.0f} s (compilation "
-        f"included), planning {plan_s:.0f} s ("
-        + ", ".join(f"{k} {v:.1f} s" for k, v in t["plan_s"].items())
-        + "; the first includes the one compilation).",
-        "",
-        f"jax {env.get('jax')}, flax {env.get('flax')}, mujoco {env.get('mujoco')}, "
-        f"devices {env.get('devices')}.",
-        "",
-        "Learned observers: accuracy (SPEC §8) on the labels of their family on the "
-        "held-out splits' trajectories; the learned time-weighting exponent α of SLOT-V+ and "
-        "T-REX+.",
-        "",
-        "| observer | " + " | ".join(f"accuracy {s}" for s in SPLITS) + " | α | source |",
-        "|---|" + "---|" * len(SPLITS) + "---|---|",
-    ]
-    for k, v in doc["observers"].items():
-        acc = v.get("accuracy", {})
-        alpha = v.get("alpha")
-        lines.append(
-            f"| {k} | "
-            + " | ".join(f"{acc[s]:.3f}" if s in acc else "—" for s in SPLITS)
-            + f" | {'—' if alpha is None else f'{alpha:.3f}'} | "
-            + ("trained by this run" if v["trained"] else v["checkpoint"])
-            + " |"
-        )
-    lines.append("")
-    return "\n".join(lines)
-
-
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.planning",
@@ -662,14 +555,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     cfg = dataclasses.replace(PRESETS[args.preset](), seed=args.seed)
     if args.n_scenes is not None:
         if args.n_scenes < 1:
-            p.error("--n-scenes: expected an integer >= 1")
+            raise cli.InputError(f"--n-scenes: expected an integer >= 1, got {args.n_scenes}")
         cfg = dataclasses.replace(cfg, n_scenes=args.n_scenes)
     changes = {k: v for k, v in (("iters", args.iters), ("budget", args.budget)) if v is not None}
     if changes:
         try:
             cfg = dataclasses.replace(cfg, planner=dataclasses.replace(cfg.planner, **changes))
         except ValueError as e:
-            p.error(str(e))
+            raise cli.InputError(f"--iters/--budget: {e}") from None
     if args.compute_dtype:
         train = {m: dataclasses.replace(c, compute_dtype=args.compute_dtype)
                  for m, c in cfg.train.items()}  # fmt: skip
@@ -678,7 +571,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             train = {m: train_config.apply_overrides(c, args.set) for m, c in cfg.train.items()}
         except ValueError as e:
-            p.error(str(e))
+            raise cli.InputError(f"--set: {e}") from None
         cfg = dataclasses.replace(cfg, train=train)
     if args.no_archetypes:
         cfg = dataclasses.replace(cfg, archetype={})
@@ -691,13 +584,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         if getattr(args, f"{m}_{f}") is not None
     }
     out = args.out or Path("runs") / f"planning_{args.preset}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
+    if args.doc is not None:
+        names = [args.doc.name, *(f"{args.doc.stem}_{f}" for f in FIGURES)]
+        fileio.check_output_files(args.doc.parent, names, what="--doc")
     doc = run(cfg, out, checkpoints=ckpts, cache=args.cache)
     if args.doc is not None:
-        args.doc.parent.mkdir(parents=True, exist_ok=True)
-        stem = args.doc.stem
-        for fig in ("scenes.png", "bars.png"):
-            shutil.copyfile(out / fig, args.doc.parent / f"{stem}_{fig}")
-        write_text(args.doc, report(doc, figures=f"{stem}_"))
+        write_doc(out, doc, args.doc)
     print(report(doc))
     print(f"results in {out / 'results.json'}; report in {out / 'planning.md'}; "
           f"{doc['timing']['total_s']:.0f} s")  # fmt: skip
@@ -705,4 +598,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

@@ -26,12 +26,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import slotv_jax
-from slotv_jax.core import distributed
+from slotv_jax.core import cli, distributed, fileio
 from slotv_jax.runs.curves import replot, run
 from slotv_jax.runs.presets import METHOD_TITLES, METHODS, PRESETS
 from slotv_jax.training.config import MODELS
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.sample_efficiency",
@@ -72,6 +73,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             p.error(f"--{name.replace('_', '-')}: expected an integer >= 1")
     suffix = "" if args.model == "mlp" else f"_{args.model}"
     out = args.out or Path("runs") / f"sample_efficiency_{args.preset}{suffix}"
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
     doc = run(
         args.preset,
         out,

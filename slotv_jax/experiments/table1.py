@@ -35,17 +35,16 @@ import numpy as np
 import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax.core import cli, distributed, fileio
+from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.core.fileio import write_text
 from slotv_jax.runs import grid
-from slotv_jax.runs.grid import is_results_dir, merge
+from slotv_jax.runs.grid import merge
 from slotv_jax.runs.paper import PAPER_TABLE
 from slotv_jax.runs.presets import (
     LABELER_TITLES,
-    LABELERS,
     METHODS,
     PRESETS,
     SPLIT_TITLES,
-    SPLITS,
     RunConfig,
     with_compute_dtype,
     with_model,
@@ -61,8 +60,8 @@ def render_table(summary: list[dict]) -> str:
         "| T-REX (ours) | T-REX (paper) | Δ |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for lab in LABELERS:
-        for i, split in enumerate(SPLITS):
+    for lab in LABELER_NAMES:
+        for i, split in enumerate(TEST_SPLITS):
             row = [LABELER_TITLES[lab] if i == 0 else "", SPLIT_TITLES[split]]
             for meth in METHODS:
                 s = by.get((lab, meth, split))
@@ -108,7 +107,7 @@ def report(doc: dict) -> str:
             "",
             *note,
             f"Accuracy (SPEC §8) as mean ± SD over trials; the paper's values (10 trials) "
-            f"in parentheses. {len(doc['cells']) // len(SPLITS)} trained models, "
+            f"in parentheses. {len(doc['cells']) // len(TEST_SPLITS)} trained models, "
             f"{per_cell:.1f} s per cell on average (training and evaluation).",
             "",
             f"jax {env.get('jax')}, flax {env.get('flax')}, mujoco {env.get('mujoco')}, "
@@ -127,7 +126,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         description="Reproduce Table 1 of the SLOT-V paper.",
     )
     p.add_argument("--preset", choices=sorted(PRESETS), default="quick")
-    p.add_argument("--labelers", nargs="+", choices=LABELERS, default=list(LABELERS))
+    p.add_argument("--labelers", nargs="+", choices=LABELER_NAMES, default=list(LABELER_NAMES))
     p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     p.add_argument("--trials", type=int, help="trials per cell (default: the preset's)")
     p.add_argument("--out", type=Path, help="results directory (default: runs/table1_<preset>)")
@@ -178,7 +177,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.merge and args.out is None:
         raise cli.InputError("--merge needs --out")
     # a results directory of ours is resumed (finished cells are kept); else refused
-    fileio.check_output_dir(out, ours=is_results_dir, resume=True)
+    fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)
     distributed.init_from_args(args)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     if args.merge:

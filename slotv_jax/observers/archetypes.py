@@ -39,9 +39,9 @@ class DistanceApproachMixture(_Archetype):
     E is minus the time-weighted mean distance to the goal, F the time-weighted mean
     approach speed (m per unit of normalised time, i.e. metres over the whole motion), so
     both temperatures are per metre and the EffDist share β_E / (β_E + β_F) says which
-    term the observer follows. β_E = 5, α_E = 0, β_F = 0 is ``labelers.effdist``;
-    β_E = 0, β_F = 5, α_F = 1 is ``labelers.fastapp`` (as log-probabilities up to a
-    constant per trajectory).
+    term the observer follows. β_E = β, α_E = 0, β_F = 0 is ``labelers.effdist`` at β;
+    β_E = 0, β_F = β, α_F = 1 is ``labelers.fastapp`` at β (as log-probabilities up to
+    a constant per trajectory).
 
     Parameters: β_E, β_F ≥ 0 (``exp``; 0 at −∞), α_E, α_F ≥ 0 (``softplus``). Defaults:
     β_E = β_F = 5 (an even mix) and α_E = α_F = 1.

@@ -50,6 +50,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from slotv_jax.core import validation
+from slotv_jax.core.defaults import DEFAULT_BETAS, LABELER_NAMES
 from slotv_jax.world.scene import Camera, project
 from slotv_jax.world.scene import camera as scene_camera
 
@@ -65,8 +66,6 @@ __all__ = [
     "nikolaidis",
 ]
 
-LABELER_NAMES = ("dragan", "nikolaidis", "effdist", "fastapp")
-DEFAULT_BETAS = {"dragan": 5.0, "nikolaidis": 7.5, "effdist": 5.0, "fastapp": 5.0}
 DEPTH_EPS = 1e-6  # a point or goal with camera depth <= this is invalid (SPEC §4.2)
 # label_all's default chunk: this many trajectory labels per compiled call, i.e. 16,384
 # trajectories for one labeler and 4,096 for all four (measured fastest on the 2-core
@@ -349,7 +348,7 @@ def dragan(
     goals: Float[Array, "8 3"],
     goal_mask: Bool[Array, " 8"],
     *,
-    beta: float = 5.0,
+    beta: float = DEFAULT_BETAS["dragan"],
     t: Float[Array, " T"] | None = None,
 ) -> Float[Array, " 8"]:
     """Dragan legibility (SPEC §4.1; Dragan & Srinivasa, RSS 2013, "Generating Legible Motion").
@@ -366,7 +365,8 @@ def dragan(
       xyz: trajectory points (m), ``xyz[0]`` the start S; T >= 2.
       goals: goal positions (m); padded slots are ignored.
       goal_mask: True for real goals (at least one).
-      beta: inverse temperature (1/m), > 0. SPEC default 5.
+      beta: inverse temperature (1/m), > 0. Default: :data:`DEFAULT_BETAS` (20, the
+        datasets' temperature).
       t: optional strictly increasing time stamps (any unit; normalised to [0, 1]).
         Default: uniform ``i / (T − 1)``.
 
@@ -391,7 +391,7 @@ def effdist(
     goals: Float[Array, "8 3"],
     goal_mask: Bool[Array, " 8"],
     *,
-    beta: float = 5.0,
+    beta: float = DEFAULT_BETAS["effdist"],
     t: Float[Array, " T"] | None = None,
 ) -> Float[Array, " 8"]:
     """EffDist, the "effective distance" observer (SPEC §4.3) **[reconstruction]**.
@@ -406,7 +406,8 @@ def effdist(
 
     Args:
       xyz, goals, goal_mask: as in :func:`dragan`.
-      beta: inverse temperature (1/m), > 0. SPEC default 5.
+      beta: inverse temperature (1/m), > 0. Default: :data:`DEFAULT_BETAS` (20, the
+        datasets' temperature).
       t: optional time stamps. The mean becomes a time average: each point is weighted
         by the time around it (half of each neighbouring interval; the two end points
         count their one interval in full). Uniform stamps give exactly 1/T.
@@ -428,7 +429,7 @@ def fastapp(
     goals: Float[Array, "8 3"],
     goal_mask: Bool[Array, " 8"],
     *,
-    beta: float = 5.0,
+    beta: float = DEFAULT_BETAS["fastapp"],
     t: Float[Array, " T"] | None = None,
 ) -> Float[Array, " 8"]:
     """FastApp, the "fast approach" observer (SPEC §4.4) **[reconstruction]**.
@@ -519,7 +520,7 @@ def nikolaidis(
     goal_mask: Bool[Array, " 8"],
     camera: Camera | str,
     *,
-    beta: float = 7.5,
+    beta: float = DEFAULT_BETAS["nikolaidis"],
     t: Float[Array, " T"] | None = None,
 ) -> Float[Array, " 8"]:
     """Viewpoint-based (Nikolaidis) legibility: Dragan legibility in the image plane (SPEC §4.2).
@@ -544,7 +545,8 @@ def nikolaidis(
       xyz, goals, goal_mask, t: as in :func:`dragan`.
       camera: a :class:`slotv_jax.scene.Camera` (e.g. ``scene.camera("observer")``) or
         a camera name of the scene model.
-      beta: inverse temperature (per unit image plane), > 0. SPEC default 7.5.
+      beta: inverse temperature (per unit image plane), > 0. Default:
+        :data:`DEFAULT_BETAS` (30, the datasets' temperature).
 
     Example:
 

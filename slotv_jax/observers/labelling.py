@@ -108,7 +108,8 @@ def label_all(
     Args: ``xyz (N, T, 3)`` (m, T >= 2); ``goals (N, 8, 3)`` and ``goal_mask (N, 8)``, or
     ``(8, 3)`` and ``(8,)`` shared by all; ``t`` optional time stamps, ``(T,)`` or
     ``(N, T)``; ``labelers``: which labels; ``beta_*``: as in SPEC §4 (traced: a new
-    value does not recompile); ``camera``: for nikolaidis. Returns ``{name: (N, 8)}``.
+    value does not recompile); ``camera``: for nikolaidis. ``labelers`` is a sequence of
+    names or one name (``"dragan"``). Returns ``{name: (N, 8)}``.
     Raises ``ValueError`` naming the argument (and the first bad trajectory) for what
     the public labelers reject, and for labels that overflow float32.
 
@@ -168,10 +169,12 @@ def _recheck_points(ok: np.ndarray, xyz: np.ndarray, cam: Camera) -> None:
 def _bulk_inputs(labelers, xyz, goals, goal_mask, t, chunk_size, betas, camera):
     """:func:`label_all`'s boundary checks; its names, arrays (float32, goals and mask
     broadcast to ``(N, ...)``, ``t`` normalised), betas (traced) and camera."""
-    names = tuple(labelers)
+    names = (labelers,) if isinstance(labelers, str) else tuple(labelers)  # one name
     if not names or any(n not in LABELERS for n in names):
         raise ValueError(f"labelers: expected a non-empty subset of {LABELER_NAMES}, got {names}")
     validation.check_shape("xyz", xyz, (None, None, 3))
+    validation.check_real("xyz", xyz)
+    validation.check_real("goals", goals)
     N, T = np.shape(xyz)[:2]
     if T < 2:
         raise ValueError(f"xyz: expected at least 2 trajectory points (T >= 2), got T = {T}")

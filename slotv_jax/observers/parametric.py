@@ -47,7 +47,8 @@ gradients never meet 0^α · log 0.
 >>> xyz = jnp.linspace(jnp.array([0.3, 0.0, 0.49]), g[0], 100)
 >>> mask = jnp.arange(8) < 2
 >>> logits = LearnableDragan()(xyz, g, mask)
->>> bool(jnp.allclose(jnp.exp(logits[:2]), labelers.dragan(xyz, g, mask)[:2], atol=1e-6))
+>>> y = labelers.dragan(xyz, g, mask, beta=5.0)  # LearnableDragan starts at β = 5
+>>> bool(jnp.allclose(jnp.exp(logits[:2]), y[:2], atol=1e-6))
 True
 """
 
@@ -236,10 +237,10 @@ class LearnableDragan(_Archetype):
 
     Parameters (all learned): β > 0 (1/m, ``exp``), α ≥ 0 (``softplus``), w₀ ≥ 0
     (``softplus``), metric weights m (softmax × 3; trace 3 so that β alone sets the
-    scale). The defaults (β = 5, α = 1, w₀ = 1, m = 1) are SPEC §4.1's labeler: the logits
-    are ``log labelers.dragan(xyz, goals, goal_mask)``. w₀ = 0 is a nearest-goal observer
-    (no memory of the start); α = 0 weighs the whole motion equally, large α only its
-    beginning; a small m_z means the observer hardly sees height.
+    scale). The defaults (β = 5, α = 1, w₀ = 1, m = 1) are SPEC §4.1's labeler at β = 5:
+    the logits are ``log labelers.dragan(xyz, goals, goal_mask, beta=5.0)``. w₀ = 0 is a
+    nearest-goal observer (no memory of the start); α = 0 weighs the whole motion
+    equally, large α only its beginning; a small m_z means the observer hardly sees height.
 
     Reference: Dragan & Srinivasa, "Generating Legible Motion", RSS 2013.
 
@@ -395,7 +396,7 @@ class LearnableViewpoint(_Archetype):
     r = DISTANCE_MIN + exp(·) (m), β = exp(·). Defaults: a start pose that is not the
     ``observer`` camera's (ψ = 45°, φ = 45°, r = 1.5 m; the observer stands at ψ = 0°,
     φ = 29.5°, r = 1.32 m) and β = 7.5. With the observer's pose and β = 7.5 the logits are
-    ``log labelers.nikolaidis(xyz, goals, goal_mask, scene.camera("observer"))``.
+    ``log labelers.nikolaidis(xyz, goals, goal_mask, scene.camera("observer"), beta=7.5)``.
 
     Points or real goals at depth ≤ 1e-6 m (behind the learned camera) make the scores
     uniform over the real goals, as the labeler does; with :data:`DISTANCE_MIN` this

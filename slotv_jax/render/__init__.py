@@ -29,13 +29,25 @@ if (
 ):
     os.environ.setdefault("MUJOCO_GL", "egl")
 
+from slotv_jax.render.backend import RenderBackendError, backend_message
+
+try:  # importing mujoco loads the OpenGL backend that MUJOCO_GL names
+    import mujoco  # noqa: F401
+except ImportError:
+    raise
+except Exception as e:  # PyOpenGL fails so when the backend's library is missing
+    if sys.argv and sys.argv[0] == "-m":  # `python -m ...` is locating its module: a command
+        print(f"error: {backend_message(e)}", file=sys.stderr)
+        raise SystemExit(2) from None
+    raise RenderBackendError(backend_message(e)) from e
+
 from slotv_jax.render.camera import CAMERAS, FreeCamera, pixels
 from slotv_jax.render.compare import LAYOUTS, compare_frames
 from slotv_jax.render.frames import (
     MotionRenderer,
-    RenderBackendError,
     frame_times,
     goal_labels,
+    joints_from_tcp,
     motion_frames,
     still,
 )
@@ -58,6 +70,7 @@ __all__ = [
     "frame_times",
     "goal_labels",
     "grid",
+    "joints_from_tcp",
     "motion_frames",
     "pixels",
     "read_video",

@@ -7,10 +7,11 @@ Sources (one of):
   ``goals``, ``goal_mask``, optional ``t`` and ``q (N, T, 7)``);
 - ``--study FILE --index I``: a study file (:func:`slotv_jax.study.load_study`), its
   goal names available as labels (``--labels names``);
-- ``--plans FILE --problem I [--planner NAME]``: a planning run's ``plans.npz``
+- ``--plans FILE --problem I [--planner NAME[,NAME...]]``: a planning run's ``plans.npz``
   (``goals (P, 8, 3)``, ``goal_mask (P, 8)``, ``target (P,)``, ``family (P,)``,
   ``names (K,)`` planner names, ``q (K, P, T, 7)``, ``xyz (K, P, T, 3)``); without
-  ``--planner`` every planner side by side (``--layout overlay``: in one scene).
+  ``--planner`` every planner side by side (``--layout overlay``: in one scene), with
+  several names those side by side.
 
 A TCP path without joints (``--npz`` without ``q``, ``--study``) goes through the
 project's inverse kinematics (:func:`slotv_jax.kinematics.solve_path_ik`, from
@@ -33,7 +34,6 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-import jax
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -47,6 +47,7 @@ from slotv_jax.render.frames import (
     check_motion,
     check_size,
     check_timing,
+    joints_from_tcp,
     motion_frames,
 )
 from slotv_jax.render.writers import SUFFIXES, check_output, contact_sheet, write_png, write_video
@@ -98,11 +99,10 @@ def parse_size(text: str) -> tuple[int, int]:
 
 def _ik(xyz: np.ndarray, what: str) -> np.ndarray:
     """Joint path of a TCP path (warm-started IK from Q_HOME); warns on a large miss."""
-    res = jax.jit(kinematics.solve_path_ik)(np.asarray(xyz, np.float32))
-    worst = float(np.max(res.residual))
+    q, worst = joints_from_tcp(xyz)
     if worst > IK_WARN:
         print(f"warning: {what}: IK misses the path by up to {worst * 1e3:.1f} mm", file=sys.stderr)
-    return np.asarray(res.q, np.float64)
+    return q
 
 
 def _data_items(args) -> list[Item]:
@@ -182,23 +182,28 @@ def _plans_items(args) -> list[Item]:
     idx = parse_indices(args.problem or "0", q.shape[1], "--problem")
     ks = list(range(len(names)))
     if args.planner is not None:
-        if args.planner not in names:
-            raise cli.InputError(f"--planner: expected one of {names}, got {args.planner!r}")
-        ks = [names.index(args.planner)]
+        wanted = [w.strip() for w in args.planner.split(",")]
+        unknown = [w for w in wanted if w not in names]
+        if unknown:
+            raise cli.InputError(f"--planner: expected names among {names}, got {unknown}")
+        ks = [names.index(w) for w in wanted]
     stem = Path(args.plans).stem
-    suffix = f"_{args.planner}" if args.planner else ""
-    return [
-        Item(
-            f"{stem}_{p:04d}{suffix}",
-            tuple(q[k, p] for k in ks),
-            z["goals"][p],
-            z["goal_mask"][p],
-            int(z["target"][p]),
-            names=tuple(names[k] for k in ks),
-            rgbas=tuple(PALETTE[k % len(PALETTE)] for k in ks),
+    suffix = f"_{args.planner.replace(',', '_')}" if args.planner else ""
+    items = []
+    for p in idx:
+        shown = [k for k in ks if args.planner or np.isfinite(q[k, p]).all()]  # NaN: left out
+        items.append(
+            Item(
+                f"{stem}_{p:04d}{suffix}",
+                tuple(q[k, p] for k in shown),
+                z["goals"][p],
+                z["goal_mask"][p],
+                int(z["target"][p]),
+                names=tuple(names[k] for k in shown),
+                rgbas=tuple(PALETTE[k % len(PALETTE)] for k in shown),
+            )
         )
-        for p in idx
-    ]
+    return items
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -215,7 +220,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--split", help="dataset split name (with --data)")
     p.add_argument("--index", help="trajectory: I, A:B or I,J,K (default 0)")
     p.add_argument("--problem", help="planning problem: I, A:B or I,J,K (with --plans)")
-    p.add_argument("--planner", help="one planner of --plans (default: all, compared)")
+    p.add_argument("--planner", help="planner(s) of --plans, NAME[,NAME] (default: all)")
     p.add_argument("--layout", default="side", choices=LAYOUTS, help="how planners are compared")
     p.add_argument("--tau", type=float, default=1.0, help="show the motion up to τ in (0, 1]")
     p.add_argument("--camera", default="observer", help=f"{', '.join(CAMERAS)} or free")

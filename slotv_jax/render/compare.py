@@ -30,7 +30,8 @@ from slotv_jax.render.frames import (
 from slotv_jax.render.overlay import draw_goal_labels, legend, title
 
 LAYOUTS = ("side", "overlay")
-# Trace colours of the compared motions, in order (grey, blue, orange, green, purple, red).
+# Trace colours of the compared motions, in order: grey, blue, orange, green, purple, red,
+# brown, teal.
 PALETTE = (
     (0.35, 0.35, 0.35, 1.0),
     (0.10, 0.35, 0.90, 1.0),
@@ -38,6 +39,8 @@ PALETTE = (
     (0.10, 0.60, 0.20, 1.0),
     (0.55, 0.25, 0.70, 1.0),
     (0.85, 0.10, 0.10, 1.0),
+    (0.55, 0.35, 0.15, 1.0),
+    (0.00, 0.55, 0.55, 1.0),
 )
 GAP = 6  # pixels between side-by-side panels
 

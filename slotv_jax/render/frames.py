@@ -31,42 +31,26 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-import os
 from collections.abc import Sequence
 
+import jax
 import mujoco
 import numpy as np
 from jaxtyping import Bool, Float, UInt8
 
 from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
+from slotv_jax.render.backend import RenderBackendError, backend_message
 from slotv_jax.render.camera import View, check_view, scene_model
 from slotv_jax.render.overlay import draw_goal_labels
 from slotv_jax.robot import kinematics
 
 MAX_SIDE = 4096  # largest frame width or height (pixels)
 HIDDEN_Z = -10.0  # height (m) that unused cubes are moved to: below the floor, out of sight
-TRACE_WIDTH = 0.004  # radius (m) of the TCP trace's capsules
+TRACE_WIDTH = 0.006  # radius (m) of the TCP trace's capsules
 TRACE_RGBA = (0.05, 0.05, 0.05, 1.0)  # the trace's colour (a dark line reads on every surface)
 TARGET_RGBA = (1.0, 1.0, 1.0, 0.9)  # the disc under the target cube
 TARGET_DISC = (0.045, 0.001)  # its radius and half-height (m)
-
-
-class RenderBackendError(RuntimeError):
-    """No OpenGL context could be opened for offscreen rendering."""
-
-
-def backend_message(err: BaseException) -> str:
-    """What to do when MuJoCo cannot open an OpenGL context."""
-    gl = os.environ.get("MUJOCO_GL", "")
-    return (
-        f"cannot open an OpenGL context for rendering (MUJOCO_GL={gl or 'unset'}: "
-        f"{type(err).__name__}: {str(err).strip().splitlines()[0] if str(err).strip() else ''}). "
-        "Set MUJOCO_GL before Python imports mujoco: MUJOCO_GL=egl on a headless machine "
-        "(a GPU's EGL, or Mesa's software EGL), MUJOCO_GL=osmesa for Mesa's OSMesa, or glfw "
-        "with a display; on Debian/Ubuntu install EGL with `apt-get install libegl1 "
-        "libgl1-mesa-dri` or OSMesa with `apt-get install libosmesa6`"
-    )
 
 
 # ----------------------------------------------------------------- time and inputs
@@ -150,6 +134,14 @@ def resample(
     q = np.asarray(q, np.float64)
     tn = normalised_times(t, q.shape[0])
     return np.stack([np.interp(s, tn, q[:, j]) for j in range(q.shape[1])], axis=1)
+
+
+def joints_from_tcp(xyz: Float[np.ndarray, "T 3"]) -> tuple[np.ndarray, float]:
+    """A joint path (T, 7) for a TCP path (m), by the project's warm-started IK from
+    ``Q_HOME`` (:func:`slotv_jax.kinematics.solve_path_ik`), and its worst miss (m)."""
+    validation.check_array("xyz", xyz, (None, 3))
+    res = jax.jit(kinematics.solve_path_ik)(np.asarray(xyz, np.float32))
+    return np.asarray(res.q, np.float64), float(np.max(res.residual))
 
 
 # ----------------------------------------------------------------------- renderer

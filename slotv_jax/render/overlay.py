@@ -11,7 +11,9 @@ blended into every frame.
 from __future__ import annotations
 
 import functools
+import importlib.util
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 from jaxtyping import UInt8
@@ -22,10 +24,20 @@ from slotv_jax.render.camera import View, pixels, scene_model
 LABEL_LIFT = 0.06  # metres above the cube centre where a label is anchored
 
 
+def _dejavu() -> Path | None:
+    """matplotlib's DejaVu Sans (Greek and accented letters too), found without importing it."""
+    spec = importlib.util.find_spec("matplotlib")
+    if spec is None or spec.origin is None:
+        return None
+    path = Path(spec.origin).parent / "mpl-data" / "fonts" / "ttf" / "DejaVuSans.ttf"
+    return path if path.is_file() else None
+
+
 @functools.cache
 def font(px: int) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
-    """Pillow's bundled font at ``px`` pixels."""
-    return ImageFont.load_default(size=px)
+    """DejaVu Sans at ``px`` pixels (shipped with matplotlib), else Pillow's bundled font."""
+    path = _dejavu()
+    return ImageFont.truetype(str(path), px) if path else ImageFont.load_default(size=px)
 
 
 def font_size(height: int) -> int:

@@ -17,9 +17,10 @@ from tqdm.auto import tqdm
 
 from slotv_jax import data as data_lib
 from slotv_jax.core import distributed
+from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
-from slotv_jax.runs.presets import LABELERS, METHODS, SPLITS, RunConfig, _train_key
+from slotv_jax.runs.presets import METHODS, RunConfig, _train_key
 from slotv_jax.training import evaluate, parallel, schedule, types
 from slotv_jax.training import trainer as train
 
@@ -78,7 +79,7 @@ def run(
     cfg: RunConfig,
     out: Path,
     *,
-    labelers: Sequence[str] = LABELERS,
+    labelers: Sequence[str] = LABELER_NAMES,
     methods: Sequence[str] = METHODS,
     cache: Path = Path("data"),
     progress: bool = True,
@@ -138,7 +139,7 @@ def run(
         doc["cells"].extend(
             {"labeler": lab, "method": meth, "split": split, "trial": trial,
              "accuracy": float(accs[split][i])}
-            for split in SPLITS
+            for split in TEST_SPLITS
         )  # fmt: skip
         doc["timing"]["cells"].append(
             {"labeler": lab, "method": meth, "trial": trial,
@@ -212,7 +213,7 @@ def _single_device_steps(cfg: RunConfig, dataset, todo, vmap_trials: bool, n_dev
                 split: np.asarray(
                     evaluate.accuracy(tc, state.params, split_data(lab, split, used.get(split)))
                 ).reshape(-1)
-                for split in SPLITS
+                for split in TEST_SPLITS
             }
             t_total = time.perf_counter() - t_cell
             times = {"prepare_s": t_prep, "train_s": t_train, "total_s": t_total}
@@ -256,7 +257,7 @@ def _device_steps(cfg: RunConfig, dataset, todo, vmap_trials: bool, n_dev: int):
                 t_train = time.perf_counter() - t_cell - t_prep
                 used = {"train": tc.n_used(len(tdata.xyz))}
                 accs = {}
-                for split in SPLITS:
+                for split in TEST_SPLITS:
                     d, lab_arr = arrays(split, labs, used.get(split))
                     accs[split] = parallel.group_accuracy(tc, state.params, d, mesh, labels=lab_arr)
                 loss = distributed.fetch(metrics.loss)  # (padded runs, E, K): the first are ours

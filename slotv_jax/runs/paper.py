@@ -4,7 +4,7 @@ the reference every accuracy table is compared with.
 
 from __future__ import annotations
 
-from slotv_jax.runs.presets import SPLITS
+from slotv_jax.core.defaults import TEST_SPLITS
 
 # The paper's Table 1: mean (SD) accuracy over 10 trials (Wallkötter et al. 2022).
 PAPER = {
@@ -20,5 +20,5 @@ PAPER = {
 PAPER_TABLE = {
     (lab, meth, split): PAPER[(lab, meth)][i]
     for (lab, meth) in PAPER
-    for i, split in enumerate(SPLITS)
+    for i, split in enumerate(TEST_SPLITS)
 }

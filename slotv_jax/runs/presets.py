@@ -10,9 +10,7 @@ import dataclasses
 from slotv_jax import data as data_lib
 from slotv_jax.training import config as train_config
 
-LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
 METHODS = train_config.METHODS
-SPLITS = ("train", "trajectory_test", "position_test", "goal_count_test")
 SPLIT_TITLES = {
     "train": "train",
     "trajectory_test": "trajectory",

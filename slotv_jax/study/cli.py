@@ -27,11 +27,21 @@ from slotv_jax.training.config import TrainConfig
 
 def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
     """``python -m slotv_jax.train --study FILE ...``: train on a study, checkpoint every
-    epoch, optionally cross-validate (``--cv K``), and print the metrics."""
+    epoch, optionally cross-validate (``--cv K``), and print the metrics. A study with
+    fewer answer rows than the preset's batch trains with the largest power of two that
+    fits (and says so), unless ``--set batch_size=N`` is given."""
     study = load_study(args.study)
     if args.condition is not None:
         study = study.select_condition(args.condition)
     cfg = dataclasses.replace(cfg, train_size=None)
+    chosen = any(a.split("=", 1)[0].strip() == "batch_size" for a in getattr(args, "set", []))
+    if not chosen and study.n_rows < cfg.batch_size:  # a small study: a batch that fits
+        fit = 1 << (study.n_rows.bit_length() - 1)
+        print(
+            f"batch_size: the study has {study.n_rows} answer rows, fewer than the preset's "
+            f"{cfg.batch_size}; using batch_size={fit} (--set batch_size=N to choose)"
+        )
+        cfg = dataclasses.replace(cfg, batch_size=fit)
     print(study.summary(), flush=True)
     print(f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)
     out = Path(args.out)

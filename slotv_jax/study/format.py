@@ -37,11 +37,13 @@ the points with t_i ≤ τ, at least two of them; τ = t_{length−1} is the who
 Importing study tables
 ----------------------
 ``python -m slotv_jax.study import --trajectories T --goals G --answers A --out study.npz``
-reads three tables, each a CSV file with a header or a JSON list of objects with the
-same keys (one object per row):
+reads three tables, each a CSV file with a header (UTF-8; a spreadsheet's byte-order
+mark is fine) or a JSON list of objects with the same keys (one object per row):
 
 - trajectories: ``trajectory, x, y, z`` and optionally ``t``; one row per point, in
   time order within each trajectory (any T ≥ 2; trajectories may differ in length);
+  ``t`` is all-or-nothing: every point of every trajectory has one, or the column is
+  left out;
 - goals: ``goal, x, y, z`` (shared by every trajectory) or ``trajectory, goal, x, y, z``
   (per trajectory); 1-8 goals each, slots in order of appearance;
 - answers: ``trajectory, guess`` (a goal name) and optionally ``tau`` (empty: the whole
@@ -114,7 +116,7 @@ class Study:
     answer_condition: np.ndarray | None = None  # (A,) int32: index into conditions
     conditions: tuple[str, ...] = ()  # condition names
     trajectory_ids: tuple[str, ...] = ()  # (N,) ids from the source tables
-    goal_names: np.ndarray | None = None  # (N, 8) str: goal names ('' on padding)
+    goal_names: np.ndarray | None = None  # (N, 8) str array ('' on padding; numpy.str_ items)
     shared_goals: bool = False  # every trajectory has the same goals (stored once)
 
     @property
@@ -412,8 +414,9 @@ def make_study(
         a = int(bad[0])
         i = int(traj[a])
         raise ValueError(
-            f"{w('answer_tau', a)}: tau = {tau[a]!r} is outside the motion of trajectory {i}: "
-            f"expected {times[i, 1]!r} <= tau <= {full[i]!r} (at least 2 points seen, "
+            f"{w('answer_tau', a)}: tau = {float(tau[a])!r} is outside the motion of trajectory "
+            f"{i}: expected {float(times[i, 1])!r} <= tau <= {float(full[i])!r} (at least 2 "
+            "points seen, "
             "at most the whole motion)"
         )
 

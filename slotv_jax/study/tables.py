@@ -143,6 +143,12 @@ def read_tables(
     for i in range(len(tt.rows)):
         tid = _text(tt, i, "trajectory")
         p = [_number(tt, i, c) for c in ("x", "y", "z")]
+        if has_t and _blank(tt.rows[i].get("t")):
+            raise ValueError(
+                f"{tt.at(i, 't')}: no time stamp; the column 't' is all-or-nothing: give t for "
+                "every point of every trajectory, or leave the column out (points are then "
+                "evenly spaced in time)"
+            )
         ti = _number(tt, i, "t") if has_t else None
         pts = points.setdefault(tid, [])
         if has_t and pts and not ti > pts[-1][1]:
@@ -233,7 +239,7 @@ def read_tables(
             if tau > full[k] + TAU_RTOL * (full[k] - times[k, 0]) or seen < 2:
                 raise ValueError(
                     f"{at.at(i, 'tau')}: tau = {tau!r} is outside the motion of trajectory "
-                    f"{tid!r}: expected {times[k, 1]!r} <= tau <= {full[k]!r} "
+                    f"{tid!r}: expected {float(times[k, 1])!r} <= tau <= {float(full[k])!r} "
                     "(at least 2 points seen)"
                 )
             if seen < length[k]:

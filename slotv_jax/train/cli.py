@@ -27,15 +27,13 @@ import numpy as np
 
 from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
+from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.core.xla import XLA_CONFIG
 from slotv_jax.study import cli as study_cli
 from slotv_jax.training import checkpoint, evaluate
 from slotv_jax.training import config as train_config
 from slotv_jax.training.trainer import make_train, packed_trainer
 from slotv_jax.training.types import prepare, trim_goals
-
-LABELERS = ("dragan", "effdist", "fastapp", "nikolaidis")
-TEST_SPLITS = ("train", "trajectory_test", "position_test", "goal_count_test")
 
 
 def _parse_args(argv):
@@ -44,7 +42,7 @@ def _parse_args(argv):
         description="Train one SLOT-V or T-REX model on a generated dataset and save a checkpoint.",
     )
     ap.add_argument("--data", help="dataset directory (python -m slotv_jax.data)")
-    ap.add_argument("--labeler", choices=LABELERS)
+    ap.add_argument("--labeler", choices=LABELER_NAMES)
     ap.add_argument(
         "--study", help="train on a study file instead (.npz, python -m slotv_jax.study import)"
     )
@@ -148,3 +146,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     checkpoint.save(out, cfg, state, meta=meta)
     print(json.dumps({"checkpoint": str(out), "accuracy": acc}, indent=2))
     return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

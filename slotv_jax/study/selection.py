@@ -1,0 +1,462 @@
+"""Active selection of stimuli: which motions to ask about next.
+
+The SLOT-V paper names the number of labels as its main limitation ("about 10,000
+unique examples to achieve 80 % validation accuracy … it would be interesting to see if
+this number can be reduced … e.g. by more intelligently sampling trajectories",
+Wallkötter et al. 2022, §VI). This module chooses the next k stimuli of a study from a
+pool of candidates, given the answers so far and an observer family (the paper's MLP,
+SLOT-V+, an archetype).
+
+Stimuli and answers
+-------------------
+A candidate stimulus is a trajectory shown up to a stop time τ: its first ``seen``
+points (:class:`Pool`; τ = 1 is the whole motion). An answer row is a candidate with the
+guesses it got, counts c_k per goal (:class:`Answers`; the labels of a hand-crafted
+observer are one answer's fractional counts). The observer's probability of goal k is
+p_k = softmax_k(s), with s the scores of the seen points (:func:`slotv_jax.study.prefix_scores`;
+archetypes score whole motions only).
+
+The posterior: a deep ensemble
+------------------------------
+E members of the observer family train side by side (``jax.vmap`` over members) on the
+count likelihood of the answers, −Σ_k c_k log p_k (:func:`slotv_jax.study.count_nll`).
+Members differ by their initialisation and by Poisson(1) bootstrap weights on the answer
+rows (Efron 1979; Osband et al. 2016); member 0 has weight 1 on every row and no other
+difference from a plain training run, so it is *the* observer the answers give.
+Archetypes have no random initialisation: their members differ by the bootstrap alone.
+The ensemble with member weights π_e (uniform, or reweighted by fantasised answers) is
+a discrete posterior over observers (Lakshminarayanan et al. 2017).
+
+Criteria (per candidate, from the members' predictive distributions p_e)
+------------------------------------------------------------------------
+- ``random``: k candidates uniformly without replacement (today's baseline);
+- ``uncertainty``: the entropy of the predicted guess distribution,
+  H[p̄], p̄ = Σ_e π_e p_e (Lewis & Gale 1994);
+- ``bald``: the mutual information between the next answer y and the observer,
+  I(y; θ) = H[p̄] − Σ_e π_e H[p_e] (Houlsby et al. 2011, "BALD"; Gal et al. 2017):
+  high where the members disagree, zero where they agree on a noisy answer;
+- ``bald_fantasy``: k greedy BALD picks; after each pick an answer ŷ ~ p̄ is fantasised
+  and the members reweighted by its likelihood, π_e ← π_e p_e(ŷ) / Σ, so that a second
+  copy of an informative motion has lost its disagreement (a sampled-fantasy form of
+  BatchBALD, Kirsch et al. 2019);
+- ``bald_cluster``: the ``shortlist`` candidates of highest BALD, then a k-centre greedy
+  (Sener & Savarese 2018) weighted by BALD in the space of the members' predictions
+  (E·G numbers per candidate), starting from the best BALD.
+
+All criteria are pure functions of fixed-shape arrays: :func:`select` compiles once for
+a pool size and k, and scores 100,000 candidates in one call
+(``python -m slotv_jax.benchmarks.selection``).
+
+>>> sel = make_selector(config.quick("slotv"), members=4, capacity=512)   # doctest: +SKIP
+>>> ens = sel.init(jax.random.key(0))                                      # doctest: +SKIP
+>>> ens, _ = jax.jit(sel.fit, static_argnames="updates")(ens, pool, answers, key, updates=200)
+>>> logp = jax.jit(sel.log_probs)(ens.params, pool, candidates)            # doctest: +SKIP
+>>> pick = select("bald_fantasy", key, logp, available, k=32)              # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Sequence
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import nnx
+from jaxtyping import Array, Bool, Float, Int
+
+from slotv_jax.observers import models
+from slotv_jax.study import fitting
+from slotv_jax.study import format as study
+from slotv_jax.training import trainer as train_lib
+from slotv_jax.training.config import TrainConfig
+
+STRATEGIES = ("random", "uncertainty", "bald", "bald_fantasy", "bald_cluster")
+SHORTLIST = 4  # bald_cluster's shortlist: SHORTLIST × k candidates of highest BALD (default)
+
+
+# ================================================================ the data
+
+
+class Pool(NamedTuple):
+    """Candidate stimuli: C (trajectory, stop time) pairs over N trajectories."""
+
+    xyz: Float[Array, "N T 3"]  # trajectory points (m)
+    goals: Float[Array, "N G 3"]  # goals of each trajectory's scene (m)
+    goal_mask: Bool[Array, "N G"]  # real goal slots
+    traj: Int[Array, " C"]  # trajectory of each candidate
+    seen: Int[Array, " C"]  # points the candidate shows (2 ≤ seen ≤ T)
+
+
+class Answers(NamedTuple):
+    """M answer slots, the first ``n`` filled (fixed shapes: a study grows without
+    recompiling)."""
+
+    cand: Int[Array, " M"]  # candidate of each row (index into the pool)
+    counts: Float[Array, "M G"]  # guesses per goal (labels: fractional counts summing to 1)
+    n: Int[Array, ""]  # filled rows
+
+
+class Ensemble(NamedTuple):
+    """E observers trained side by side (leading axis E on every leaf)."""
+
+    params: nnx.State  # (E, ...) model parameters
+    opt_state: Any  # (E, ...) optimiser states
+    boot: Float[Array, "E M"]  # bootstrap weight of each answer slot (member 0: all 1)
+
+
+def seen_points(taus: Sequence[float], n_points: int) -> np.ndarray:
+    """Points shown up to normalised time τ: those with t_i = i / (T − 1) ≤ τ (as
+    :mod:`slotv_jax.study` counts them), at least 2. Returns (len(taus),) int32."""
+    taus = np.asarray(taus, np.float64)
+    if taus.ndim != 1 or taus.size == 0 or not np.all((taus > 0) & (taus <= 1)):
+        raise ValueError(f"taus: expected normalised stop times in (0, 1], got {taus.tolist()}")
+    if n_points < 2:
+        raise ValueError(f"n_points: expected T >= 2, got {n_points}")
+    t = np.arange(n_points) / (n_points - 1.0)
+    seen = (t[None, :] <= taus[:, None] + study.TAU_RTOL).sum(-1)
+    return np.maximum(seen, 2).astype(np.int32)
+
+
+def make_pool(
+    xyz: Float[np.ndarray, "N T 3"],
+    goals: Float[np.ndarray, "N G 3"],
+    goal_mask: Bool[np.ndarray, "N G"],
+    taus: Sequence[float] = (1.0,),
+) -> Pool:
+    """Every trajectory × every stop time τ in ``taus`` as a :class:`Pool` (candidate
+    c = n · len(taus) + j shows trajectory n up to ``taus[j]``). Validates the shapes.
+
+    >>> pool = make_pool(np.zeros((2, 5, 3)), np.ones((2, 8, 3)), np.ones((2, 8), bool),
+    ...                  taus=(0.5, 1.0))
+    >>> pool.traj.tolist(), pool.seen.tolist()
+    ([0, 0, 1, 1], [3, 5, 3, 5])
+    """
+    xyz = np.asarray(xyz, np.float32)
+    goals = np.asarray(goals, np.float32)
+    goal_mask = np.asarray(goal_mask, bool)
+    if xyz.ndim != 3 or xyz.shape[-1] != 3 or xyz.shape[0] < 1:
+        raise ValueError(f"xyz: expected shape (N, T, 3) with N >= 1, got {xyz.shape}")
+    n, t = xyz.shape[:2]
+    if goals.ndim != 3 or goals.shape[0] != n or goals.shape[-1] != 3:
+        raise ValueError(f"goals: expected shape ({n}, G, 3), got {goals.shape}")
+    if goal_mask.shape != goals.shape[:2]:
+        raise ValueError(f"goal_mask: expected shape {goals.shape[:2]}, got {goal_mask.shape}")
+    if not goal_mask.any(-1).all():
+        raise ValueError("goal_mask: every trajectory needs at least one real goal")
+    if not (np.isfinite(xyz).all() and np.isfinite(goals).all()):
+        raise ValueError("xyz, goals: expected finite numbers")
+    seen = seen_points(taus, t)
+    return Pool(
+        jnp.asarray(xyz),
+        jnp.asarray(goals),
+        jnp.asarray(goal_mask),
+        jnp.asarray(np.repeat(np.arange(n, dtype=np.int32), seen.size)),
+        jnp.asarray(np.tile(seen, n)),
+    )
+
+
+def make_answers(
+    cand: Int[np.ndarray, " A"], counts: Float[np.ndarray, "A G"], capacity: int
+) -> Answers:
+    """:class:`Answers` holding the A rows given, padded to ``capacity`` slots."""
+    cand = np.asarray(cand, np.int32).reshape(-1)
+    counts = np.asarray(counts, np.float32)
+    a = cand.size
+    if counts.ndim != 2 or counts.shape[0] != a:
+        raise ValueError(f"counts: expected shape ({a}, G), got {counts.shape}")
+    if a > capacity:
+        raise ValueError(f"capacity: {a} answer rows do not fit {capacity} slots")
+    if not (np.isfinite(counts).all() and (counts >= 0).all()):
+        raise ValueError("counts: expected finite guesses >= 0")
+    c = np.zeros(capacity, np.int32)
+    k = np.zeros((capacity, counts.shape[1]), np.float32)
+    c[:a], k[:a] = cand, counts
+    return Answers(jnp.asarray(c), jnp.asarray(k), jnp.asarray(a, jnp.int32))
+
+
+# ================================================================ criteria
+
+
+def _entropy(p: Float[Array, "... G"]) -> Float[Array, "..."]:
+    return -jnp.sum(jnp.where(p > 0, p * jnp.log(jnp.where(p > 0, p, 1.0)), 0.0), axis=-1)
+
+
+def _weights(logp: Float[Array, "E C G"], weights) -> Float[Array, " E"]:
+    e = logp.shape[0]
+    return jnp.full((e,), 1.0 / e, logp.dtype) if weights is None else weights
+
+
+def predictive(
+    logp: Float[Array, "E C G"], weights: Float[Array, " E"] | None = None
+) -> Float[Array, "C G"]:
+    """The ensemble's guess distribution p̄ = Σ_e π_e p_e (π uniform by default)."""
+    w = _weights(logp, weights)
+    return jnp.einsum("e,ecg->cg", w, jnp.exp(logp))
+
+
+def uncertainty(
+    logp: Float[Array, "E C G"], weights: Float[Array, " E"] | None = None
+) -> Float[Array, " C"]:
+    """Entropy of the predicted guess distribution, H[p̄] (nats).
+
+    >>> logp = jnp.log(jnp.array([[[0.5, 0.5]], [[0.5, 0.5]]]))
+    >>> float(uncertainty(logp)[0])  # log 2
+    0.6931...
+    """
+    return _entropy(predictive(logp, weights))
+
+
+def bald(
+    logp: Float[Array, "E C G"], weights: Float[Array, " E"] | None = None
+) -> Float[Array, " C"]:
+    """BALD: the mutual information between the next answer and the observer,
+    I(y; θ) = H[Σ_e π_e p_e] − Σ_e π_e H[p_e] (nats; Houlsby et al. 2011).
+
+    >>> agree = jnp.log(jnp.array([[[0.5, 0.5]], [[0.5, 0.5]]]))  # same noisy answer
+    >>> split = jnp.log(jnp.array([[[1.0, 0.0]], [[0.0, 1.0]]]))  # members disagree
+    >>> float(bald(agree)[0]), float(bald(split)[0])
+    (0.0, 0.6931...)
+    """
+    w = _weights(logp, weights)
+    return _entropy(predictive(logp, w)) - jnp.einsum("e,ec->c", w, _entropy(jnp.exp(logp)))
+
+
+def _masked_top_k(score: Float[Array, " C"], available: Bool[Array, " C"], k: int):
+    return jax.lax.top_k(jnp.where(available, score, -jnp.inf), k)[1]
+
+
+def select_random(key: jax.Array, available: Bool[Array, " C"], k: int) -> Int[Array, " k"]:
+    """k available candidates uniformly without replacement (Gumbel top-k)."""
+    return _masked_top_k(jax.random.gumbel(key, available.shape), available, k)
+
+
+def select_fantasy(
+    key: jax.Array,
+    logp: Float[Array, "E C G"],
+    available: Bool[Array, " C"],
+    k: int,
+    weights: Float[Array, " E"] | None = None,
+) -> Int[Array, " k"]:
+    """Greedy BALD with fantasised answers: pick the best BALD under the member weights
+    π, draw ŷ ~ p̄ of the pick (``fold_in(key, i)`` for pick i), set
+    π_e ← π_e p_e(ŷ) / Σ_e' π_e' p_e'(ŷ), repeat k times. The first j picks do not depend
+    on k."""
+    w0 = _weights(logp, weights)
+
+    def pick(i, carry):
+        w, avail, out = carry
+        c = jnp.argmax(jnp.where(avail, bald(logp, w), -jnp.inf))
+        lp = logp[:, c]  # (E, G)
+        pbar = w @ jnp.exp(lp)  # (G,)
+        logits = jnp.where(pbar > 0, jnp.log(jnp.where(pbar > 0, pbar, 1.0)), -jnp.inf)
+        y = jax.random.categorical(jax.random.fold_in(key, i), logits)
+        w = w * jnp.exp(lp[:, y])
+        w = w / jnp.maximum(w.sum(), 1e-30)
+        return w, avail.at[c].set(False), out.at[i].set(c.astype(jnp.int32))
+
+    init = (w0, available, jnp.zeros((k,), jnp.int32))
+    return jax.lax.fori_loop(0, k, pick, init)[2]
+
+
+def select_cluster(
+    logp: Float[Array, "E C G"],
+    available: Bool[Array, " C"],
+    k: int,
+    shortlist: int | None = None,
+    weights: Float[Array, " E"] | None = None,
+) -> Int[Array, " k"]:
+    """Diverse BALD: among the ``shortlist`` (default ``SHORTLIST`` · k) available
+    candidates of highest BALD, start at the best and then add, k − 1 times, the one that
+    maximises BALD × its Euclidean distance to the nearest pick so far, in the space of
+    the members' predictions p_e (E·G numbers per candidate): a k-centre greedy (Sener &
+    Savarese 2018) weighted by informativeness, so that a copy of a pick (distance 0)
+    and a motion every member agrees on (BALD 0) both score 0. The first j picks do not
+    depend on k for a fixed ``shortlist``."""
+    m = min(SHORTLIST * k if shortlist is None else shortlist, logp.shape[1])
+    if m < k:
+        raise ValueError(f"shortlist: expected at least k = {k}, got {m}")
+    info = jnp.where(available, bald(logp, weights), -jnp.inf)
+    val, top = jax.lax.top_k(info, m)  # (m,), best first
+    feat = jnp.exp(logp[:, top]).transpose(1, 0, 2).reshape(m, -1)  # (m, E·G)
+    ok = jnp.isfinite(val)
+
+    def pick(i, carry):
+        dmin, taken, out = carry
+        gain = jnp.where(taken | ~ok, -jnp.inf, jnp.maximum(val, 0.0) * dmin)
+        j = jnp.where(i == 0, 0, jnp.argmax(gain))
+        d = jnp.sqrt(jnp.sum((feat - feat[j]) ** 2, axis=-1))
+        return jnp.minimum(dmin, d), taken.at[j].set(True), out.at[i].set(top[j])
+
+    init = (jnp.full((m,), jnp.inf), jnp.zeros((m,), bool), jnp.zeros((k,), jnp.int32))
+    return jax.lax.fori_loop(0, k, pick, init)[2]
+
+
+def select(
+    strategy: str,
+    key: jax.Array,
+    logp: Float[Array, "E C G"] | None,
+    available: Bool[Array, " C"],
+    k: int,
+    *,
+    shortlist: int | None = None,
+) -> Int[Array, " k"]:
+    """The next k candidates (indices into the C scored ones) by ``strategy`` (one of
+    :data:`STRATEGIES`; the module docstring defines them). ``logp`` holds the members'
+    log guess probabilities (−∞ on padded goals; unused by ``random``), ``available`` the
+    candidates that may be picked (at least k). Pure: jit it with ``strategy`` and ``k``
+    static."""
+    if strategy == "random":
+        return select_random(key, available, k)
+    if strategy == "uncertainty":
+        return _masked_top_k(uncertainty(logp), available, k)
+    if strategy == "bald":
+        return _masked_top_k(bald(logp), available, k)
+    if strategy == "bald_fantasy":
+        return select_fantasy(key, logp, available, k)
+    if strategy == "bald_cluster":
+        return select_cluster(logp, available, k, shortlist)
+    raise ValueError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
+
+
+# ================================================================ the ensemble
+
+
+def candidate_scores(
+    model,
+    xyz: Float[Array, "... T 3"],
+    goals: Float[Array, "... G 3"],
+    goal_mask: Bool[Array, "... G"],
+    seen: Int[Array, "..."],
+    *,
+    backward: str = "autodiff",
+) -> Float[Array, "... G"]:
+    """Unmasked scores of the first ``seen`` points (the MLP family,
+    :func:`slotv_jax.study.prefix_scores`) or of the whole motion (archetypes, which the
+    callers give only whole-motion candidates: :meth:`Selector.check_pool`)."""
+    if isinstance(model, models.SlotV | models.TRex):
+        return fitting.prefix_scores(model, xyz, goals, seen, backward=backward)
+    return model.scores(xyz, goals, goal_mask)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Selector:
+    """An ensemble of E observers of one config, trained on answers with a fixed capacity
+    of M slots (build with :func:`make_selector`). Every method is pure: jit it."""
+
+    cfg: TrainConfig
+    base: train_lib.Trainer  # initialisation, optimiser and model of the config
+    members: int  # E
+    capacity: int  # M answer slots
+
+    @property
+    def is_mlp(self) -> bool:
+        return self.cfg.model == "mlp"
+
+    def check_pool(self, pool: Pool) -> None:
+        """Archetypes score whole motions only: a clear error for a prefix candidate."""
+        if not self.is_mlp and bool(jnp.any(pool.seen != pool.xyz.shape[1])):
+            raise ValueError(
+                f"pool: the {self.cfg.model!r} archetype scores whole motions only; "
+                "build the pool with taus=(1.0,)"
+            )
+
+    def init(self, key: jax.Array) -> Ensemble:
+        """E fresh members (member e from ``fold_in(split(key)[0], e)``) and their bootstrap
+        weights (Poisson(1) from ``split(key)[1]``)."""
+        k_members, k_boot = jax.random.split(key)
+        keys = jax.vmap(lambda e: jax.random.fold_in(k_members, e))(jnp.arange(self.members))
+        states = jax.vmap(self.base.init)(keys)
+        boot = jax.random.poisson(k_boot, 1.0, (self.members, self.capacity))
+        boot = boot.astype(jnp.float32).at[0].set(1.0)
+        return Ensemble(states.params, states.opt_state, boot)
+
+    def _logp(self, params, pool: Pool, cand: Int[Array, " B"]) -> Float[Array, "B G"]:
+        t = pool.traj[cand]
+        s = candidate_scores(
+            self.base.model(params),
+            pool.xyz[t],
+            pool.goals[t],
+            pool.goal_mask[t],
+            pool.seen[cand],
+            backward=self.base.backward,
+        )
+        return jax.nn.log_softmax(models.mask_logits(s, pool.goal_mask[t]), axis=-1)
+
+    def loss(self, params, pool: Pool, answers: Answers, rows: Int[Array, " B"], boot):
+        """Minibatch count NLL of ``rows`` weighted by ``boot`` (per answer, unbiased)."""
+        c = answers.cand[rows]
+        t = pool.traj[c]
+        s = candidate_scores(
+            self.base.model(params),
+            pool.xyz[t],
+            pool.goals[t],
+            pool.goal_mask[t],
+            pool.seen[c],
+            backward=self.base.backward,
+        )
+        nll = fitting.count_nll(s, pool.goal_mask[t], answers.counts[rows])
+        filled = jnp.arange(self.capacity) < answers.n
+        n_bar = jnp.sum(jnp.where(filled[:, None], answers.counts, 0.0)) / jnp.maximum(answers.n, 1)
+        return jnp.sum(boot[rows] * nll) / (rows.shape[0] * n_bar)
+
+    def fit(
+        self, ens: Ensemble, pool: Pool, answers: Answers, key: jax.Array, *, updates: int
+    ) -> tuple[Ensemble, Float[Array, "U E"]]:
+        """``updates`` more updates of every member (warm start from ``ens``): each draws
+        ``cfg.batch_size`` of the ``answers.n`` filled rows uniformly with replacement
+        (its own key) and takes one optimiser step on their bootstrap-weighted count
+        NLL. Returns the ensemble and the losses."""
+        bs, e = self.cfg.batch_size, self.members
+        tx = self.base.tx
+
+        def member(params, opt_state, boot, k):
+            rows = jax.random.randint(k, (bs,), 0, jnp.maximum(answers.n, 1))
+            loss, grads = jax.value_and_grad(self.loss)(params, pool, answers, rows, boot)
+            upd, opt_state = tx.update(grads, opt_state, params)
+            return optax.apply_updates(params, upd), opt_state, loss
+
+        def step(carry, k):
+            params, opt_state = carry
+            params, opt_state, loss = jax.vmap(member)(
+                params, opt_state, ens.boot, jax.random.split(k, e)
+            )
+            return (params, opt_state), loss
+
+        (params, opt_state), losses = jax.lax.scan(
+            step, (ens.params, ens.opt_state), jax.random.split(key, updates)
+        )
+        return Ensemble(params, opt_state, ens.boot), losses
+
+    def log_probs(
+        self, params, pool: Pool, cand: Int[Array, " C"], *, chunk: int = 256
+    ) -> Float[Array, "E C G"]:
+        """Every member's log guess probabilities of the candidates ``cand`` (−∞ on padded
+        goals), ``chunk`` candidates at a time (``jax.lax.map``). ``params`` may hold any
+        number of members (e.g. member 0 alone: ``jax.tree.map(lambda x: x[:1], params)``)."""
+        c = cand.shape[0]
+        pad = (-c) % chunk
+        idx = jnp.concatenate([cand, jnp.zeros((pad,), cand.dtype)]).reshape(-1, chunk)
+
+        def one(ix):
+            return jax.vmap(lambda p: self._logp(p, pool, ix))(params)  # (E, chunk, G)
+
+        out = jax.lax.map(one, idx)  # (chunks, E, chunk, G)
+        e, g = out.shape[1], out.shape[-1]
+        return out.transpose(1, 0, 2, 3).reshape(e, -1, g)[:, :c]
+
+
+@functools.cache
+def make_selector(cfg: TrainConfig, members: int, capacity: int) -> Selector:
+    """The :class:`Selector` of ``cfg`` with E = ``members`` and M = ``capacity`` (cached:
+    the same arguments give the same object, so jitted methods reuse compilations)."""
+    if not isinstance(cfg, TrainConfig) or cfg.method != "slotv":
+        raise ValueError("cfg: expected a SLOT-V TrainConfig (the count likelihood of guesses)")
+    if not (isinstance(members, int) and members >= 1):
+        raise ValueError(f"members: expected an int >= 1, got {members!r}")
+    if not (isinstance(capacity, int) and capacity >= 1):
+        raise ValueError(f"capacity: expected an int >= 1, got {capacity!r}")
+    return Selector(cfg, train_lib.make_train(cfg, progress=False), members, capacity)

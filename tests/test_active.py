@@ -1,0 +1,224 @@
+"""Active selection (slotv_jax.study.selection, slotv_jax.experiments.active): the criteria
+against hand-computed two-goal pools, determinism, the vmapped ensemble against a loop
+over members, and the experiment's bookkeeping."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+from flax import nnx
+
+from slotv_jax.experiments import active
+from slotv_jax.study import selection
+from slotv_jax.training import config as train_config
+
+EPS = 1e-6  # "certain" members give the other goal this probability
+H = lambda p: -sum(q * math.log(q) for q in p if q > 0)  # noqa: E731  float64 entropy
+# vmapped and single-member float32 reductions round differently (~1e-7); five RMSprop
+# steps (each divides by the root of the squared-gradient average) grow that to ~1e-5. A
+# wrong member, key or bootstrap weight gives differences of order 1.
+FLOAT32_STEPS = 1e-4
+SELECT = jax.jit(selection.select, static_argnums=(0, 4), static_argnames=("shortlist",))
+
+
+def _two_goal_logp():
+    """E = 4 members, 5 candidates, 2 goals (hand-made predictions):
+
+    0 A  every member says 50/50 (a noisy motion: high entropy, nothing to learn)
+    1 B  members {0,1} are sure of goal 0, {2,3} of goal 1 (the informative motion)
+    2 B' a copy of B
+    3 D  members {0,2} lean 0.9 to goal 0, {1,3} 0.9 to goal 1 (informative, less so)
+    4 C  every member is sure of goal 0
+    """
+    sure0, sure1 = [1 - EPS, EPS], [EPS, 1 - EPS]
+    lean0, lean1, half = [0.9, 0.1], [0.1, 0.9], [0.5, 0.5]
+    p = np.array(
+        [
+            [half, sure0, sure0, lean0, sure0],
+            [half, sure0, sure0, lean1, sure0],
+            [half, sure1, sure1, lean0, sure0],
+            [half, sure1, sure1, lean1, sure0],
+        ]
+    )  # (E, C, G)
+    return jnp.asarray(np.log(p), jnp.float32), p
+
+
+def test_criteria_match_hand_computed_values():
+    logp, _ = _two_goal_logp()
+    u = np.asarray(selection.uncertainty(logp), np.float64)
+    b = np.asarray(selection.bald(logp), np.float64)
+    # by hand: p̄ and the mean member entropy of each candidate
+    expect_u = [math.log(2), math.log(2), math.log(2), math.log(2), H([1 - EPS, EPS])]
+    expect_b = [
+        0.0,
+        math.log(2) - H([1 - EPS, EPS]),
+        math.log(2) - H([1 - EPS, EPS]),
+        math.log(2) - H([0.9, 0.1]),
+        0.0,
+    ]
+    np.testing.assert_allclose(u, expect_u, atol=2e-6)
+    np.testing.assert_allclose(b, expect_b, atol=2e-6)
+    # weighted: members {0, 1} only -> they agree on B, disagree on D
+    w = jnp.array([0.5, 0.5, 0.0, 0.0])
+    bw = np.asarray(selection.bald(logp, w), np.float64)
+    np.testing.assert_allclose(bw[[1, 3]], [0.0, math.log(2) - H([0.9, 0.1])], atol=2e-6)
+
+
+def test_strategies_pick_the_informative_motions():
+    logp, _ = _two_goal_logp()
+    avail = jnp.ones(5, bool)
+    key = jax.random.key(0)
+    pick = lambda s, k=2: sorted(np.asarray(SELECT(s, key, logp, avail, k)).tolist())  # noqa: E731
+    assert pick("bald", 1) == [1]  # B (its copy B' ties: the first index)
+    assert pick("bald") == [1, 2]  # top-2 BALD: B and its copy
+    assert pick("bald_fantasy") == [1, 3]  # after B's fantasised answer, B' teaches nothing
+    assert pick("bald_cluster") == [1, 3]  # B' is at distance 0, C and A have BALD 0
+    for seed in range(8):  # whatever answer is fantasised for B, D comes next
+        got = SELECT("bald_fantasy", jax.random.key(seed), logp, avail, 2)
+        assert np.asarray(got).tolist() == [1, 3]
+    assert int(SELECT("uncertainty", key, logp, avail, 1)[0]) in (0, 1, 2, 3)
+    # unavailable candidates are never picked; random picks distinct available ones
+    avail = jnp.array([True, False, False, True, True])
+    assert sorted(np.asarray(SELECT("bald", key, logp, avail, 2)).tolist()) == [0, 3]
+    r = np.asarray(SELECT("random", key, logp, avail, 3)).tolist()
+    assert sorted(r) == [0, 3, 4]
+    with pytest.raises(ValueError, match="strategy"):
+        selection.select("entropy", key, logp, avail, 1)
+
+
+def test_selection_is_deterministic_and_prefix_consistent():
+    key = jax.random.key(3)
+    logp = jax.nn.log_softmax(jax.random.normal(key, (3, 200, 5)), -1)
+    avail = jax.random.bernoulli(jax.random.key(4), 0.8, (200,))
+    for s in selection.STRATEGIES:
+        a = np.asarray(SELECT(s, key, logp, avail, 16, shortlist=64))
+        b = np.asarray(SELECT(s, key, logp, avail, 16, shortlist=64))
+        np.testing.assert_array_equal(a, b)
+        if s in ("random", "bald_fantasy", "bald_cluster"):  # sequential picks
+            c = np.asarray(SELECT(s, key, logp, avail, 8, shortlist=64))
+            np.testing.assert_array_equal(a[:8], c)  # the experiment takes a prefix of k_max
+        assert np.unique(a).size == 16 and np.asarray(avail)[a].all(), s
+
+
+def _tiny_pool(n=40, t=10, g=3, seed=0):
+    rng = np.random.default_rng(seed)
+    goals = np.zeros((n, 8, 3), np.float32)
+    goals[:, :g] = rng.uniform([0.3, -0.4, 0.0], [0.7, 0.4, 0.05], (n, g, 3))
+    mask = np.arange(8)[None] < g
+    mask = np.repeat(mask, n, 0)
+    start = np.array([0.31, 0.0, 0.49], np.float32)
+    target = goals[np.arange(n), rng.integers(0, g, n)]
+    s = np.linspace(0, 1, t)[None, :, None]
+    xyz = (1 - s) * start + s * target[:, None, :] + 0.02 * rng.standard_normal((n, t, 3))
+    return xyz.astype(np.float32), goals, mask, rng
+
+
+def test_pool_and_answers_validate():
+    xyz, goals, mask, _ = _tiny_pool()
+    pool = selection.make_pool(xyz, goals, mask, taus=(0.5, 1.0))
+    assert pool.traj.shape == (80,) and pool.seen[:2].tolist() == [5, 10]
+    with pytest.raises(ValueError, match="taus"):
+        selection.make_pool(xyz, goals, mask, taus=(0.0,))
+    with pytest.raises(ValueError, match="goal_mask"):
+        selection.make_pool(xyz, goals, mask[:, :4])
+    with pytest.raises(ValueError, match="capacity"):
+        selection.make_answers([0, 1, 2], np.ones((3, 8)), 2)
+    sel = selection.make_selector(train_config.archetype("quick", "dragan"), 2, 8)
+    with pytest.raises(ValueError, match="whole motions"):
+        sel.check_pool(pool)
+
+
+@pytest.fixture(scope="module")
+def trained():
+    xyz, goals, mask, rng = _tiny_pool()
+    pool = selection.make_pool(xyz, goals, mask, taus=(0.6, 1.0))
+    cfg = train_config.quick("slotv", hidden=(8, 4), batch_size=4)
+    sel = selection.make_selector(cfg, 3, 16)
+    cand = rng.choice(pool.traj.shape[0], 12, replace=False)
+    counts = rng.multinomial(5, [0.6, 0.3, 0.1], 12).astype(np.float32)
+    counts = np.concatenate([counts, np.zeros((12, 5), np.float32)], 1)
+    ans = selection.make_answers(cand, counts, 16)
+    ens0 = sel.init(jax.random.key(7))
+    fit = jax.jit(lambda e, k: sel.fit(e, pool, ans, k, updates=5))
+    ens, losses = fit(ens0, jax.random.key(8))
+    return sel, pool, ans, ens0, ens, losses, fit
+
+
+def test_ensemble_vmap_equals_a_loop_over_members(trained):
+    sel, pool, ans, ens0, ens, losses, _ = trained
+    tx = sel.base.tx
+    e_count, bs = sel.members, sel.cfg.batch_size
+    k_members, _ = jax.random.split(jax.random.key(7))
+    step_keys = jax.random.split(jax.random.key(8), 5)
+    assert float(jnp.min(ens0.boot[1:])) >= 0 and bool(jnp.all(ens0.boot[0] == 1))
+
+    @jax.jit
+    def one_step(params, opt, k, boot):  # one member, one update, no vmap
+        rows = jax.random.randint(k, (bs,), 0, ans.n)
+        loss, grads = jax.value_and_grad(sel.loss)(params, pool, ans, rows, boot)
+        upd, opt = tx.update(grads, opt, params)
+        return optax.apply_updates(params, upd), opt, loss
+
+    for e in range(e_count):
+        # member e alone: its own init and key stream, one Python step per update
+        state = sel.base.init(jax.random.fold_in(k_members, e))
+        params, opt = state.params, state.opt_state
+        for u in range(5):
+            k = jax.random.split(step_keys[u], e_count)[e]
+            params, opt, loss = one_step(params, opt, k, ens0.boot[e])
+            np.testing.assert_allclose(float(losses[u, e]), float(loss), rtol=FLOAT32_STEPS)
+        got = jax.tree.map(lambda x, e=e: x[e], ens.params)
+        for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(params), strict=True):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=FLOAT32_STEPS, atol=1e-6)
+        # log_probs of member e against the model's own masked call on the whole motions
+        whole = jnp.flatnonzero(pool.seen == pool.xyz.shape[1])[:7]
+        lp = sel.log_probs(ens.params, pool, whole, chunk=4)[e]
+        model = nnx.merge(sel.base.graphdef, params)
+        t = pool.traj[whole]
+        ref = jax.nn.log_softmax(model(pool.xyz[t], pool.goals[t], pool.goal_mask[t]), -1)
+        np.testing.assert_allclose(np.asarray(lp), np.asarray(ref), rtol=1e-4, atol=1e-5)
+
+
+def test_fit_is_deterministic(trained):
+    *_, ens0, ens, losses, fit = trained
+    again, losses2 = fit(ens0, jax.random.key(8))
+    for a, b in zip(jax.tree.leaves(ens.params), jax.tree.leaves(again.params), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    np.testing.assert_array_equal(np.asarray(losses), np.asarray(losses2))
+    assert np.isfinite(np.asarray(losses)).all()
+
+
+def test_answers_to_target_and_comparisons():
+    assert active.answers_to([10, 100], [0.6, 0.9], 0.75) == pytest.approx(math.sqrt(1000))
+    assert active.answers_to([10, 100], [0.85, 0.9], 0.8) == 10.0
+    assert active.answers_to([10, 100], [0.5, 0.7], 0.8) is None
+    cfg = {"labels_target": 0.8, "study_targets": [["mlp", 0.8]], "strategies": ["random", "bald"]}
+    runs = [
+        {"strategy": "random", "seed": 0, "accuracy": [0.5, 0.7, 0.8]},
+        {"strategy": "random", "seed": 1, "accuracy": [0.5, 0.8, 0.9]},
+        {"strategy": "bald", "seed": 0, "accuracy": [0.5, 0.8, 0.9]},
+        {"strategy": "bald", "seed": 1, "accuracy": [0.5, 0.6, 0.7]},
+    ]
+    grp = {"setting": "labels", "labeler": "dragan", "model": "mlp", "answers": [10, 20, 40],
+           "runs": runs}  # fmt: skip
+    out = active.comparisons({"config": cfg, "groups": [grp]})
+    by = {c["strategy"]: c for c in out}
+    assert by["random"]["answers_to_target"] == pytest.approx(30.0)  # mean of 40 and 20
+    assert by["bald"]["answers_to_target"] is None and by["bald"]["seeds_reached"] == 1
+    for c in out:
+        assert {"setting", "model", "labeler", "strategy", "answers_to_target", "seeds"} <= set(c)
+        assert c["seeds"] == 2
+
+
+def test_config_rejects_bad_settings():
+    with pytest.raises(ValueError, match="subset"):
+        active.quick(subset=10)
+    with pytest.raises(ValueError, match="strategies"):
+        active.quick(strategies=("bald",))
+    with pytest.raises(ValueError, match="study_targets"):
+        active.quick(study_targets=(("mlp", 0.8),))
+    assert active.geometric(16, 512, 2.0) == (16, 32, 64, 128, 256, 512)
+    assert active.quick().groups()[0] == ("labels", "dragan", "mlp")

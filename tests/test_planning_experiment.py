@@ -1,0 +1,113 @@
+"""The planning experiment scores its plans at the dataset's temperatures, and writes its
+example plans in the documented plans.npz format."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+from slotv_jax import data
+from slotv_jax.core.defaults import BETAS_V1, DEFAULT_BETAS
+from slotv_jax.experiments import planning as exp
+from slotv_jax.observers import labelers
+from slotv_jax.world import scene
+
+
+def _case():
+    goals = np.zeros((8, 3), np.float32)
+    goals[:3] = [[0.45, 0.3, 0.025], [0.55, 0.0, 0.025], [0.45, -0.3, 0.025]]
+    mask = np.arange(8) < 3
+    start = np.array([0.3, 0.0, 0.45], np.float32)
+    xyz = np.linspace(start, goals[0] + [0.0, -0.1, 0.1], 30).astype(np.float32)
+    return xyz, goals, mask
+
+
+@pytest.mark.parametrize("labels", [data.LabelConfig(), data.LABELS_V1])
+def test_oracles_and_scoring_use_the_datasets_temperatures(labels):
+    cfg = exp.tiny()
+    cfg = dataclasses.replace(cfg, data=dataclasses.replace(cfg.data, labels=labels))
+    betas = cfg.scoring_betas()
+    assert betas == {f: getattr(labels, f"beta_{f}") for f in exp.FAMILIES}
+    assert cfg.to_json()["scoring_betas"] == betas  # config.scoring_betas of results.json
+    xyz, goals, mask = _case()
+    cam = scene.camera(labels.camera)
+    oracles = exp.oracles(cfg)
+    for f in exp.FAMILIES:
+        kw = {"camera": cam} if f == "nikolaidis" else {}
+        want = np.asarray(labelers.LABELERS[f](xyz, goals, mask, beta=betas[f], **kw))
+        other = np.asarray(labelers.LABELERS[f](xyz, goals, mask, beta=2 * betas[f], **kw))
+        assert np.abs(want - other).max() > 1e-3  # the temperature matters here
+        got = np.asarray(jax.nn.softmax(oracles[f](xyz, goals, mask)))
+        np.testing.assert_allclose(got, want, rtol=0, atol=2e-6, err_msg=f)
+        y = exp.true_labels(f, xyz[None], goals[None], mask[None], beta=betas[f])
+        np.testing.assert_allclose(y[0], want, rtol=0, atol=2e-6, err_msg=f)
+
+
+def test_the_presets_score_at_the_default_temperatures():
+    for preset in exp.PRESETS.values():
+        assert preset().scoring_betas() == {f: DEFAULT_BETAS[f] for f in exp.FAMILIES}
+    assert {f: DEFAULT_BETAS[f] for f in exp.FAMILIES} != {f: BETAS_V1[f] for f in exp.FAMILIES}
+
+
+class _Plans:
+    """A stand-in for a batch of :class:`planning.PlanResult`: q and xyz only."""
+
+    def __init__(self, seed: int, n: int, t: int):
+        rng = np.random.default_rng(seed)
+        self.q = rng.normal(size=(n, t, 7)).astype(np.float32)
+        self.xyz = rng.normal(size=(n, t, 3)).astype(np.float32)
+
+
+def test_saved_plans_format(tmp_path):
+    cfg = dataclasses.replace(exp.tiny(), archetype={"dragan": exp.tiny().archetype["dragan"]})
+    rng = np.random.default_rng(0)
+    scenes = {}
+    for s in exp.SPLITS:
+        goals = rng.uniform(0.2, 0.6, (5, 8, 3)).astype(np.float32)
+        mask = np.arange(8)[None] < rng.integers(2, 6, 5)[:, None]
+        scenes[s] = (goals, mask)
+    problems = exp.make_problems(scenes)
+    n, t = len(problems["target"]), 12
+    straight = _Plans(0, n, t)
+    plans, labels = {}, {}
+    for i, f in enumerate(exp.FAMILIES):
+        labels[f, "straight"] = rng.random((n, 8), dtype=np.float32)
+        for name in (f, *cfg.methods(f)):
+            plans[exp.observer_key(name, f)] = _Plans(10 * i + len(plans), n, t)
+            labels[f, name] = rng.random((n, 8), dtype=np.float32)
+    saved = exp.saved_plans(cfg, problems, straight, plans, labels)
+    path = tmp_path / "plans.npz"
+    np.savez_compressed(path, **saved)
+    with np.load(path, allow_pickle=False) as f:
+        pl = {k: f[k] for k in f.files}
+    names = [str(x) for x in pl["names"]]
+    assert names == ["straight", "oracle", "slotv", "trex", "slotv_plus", "trex_plus", "archetype"]
+    idx = exp.example_indices(problems, exp.N_SAVED)
+    P, K = 2 * len(idx), len(names)
+    assert 0 < len(idx) <= exp.N_SAVED
+    assert pl["goals"].shape == (P, 8, 3) and pl["goals"].dtype == np.float32
+    assert pl["goal_mask"].shape == (P, 8) and pl["goal_mask"].dtype == bool
+    assert pl["target"].shape == (P,) and pl["target"].dtype == np.int32
+    assert pl["q"].shape == (K, P, t, 7) and pl["q"].dtype == np.float32
+    assert pl["xyz"].shape == (K, P, t, 3) and pl["y"].shape == (K, P, 8)
+    for k in ("family", "names", "split"):
+        assert pl[k].dtype.kind == "U"
+    assert pl["family"].tolist() == ["dragan"] * len(idx) + ["nikolaidis"] * len(idx)
+    assert pl["beta"].tolist() == [DEFAULT_BETAS[str(f)] for f in pl["family"]]
+    for p in range(P):
+        i, f = int(pl["problem"][p]), str(pl["family"][p])
+        np.testing.assert_array_equal(pl["goals"][p], problems["goals"][i])
+        assert pl["target"][p] == problems["target"][i]
+        assert pl["split"][p] == exp.SPLITS[problems["split"][i]]
+        for k, name in enumerate(names):
+            key = {"straight": "straight", "oracle": f}.get(name, name)
+            if name == "archetype" and f == "nikolaidis":  # not in this run: NaN
+                assert np.isnan(pl["xyz"][k, p]).all() and np.isnan(pl["y"][k, p]).all()
+                continue
+            res = straight if key == "straight" else plans[exp.observer_key(key, f)]
+            np.testing.assert_array_equal(pl["q"][k, p], res.q[i])
+            np.testing.assert_array_equal(pl["xyz"][k, p], res.xyz[i])
+            np.testing.assert_array_equal(pl["y"][k, p], labels[f, key][i])
