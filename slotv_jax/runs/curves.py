@@ -16,10 +16,10 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from slotv_jax import data as data_lib
 from slotv_jax.core import distributed
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import save_figure, write_text
+from slotv_jax.data.generate import cached_dataset
 from slotv_jax.runs import presets
 from slotv_jax.runs.presets import METHOD_TITLES, METHODS
 from slotv_jax.training import evaluate, parallel, schedule, types
@@ -64,9 +64,7 @@ def run(
     dcfg = t1.data
     if distributed.is_writer():
         out.mkdir(parents=True, exist_ok=True)
-    dataset = data_lib.cached_dataset(
-        dcfg, cache, splits=["train", "trajectory_val"], progress=progress
-    )
+    dataset = cached_dataset(dcfg, cache, splits=["train", "trajectory_val"], progress=progress)
     tdata = types.prepare(dataset["train"], labeler)
     vdata = types.prepare(dataset["trajectory_val"], labeler)
     val_size = min(val_size, len(dataset["trajectory_val"]))

@@ -15,11 +15,12 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from slotv_jax import data as data_lib
 from slotv_jax.core import distributed
 from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
+from slotv_jax.data.generate import cached_dataset
+from slotv_jax.data.storage import dataset_dir
 from slotv_jax.runs.presets import METHODS, RunConfig, _train_key
 from slotv_jax.training import evaluate, parallel, schedule, types
 from slotv_jax.training import trainer as train
@@ -125,9 +126,9 @@ def run(
     n_dev = jax.device_count()
 
     t0 = time.perf_counter()
-    dataset = data_lib.cached_dataset(cfg.data, cache, progress=progress)
+    dataset = cached_dataset(cfg.data, cache, progress=progress)
     doc["timing"]["data_s"] = time.perf_counter() - t0
-    doc["dataset"] = str(data_lib.dataset_dir(cache, cfg.data))
+    doc["dataset"] = str(dataset_dir(cache, cfg.data))
     doc["timing"]["stopped_by_time_limit"] = False  # of this invocation (a resumed doc had one)
 
     def save():

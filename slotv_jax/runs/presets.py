@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from slotv_jax import data as data_lib
+from slotv_jax.data import config as data_config
 from slotv_jax.training import config as train_config
 
 METHODS = train_config.METHODS
@@ -32,7 +32,7 @@ class RunConfig:
 
     preset: str
     trials: int
-    data: data_lib.DataConfig
+    data: data_config.DataConfig
     train: dict[str, train_config.TrainConfig]  # method -> training config
 
     def to_json(self) -> dict:
@@ -47,17 +47,17 @@ class RunConfig:
 
 def quick() -> RunConfig:
     """CPU preset: quick data, small networks, 2 trials **[choice]**."""
-    return RunConfig("quick", 2, data_lib.quick(), {m: train_config.quick(m) for m in METHODS})
+    return RunConfig("quick", 2, data_config.quick(), {m: train_config.quick(m) for m in METHODS})
 
 
 def paper() -> RunConfig:
     """The paper's sizes and hyperparameters, 10 trials."""
-    return RunConfig("paper", 10, data_lib.paper(), {m: train_config.paper(m) for m in METHODS})
+    return RunConfig("paper", 10, data_config.paper(), {m: train_config.paper(m) for m in METHODS})
 
 
 def tiny() -> RunConfig:
     """A seconds-scale preset for tests and smoke runs (not a result)."""
-    d = data_lib.DataConfig(
+    d = data_config.DataConfig(
         preset="tiny", n_train=300, n_eval=100, n_train_scenes=20, n_new_scenes=4, chunk_size=512
     )
     t = {
