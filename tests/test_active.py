@@ -67,6 +67,21 @@ def test_criteria_match_hand_computed_values():
     np.testing.assert_allclose(bw[[1, 3]], [0.0, math.log(2) - H([0.9, 0.1])], atol=2e-6)
 
 
+def test_margin_prefers_a_tie_of_two_goals_to_a_flat_spread():
+    p = np.array([[[0.5, 0.5, 0.0], [0.4, 0.3, 0.3], [0.9, 0.05, 0.05]]])  # (E=1, C=3, G=3)
+    with np.errstate(divide="ignore"):
+        logp = jnp.asarray(np.log(p), jnp.float32)
+    np.testing.assert_allclose(np.asarray(selection.margin(logp)), [1.0, 0.9, 0.15], atol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(selection.uncertainty(logp)),
+        [H([0.5, 0.5]), H([0.4, 0.3, 0.3]), H([0.9, 0.05, 0.05])],
+        atol=1e-6,
+    )
+    avail = jnp.ones(3, bool)
+    assert int(SELECT("margin", jax.random.key(0), logp, avail, 1)[0]) == 0
+    assert int(SELECT("uncertainty", jax.random.key(0), logp, avail, 1)[0]) == 1
+
+
 def test_strategies_pick_the_informative_motions():
     logp, _ = _two_goal_logp()
     avail = jnp.ones(5, bool)

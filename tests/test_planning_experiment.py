@@ -4,6 +4,7 @@ example plans in the documented plans.npz format."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import jax
 import numpy as np
@@ -111,3 +112,26 @@ def test_saved_plans_format(tmp_path):
             np.testing.assert_array_equal(pl["q"][k, p], res.q[i])
             np.testing.assert_array_equal(pl["xyz"][k, p], res.xyz[i])
             np.testing.assert_array_equal(pl["y"][k, p], labels[f, key][i])
+
+
+@pytest.mark.parametrize("stem", ["planning", "planning_paper"])
+def test_records_are_rendered_from_their_results(stem):
+    """The recorded reports hold the report rendered from the recorded results
+    (numbers come from the results document only), scored at the datasets' temperatures;
+    their example plans load without pickle."""
+    from pathlib import Path
+
+    from slotv_jax.experiments import planning_report
+
+    folder = Path(__file__).resolve().parent.parent / "experiments"
+    doc = json.loads((folder / f"{stem}_results.json").read_text())
+    betas = doc["config"]["scoring_betas"]
+    assert betas == {f: doc["config"]["data"]["labels"][f"beta_{f}"] for f in exp.FAMILIES}
+    lines = iter((folder / f"{stem}.md").read_text().splitlines())
+    for want in planning_report.report(doc, figures=f"{stem}_").splitlines():
+        # every rendered line, in order (other figures may stand between them)
+        assert any(line == want for line in lines), want
+    with np.load(folder / f"{stem}_plans.npz", allow_pickle=False) as f:
+        assert set(f["family"].tolist()) == set(exp.FAMILIES)
+        np.testing.assert_array_equal(f["beta"], [betas[str(x)] for x in f["family"]])
+        assert f["q"].shape[:2] == (len(f["names"]), len(f["target"]))

@@ -218,6 +218,10 @@ def test_cli_trains_checkpoints_and_resumes(tiny_data, tiny_cfg, tmp_path, capsy
     out = capsys.readouterr().out
     assert "resuming from" in out and "epoch 2/2" in out and "epoch 1/2" not in out
     assert json.loads((ck / "config.json").read_text())["epoch"] == 2
+    with pytest.raises(SystemExit):  # neither --resume nor --overwrite: refused, untouched
+        train_cli.main([*args, "--epochs", "3"])
+    assert "pass --resume to continue" in capsys.readouterr().err
+    assert json.loads((ck / "config.json").read_text())["epoch"] == 2
     obs = slotv_jax.load_observer(ck)
     s = tiny_data["trajectory_test"]
     assert obs(s.xyz[0], s.goals[0], s.goal_mask[0]).shape == (8,)

@@ -19,7 +19,19 @@ planning_gradient_alignment.py; the learned α; the gain kept and the lowered ra
     dragan seed 1: acc 0.936/0.909/0.914 align 0.954 alpha 1.040 kept 96.2% lowered 0.000
     dragan seed 2: acc 0.943/0.923/0.906 align 0.954 alpha 1.060 kept 96.3% lowered 0.000
 
-An earlier version of this probe (the code of commit 9b728f6, same configuration, before a
+Re-run after the oracle and the scoring took the datasets' temperatures (β 30 for
+Nikolaidis; before, β 7.5 scored observers trained at 30), with the preset's 5 epochs
+(``... paper nikolaidis 5 compute_dtype=bfloat16 start_term=true time_weight=true
+epochs=5``; H100, code of commit b1efd59, 2026-11-24)::
+
+    nikolaidis seed 0: acc 0.891/0.877/0.788 align 0.906 alpha 1.043 kept 86.0% lowered 0.000
+    nikolaidis seed 1: acc 0.914/0.908/0.871 align 0.896 alpha 1.090 kept 83.9% lowered 0.000
+    nikolaidis seed 2: acc 0.895/0.876/0.827 align 0.867 alpha 1.059 kept 81.3% lowered 0.000
+    nikolaidis seed 3: acc 0.907/0.896/0.854 align 0.859 alpha 1.073 kept 79.7% lowered 0.000
+    nikolaidis seed 4: acc 0.883/0.846/0.822 align 0.846 alpha 1.050 kept 80.8% lowered 0.000
+
+The first block of outputs was scored at β 7.5 (Nikolaidis) and 5 (Dragan). An earlier
+version of this probe (the code of commit 9b728f6, same configuration, before a
 refactor that changes float rounding only) gave, for seeds 0–2: Nikolaidis 81.8, 82.9,
 75.6 %; Dragan 96.7, 96.2, 89.1 %.
 """

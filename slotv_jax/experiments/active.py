@@ -389,6 +389,13 @@ def comparisons(doc: dict) -> list[dict]:
         )
         a, b = rnd["answers_to_target"], c["answers_to_target"]
         c["ratio_random_over_this"] = None if a is None or b is None else a / b
+        # random's seeds that never reached it needed more than the largest size: a bound
+        low = [c["answers_max"] if p is None else p for p in rnd["per_seed"]]
+        c["ratio_at_least"] = (
+            float(np.mean(low)) / b
+            if a is None and b is not None and rnd["seeds_reached"]
+            else None
+        )
     return out
 
 
@@ -419,7 +426,10 @@ def run(
     if doc.get("config") != conf:
         doc = {"preset": cfg.preset, "config": conf, "groups": [], "timing": {}}
     doc["environment"] = environment()
-    doc["machine"] = f"{platform.machine()}, {os.cpu_count()} CPUs ({platform.processor() or '?'})"
+    dev = jax.devices()[0]
+    doc["machine"] = (
+        f"{platform.machine()}, {os.cpu_count()} CPUs, {dev.platform}: {dev.device_kind}"
+    )
     doc["xla"] = slotv_jax.XLA_CONFIG.summary()
     t_start = time.perf_counter()
     load = {"cpus": os.cpu_count(), "start": os.getloadavg()[0]}

@@ -167,6 +167,14 @@ def _study_items(args) -> list[Item]:
 PLAN_ARRAYS = ("goals", "goal_mask", "target", "names", "q")
 
 
+def _plan_title(z: dict, names: list[str], k: int, p: int) -> str:
+    """A planner's name, with the target's probability under the family's labeler
+    (``y``, where the plans file has it)."""
+    if "y" not in z:
+        return names[k]
+    return f"{names[k]}: P = {z['y'][k, p, int(z['target'][p])]:.2f}"
+
+
 def _plans_items(args) -> list[Item]:
     z = fileio.load_npz(args.plans)
     missing = [k for k in PLAN_ARRAYS if k not in z]
@@ -199,7 +207,7 @@ def _plans_items(args) -> list[Item]:
                 z["goals"][p],
                 z["goal_mask"][p],
                 int(z["target"][p]),
-                names=tuple(names[k] for k in shown),
+                names=tuple(_plan_title(z, names, k, p) for k in shown),
                 rgbas=tuple(PALETTE[k % len(PALETTE)] for k in shown),
             )
         )

@@ -32,6 +32,9 @@ Criteria (per candidate, from the members' predictive distributions p_e)
 - ``random``: k candidates uniformly without replacement (today's baseline);
 - ``uncertainty``: the entropy of the predicted guess distribution,
   H[p̄], p̄ = Σ_e π_e p_e (Lewis & Gale 1994);
+- ``margin``: the smallest gap between the two most likely goals, 1 − (p̄_(1) − p̄_(2))
+  (Scheffer et al. 2001): the motions nearest the observer's decision boundary, which is
+  what accuracy (the argmax) depends on; entropy also rewards a flat spread over many goals;
 - ``bald``: the mutual information between the next answer y and the observer,
   I(y; θ) = H[p̄] − Σ_e π_e H[p_e] (Houlsby et al. 2011, "BALD"; Gal et al. 2017):
   high where the members disagree, zero where they agree on a noisy answer;
@@ -74,7 +77,7 @@ from slotv_jax.study import format as study
 from slotv_jax.training import trainer as train_lib
 from slotv_jax.training.config import TrainConfig
 
-STRATEGIES = ("random", "uncertainty", "bald", "bald_fantasy", "bald_cluster")
+STRATEGIES = ("random", "uncertainty", "margin", "bald", "bald_fantasy", "bald_cluster")
 SHORTLIST = 4  # bald_cluster's shortlist: SHORTLIST × k candidates of highest BALD (default)
 
 
@@ -210,6 +213,21 @@ def uncertainty(
     return _entropy(predictive(logp, weights))
 
 
+def margin(
+    logp: Float[Array, "E C G"], weights: Float[Array, " E"] | None = None
+) -> Float[Array, " C"]:
+    """Margin uncertainty 1 − (p̄_(1) − p̄_(2)): one minus the gap between the two most
+    likely goals of the predicted guess distribution (1: a tie, 0: a sure guess).
+
+    >>> tie = jnp.log(jnp.array([[[0.5, 0.5, 0.0]]]))
+    >>> spread = jnp.log(jnp.array([[[0.4, 0.3, 0.3]]]))
+    >>> float(margin(tie)[0]), round(float(margin(spread)[0]), 6)
+    (1.0, 0.9)
+    """
+    top2 = jax.lax.top_k(predictive(logp, weights), 2)[0]
+    return 1.0 - (top2[:, 0] - top2[:, 1])
+
+
 def bald(
     logp: Float[Array, "E C G"], weights: Float[Array, " E"] | None = None
 ) -> Float[Array, " C"]:
@@ -313,6 +331,8 @@ def select(
         return select_random(key, available, k)
     if strategy == "uncertainty":
         return _masked_top_k(uncertainty(logp), available, k)
+    if strategy == "margin":
+        return _masked_top_k(margin(logp), available, k)
     if strategy == "bald":
         return _masked_top_k(bald(logp), available, k)
     if strategy == "bald_fantasy":
