@@ -10,8 +10,9 @@ On one joint path (``Q_HOME`` to a pose over the goal table, three goals), one o
 2. the naive baseline: a new ``mujoco.Renderer`` (a new OpenGL context) for every
    frame, as a per-frame helper without a kept renderer would do;
 3. a ``--frames``-frame clip: ``motion_frames`` (resampling, TCP trace, goal labels)
-   alone, then the same frames encoded to MP4 (H.264 through PyAV) and to GIF
-   (Pillow), and the whole MP4 (render + encode + write) as a user gets it.
+   alone, and without the trace and labels, then the same frames encoded to MP4 (H.264
+   through PyAV) and to GIF (Pillow), and the whole MP4 (render + encode + write) as a
+   user gets it.
 
 Times are wall clock (best of ``--repeats``) with the process's CPU time beside them;
 the load average is printed before and after (the machine may be shared). The OpenGL
@@ -110,6 +111,10 @@ def run(size=(640, 360), n_frames: int = 100, repeats: int = 3, naive: int = 5) 
     assert clip["f"].shape[0] == n_frames, clip["f"].shape
     res["clip_frames_s"] = t["wall_s"]
     res["clip_frames_cpu_s"] = t["cpu_s"]
+    bare = {**kw, "trace": False, "show_labels": False}
+    t = _best(lambda: render.motion_frames(q, GOALS, MASK, renderer=r, **bare), repeats)
+    res["clip_bare_s"] = t["wall_s"]
+    res["clip_bare_cpu_s"] = t["cpu_s"]
     res["encode_mp4_s"] = _best(lambda: writers.encode_mp4(clip["f"], 30.0), repeats)["wall_s"]
     res["encode_gif_s"] = _best(lambda: writers.encode_gif(clip["f"], 30.0), repeats)["wall_s"]
     with tempfile.TemporaryDirectory() as tmp:
@@ -159,6 +164,7 @@ def main(argv=None) -> int:
         ("MotionRenderer.frame, shadows on, frames/s", f"{res['frame_fps_shadows_on']:.1f}"),
         ("naive: new mujoco.Renderer per frame, frames/s", f"{res['naive_fps']:.2f}"),
         (f"motion_frames, {n} frames (trace, labels), s", f"{res['clip_frames_s']:.2f}"),
+        (f"motion_frames, {n} frames, no trace or labels, s", f"{res['clip_bare_s']:.2f}"),
         (f"encode {n} frames to MP4 (H.264), s", f"{res['encode_mp4_s']:.2f}"),
         (f"encode {n} frames to GIF, s", f"{res['encode_gif_s']:.2f}"),
         (f"{n}-frame MP4, render + encode + write, s", f"{res['mp4_total_s']:.2f}"),

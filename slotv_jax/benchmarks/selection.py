@@ -20,6 +20,7 @@ import argparse
 import datetime
 import json
 import os
+import pathlib
 import statistics
 import time
 
@@ -29,6 +30,7 @@ import numpy as np
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
 from slotv_jax.benchmarks._machine import cpu_model
+from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.study import selection
 from slotv_jax.training import config as train_config
@@ -60,6 +62,7 @@ def _time(fn, *args, repeats: int) -> tuple[float, float]:
     return first, statistics.median(runs)
 
 
+@cli.command
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.selection")
     ap.add_argument("--preset", default="quick", choices=("quick", "paper"))
@@ -71,6 +74,9 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", default=None, help="also write the results here")
     args = ap.parse_args(argv)
+    if args.json:  # checked before the benchmark; the file is regenerated
+        json_path = pathlib.Path(args.json)
+        fileio.check_output_files(json_path.parent, [json_path.name], what="--json")
     on_cpu = jax.default_backend() == "cpu"
     chunk = args.chunk or (512 if on_cpu else 2048)
     cfg = train_config.preset(args.preset, "slotv", train_size=None)
@@ -116,8 +122,8 @@ def main(argv=None) -> int:
     print("\nscoring + selection of k from the whole pool: "
           + ", ".join(f"{s} {t:.3f} s" for s, t in full.items()))  # fmt: skip
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"args": vars(args), "environment": env, "rows": rows}, f, indent=1)
+        doc = {"args": vars(args), "environment": env, "rows": rows}
+        fileio.write_text(args.json, json.dumps(doc, indent=1))
     return 0
 
 

@@ -30,10 +30,10 @@ from slotv_jax.render.frames import (
 from slotv_jax.render.overlay import draw_goal_labels, legend, title
 
 LAYOUTS = ("side", "overlay")
-# Trace colours of the compared motions, in order: grey, blue, orange, green, purple, red,
+# Trace colours of the compared motions, in order: dark grey, blue, orange, green, purple, red,
 # brown, teal.
 PALETTE = (
-    (0.35, 0.35, 0.35, 1.0),
+    (0.15, 0.15, 0.15, 1.0),
     (0.10, 0.35, 0.90, 1.0),
     (0.95, 0.45, 0.00, 1.0),
     (0.10, 0.60, 0.20, 1.0),

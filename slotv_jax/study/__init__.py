@@ -3,6 +3,12 @@ CSV import (:mod:`.tables`), fitting on goal guesses (:mod:`.fitting`), cross-va
 against the hand-crafted observers (:mod:`.crossval`), simulated participants
 (:mod:`.simulate`) and the command line (:mod:`.cli`, ``python -m slotv_jax.study``).
 
+Running a study with people: stimulus sets and their rounds (:mod:`.stimuli`, rendered by
+:mod:`.make_stimuli`), the design (:mod:`.design`), the answers database
+(:mod:`.database`), the server (:mod:`.service`, :mod:`.server`, ``static/``), export
+into the import format (:mod:`.export`), participants over HTTP (:mod:`.client`) and
+their commands (:mod:`.web_cli`); import them from their modules.
+
 This package re-exports the public names of its modules.
 """
 

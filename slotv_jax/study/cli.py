@@ -1,4 +1,5 @@
-"""The command line of studies: ``python -m slotv_jax.study`` (import, show, train, cv)."""
+"""The command line of studies: ``python -m slotv_jax.study`` (import, show, train, cv;
+stimuli, serve, export, simulate: :mod:`slotv_jax.study.web_cli`)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import jax
 
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.fileio import write_text
+from slotv_jax.study import rounds, web_cli
 from slotv_jax.study.crossval import cross_validate, cv_table, model_metrics
 from slotv_jax.study.fitting import train_study
 from slotv_jax.study.storage import load_study, save_study
@@ -77,7 +79,9 @@ def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
 def _parse_args(argv):
     ap = argparse.ArgumentParser(
         prog="python -m slotv_jax.study",
-        description="Study data: import answer tables, show a study file, cross-validate.",
+        description="Study data: import answer tables, show a study file, cross-validate; "
+        "run a study: render stimuli, serve them, export the answers, simulate participants, "
+        "choose the next round.",
     )
     sub = ap.add_subparsers(dest="command", required=True)
     imp = sub.add_parser("import", help="tables (CSV/JSON) -> one study .npz")
@@ -99,6 +103,8 @@ def _parse_args(argv):
     cv.add_argument("--condition", default=None)
     cv.add_argument("--out", default=None, help="write the results as JSON here")
     cv.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    web_cli.add_commands(sub)
+    rounds.add_command(sub)
     return ap.parse_args(argv)
 
 
@@ -106,6 +112,10 @@ def _parse_args(argv):
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI: ``import`` (report what was read), ``show``, ``cv``; input errors in one line."""
     args = _parse_args(argv)
+    if args.command in web_cli.COMMANDS:
+        return web_cli.COMMANDS[args.command](args)
+    if args.command == "next":
+        return rounds.next_main(args)
     if getattr(args, "out", None) is not None:  # before any work
         fileio.check_output_file(args.out, overwrite=args.overwrite)
     if args.command == "import":

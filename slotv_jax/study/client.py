@@ -1,0 +1,176 @@
+"""Simulated participants that take a study over HTTP, as a browser would.
+
+Each participant starts (consent, URL ids), then for every trial fetches the clip and the
+still, chooses a goal and posts the answer, retrying on a lost connection with the same
+body (the server stores it once). A *guesser* chooses the goal:
+
+- :func:`uniform_guesser`: a goal at random (load tests);
+- :class:`LabelerGuesser`: a participant who answers like a hand-crafted observer. It
+  recognises the stimulus from the still it was shown (the still's SHA-256 is in the
+  manifest), takes the points of the motion up to τ, and draws the goal from the
+  labeler's probabilities (SPEC §4): a stand-in for people, to try the study pipeline
+  end to end before anyone takes part.
+
+>>> import asyncio
+>>> asyncio.run(run_crowd("http://127.0.0.1:8000", 20, uniform_guesser(0)))  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import random
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import NamedTuple
+
+import httpx
+import numpy as np
+
+from slotv_jax.observers import labelers
+from slotv_jax.study import stimuli
+
+Guesser = Callable[[dict, bytes], str]  # (trial state, still bytes) -> goal label
+
+
+class Result(NamedTuple):
+    """What one simulated participant did."""
+
+    answers: list[tuple[int, str]]  # (position, guess) acknowledged by the server
+    latencies: list[float]  # seconds per answer request (the successful attempt)
+    duplicates: int  # answers the server reported as already stored
+    code: str | None  # the completion code (None: not finished)
+
+
+def uniform_guesser(seed: int) -> Guesser:
+    """A goal at random."""
+    rng = random.Random(seed)
+    return lambda state, still: rng.choice(state["goals"])
+
+
+class LabelerGuesser:
+    """Answers like a labeler (``dragan``, ``effdist``, ``fastapp``; see the module doc)."""
+
+    def __init__(self, stimdir: str | Path, labeler: str = "dragan", seed: int = 0):
+        if labeler not in ("dragan", "effdist", "fastapp"):
+            raise ValueError(f"labeler: expected dragan, effdist or fastapp, got {labeler!r}")
+        self.fn = getattr(labelers, labeler)
+        self.rng = np.random.default_rng(seed)
+        self.by_still: dict[str, tuple[dict, stimuli.StimulusSet]] = {}
+        for r in stimuli.find_rounds(stimdir):
+            st = stimuli.load_stimulus_set(stimuli.round_dir(stimdir, r), verify=False)
+            for s in st.manifest["stimuli"]:
+                self.by_still[s["still_sha256"]] = (s, st)
+
+    def probs(self, still: bytes) -> tuple[list[str], np.ndarray]:
+        """The labeler's goal probabilities for the stimulus whose still this is."""
+        s, st = self.by_still[hashlib.sha256(still).hexdigest()]
+        pts = np.array(st.trajectories[s["trajectory"]], np.float64)
+        seen = pts[: max(2, int(np.sum(pts[:, 0] <= s["tau"] + 1e-9))), 1:]
+        goals = np.zeros((8, 3), np.float32)
+        mask = np.zeros(8, bool)
+        g = st.goals[s["trajectory"]]
+        goals[: len(g)] = [row[1:] for row in g]
+        mask[: len(g)] = True
+        p = np.asarray(self.fn(np.asarray(seen, np.float32), goals, mask), np.float64)[: len(g)]
+        return [row[0] for row in g], p / p.sum()
+
+    def __call__(self, state: dict, still: bytes) -> str:
+        names, p = self.probs(still)
+        return str(self.rng.choice(names, p=p))
+
+
+async def _request(client: httpx.AsyncClient, method: str, url: str, deadline: float, **kw):
+    """One request, retried on connection errors and 5xx until ``deadline`` (monotonic)."""
+    wait = 0.05
+    while True:
+        try:
+            r = await client.request(method, url, **kw)
+            if r.status_code < 500:
+                return r
+        except httpx.TransportError:
+            pass
+        if time.monotonic() + wait > deadline:
+            raise TimeoutError(f"{method} {url}: no answer from the server")
+        await asyncio.sleep(wait)
+        wait = min(wait * 2, 1.0)
+
+
+async def run_participant(
+    base_url: str,
+    guess: Guesser,
+    *,
+    ids: dict[str, str] | None = None,
+    think: Callable[[], float] = lambda: 0.0,
+    media: bool = True,
+    max_trials: int | None = None,
+    timeout: float = 60.0,
+    cookies: httpx.Cookies | None = None,
+    log: list | None = None,
+) -> tuple[Result, httpx.Cookies]:
+    """Take the study as one participant (or go on with ``cookies`` of an earlier run).
+
+    ``think()`` seconds pass before each answer; ``max_trials`` stops early (a participant
+    who leaves); ``timeout`` bounds the whole run. Returns the result and the cookies
+    (the participant's token) to go on later. Each acknowledged answer is also appended
+    to ``log`` as it comes, as (participant id, position, guess).
+    """
+    deadline = time.monotonic() + timeout
+    res = Result([], [], 0, None)
+    dup = 0
+    async with httpx.AsyncClient(base_url=base_url, cookies=cookies, timeout=10.0) as c:
+        if cookies is None:
+            r = await _request(c, "POST", "/api/start", deadline,
+                               json={"consent": True, "ids": ids or {}})  # fmt: skip
+        else:
+            r = await _request(c, "GET", "/api/state", deadline)
+        r.raise_for_status()
+        state = r.json()
+        while state["stage"] == "trial" and (max_trials is None or len(res.answers) < max_trials):
+            still = b""
+            if media:
+                (await _request(c, "GET", state["clip"], deadline)).raise_for_status()
+                r = await _request(c, "GET", state["still"], deadline)
+                r.raise_for_status()
+                still = r.content
+            await asyncio.sleep(think())
+            body = {"position": state["position"], "guess": guess(state, still),
+                    "confidence": 3, "response_ms": 1000}  # fmt: skip
+            t0 = time.perf_counter()
+            r = await _request(c, "POST", "/api/answer", deadline, json=body)
+            res.latencies.append(time.perf_counter() - t0)
+            r.raise_for_status()
+            out = r.json()
+            dup += out["duplicate"]
+            res.answers.append((body["position"], body["guess"]))
+            if log is not None:
+                log.append(((ids or {}).get("PROLIFIC_PID"), body["position"], body["guess"]))
+            state = out["state"]
+        cookies = c.cookies
+    code = state.get("code") if state["stage"] == "done" else None
+    return res._replace(duplicates=dup, code=code), cookies
+
+
+async def run_crowd(
+    base_url: str,
+    n: int,
+    guess: Guesser,
+    *,
+    think: Callable[[], float] = lambda: 0.0,
+    timeout: float = 120.0,
+    media: bool = True,
+) -> list[Result]:
+    """``n`` participants taking the study concurrently (ids ``sim-0``, ``sim-1``, ...)."""
+    runs = [
+        run_participant(
+            base_url,
+            guess,
+            ids={"PROLIFIC_PID": f"sim-{i}"},
+            think=think,
+            timeout=timeout,
+            media=media,
+        )
+        for i in range(n)
+    ]
+    return [r for r, _ in await asyncio.gather(*runs)]

@@ -1,0 +1,310 @@
+"""Render stimulus sets with :mod:`slotv_jax.render`: ``python -m slotv_jax.study stimuli``.
+
+The set's layout is documented in :mod:`slotv_jax.study.stimuli`. This module draws the
+clips through MuJoCo (it needs OpenGL: ``MUJOCO_GL=egl`` on a headless machine), so the
+study server, which only reads sets, never imports it.
+
+``python -m slotv_jax.study stimuli --data DIR --split NAME --n N --taus 0.4,0.7,1.0
+--out STIMDIR`` draws N motions of a source at random (``--seed``), each at every τ
+from every ``--cameras`` view, plus ``--attention`` more motions as attention checks
+(τ = 1) and one practice motion; ``--size WxH``, ``--fps``, ``--duration`` (seconds of
+a whole motion) and ``--hold`` (seconds the last frame stays) shape the clips. Sources:
+
+- ``--data DIR --split NAME``: a dataset split (ids ``SPLIT-INDEX``);
+- ``--plans FILE``: a planning run's ``plans.npz``, every planner's plan of every problem
+  (ids ``PLANNER-PROBLEM``): people's guesses on the plans of each observer;
+- ``--npz FILE``: trajectories in the labelers' format (``xyz``, ``goals``,
+  ``goal_mask``, optional ``t``, ``q`` and ``target``);
+- ``--study FILE``: a study file's trajectories (no targets: ``--attention 0``).
+
+A TCP path without joints gets them by the project's IK from ``Q_HOME``
+(:func:`slotv_jax.render.joints_from_tcp`); a path it misses by more than 5 mm is refused.
+
+>>> r = SceneRenderer(size=(320, 180), fps=20)                         # doctest: +SKIP
+>>> write_stimulus_set("stim", q=q, xyz=xyz, goals=goals, goal_mask=mask, ids=ids,
+...                    specs=cross_specs(range(3), taus=(0.5, 1.0), cameras=("observer",)),
+...                    render=r)                                       # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+from jaxtyping import Float, UInt8
+from tqdm.auto import tqdm
+
+from slotv_jax import render  # first: it picks MUJOCO_GL=egl before MuJoCo loads
+from slotv_jax.core.fileio import check_output_dir, load_npz
+from slotv_jax.data import SPLITS, Split, load_split
+from slotv_jax.render.overlay import LABEL_LIFT
+from slotv_jax.study.stimuli import (
+    MANIFEST,
+    Motion,
+    cross_specs,
+    write_stimulus_set,
+)
+from slotv_jax.study.storage import load_study
+
+IK_TOLERANCE = 5e-3  # metres: a TCP path the IK misses by more is refused
+DEFAULTS = {"size": (480, 270), "fps": 25.0, "duration": 3.0, "hold": 0.5}
+
+
+class SceneRenderer:
+    """:class:`slotv_jax.study.stimuli.Renderer` on MuJoCo (one renderer, reused)."""
+
+    def __init__(
+        self,
+        size: tuple[int, int] = DEFAULTS["size"],
+        fps: float = DEFAULTS["fps"],
+        duration: float = DEFAULTS["duration"],
+        hold: float = DEFAULTS["hold"],
+        *,
+        trace: bool = True,
+    ):
+        self.size, self.fps, self.duration, self.hold = tuple(size), fps, duration, hold
+        self.trace = trace
+        self.renderer = render.MotionRenderer(self.size)
+
+    def frames(
+        self, motion: Motion, tau: float, camera: str
+    ) -> tuple[UInt8[np.ndarray, "F H W 3"], Float[np.ndarray, "G 2"]]:
+        """The clip cut at τ, goals labelled (no target marked), and the labels' pixels."""
+        f = render.motion_frames(
+            motion.q, motion.goals, motion.goal_mask, camera=camera, tau=tau, size=self.size,
+            fps=self.fps, duration=self.duration, hold=self.hold, t=motion.t,
+            labels=motion.labels, trace=self.trace, renderer=self.renderer,
+        )  # fmt: skip
+        anchor = np.asarray(motion.goals, np.float64)[motion.goal_mask] + [0.0, 0.0, LABEL_LIFT]
+        px, _ = render.pixels(anchor, camera, self.size)
+        return f, px
+
+    def write_video(self, path: Path, frames) -> None:
+        render.write_video(path, frames, self.fps)
+
+    def write_image(self, path: Path, image) -> None:
+        render.write_png(path, image)
+
+    def settings(self) -> dict:
+        return {"size": list(self.size), "fps": self.fps, "duration": self.duration,
+                "hold": self.hold}  # fmt: skip
+
+    def close(self) -> None:
+        self.renderer.close()
+
+
+class Motions(NamedTuple):
+    """Motions to choose stimuli from, as :func:`write_stimulus_set` takes them."""
+
+    q: np.ndarray  # (M, T, 7) joint paths (rad), padded after length
+    xyz: np.ndarray  # (M, T, 3) TCP paths (m)
+    goals: np.ndarray  # (M, 8, 3) goals (m)
+    goal_mask: np.ndarray  # (M, 8) real goal slots
+    ids: list[str]  # (M,) trajectory ids
+    scenes: list[str]  # (M,) scene ids
+    targets: np.ndarray | None  # (M,) target slots (None: unknown)
+    length: np.ndarray  # (M,) points of each motion
+    t: np.ndarray | None  # (M, T) time stamps (None: i / (length - 1))
+
+
+def _ik(xyz: np.ndarray, length: np.ndarray, what: str) -> np.ndarray:
+    """Joint paths of TCP paths by the project's IK from Q_HOME (a miss > 5 mm is an error)."""
+    q = np.zeros((*xyz.shape[:2], 7), np.float32)
+    for i in tqdm(range(len(xyz)), desc="IK", disable=len(xyz) < 20):
+        q[i, : length[i]], worst = render.joints_from_tcp(xyz[i, : length[i]])
+        if worst > IK_TOLERANCE:
+            raise ValueError(f"{what} [{i}]: IK misses the path by {worst * 1e3:.1f} mm")
+    return q
+
+
+def motions_from_split(split: Split) -> Motions:
+    """A dataset split (ids ``SPLIT-INDEX``, scenes ``SPLIT-sceneENV``)."""
+    n, T = split.xyz.shape[:2]
+    return Motions(split.q, split.xyz, split.goals, split.goal_mask,
+                   [f"{split.name}-{i}" for i in range(n)],
+                   [f"{split.name}-scene{e}" for e in split.env_id], split.target,
+                   np.full(n, T), None)  # fmt: skip
+
+
+def motions_from_npz(path: str | Path) -> Motions:
+    """The labelers' input format: ``xyz (N, T, 3)``, ``goals (N, 8, 3)`` or ``(8, 3)``,
+    ``goal_mask``, optional ``t``, ``q (N, T, 7)`` (else IK) and ``target (N,)``."""
+    z = load_npz(path)
+    for k in ("xyz", "goals", "goal_mask"):
+        if k not in z:
+            raise ValueError(f"--npz {path}: missing array {k!r}; it holds {sorted(z)}")
+    xyz = np.asarray(z["xyz"], np.float32)
+    if xyz.ndim != 3 or xyz.shape[-1] != 3 or xyz.shape[1] < 2:
+        raise ValueError(f"--npz {path}: xyz: expected (N, T >= 2, 3), got {xyz.shape}")
+    n, T = xyz.shape[:2]
+    goals = np.broadcast_to(z["goals"], (n, 8, 3)).astype(np.float32)
+    mask = np.broadcast_to(z["goal_mask"], (n, 8)).astype(bool)
+    t = None if "t" not in z else np.broadcast_to(z["t"], (n, T)).astype(np.float64)
+    length = np.full(n, T)
+    q = np.asarray(z["q"], np.float32) if "q" in z else _ik(xyz, length, f"--npz {path}")
+    if q.shape != (n, T, 7):
+        raise ValueError(f"--npz {path}: q: expected {(n, T, 7)}, got {q.shape}")
+    target = None if "target" not in z else np.asarray(z["target"], int).reshape(n)
+    stem = Path(path).stem
+    return Motions(q, xyz, goals, mask, [f"{stem}-{i}" for i in range(n)],
+                   [f"{stem}-{i}" for i in range(n)], target, length, t)  # fmt: skip
+
+
+def motions_from_plans(path: str | Path) -> Motions:
+    """A planning run's ``plans.npz``: every planner's plan of every problem (a planner's
+    NaN rows left out); ids ``PLANNER-PROBLEM``, one scene per problem."""
+    z = load_npz(path)
+    missing = [k for k in ("goals", "goal_mask", "target", "names", "q", "xyz") if k not in z]
+    if missing:
+        raise ValueError(f"--plans {path}: missing arrays {missing}; it holds {sorted(z)}")
+    q, xyz, names = z["q"], z["xyz"], [str(s) for s in z["names"]]
+    if q.ndim != 4 or q.shape[0] != len(names) or q.shape[-1] != 7 or xyz.shape[:3] != q.shape[:3]:
+        raise ValueError(f"--plans {path}: q, xyz: expected (K, P, T, 7) and (K, P, T, 3)")
+    rows = [(k, p) for k in range(q.shape[0]) for p in range(q.shape[1])
+            if np.isfinite(q[k, p]).all() and np.isfinite(xyz[k, p]).all()]  # fmt: skip
+    ks, ps = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+    return Motions(q[ks, ps].astype(np.float32), xyz[ks, ps].astype(np.float32),
+                   z["goals"][ps].astype(np.float32), z["goal_mask"][ps].astype(bool),
+                   [f"{names[k]}-{p}" for k, p in rows], [f"problem{p}" for p in ps],
+                   z["target"][ps].astype(int), np.full(len(rows), q.shape[2]), None)  # fmt: skip
+
+
+def motions_from_study(path: str | Path) -> Motions:
+    """A study file (:func:`slotv_jax.study.load_study`): its trajectories, joints by IK;
+    no targets (so no attention checks)."""
+    st = load_study(path)
+    ids = list(st.trajectory_ids) or [f"{Path(path).stem}-{i}" for i in range(st.n_trajectories)]
+    ids = [re.sub(r"[^A-Za-z0-9._-]", "_", s) for s in ids]
+    q = _ik(st.xyz, st.length, f"--study {path}")
+    return Motions(q, st.xyz, st.goals, st.goal_mask, ids, ids, None, st.length, st.t)
+
+
+def make_set(
+    motions: Motions,
+    out: str | Path,
+    *,
+    n: int,
+    taus: tuple[float, ...],
+    cameras: tuple[str, ...] = ("observer",),
+    attention: int = 2,
+    practice: bool = True,
+    seed: int = 0,
+    renderer: SceneRenderer,
+    overwrite: bool = False,
+    progress: bool = True,
+    source: dict | None = None,
+) -> dict:
+    """A stimulus set of ``n`` motions drawn at random (``seed``): each at every τ from
+    every camera, ``attention`` more as attention checks, one more for practice."""
+    m = len(motions.ids)
+    need = n + attention + int(practice)
+    if not 1 <= n or need > m:
+        raise ValueError(
+            f"--n {n}: expected 1 <= n and n + attention + practice <= {m} (the motions)"
+        )
+    if attention and motions.targets is None:
+        raise ValueError("--attention: the source has no targets; use --attention 0")
+    pick = np.random.default_rng(seed).permutation(m)[:need]
+    specs = cross_specs(
+        range(n), taus=taus, cameras=cameras,
+        attention=range(n, n + attention), practice=[need - 1] if practice else [],
+    )  # fmt: skip
+    tg = None if motions.targets is None else motions.targets[pick]
+    return write_stimulus_set(
+        out, q=motions.q[pick], xyz=motions.xyz[pick], goals=motions.goals[pick],
+        goal_mask=motions.goal_mask[pick], ids=[motions.ids[i] for i in pick], specs=specs,
+        render=renderer, scenes=[motions.scenes[i] for i in pick], targets=tg,
+        length=motions.length[pick], t=None if motions.t is None else motions.t[pick],
+        source={**(source or {}), "indices": pick.tolist(), "seed": seed},
+        overwrite=overwrite, progress=progress,
+    )  # fmt: skip
+
+
+def _floats(text: str, name: str) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"{name} {text}: expected comma-separated numbers") from None
+    if not vals or any(not 0.0 < v <= 1.0 for v in vals) or len(set(vals)) != len(vals):
+        raise ValueError(f"{name} {text}: expected distinct normalised times in (0, 1]")
+    return vals
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--size {text}: expected WIDTHxHEIGHT, e.g. 480x270") from None
+    if not (16 <= w <= 4096 and 16 <= h <= 4096) or w % 2 or h % 2:
+        raise ValueError(f"--size {text}: expected even sides in 16..4096 (H.264)")
+    return w, h
+
+
+def add_command(sub) -> None:
+    """Add ``stimuli`` to the study CLI's subparsers."""
+    p = sub.add_parser("stimuli", help="render a stimulus set (clips cut at tau, stills)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--data", help="dataset folder (python -m slotv_jax.data), with --split")
+    src.add_argument("--npz", help="trajectories in the labelers' .npz format")
+    src.add_argument("--plans", help="a planning run's plans.npz (every planner's plans)")
+    src.add_argument("--study", help="a study file (.npz): its trajectories")
+    p.add_argument("--split", default="trajectory_test", choices=SPLITS)
+    p.add_argument("--n", type=int, default=10, help="motions shown at every tau")
+    p.add_argument("--taus", default="0.4,0.7,1.0", help="stop times in (0, 1]")
+    p.add_argument("--cameras", default="observer", help=f"comma-separated: {render.CAMERAS}")
+    p.add_argument("--attention", type=int, default=2, help="attention-check motions (tau 1)")
+    p.add_argument("--no-practice", action="store_true", help="no practice trial")
+    p.add_argument("--size", default="480x270", help="WIDTHxHEIGHT of the clips")
+    p.add_argument("--fps", type=float, default=DEFAULTS["fps"])
+    p.add_argument("--duration", type=float, default=DEFAULTS["duration"],
+                   help="seconds of a whole motion (tau = 1)")  # fmt: skip
+    p.add_argument("--hold", type=float, default=DEFAULTS["hold"],
+                   help="seconds the last frame stays")  # fmt: skip
+    p.add_argument("--no-trace", action="store_true", help="do not draw the TCP's path")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="the study folder to write")
+    p.add_argument("--overwrite", action="store_true", help="replace an earlier set there")
+
+
+def stimuli_main(args: argparse.Namespace) -> int:
+    """Check every input and the output folder, then render the set."""
+    taus = _floats(args.taus, "--taus")
+    size = _size(args.size)
+    cameras = tuple(c.strip() for c in args.cameras.split(","))
+    for c in cameras:
+        if c not in render.CAMERAS:
+            raise ValueError(f"--cameras {args.cameras}: {c!r} is not one of {render.CAMERAS}")
+    if args.attention < 0:
+        raise ValueError(f"--attention {args.attention}: expected an integer >= 0")
+    for name in ("fps", "duration"):
+        if not getattr(args, name) > 0:
+            raise ValueError(f"--{name} {getattr(args, name)}: expected a number > 0")
+    if not args.hold >= 0:
+        raise ValueError(f"--hold {args.hold}: expected seconds >= 0")
+    check_output_dir(args.out, ours=lambda p: (p / MANIFEST).is_file(), overwrite=args.overwrite)
+    if args.data is not None:
+        motions, source = motions_from_split(load_split(args.data, args.split)), {
+            "kind": "split", "data": str(args.data), "split": args.split}  # fmt: skip
+    elif args.npz is not None:
+        motions, source = motions_from_npz(args.npz), {"kind": "npz", "file": str(args.npz)}
+    elif args.plans is not None:
+        motions, source = motions_from_plans(args.plans), {"kind": "plans", "file": args.plans}
+    else:
+        motions, source = motions_from_study(args.study), {"kind": "study", "file": args.study}
+    try:
+        r = SceneRenderer(size, args.fps, args.duration, args.hold, trace=not args.no_trace)
+    except render.RenderBackendError as e:
+        raise ValueError(str(e)) from None  # one line: how to get OpenGL
+    try:
+        m = make_set(
+            motions, args.out, n=args.n, taus=taus, cameras=cameras, attention=args.attention,
+            practice=not args.no_practice, seed=args.seed, renderer=r,
+            overwrite=args.overwrite, source=source,
+        )  # fmt: skip
+    finally:
+        r.close()
+    print(f"wrote {args.out}: {len(m['stimuli'])} stimuli ({args.out}/{MANIFEST})")
+    return 0

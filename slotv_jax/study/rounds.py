@@ -1,0 +1,272 @@
+"""The next round of a study: train on the answers so far, choose what to ask next.
+
+``python -m slotv_jax.study next --stimuli STIMDIR --answers DIR --data DATA --split NAME
+--n N`` (or ``--db FILE`` instead of ``--answers``):
+
+1. reads the answers so far: the tables ``study export`` wrote (``answers.csv``,
+   ``trajectories.csv``, ``goals.csv`` in ``DIR``), or the server's SQLite database;
+2. trains an ensemble of observers on them (:mod:`slotv_jax.selection`; the paper's MLP
+   or SLOT-V+ with ``--model slotv_plus``), every member on the count likelihood of the
+   guesses;
+3. scores candidate stimuli, the motions of a dataset split at each stop time of
+   ``--taus`` that no earlier round showed (a random ``--subset`` of them), and picks
+   ``--n`` of them by ``--strategy`` (default ``margin``: the motions nearest the
+   observer's decision between two goals);
+4. renders them as the next round of the study folder, ``STIMDIR/round-R`` (round 0 is
+   the folder itself), with the renderer settings of round 0, plus attention checks and
+   a practice trial as ``study stimuli`` adds them. The server (``study serve``) serves a
+   new round to new participants without a restart.
+
+The round's manifest records in ``source`` what chose it: the strategy, model, answers,
+the members' agreement and each pick's score.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import json
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from slotv_jax.data import SPLITS, load_split
+from slotv_jax.study import export as export_lib
+from slotv_jax.study import make_stimuli, selection, stimuli
+from slotv_jax.study.database import connect
+from slotv_jax.study.format import Study
+from slotv_jax.study.tables import read_tables
+from slotv_jax.training import config as train_config
+
+MODELS = ("mlp", "slotv_plus")  # observers of prefixes (archetypes score whole motions)
+
+
+def read_answers(answers: str | Path | None = None, db: str | Path | None = None) -> Study:
+    """The answers so far as a :class:`slotv_jax.Study`: from an exported folder
+    (``answers.csv``, ``trajectories.csv``, ``goals.csv``) or the server's database."""
+    if (answers is None) == (db is None):
+        raise ValueError("--answers / --db: give one of them")
+    if db is not None:
+        db = Path(db)
+        if not db.is_file():
+            raise ValueError(f"--db {db}: no such file (the server's SQLite database)")
+        with tempfile.TemporaryDirectory() as tmp:
+            tabs = export_lib.tables(connect(db))
+            for name in ("answers", "trajectories", "goals"):
+                (Path(tmp) / f"{name}.csv").write_text(tabs[name])
+            if len(tabs["answers"].strip().splitlines()) < 2:
+                raise ValueError(f"--db {db}: no answers yet")
+            return read_tables(*(Path(tmp) / f"{n}.csv" for n in ("trajectories", "goals",
+                                                                        "answers")))[0]  # fmt: skip
+    folder = Path(answers)
+    files = [folder / f"{n}.csv" for n in ("trajectories", "goals", "answers")]
+    missing = [f.name for f in files if not f.is_file()]
+    if missing:
+        raise ValueError(f"--answers {folder}: missing {', '.join(missing)} (study export)")
+    return read_tables(*files)[0]
+
+
+def shown_stimuli(stimdir: str | Path) -> set[tuple[str, float]]:
+    """(trajectory id, τ) of every trial stimulus in the study folder's rounds."""
+    out = set()
+    for r in stimuli.find_rounds(stimdir):
+        m = json.loads((stimuli.round_dir(stimdir, r) / stimuli.MANIFEST).read_text())
+        out |= {(s["trajectory"], round(float(s["tau"]), 6)) for s in m["stimuli"]}
+    return out
+
+
+_SELECT = jax.jit(selection.select, static_argnums=(0, 4))
+
+
+@functools.cache
+def _compiled(sel: selection.Selector):
+    """The selector's jitted ``fit`` and ``log_probs`` (one compilation per selector)."""
+    return jax.jit(sel.fit, static_argnames="updates"), jax.jit(sel.log_probs)
+
+
+def _pad(a: np.ndarray, t: int) -> np.ndarray:
+    return np.concatenate([a, np.zeros((a.shape[0], t - a.shape[1], *a.shape[2:]), a.dtype)], 1)
+
+
+def choose(
+    answers: Study,
+    motions: make_stimuli.Motions,
+    *,
+    n: int,
+    taus: Sequence[float],
+    strategy: str = "margin",
+    cfg: train_config.TrainConfig | None = None,
+    members: int = 4,
+    updates: int = 500,
+    subset: int = 5000,
+    exclude: set[tuple[str, float]] = frozenset(),
+    seed: int = 0,
+) -> dict:
+    """Train an ensemble on ``answers`` and pick ``n`` (motion, τ) stimuli of ``motions``.
+
+    The pool joins the answered trajectories (each answer row a candidate at its own
+    stop) and the candidates, every motion at every τ, less those in ``exclude``
+    ((trajectory id, τ) pairs). Returns {"picks": [(motion index, τ), ...], "scores",
+    "strategy", "answers", "rows", "candidates", "agreement"}.
+    """
+    if strategy not in selection.STRATEGIES:
+        raise ValueError(f"--strategy: expected one of {selection.STRATEGIES}, got {strategy!r}")
+    cfg = train_config.quick("slotv", train_size=None) if cfg is None else cfg
+    if cfg.model != "mlp":
+        raise ValueError("--model: study next trains the MLP family (mlp, slotv_plus)")
+    taus = np.asarray(sorted({float(t) for t in taus}))
+    m, t_motion = len(motions.ids), motions.xyz.shape[1]
+    seen = np.minimum(selection.seen_points(taus, t_motion)[None, :], motions.length[:, None])
+    cand = [(i, j) for i in range(m) for j in range(taus.size)
+            if (motions.ids[i], round(float(taus[j]), 6)) not in exclude]  # fmt: skip
+    if len(cand) < n:
+        raise ValueError(f"--n {n}: only {len(cand)} candidate stimuli are left unshown")
+    rng = np.random.default_rng(seed)
+    if len(cand) > subset:
+        cand = [cand[k] for k in np.sort(rng.choice(len(cand), subset, replace=False))]
+    t_max = max(answers.xyz.shape[1], t_motion)
+    na = answers.n_trajectories
+    xyz = np.concatenate([_pad(answers.xyz, t_max), _pad(motions.xyz, t_max)])
+    goals = np.concatenate([answers.goals, motions.goals]).astype(np.float32)
+    mask = np.concatenate([answers.goal_mask, motions.goal_mask])
+    rows = answers.n_rows
+    traj = np.r_[answers.answer_trajectory, [na + i for i, _ in cand]].astype(np.int32)
+    pts = np.r_[answers.seen(), [seen[i, j] for i, j in cand]].astype(np.int32)
+    pool = selection.Pool(jnp.asarray(xyz, jnp.float32), jnp.asarray(goals), jnp.asarray(mask),
+                          jnp.asarray(traj), jnp.asarray(pts))  # fmt: skip
+    ans = selection.make_answers(np.arange(rows), answers.counts, rows)
+    sel = selection.make_selector(cfg, members, rows)
+    key = jax.random.key(seed)
+    ens = sel.init(key)
+    fit, log_probs = _compiled(sel)
+    ens, _ = fit(ens, pool, ans, jax.random.fold_in(key, 1), updates=updates)
+    idx = jnp.arange(rows, rows + len(cand))
+    logp = log_probs(ens.params, pool, idx)
+    k = jax.random.fold_in(key, 2)
+    pick = np.asarray(_SELECT(strategy, k, logp, jnp.ones(len(cand), bool), n))
+    crit = {"random": selection.bald, "uncertainty": selection.uncertainty,
+            "margin": selection.margin}.get(strategy, selection.bald)  # fmt: skip
+    score = np.asarray(crit(logp))
+    return {
+        "picks": [(cand[p][0], float(taus[cand[p][1]])) for p in pick],
+        "scores": [round(float(score[p]), 6) for p in pick],
+        "score": crit.__name__,
+        "strategy": strategy,
+        "answers": answers.n_answers,
+        "rows": rows,
+        "candidates": len(cand),
+        "agreement": round(float(np.mean(selection.bald(logp) < 0.01)), 4),
+    }
+
+
+def write_round(
+    stimdir: str | Path,
+    motions: make_stimuli.Motions,
+    picks: Sequence[tuple[int, float]],
+    *,
+    renderer,
+    cameras: Sequence[str] = ("observer",),
+    attention: int = 2,
+    practice: bool = True,
+    source: dict | None = None,
+    seed: int = 0,
+    progress: bool = True,
+) -> tuple[int, dict]:
+    """Render ``picks`` ((motion index, τ) pairs) as the next round of ``stimdir``, with
+    ``attention`` checks (τ = 1) and a practice trial from other motions. Returns the
+    round number and its manifest."""
+    r, out = stimuli.next_round(stimdir)
+    used = list(dict.fromkeys(i for i, _ in picks))
+    others = [i for i in np.random.default_rng([seed, r]).permutation(len(motions.ids))
+              if i not in set(used)][: attention + int(practice)]  # fmt: skip
+    if len(others) < attention + int(practice):
+        raise ValueError("--attention: too few motions left for the checks and the practice")
+    rows = used + others
+    where = {i: k for k, i in enumerate(rows)}
+    specs = [stimuli.StimulusSpec(where[i], float(tau), c) for i, tau in picks for c in cameras]
+    specs += [stimuli.StimulusSpec(where[i], 1.0, cameras[0], "attention")
+              for i in others[:attention]]  # fmt: skip
+    if practice:
+        specs.append(stimuli.StimulusSpec(where[others[-1]], 1.0, cameras[0], "practice"))
+    rows = np.asarray(rows)
+    manifest = stimuli.write_stimulus_set(
+        out, q=motions.q[rows], xyz=motions.xyz[rows], goals=motions.goals[rows],
+        goal_mask=motions.goal_mask[rows], ids=[motions.ids[i] for i in rows], specs=specs,
+        render=renderer, scenes=[motions.scenes[i] for i in rows],
+        targets=None if motions.targets is None else motions.targets[rows],
+        length=motions.length[rows], t=None if motions.t is None else motions.t[rows],
+        round_=r, source=source, progress=progress,
+    )  # fmt: skip
+    return r, manifest
+
+
+def add_command(sub) -> None:
+    """Add ``next`` to the study CLI's subparsers."""
+    p = sub.add_parser("next", help="train on the answers so far, render the next round")
+    p.add_argument("--stimuli", required=True, help="the study folder (its rounds)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--answers", help="folder of the exported tables (study export)")
+    src.add_argument("--db", help="the server's SQLite database")
+    p.add_argument("--data", required=True, help="dataset folder of the candidate motions")
+    p.add_argument("--split", default="trajectory_test", choices=SPLITS)
+    p.add_argument("--n", type=int, default=10, help="stimuli to choose")
+    p.add_argument("--taus", default="0.4,0.7,1.0", help="candidate stop times in (0, 1]")
+    p.add_argument("--strategy", default="margin", choices=selection.STRATEGIES)
+    p.add_argument("--model", default="mlp", choices=MODELS)
+    p.add_argument("--preset", default="quick", choices=tuple(train_config.PRESETS))
+    p.add_argument("--members", type=int, default=4, help="ensemble size")
+    p.add_argument("--updates", type=int, default=500, help="training updates per member")
+    p.add_argument("--subset", type=int, default=5000, help="candidates scored (at random)")
+    p.add_argument("--cameras", default="observer")
+    p.add_argument("--attention", type=int, default=2, help="attention-check motions")
+    p.add_argument("--no-practice", action="store_true")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-progress", action="store_true")
+
+
+def next_main(args: argparse.Namespace) -> int:
+    """Check the inputs, choose the stimuli, render the round."""
+    stimdir = Path(args.stimuli)
+    r, out = stimuli.next_round(stimdir)  # errors if the folder holds no round 0
+    taus = [float(x) for x in args.taus.split(",")]
+    selection.seen_points(taus, 2)  # checks the τ
+    for name in ("n", "members", "updates", "subset"):
+        if getattr(args, name) < 1:
+            raise ValueError(f"--{name} {getattr(args, name)}: expected an integer >= 1")
+    if args.attention < 0:
+        raise ValueError(f"--attention {args.attention}: expected an integer >= 0")
+    settings = json.loads((stimuli.round_dir(stimdir, 0) / stimuli.MANIFEST).read_text())
+    answers = read_answers(args.answers, args.db)
+    motions = make_stimuli.motions_from_split(load_split(args.data, args.split))
+    cfg = train_config.preset(args.preset, "slotv", train_size=None)
+    if args.model == "slotv_plus":
+        cfg = dataclasses.replace(cfg, start_term=True, time_weight=True)
+    choice = choose(
+        answers, motions, n=args.n, taus=taus, strategy=args.strategy, cfg=cfg,
+        members=args.members, updates=args.updates, subset=args.subset,
+        exclude=shown_stimuli(stimdir), seed=args.seed,
+    )  # fmt: skip
+    renderer = make_stimuli.SceneRenderer(
+        tuple(settings["size"]), settings["fps"], settings["duration"], settings["hold"]
+    )
+    source = {"kind": "active", "data": str(args.data), "split": args.split,
+              "model": args.model, **{k: v for k, v in choice.items() if k != "picks"}}  # fmt: skip
+    try:
+        r, manifest = write_round(
+            stimdir, motions, choice["picks"], renderer=renderer,
+            cameras=[c.strip() for c in args.cameras.split(",")], attention=args.attention,
+            practice=not args.no_practice, source=source, seed=args.seed,
+            progress=not args.no_progress,
+        )  # fmt: skip
+    finally:
+        renderer.close()
+    print(
+        f"round {r}: {len(manifest['stimuli'])} stimuli in {out} ({choice['strategy']} of "
+        f"{choice['candidates']} candidates, trained on {choice['answers']:g} answers)"
+    )
+    return 0

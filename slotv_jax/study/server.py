@@ -1,0 +1,298 @@
+"""The study server: a thin Starlette application over :class:`StudyService`.
+
+``python -m slotv_jax.study serve --stimuli STIMDIR --db FILE`` runs it under uvicorn on
+127.0.0.1 (``--host`` to listen elsewhere) and prints the admin token. Routes validate
+the request, call one service function and return JSON; nothing else happens here.
+
+====================================  ==================================================
+route                                 what
+====================================  ==================================================
+``GET /``                             the participant page (``static/index.html``);
+                                      ``?PROLIFIC_PID=&STUDY_ID=&SESSION_ID=`` are kept
+``GET /api/texts``                    title, consent and instructions (editable files)
+``POST /api/start``                   ``{"consent": true, "ids": {...}}``: a participant;
+                                      sets the participant cookie (HttpOnly, SameSite)
+``GET /api/state``                    the next unanswered trial, or the completion code
+``POST /api/answer``                  ``{"position", "guess", "confidence",
+                                      "response_ms"}``: stores it once, returns the state
+``GET /api/media/{position}/{clip|still}``  a file of one of the participant's trials
+``GET /admin``                        the admin page; its API needs
+                                      ``Authorization: Bearer <admin token>``:
+``GET /api/admin/progress``           answers per stimulus and per participant
+``GET /api/admin/export/{name}.csv``  answers, trajectories, goals, participants
+====================================  ==================================================
+
+Safety: a participant reaches only their own trials (their token is a random 256-bit
+cookie, stored hashed); files are looked up by trial, never by a path from the request;
+request bodies are JSON of at most :data:`MAX_BODY` bytes with known keys and types;
+errors answer ``{"error": "..."}`` and never a traceback; every response carries a
+strict Content-Security-Policy and ``nosniff``.
+
+>>> app = make_app(StudyService("stim", SQLiteStorage("study.db")), "admin-token")  # doctest: +SKIP
+>>> TestClient(app).get("/api/texts").json()["title"]  # doctest: +SKIP
+'Which object is the robot reaching for?'
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import secrets
+from pathlib import Path
+
+from starlette.applications import Starlette
+from starlette.concurrency import run_in_threadpool
+from starlette.exceptions import HTTPException
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, Response
+from starlette.routing import Mount, Route
+from starlette.staticfiles import StaticFiles
+
+from slotv_jax.study.database import Conflict
+from slotv_jax.study.export import TABLES, tables
+from slotv_jax.study.service import (
+    CONFIDENCE,
+    ID_PARAMS,
+    MAX_RESPONSE_MS,
+    Forbidden,
+    Invalid,
+    StudyService,
+    Unauthorized,
+)
+
+STATIC = Path(__file__).with_name("static")
+COOKIE = "slotv_study"
+MAX_BODY = 4096  # bytes of a request body
+MAX_ID = 128  # characters of an external id
+MEDIA_TYPES = {"clip": "video/mp4", "still": "image/png"}
+HEADERS = {
+    "Content-Security-Policy": "default-src 'self'; object-src 'none'; base-uri 'none'; "
+    "frame-ancestors 'none'; form-action 'self'",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+    "X-Frame-Options": "DENY",
+}
+log = logging.getLogger("slotv_jax.study")
+
+
+class SecurityHeaders:
+    """ASGI middleware: security headers on every response, no caching of the API."""
+
+    def __init__(self, app):
+        self.app = app
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        api = scope["path"].startswith("/api/")
+
+        async def send_with_headers(message):
+            if message["type"] == "http.response.start":
+                headers = list(message.get("headers", []))
+                headers += [(k.lower().encode(), v.encode()) for k, v in HEADERS.items()]
+                if api:
+                    headers.append((b"cache-control", b"no-store"))
+                message["headers"] = headers
+            await send(message)
+
+        await self.app(scope, receive, send_with_headers)
+
+
+# ------------------------------------------------------------------ validation
+
+
+async def read_json(request: Request) -> dict:
+    """The request's JSON object (415, 413 or 400 otherwise)."""
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if ctype != "application/json":
+        raise HTTPException(415, "expected Content-Type: application/json")
+    length = request.headers.get("content-length")
+    if length is not None and (not length.isdigit() or int(length) > MAX_BODY):
+        raise HTTPException(413, f"request body over {MAX_BODY} bytes")
+    body = b""
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > MAX_BODY:
+            raise HTTPException(413, f"request body over {MAX_BODY} bytes")
+    try:
+        doc = json.loads(body)
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise HTTPException(400, "expected a JSON object") from None
+    if not isinstance(doc, dict):
+        raise HTTPException(400, "expected a JSON object")
+    return doc
+
+
+def _keys(doc: dict, required: set[str], optional: set[str]) -> None:
+    missing, extra = required - set(doc), set(doc) - required - optional
+    if missing:
+        raise HTTPException(400, f"missing field {sorted(missing)[0]!r}")
+    if extra:
+        raise HTTPException(400, f"unknown field {sorted(extra)[0]!r}")
+
+
+def parse_ids(raw) -> dict[str, str | None]:
+    """External ids from the page's URL parameters (see ``ID_PARAMS``)."""
+    if not isinstance(raw, dict) or len(raw) > 20:
+        raise HTTPException(400, "ids: expected an object of URL parameters")
+    out: dict[str, str | None] = {}
+    for field, names in ID_PARAMS.items():
+        vals = [raw[n] for n in names if raw.get(n) not in (None, "")]
+        v = vals[0] if vals else None
+        if v is not None and (
+            not isinstance(v, str)
+            or len(v) > MAX_ID
+            or not all(c.isalnum() or c in "-_.:@" for c in v)
+        ):
+            raise HTTPException(400, f"ids: {names[0]} must be at most {MAX_ID} letters/digits")
+        out[field] = v
+    return out
+
+
+def parse_answer(doc: dict) -> tuple[int, str, int | None, float]:
+    """(position, guess, confidence, response_ms) of an answer body, or 400."""
+    _keys(doc, {"position", "guess", "response_ms"}, {"confidence"})
+    pos, guess, conf, rt = doc["position"], doc["guess"], doc.get("confidence"), doc["response_ms"]
+    if not isinstance(pos, int) or isinstance(pos, bool) or not 0 <= pos < 10_000:
+        raise HTTPException(400, "position: expected a trial number")
+    if not isinstance(guess, str) or not 1 <= len(guess) <= 16:
+        raise HTTPException(400, "guess: expected a goal label")
+    if conf is not None and (
+        not isinstance(conf, int)
+        or isinstance(conf, bool)
+        or not CONFIDENCE[0] <= conf <= CONFIDENCE[1]
+    ):
+        raise HTTPException(400, f"confidence: expected null or {CONFIDENCE[0]}..{CONFIDENCE[1]}")
+    if (
+        not isinstance(rt, int | float)
+        or isinstance(rt, bool)
+        or not math.isfinite(rt)
+        or not 0 <= rt <= MAX_RESPONSE_MS
+    ):
+        raise HTTPException(400, f"response_ms: expected milliseconds in 0..{MAX_RESPONSE_MS:.0f}")
+    return pos, guess, conf, float(rt)
+
+
+# ---------------------------------------------------------------------- the app
+
+
+def make_app(service: StudyService, admin_token: str) -> Starlette:
+    """The ASGI application of one study (see the module docstring)."""
+    if len(admin_token) < 16:
+        raise ValueError("admin_token: expected at least 16 characters")
+
+    def admin(request: Request) -> None:
+        auth = request.headers.get("authorization", "")
+        given = auth[7:] if auth.startswith("Bearer ") else ""
+        if not secrets.compare_digest(given.encode(), admin_token.encode()):
+            raise HTTPException(401, "admin token required")
+
+    async def index(request: Request) -> Response:
+        return FileResponse(STATIC / "index.html")
+
+    async def admin_page(request: Request) -> Response:
+        return FileResponse(STATIC / "admin.html")
+
+    async def texts(request: Request) -> Response:
+        return JSONResponse(await run_in_threadpool(service.texts))
+
+    async def start(request: Request) -> Response:
+        doc = await read_json(request)
+        _keys(doc, {"consent"}, {"ids"})
+        if doc["consent"] is not True:
+            raise HTTPException(400, "consent: the study starts only with consent")
+        ids = parse_ids(doc.get("ids", {}))
+        p = await run_in_threadpool(service.participant, request.cookies.get(COOKIE))
+        token = None
+        if p is None:  # a participant who refreshes the consent page keeps their trials
+            ua = request.headers.get("user-agent", "")[:200]
+            token = await run_in_threadpool(service.start, ids, ua)
+            p = await run_in_threadpool(service.participant, token)
+        resp = JSONResponse(await run_in_threadpool(service.state, p))
+        if token is not None:
+            resp.set_cookie(COOKIE, token, httponly=True, samesite="strict",
+                            secure=request.url.scheme == "https", max_age=30 * 86400)  # fmt: skip
+        return resp
+
+    async def state(request: Request) -> Response:
+        token = request.cookies.get(COOKIE)
+        return JSONResponse(await run_in_threadpool(service.state_for, token))
+
+    async def answer(request: Request) -> Response:
+        token = request.cookies.get(COOKIE)
+        if not token:
+            raise Unauthorized("no participant")
+        pos, guess, conf, rt = parse_answer(await read_json(request))
+        return JSONResponse(
+            await run_in_threadpool(service.answer_for, token, pos, guess, conf, rt)
+        )
+
+    async def media(request: Request) -> Response:
+        token, which = request.cookies.get(COOKIE), request.path_params["which"]
+        pos = request.path_params["position"]
+        path = await run_in_threadpool(service.media_for, token, pos, which)
+        return FileResponse(path, media_type=MEDIA_TYPES[which])
+
+    async def progress(request: Request) -> Response:
+        admin(request)
+        return JSONResponse(await run_in_threadpool(service.progress))
+
+    async def export(request: Request) -> Response:
+        admin(request)
+        name = request.path_params["name"]
+        if name not in TABLES:
+            raise HTTPException(404, "not found")
+        text = (await run_in_threadpool(tables, service.storage))[name]
+        return Response(text, media_type="text/csv", headers={
+            "content-disposition": f'attachment; filename="{name}.csv"'})  # fmt: skip
+
+    async def health(request: Request) -> Response:
+        return JSONResponse({"ok": True})
+
+    async def http_error(request: Request, exc: HTTPException) -> Response:
+        return JSONResponse({"error": exc.detail}, status_code=exc.status_code)
+
+    async def invalid(request: Request, exc: Exception) -> Response:
+        return JSONResponse({"error": str(exc)}, status_code=400)
+
+    async def unauthorized(request: Request, exc: Exception) -> Response:
+        return JSONResponse({"error": "no participant: start the study from its first page"},
+                            status_code=401)  # fmt: skip
+
+    async def forbidden(request: Request, exc: Exception) -> Response:
+        return JSONResponse({"error": "not found"}, status_code=404)
+
+    async def conflict(request: Request, exc: Exception) -> Response:
+        return JSONResponse({"error": str(exc)}, status_code=409)
+
+    async def internal(request: Request, exc: Exception) -> Response:
+        log.exception("internal error on %s %s", request.method, request.url.path)
+        return JSONResponse({"error": "internal error"}, status_code=500)
+
+    routes = [
+        Route("/", index),
+        Route("/admin", admin_page),
+        Route("/healthz", health),
+        Route("/api/texts", texts),
+        Route("/api/start", start, methods=["POST"]),
+        Route("/api/state", state),
+        Route("/api/answer", answer, methods=["POST"]),
+        Route("/api/media/{position:int}/{which:str}", media),
+        Route("/api/admin/progress", progress),
+        Route("/api/admin/export/{name:str}.csv", export),
+        Mount("/static", StaticFiles(directory=STATIC), name="static"),
+    ]
+    app = Starlette(
+        routes=routes,
+        exception_handlers={
+            HTTPException: http_error,
+            Invalid: invalid,
+            Forbidden: forbidden,
+            Unauthorized: unauthorized,
+            Conflict: conflict,
+            Exception: internal,
+        },
+    )
+    app.add_middleware(SecurityHeaders)
+    return app

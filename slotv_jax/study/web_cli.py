@@ -1,0 +1,118 @@
+"""The ``stimuli``, ``serve``, ``export`` and ``simulate`` commands of the study CLI."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import secrets
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import uvicorn
+
+from slotv_jax.study import client, make_stimuli
+from slotv_jax.study import export as export_lib
+from slotv_jax.study.database import SYNC, connect
+from slotv_jax.study.server import make_app
+from slotv_jax.study.service import StudyService
+
+
+def _add_web_commands(sub) -> None:
+    serve = sub.add_parser("serve", help="run the study server (participant page at /)")
+    serve.add_argument("--stimuli", required=True, help="the study folder (stimulus sets)")
+    serve.add_argument("--db", required=True, help="SQLite file of the answers (created if new)")
+    serve.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    serve.add_argument("--port", type=int, default=8000)
+    serve.add_argument("--sync", default="full", choices=SYNC,
+                       help="full: each answer on disk before the reply (survives power "
+                       "loss); normal: faster, survives a crashed server")  # fmt: skip
+    exp = sub.add_parser("export", help="answers -> CSV tables that `study import` reads")
+    exp.add_argument("--db", required=True, help="the server's SQLite file")
+    exp.add_argument("--out", required=True, help="folder for answers/trajectories/goals.csv")
+    exp.add_argument("--drop-failed-attention", action="store_true",
+                     help="leave out participants who failed an attention check")  # fmt: skip
+    exp.add_argument("--overwrite", action="store_true", help="replace earlier exported files")
+    sim = sub.add_parser("simulate", help="simulated participants take a running study")
+    sim.add_argument("--url", default="http://127.0.0.1:8000", help="the study server")
+    sim.add_argument("--stimuli", required=True, help="the study folder the server serves")
+    sim.add_argument("--participants", type=int, default=20)
+    sim.add_argument("--labeler", default="dragan", choices=("dragan", "effdist", "fastapp"),
+                     help="the simulated participants answer like this observer")  # fmt: skip
+    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the server")
+
+
+def serve_main(args: argparse.Namespace) -> int:
+    """Check the inputs, print the URLs and the admin token, and serve until stopped."""
+    stimdir, db = Path(args.stimuli), Path(args.db)
+    if not stimdir.is_dir():
+        raise ValueError(f"--stimuli {stimdir}: expected a folder written by `study stimuli`")
+    if not db.parent.is_dir():
+        raise ValueError(f"--db {db}: the folder {db.parent} does not exist")
+    if not 0 < args.port < 65536:
+        raise ValueError(f"--port {args.port}: expected 1..65535")
+    service = StudyService(stimdir, connect(db, sync=args.sync))
+    token = secrets.token_urlsafe(24)
+    app = make_app(service, token)
+    url = f"http://{args.host}:{args.port}"
+    print(f"study: {url}/  (rounds {', '.join(map(str, sorted(service.sets)))})")
+    print(f"admin: {url}/admin")
+    print(f"admin token: {token}", flush=True)
+    uvicorn.run(app, host=args.host, port=args.port, log_level="warning", access_log=False)
+    return 0
+
+
+def export_main(args: argparse.Namespace) -> int:
+    """Write the exported tables (never over earlier files without ``--overwrite``)."""
+    db, out = Path(args.db), Path(args.out)
+    if not db.is_file():
+        raise ValueError(f"--db {db}: no such file")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: expected a folder")
+    if not out.parent.is_dir():
+        raise ValueError(f"--out {out}: the folder {out.parent} does not exist")
+    there = [n for n in export_lib.TABLES if (out / f"{n}.csv").exists()]
+    if there and not args.overwrite:
+        raise ValueError(f"--out {out}: {there[0]}.csv exists (add --overwrite to replace it)")
+    n = export_lib.export_tables(connect(db), out, drop_failed_attention=args.drop_failed_attention)
+    print(
+        f"wrote {out}: {n['answers']} answers to {n['trajectories']} trajectories "
+        f"from {n['participants']} participants",
+        file=sys.stdout,
+    )
+    return 0
+
+
+def simulate_main(args: argparse.Namespace) -> int:
+    """Run simulated participants against a running server and report what they did."""
+    if not 1 <= args.participants <= 10_000:
+        raise ValueError(f"--participants {args.participants}: expected 1..10000")
+    if not args.url.startswith(("http://", "https://")):
+        raise ValueError(f"--url {args.url}: expected http://HOST:PORT")
+    guess = client.LabelerGuesser(args.stimuli, args.labeler, seed=args.seed)
+    deadline = time.monotonic() + args.wait
+    while True:  # the server may still be starting
+        try:
+            httpx.get(args.url + "/healthz", timeout=5).raise_for_status()
+            break
+        except httpx.HTTPError as e:
+            if time.monotonic() > deadline:
+                raise ValueError(f"--url {args.url}: no study server there ({e})") from None
+            time.sleep(0.25)
+    res = asyncio.run(client.run_crowd(args.url, args.participants, guess, timeout=600))
+    done = sum(r.code is not None for r in res)
+    print(f"{done} of {len(res)} simulated participants finished, "
+          f"{sum(len(r.answers) for r in res)} answers")  # fmt: skip
+    return 0
+
+
+COMMANDS = {"stimuli": make_stimuli.stimuli_main, "serve": serve_main,
+            "export": export_main, "simulate": simulate_main}  # fmt: skip
+
+
+def add_commands(sub) -> None:
+    """Add ``stimuli``, ``serve``, ``export`` and ``simulate`` to the study CLI's subparsers."""
+    make_stimuli.add_command(sub)
+    _add_web_commands(sub)

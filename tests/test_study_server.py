@@ -1,0 +1,320 @@
+"""The study server's HTTP API through Starlette's test client, its design and its export."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections import Counter
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from starlette.testclient import TestClient
+from study_fixtures import write_dot_set
+
+from slotv_jax import study
+from slotv_jax.study import design, export, stimuli
+from slotv_jax.study.database import SQLiteStorage
+from slotv_jax.study.server import COOKIE, MAX_BODY, make_app
+from slotv_jax.study.service import StudyService
+
+ADMIN = "admin-token-for-tests-0123456789"
+
+
+@pytest.fixture(scope="module")
+def dot_set(tmp_path_factory):
+    out = tmp_path_factory.mktemp("dots") / "stim"
+    write_dot_set(out)
+    return out
+
+
+@pytest.fixture
+def stimdir(dot_set, tmp_path):
+    out = tmp_path / "stim"
+    shutil.copytree(dot_set, out)
+    return out
+
+
+@pytest.fixture
+def server(stimdir, tmp_path):
+    service = StudyService(stimdir, SQLiteStorage(tmp_path / "study.db"))
+    return make_app(service, ADMIN), service
+
+
+def client(app, **ids) -> tuple[TestClient, dict]:
+    c = TestClient(app)
+    r = c.post("/api/start", json={"consent": True, "ids": ids})
+    assert r.status_code == 200, r.text
+    return c, r.json()
+
+
+def answer(c, state, guess=None, **kw):
+    body = {"position": state["position"], "guess": guess or state["goals"][0],
+            "confidence": 3, "response_ms": 850, **kw}  # fmt: skip
+    return c.post("/api/answer", json=body)
+
+
+def finish(c, state):
+    while state["stage"] == "trial":
+        r = answer(c, state)
+        assert r.status_code == 200, r.text
+        state = r.json()["state"]
+    return state
+
+
+def test_participant_flow(server, stimdir):
+    app, service = server
+    c = TestClient(app)
+    assert c.get("/api/state").status_code == 401  # no participant yet: the consent page
+    texts = c.get("/api/texts").json()
+    assert "Consent" in texts["consent"] and texts["confidence"] is True
+    assert c.get("/").status_code == 200 and "study.js" in c.get("/").text
+    ids = {"PROLIFIC_PID": "5f0c1a2b3c4d5e6f7a8b9c0d", "STUDY_ID": "s1", "SESSION_ID": "x9"}
+    r = c.post("/api/start", json={"consent": True, "ids": ids})
+    assert r.status_code == 200 and COOKIE in r.cookies
+    state = r.json()
+    # practice first, then one stimulus of each of the 4 trajectories and 2... attention checks
+    assert state["practice"] and state["position"] == 0
+    assert c.get(state["clip"]).headers["content-type"] == "video/mp4"
+    assert c.get(state["still"]).content[:4] == b"\x89PNG"
+    seen = []
+    while state["stage"] == "trial":
+        seen.append(state)
+        assert state["goals"] == ["A", "B", "C"] and len(state["goal_pixels"]) == 3
+        state = answer(c, state).json()["state"]
+    assert state["stage"] == "done" and len(state["code"]) == 8
+    assert [s["position"] for s in seen] == list(range(len(seen)))
+    trials = service.storage.trials(1)
+    kinds = Counter(t["kind"] for t in trials)
+    assert kinds == {"practice": 1, "trial": 4, "attention": 1}  # one check in the set
+    trajs = [t["trajectory"] for t in trials]
+    assert len(set(trajs)) == len(trajs)  # each trajectory at most once
+    p = service.storage.participants()[0]
+    assert (p["external_id"], p["study_id"], p["session_id"]) == ("5f0c1a2b3c4d5e6f7a8b9c0d",
+                                                                  "s1", "x9")  # fmt: skip
+    assert p["finished"] is not None and p["answered"] == 6
+    # the same external participant id cannot start again (elsewhere)
+    r = TestClient(app).post("/api/start", json={"consent": True, "ids": ids})
+    assert r.status_code == 409
+
+
+def test_resume_after_refresh_and_lost_connection(server):
+    app, service = server
+    c, state = client(app)
+    for _ in range(3):
+        state = answer(c, state).json()["state"]
+    pos = state["position"]
+    # a refresh (GET state again), the back button (the page asks again) or another tab
+    # with the same cookie: the same next trial
+    assert c.get("/api/state").json()["position"] == pos
+    assert service.storage.trials(1)[pos]["shown"] == 1  # one reload of this trial
+    c2 = TestClient(app, cookies={COOKIE: c.cookies[COOKIE]})
+    assert c2.get("/api/state").json()["position"] == pos
+    # a start request from a page that was open before (refreshed consent page) keeps trials
+    r = c.post("/api/start", json={"consent": True, "ids": {}})
+    assert r.json()["position"] == pos and len(service.storage.participants()) == 1
+    assert finish(c2, state)["stage"] == "done"
+    assert c.get("/api/state").json()["stage"] == "done"
+
+
+def test_repeated_submission_is_stored_once(server):
+    app, service = server
+    c, state = client(app)
+    first = answer(c, state, guess="B")
+    assert first.status_code == 200 and not first.json()["duplicate"]
+    again = answer(c, state, guess="B")
+    assert again.status_code == 200 and again.json()["duplicate"]
+    other = answer(c, state, guess="C", confidence=5)  # a changed mind after sending
+    assert other.status_code == 200 and other.json()["duplicate"]
+    rows = service.storage.answers()
+    assert len(rows) == 1 and rows[0]["guess"] == "B" and rows[0]["confidence"] == 3
+    # answers out of order are refused; the next trial is still the one after the first
+    nxt = again.json()["state"]
+    skip = {**nxt, "position": nxt["position"] + 1}
+    assert answer(c, skip).status_code == 400
+    assert c.get("/api/state").json()["position"] == nxt["position"]
+
+
+def test_tokens(server):
+    app, service = server
+    _, sa = client(app)
+    b, sb = client(app)
+    anon = TestClient(app)
+    fake = TestClient(app, cookies={COOKIE: "x" * 43})
+    for c in (anon, fake):
+        assert c.get("/api/state").status_code == 401
+        assert c.get("/api/media/0/clip").status_code == 401
+        assert answer(c, sa).status_code == 401
+    # a participant reaches only their own trials: positions index their own list
+    n = len(service.storage.trials(1))
+    assert b.get(f"/api/media/{n}/clip").status_code == 404
+    assert answer(b, {**sb, "position": n}).status_code == 404
+    assert b.get("/api/media/3/clip").status_code == 404  # not yet reached
+    answer(b, sb)
+    assert [r["participant"] for r in service.storage.answers()] == [2]
+    # the admin API needs the admin token
+    for hdr in ({}, {"Authorization": "Bearer wrong"}, {"Authorization": ADMIN}):
+        assert anon.get("/api/admin/progress", headers=hdr).status_code == 401
+        assert anon.get("/api/admin/export/answers.csv", headers=hdr).status_code == 401
+    ok = {"Authorization": f"Bearer {ADMIN}"}
+    prog = anon.get("/api/admin/progress", headers=ok).json()
+    assert prog["answers"] == 1 and len(prog["participants"]) == 2
+    assert sum(s["answers"] for s in prog["stimuli"]) == 1
+    csv_text = anon.get("/api/admin/export/answers.csv", headers=ok).text
+    assert csv_text.splitlines()[0].startswith("trajectory,tau,guess,participant,condition")
+    assert anon.get("/admin").status_code == 200
+
+
+def test_traversal_attempts(server, stimdir, tmp_path):
+    app, _ = server
+    c, _ = client(app)
+    (tmp_path / "secret.txt").write_text("SECRET")
+    probes = [
+        "/static/../manifest.json", "/static/%2e%2e/%2e%2e/secret.txt", "/static/..%2fstudy.db",
+        "/api/media/0/..%2f..%2fmanifest.json", "/api/media/0/manifest", "/api/media/-1/clip",
+        "/api/media/0/clip/../../../secret.txt", "/api/media/%2e%2e/clip",
+        "/stim/manifest.json", "/manifest.json", "/api/admin/export/..%2fsecret.csv",
+        "/static/%2fetc%2fpasswd", "//etc/passwd",
+    ]  # fmt: skip
+    for path in probes:
+        r = c.get(path)
+        assert r.status_code in (400, 401, 404), (path, r.status_code)
+        assert b"SECRET" not in r.content and b"stimuli" not in r.content, path
+    # a manifest that points outside its folder is refused when the set is loaded
+    m = json.loads((stimdir / "manifest.json").read_text())
+    m["stimuli"][0]["clip"] = "../secret.txt"
+    (stimdir / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(ValueError, match="relative path inside"):
+        stimuli.load_stimulus_set(stimdir)
+    m["stimuli"][0]["clip"] = "/etc/passwd"
+    (stimdir / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(ValueError, match="relative path inside"):
+        stimuli.load_stimulus_set(stimdir)
+
+
+def test_malformed_bodies(server):
+    app, service = server
+    c, state = client(app)
+    pos = state["position"]
+    good = {"position": pos, "guess": "A", "confidence": None, "response_ms": 500}
+    bad = [
+        ({"content": b"not json"}, 400), ({"content": b"[1, 2]"}, 400),
+        ({"content": b"\xff\xfe"}, 400), ({"content": b"x" * (MAX_BODY + 1)}, 413),
+        ({"json": {**good, "position": str(pos)}}, 400),
+        ({"json": {**good, "position": True}}, 400),
+        ({"json": {**good, "guess": "Z"}}, 400), ({"json": {**good, "guess": 1}}, 400),
+        ({"json": {**good, "guess": "A" * 5000}}, 413), ({"json": {**good, "confidence": 7}}, 400),
+        ({"json": {**good, "confidence": 2.5}}, 400), ({"json": {**good, "response_ms": -1}}, 400),
+        ({"json": {**good, "response_ms": "fast"}}, 400), ({"json": {**good, "extra": 1}}, 400),
+        ({"json": {k: v for k, v in good.items() if k != "guess"}}, 400),
+        ({"content": b'{"position": 0, "guess": "A", "response_ms": NaN}'}, 400),
+        ({"content": b'{"position": 0, "guess": "A", "response_ms": 1e999}'}, 400),
+    ]  # fmt: skip
+    for kw, code in bad:
+        headers = {"content-type": "application/json"} if "content" in kw else {}
+        r = c.post("/api/answer", headers=headers, **kw)
+        assert r.status_code == code, (kw, r.status_code, r.text)
+        assert set(r.json()) == {"error"} and "Traceback" not in r.text
+    r = c.post("/api/answer", content=json.dumps(good), headers={"content-type": "text/plain"})
+    assert r.status_code == 415
+    assert c.post("/api/start", json={"consent": False}).status_code == 400
+    assert TestClient(app).post("/api/start", json={"consent": True, "ids": {
+        "PROLIFIC_PID": "<script>"}}).status_code == 400  # fmt: skip
+    assert service.storage.answers() == []
+    assert c.post("/api/answer", json=good).status_code == 200
+
+
+def test_errors_show_no_internals(server):
+    app, service = server
+    c, state = client(app)
+
+    def broken(*a, **k):
+        raise RuntimeError("secret internal detail /home/x/study.db")
+
+    service.storage.answer = broken
+    c = TestClient(app, raise_server_exceptions=False, cookies={COOKIE: c.cookies[COOKIE]})
+    r = answer(c, state)
+    assert r.status_code == 500 and r.json() == {"error": "internal error"}
+    r = c.get("/no/such/page")
+    assert r.status_code == 404 and "Traceback" not in r.text
+    hdr = c.get("/api/state").headers
+    assert "default-src 'self'" in hdr["content-security-policy"]
+    assert hdr["x-content-type-options"] == "nosniff" and hdr["cache-control"] == "no-store"
+
+
+def test_balanced_assignment_and_new_round(server, stimdir, caplog):
+    app, service = server
+    for _ in range(6):
+        finish(*client(app))
+    per = Counter((r["trajectory"], r["tau"]) for r in service.storage.answers()
+                  if r["kind"] == "trial")  # fmt: skip
+    assert len(per) == 8 and set(per.values()) == {3}  # 4 motions x 2 taus, 6 people each
+    # a new round appears while the server runs: the next participant gets it
+    write_dot_set(stimdir / "round-1", n=2, taus=(0.7,), round_=1, first=10)
+    client(app)
+    trials = service.storage.trials(7)
+    assert {t["round"] for t in trials} == {1} and len(trials) == 4
+    assert sorted(t["trajectory"] for t in trials if t["kind"] == "trial") == ["m10", "m11"]
+    # an earlier participant is unaffected, and a changed round is refused
+    assert service.storage.trials(1)[0]["round"] == 0
+    write_dot_set(stimdir / "round-2", n=1, taus=(0.7,), round_=2, first=0)  # m0 differs
+    client(app)  # the study goes on with round 1 and says why round 2 is left out
+    assert {t["round"] for t in service.storage.trials(8)} == {1}
+    assert "round 2 left out" in caplog.text and "differs" in caplog.text
+    # ... and a server started on it refuses to start
+    with pytest.raises(ValueError, match="differs"):
+        StudyService(stimdir, service.storage)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n_traj=st.integers(1, 6),
+    per_traj=st.integers(1, 3),
+    k=st.one_of(st.none(), st.integers(1, 6)),
+    people=st.integers(1, 12),
+    seed=st.integers(0, 2**31),
+)
+def test_design_balances_answers(n_traj, per_traj, k, people, seed):
+    """Within a trajectory the stimuli's counts differ by at most one, and so do the
+    trajectories' counts; no participant sees a trajectory twice; checks never first."""
+    stims = [design.Stimulus(t * per_traj + j, f"t{t}", "trial")
+             for t in range(n_traj) for j in range(per_traj)]  # fmt: skip
+    stims.append(design.Stimulus(100, "check", "attention"))
+    counts: Counter = Counter()
+    for p in range(people):
+        plan = design.plan_trials(stims, counts, k=k, n_attention=1, seed=seed + p)
+        main = [s for s in plan if s != 100]
+        assert len(main) == (n_traj if k is None else min(k, n_traj))
+        assert plan[0] != 100  # never an attention check first
+        assert len({s // per_traj for s in main}) == len(main)
+        counts.update(plan)
+    for t in range(n_traj):
+        c = [counts[t * per_traj + j] for j in range(per_traj)]
+        assert max(c) - min(c) <= 1
+    tc = [sum(counts[t * per_traj + j] for j in range(per_traj)) for t in range(n_traj)]
+    assert max(tc) - min(tc) <= 1
+
+
+def test_export_imports_unchanged(server, tmp_path):
+    app, service = server
+    for pid in ("p-a", "p-b", "p-c"):
+        finish(*client(app, PROLIFIC_PID=pid))
+    n = export.export_tables(service.storage, tmp_path / "out")
+    assert n == {"answers": 12, "trajectories": 4, "participants": 3}
+    out = tmp_path / "out"
+    s, report = study.read_tables(out / "trajectories.csv", out / "goals.csv", out / "answers.csv")
+    assert report.answer_rows == 12 and report.participants == 3
+    assert s.counts.sum() == 12 and s.conditions == ("observer",)
+    # every answer lands on its goal's slot, at its τ, for its trajectory
+    rows = [r for r in service.storage.answers() if r["kind"] == "trial"]
+    for r in rows:
+        k = s.trajectory_ids.index(r["trajectory"])
+        a = [i for i in range(s.n_rows) if s.answer_trajectory[i] == k
+             and np.isclose(s.answer_tau[i], r["tau"])]  # fmt: skip
+        assert len(a) == 1
+        assert s.counts[a[0], list(s.goal_names[k]).index(r["guess"])] >= 1
+    header = (out / "answers.csv").read_text().splitlines()[0].split(",")
+    assert header == list(export.ANSWER_COLUMNS)
+    people = (out / "participants.csv").read_text().splitlines()
+    assert len(people) == 4 and "p-a" in people[1]

@@ -1,0 +1,89 @@
+"""Stimulus sets rendered from each source: clips cut at τ, manifest, tables, checksums."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from study_fixtures import robot_motions
+
+from slotv_jax import render, study
+from slotv_jax.study import make_stimuli, stimuli
+
+SIZE, FPS, DURATION, HOLD = (160, 96), 10.0, 1.0, 0.2
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    r = make_stimuli.SceneRenderer(SIZE, FPS, DURATION, HOLD)
+    yield r
+    r.close()
+
+
+@pytest.fixture(scope="module")
+def motions():
+    return robot_motions(4, seed=3)
+
+
+def test_plans_source_clips_end_at_tau(renderer, motions, tmp_path):
+    """A planning run's plans (2 planners x 2 problems, one NaN plan left out): each clip
+    has the frames of its τ and ends on the frame at τ, not later; the manifest and the
+    tables hold what the arrays say; a second set refuses the folder without --overwrite."""
+    q, xyz, goals, mask, target = motions
+    plans = tmp_path / "plans.npz"
+    qk = np.stack([q[:2], q[2:]])  # (K=2, P=2, T, 7)
+    xk = np.stack([xyz[:2], xyz[2:]])
+    qk[1, 1] = np.nan  # planner b failed on problem 1
+    np.savez(plans, q=qk, xyz=xk, goals=goals[:2], goal_mask=mask[:2], target=target[:2],
+             names=np.array(["a", "b"]))  # fmt: skip
+    m = make_stimuli.motions_from_plans(plans)
+    assert m.ids == ["a-0", "a-1", "b-0"] and m.scenes == ["problem0", "problem1", "problem0"]
+    np.testing.assert_array_equal(m.goals[2], goals[0])
+    man = make_stimuli.make_set(m, tmp_path / "stim", n=2, taus=(0.5,), attention=1,
+                                practice=False, renderer=renderer, progress=False)  # fmt: skip
+    st = stimuli.load_stimulus_set(tmp_path / "stim")  # verifies files and checksums
+    assert [s["kind"] for s in man["stimuli"]] == ["trial", "trial", "attention"]
+    for s in man["stimuli"]:
+        i = m.ids.index(s["trajectory"])
+        clip = render.read_video(st.file(s, "clip"))
+        n = len(render.frame_times(s["tau"], fps=FPS, duration=DURATION, hold=HOLD))
+        assert clip.shape == (n, SIZE[1], SIZE[0], 3)
+        # the last frame is the motion at τ: closer to it than to any later time
+        later = [t for t in (s["tau"], s["tau"] + 0.2, s["tau"] + 0.4, 1.0) if t <= 1.0]
+        err = [np.abs(clip[-1].astype(float) - render.still(
+            m.q[i], m.goals[i], m.goal_mask[i], tau=t, size=SIZE, labels=s["goals"],
+            renderer=renderer.renderer)).mean() for t in dict.fromkeys(later)]  # fmt: skip
+        assert np.argmin(err) == 0 and err[0] < 4.0, err  # H.264 is lossy
+        assert s["target"] == s["goals"][m.targets[i]]
+        # the goal labels' pixel positions are inside the picture
+        px = np.array(s["goal_pixels"])
+        assert ((px >= 0) & (px <= SIZE)).all()
+    pts = st.trajectories["a-0"]
+    np.testing.assert_allclose(np.array(pts)[:, 1:], m.xyz[0], atol=1e-6)
+    assert [row[0] for row in st.goals["a-0"]] == ["A", "B", "C"]
+    assert json.loads((tmp_path / "stim" / "study.json").read_text())["attention_checks"] == 2
+    with pytest.raises(ValueError, match="overwrite"):
+        make_stimuli.make_set(m, tmp_path / "stim", n=1, taus=(1.0,), attention=0,
+                              renderer=renderer, progress=False)  # fmt: skip
+
+
+def test_npz_and_study_sources_by_ik(renderer, motions, tmp_path):
+    """Paths without joints (a labelers .npz, a study file) get them by IK, and a set of a
+    study file (no targets) needs --attention 0."""
+    _, xyz, goals, mask, target = motions
+    np.savez(tmp_path / "labels_in.npz", xyz=xyz, goals=goals, goal_mask=mask, target=target)
+    m = make_stimuli.motions_from_npz(tmp_path / "labels_in.npz")
+    assert m.ids[0] == "labels_in-0" and list(m.targets) == list(target)
+    for i in range(4):  # joints that put the TCP on the path (the arm is redundant)
+        np.testing.assert_allclose(renderer.renderer.tcp_path(m.q[i]), xyz[i], atol=2e-3)
+    s = study.make_study(xyz, goals, mask, np.arange(4), np.eye(8)[target],
+                         trajectory_ids=["w", "x", "y", "z"])  # fmt: skip
+    study.save_study(tmp_path / "s.npz", s)
+    m = make_stimuli.motions_from_study(tmp_path / "s.npz")
+    assert m.ids == ["w", "x", "y", "z"] and m.targets is None
+    with pytest.raises(ValueError, match="no targets"):
+        make_stimuli.make_set(m, tmp_path / "st", n=1, taus=(1.0,), renderer=renderer)
+    man = make_stimuli.make_set(m, tmp_path / "st", n=2, taus=(0.5, 1.0), attention=0,
+                                renderer=renderer, progress=False)  # fmt: skip
+    assert len(man["stimuli"]) == 5 and man["stimuli"][-1]["kind"] == "practice"
