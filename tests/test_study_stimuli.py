@@ -66,6 +66,11 @@ def test_plans_source_clips_end_at_tau(renderer, motions, tmp_path):
     with pytest.raises(ValueError, match="overwrite"):
         make_stimuli.make_set(m, tmp_path / "stim", n=1, taus=(1.0,), attention=0,
                               renderer=renderer, progress=False)  # fmt: skip
+    # the next round goes into round-1, drawn like round 0
+    assert stimuli.next_round(tmp_path / "stim") == (1, tmp_path / "stim" / "round-1")
+    like = make_stimuli.SceneRenderer.like(tmp_path / "stim")
+    assert like.settings() == renderer.settings() == {k: man[k] for k in like.settings()}
+    like.close()
 
 
 def test_npz_and_study_sources_by_ik(renderer, motions, tmp_path):

@@ -78,9 +78,9 @@ import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax import planning
 from slotv_jax.core import cli, fileio
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import atomic_write, write_text
 from slotv_jax.experiments.planning_report import FIGURES, render, report, write_doc
-from slotv_jax.experiments.table1 import dataset_dir
 from slotv_jax.observers import labelers, labelling, models
 from slotv_jax.training import checkpoint, evaluate
 from slotv_jax.training import config as train_config
@@ -377,7 +377,7 @@ def run(
     timing: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    ddir = dataset_dir(cache, cfg.data)
+    ddir = data_lib.dataset_dir(cache, cfg.data)
     splits = ("train", *SPLITS)
     dataset = data_lib.generate_dataset(cfg.data, ddir, splits=splits, progress=progress)
     timing["data_s"] = time.perf_counter() - t0
@@ -453,7 +453,7 @@ def run(
     timing["total_s"] = time.perf_counter() - t_start
     doc = {
         "preset": cfg.preset,
-        "environment": data_lib.environment(),
+        "environment": environment(),
         "config": cfg.to_json(),
         "dataset": str(ddir),
         "observers": sources,

@@ -4,7 +4,7 @@ The SLOT-V paper (Wallkötter et al. 2022, §VI) names the opacity of a neural o
 limitation and suggests keeping the supervised training but learning "an explicit analytic
 model for which we only learn certain parameter values". This module holds three such
 archetypes. Each maps one trajectory and the 8 goal slots to masked logits, exactly like
-:class:`slotv_jax.models.SlotV`::
+:class:`slotv_jax.observers.models.SlotV`::
 
     logits = observer(xyz (..., T, 3), goals (..., 8, 3), goal_mask (..., 8))  # (..., 8)
 

@@ -80,6 +80,7 @@ from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers import labelers
 from slotv_jax.observers.common import mask_logits, masked_log
+from slotv_jax.observers.models import Observer
 from slotv_jax.robot import kinematics
 from slotv_jax.world.scene import camera as scene_camera
 from slotv_jax.world.trajectories import resample_polyline
@@ -99,7 +100,6 @@ __all__ = [
     "straight_line",
 ]
 
-Observer = Callable[[Array, Array, Array], Array]  # (T, 3), (8, 3), (8,) -> logits (8,)
 
 MAX_RESIDUAL = 2e-3  # m: the start and the target must be reached this closely (SPEC §3)
 _RATIO_CLIP = 1.0 - 1e-5  # |tanh z| of the initial path: joints on a limit start just inside

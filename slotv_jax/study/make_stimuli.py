@@ -45,6 +45,7 @@ from slotv_jax.study.stimuli import (
     MANIFEST,
     Motion,
     cross_specs,
+    load_stimulus_set,
     write_stimulus_set,
 )
 from slotv_jax.study.storage import load_study
@@ -68,6 +69,13 @@ class SceneRenderer:
         self.size, self.fps, self.duration, self.hold = tuple(size), fps, duration, hold
         self.trace = trace
         self.renderer = render.MotionRenderer(self.size)
+
+    @classmethod
+    def like(cls, stimdir: str | Path, *, trace: bool = True) -> SceneRenderer:
+        """A renderer with the size, fps, duration and hold of a study folder's round 0, so
+        that a later round (``study next``) looks like the first."""
+        m = load_stimulus_set(stimdir, verify=False).manifest
+        return cls(tuple(m["size"]), m["fps"], m["duration"], m["hold"], trace=trace)
 
     def frames(
         self, motion: Motion, tau: float, camera: str

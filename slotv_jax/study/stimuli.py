@@ -14,7 +14,14 @@ manifest is written last, atomically, so a half-written round is never seen. The
 (``study serve --stimuli STIMDIR``) looks for new rounds whenever a new participant
 starts, without a restart; new participants get trials from the newest round, earlier
 participants keep theirs. Trajectory ids are global across rounds (the same id must mean
-the same points and goals). Beside round 0 lie the files a researcher edits:
+the same points and goals). A later round is written so (the arrays as for round 0)::
+
+    r, folder = next_round(stimdir)                   # (1, stimdir/round-1), ...
+    write_stimulus_set(folder, q=q, xyz=xyz, goals=goals, goal_mask=mask, ids=ids,
+                       specs=specs, targets=targets, round_=r,
+                       render=make_stimuli.SceneRenderer.like(stimdir))
+
+Beside round 0 lie the files a researcher edits:
 
 - ``consent.html`` and ``instructions.html``: HTML fragments shown before the trials;
 - ``study.json``: settings, ``{"title", "trials_per_participant" (null: every
