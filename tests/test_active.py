@@ -13,7 +13,7 @@ from flax import nnx
 
 from slotv_jax.experiments import active
 from slotv_jax.study import selection
-from slotv_jax.training import config
+from slotv_jax.training import config as train_config
 
 EPS = 1e-6  # "certain" members give the other goal this probability
 H = lambda p: -sum(q * math.log(q) for q in p if q > 0)  # noqa: E731  float64 entropy
@@ -141,7 +141,7 @@ def test_pool_and_answers_validate():
         selection.make_pool(xyz, goals, mask[:, :4])
     with pytest.raises(ValueError, match="capacity"):
         selection.make_answers([0, 1, 2], np.ones((3, 8)), 2)
-    sel = selection.make_selector(config.archetype("quick", "dragan"), 2, 8)
+    sel = selection.make_selector(train_config.archetype("quick", "dragan"), 2, 8)
     with pytest.raises(ValueError, match="whole motions"):
         sel.check_pool(pool)
 
@@ -150,7 +150,7 @@ def test_pool_and_answers_validate():
 def trained():
     xyz, goals, mask, rng = _tiny_pool()
     pool = selection.make_pool(xyz, goals, mask, taus=(0.6, 1.0))
-    cfg = config.quick("slotv", hidden=(8, 4), batch_size=4)
+    cfg = train_config.quick("slotv", hidden=(8, 4), batch_size=4)
     sel = selection.make_selector(cfg, 3, 16)
     cand = rng.choice(pool.traj.shape[0], 12, replace=False)
     counts = rng.multinomial(5, [0.6, 0.3, 0.1], 12).astype(np.float32)

@@ -1,5 +1,5 @@
-"""Tests for slotv_jax.checkpoint: save → load → identical logits, exact resume, clear errors
-for mismatched checkpoints, and the loaded observer under jit, vmap and grad (checked
+"""Tests for slotv_jax.training.checkpoint: save → load → identical logits, exact resume, clear
+errors for mismatched checkpoints, and the loaded observer under jit, vmap and grad (checked
 against central finite differences in float64)."""
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ import pytest
 from test_train import synthetic_split
 
 import slotv_jax
-from slotv_jax.training import checkpoint, config, types
+from slotv_jax.training import checkpoint, types
+from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
 
 FD_TOL = 1e-6  # float64 directional derivative against central differences (relative)
@@ -26,7 +27,7 @@ def split():
 
 
 def cfg_for(method, **kw):
-    return config.quick(
+    return train_config.quick(
         method, **{"hidden": (16, 8), "batch_size": 16, "epochs": 2, "train_size": None, **kw}
     )
 

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 from slotv_jax import data
-from slotv_jax.core import defaults
-from slotv_jax.experiments import hparam_search, sample_efficiency, table1
+from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
+from slotv_jax.experiments import hparam_search, table1
+from slotv_jax.runs import curves, grid, presets
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -22,10 +23,10 @@ REPO = Path(__file__).resolve().parent.parent
 @pytest.fixture(scope="module")
 def cache(tiny_data, tmp_path_factory):
     """The tiny preset's dataset, stored where the experiments look for it."""
-    cfg = table1.tiny()
+    cfg = presets.tiny()
     assert cfg.data == data.DataConfig(preset="tiny", chunk_size=512, **_tiny_kw())
     root = tmp_path_factory.mktemp("cache")
-    d = table1.dataset_dir(root, cfg.data)
+    d = data.dataset_dir(root, cfg.data)
     d.mkdir(parents=True)
     for split in tiny_data.values():
         data.save_split(d, split, cfg.data)
@@ -45,8 +46,8 @@ def _check_schema(doc: dict) -> None:
     assert {"jax", "devices", "mujoco", "flax"} <= set(doc["environment"])
     for c in doc["cells"]:
         assert set(c) == {"labeler", "method", "split", "trial", "accuracy"}
-        assert c["labeler"] in defaults.LABELER_NAMES and c["method"] in table1.METHODS
-        assert c["split"] in defaults.TEST_SPLITS and isinstance(c["trial"], int)
+        assert c["labeler"] in LABELER_NAMES and c["method"] in presets.METHODS
+        assert c["split"] in TEST_SPLITS and isinstance(c["trial"], int)
         assert 0.0 <= c["accuracy"] <= 1.0
     for s in doc["summary"]:
         assert set(s) == {"labeler", "method", "split", "mean", "sd", "n"}
@@ -55,16 +56,16 @@ def _check_schema(doc: dict) -> None:
 
 
 def test_table1_results_schema_and_report(cache, tmp_path):
-    cfg = table1.tiny()
+    cfg = presets.tiny()
     doc = table1.run(
         cfg, tmp_path, labelers=["effdist"], methods=["slotv", "trex"], cache=cache, progress=False
     )
     _check_schema(doc)
     on_disk = json.loads((tmp_path / "results.json").read_text())
     _check_schema(on_disk)
-    assert len(on_disk["cells"]) == 2 * cfg.trials * len(defaults.TEST_SPLITS)
+    assert len(on_disk["cells"]) == 2 * cfg.trials * len(TEST_SPLITS)
     assert {(s["method"], s["split"]) for s in on_disk["summary"]} == {
-        (m, s) for m in ("slotv", "trex") for s in defaults.TEST_SPLITS
+        (m, s) for m in ("slotv", "trex") for s in TEST_SPLITS
     }
     md = (tmp_path / "table1.md").read_text()
     assert "0.996 (0.005)" in md and "EffDist" in md  # the paper's value beside ours
@@ -80,23 +81,12 @@ def test_table1_results_schema_and_report(cache, tmp_path):
         np.testing.assert_allclose(s["sd"], np.std(accs, ddof=1))
 
 
-def test_table1_precompiled_run_is_the_same(cache, tmp_path):
-    """Compiling the training functions in the background while the data loads changes
-    nothing in the results."""
-    cfg = table1.tiny()
-    kw = dict(labelers=["fastapp"], methods=["trex", "slotv"], cache=cache, progress=False)
-    a = table1.run(cfg, tmp_path / "a", precompile=True, **kw)
-    b = table1.run(cfg, tmp_path / "b", precompile=False, **kw)
-    assert a["cells"] == b["cells"]
-    assert a["timing"]["precompile_wait_s"] >= 0
-
-
 def test_summarise_hand_case():
     cells = [
         {"labeler": "dragan", "method": "slotv", "split": "train", "trial": t, "accuracy": a}
         for t, a in enumerate([0.5, 0.7, 0.9])
     ]
-    (s,) = table1.summarise(cells)
+    (s,) = grid.summarise(cells)
     assert s["n"] == 3 and s["mean"] == pytest.approx(0.7) and s["sd"] == pytest.approx(0.2)
 
 
@@ -133,15 +123,15 @@ def test_killed_run_resumes_without_recomputing(cache, tmp_path):
     assert final["cells"][: len(killed["cells"])] == killed["cells"]
     keys = [(c["labeler"], c["method"], c["trial"]) for c in final["timing"]["cells"]]
     assert len(keys) == len(set(keys)) == 2 * 2 * 2
-    assert len(final["cells"]) == 8 * len(defaults.TEST_SPLITS)
+    assert len(final["cells"]) == 8 * len(TEST_SPLITS)
     assert (out / "table1.md").exists()
     assert not list(out.glob(".*tmp"))
 
 
 def test_resume_refuses_another_config(cache, tmp_path):
-    cfg = table1.tiny()
+    cfg = presets.tiny()
     table1.run(cfg, tmp_path, labelers=["effdist"], methods=["trex"], cache=cache, progress=False)
-    other = table1.Table1Config(
+    other = presets.RunConfig(
         "tiny", 2, cfg.data, {**cfg.train, "trex": cfg.train["trex"].__class__(method="trex")}
     )
     with pytest.raises(ValueError, match="another configuration"):
@@ -149,23 +139,21 @@ def test_resume_refuses_another_config(cache, tmp_path):
 
 
 def test_sample_efficiency_outputs(cache, tmp_path):
-    doc = sample_efficiency.run(
-        "tiny", tmp_path, repeats=2, every=2, val_size=50, cache=cache, progress=False
-    )
+    doc = curves.run("tiny", tmp_path, repeats=2, every=2, val_size=50, cache=cache, progress=False)
     rows = (tmp_path / "sample_efficiency.csv").read_text().splitlines()
     assert rows[0] == "method,repeat,updates,examples,accuracy"
     assert (tmp_path / "sample_efficiency.png").stat().st_size > 10_000
     for method, s in doc["summary"].items():
-        cfg = table1.tiny().train[method]
+        cfg = presets.tiny().train[method]
         steps = 300 // cfg.batch_size
         mine = [r.split(",") for r in rows[1:] if r.startswith(method)]
         assert len(mine) == 2 * (steps // 2 + 1)  # start + every 2 updates, per repeat
         ex = sorted({int(r[3]) for r in mine})
         assert ex[0] == 0 and ex[-1] == (steps // 2) * 2 * cfg.batch_size
         assert s["examples_per_epoch"] == ex[-1]
-    assert sample_efficiency.examples_to_reach(np.array([0, 10, 20]), np.array([0.1, 0.85, 0.9]),
+    assert curves.examples_to_reach(np.array([0, 10, 20]), np.array([0.1, 0.85, 0.9]),
                                                0.8) == 10  # fmt: skip
-    assert sample_efficiency.examples_to_reach(np.array([0, 10]), np.array([0.1, 0.5]), 0.8) is None
+    assert curves.examples_to_reach(np.array([0, 10]), np.array([0.1, 0.5]), 0.8) is None
 
 
 def test_hparam_search_is_resumable_and_reproducible(cache, tmp_path):
@@ -196,7 +184,7 @@ def test_spearman_hand_cases():
 
 
 def test_vmapped_trials_match_one_by_one(cache, tmp_path):
-    cfg = table1.tiny()
+    cfg = presets.tiny()
     kw = {"labelers": ["fastapp"], "methods": ["slotv"], "cache": cache, "progress": False}
     one = table1.run(cfg, tmp_path / "one", **kw)
     together = table1.run(cfg, tmp_path / "together", vmap_trials=True, **kw)
@@ -221,6 +209,7 @@ FOUR_DEVICE_RESUME = textwrap.dedent(
     import jax
     from slotv_jax.training import parallel
     from slotv_jax.experiments import table1
+    from slotv_jax.runs import presets
     assert jax.device_count() == 4
     out, cache = Path({out!r}), Path({cache!r})
     kw = dict(labelers=["dragan", "effdist"], cache=cache, progress=False)
@@ -234,13 +223,13 @@ FOUR_DEVICE_RESUME = textwrap.dedent(
 
     parallel.train_group, crash = train_group, True
     try:
-        table1.run(table1.tiny(), out, **kw)
+        table1.run(presets.tiny(), out, **kw)
     except KeyboardInterrupt:
         pass
     killed, first_calls = json.loads((out / "results.json").read_text()), list(calls)
     calls.clear()
     crash = False
-    final = table1.run(table1.tiny(), out, **kw)
+    final = table1.run(presets.tiny(), out, **kw)
     print("RESULT" + json.dumps(dict(killed=killed, final=final, first=first_calls, calls=calls)))
     """
 )
@@ -268,7 +257,7 @@ def test_interrupted_multi_device_run_resumes_without_recomputing(cache, tmp_pat
     _check_schema(final)
     assert final["timing"]["cells"][:4] == killed["timing"]["cells"]
     assert final["cells"][: len(killed["cells"])] == killed["cells"]
-    assert len(final["cells"]) == 8 * len(defaults.TEST_SPLITS)
+    assert len(final["cells"]) == 8 * len(TEST_SPLITS)
 
 
 MULTI_PROCESS = [
@@ -320,7 +309,7 @@ def test_two_processes_split_a_group_and_one_writes(cache, tmp_path):
     _check_schema(doc)
     assert len(doc["environment"]["devices"]) == 4
     assert [c["trained_together"] for c in doc["timing"]["cells"]] == [4] * 4
-    ref = table1.run(table1.tiny(), tmp_path / "ref", labelers=["effdist"], methods=["slotv"],
+    ref = table1.run(presets.tiny(), tmp_path / "ref", labelers=["effdist"], methods=["slotv"],
                      cache=cache, progress=False)  # fmt: skip
     ref = {(c["trial"], c["split"]): c["accuracy"] for c in ref["cells"] if c["trial"] < 2}
     got = {(c["trial"], c["split"]): c["accuracy"] for c in doc["cells"] if c["trial"] < 2}

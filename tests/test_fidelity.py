@@ -8,8 +8,9 @@ import pytest
 from test_experiments import cache  # noqa: F401  (the tiny dataset, cached as table1 finds it)
 
 from slotv_jax import data
-from slotv_jax.core import defaults
-from slotv_jax.experiments import fidelity, table1
+from slotv_jax.core.defaults import TEST_SPLITS
+from slotv_jax.experiments import fidelity
+from slotv_jax.runs import grid
 from slotv_jax.world import trajectories
 
 
@@ -88,9 +89,9 @@ def test_fidelity_run_resumes_and_reports(cache, tmp_path):  # noqa: F811
     # Only the settings that ran are collected ("default" is the β×4 run, shared).
     assert set(rows) == {"beta=x4", "default"}
     row = rows["beta=x4"]
-    assert len(row["cells"]) == cfg.trials * len(defaults.TEST_SPLITS)
+    assert len(row["cells"]) == cfg.trials * len(TEST_SPLITS)
     stats = row["label_stats"]
-    assert set(stats["splits"]) == set(defaults.TEST_SPLITS)
+    assert set(stats["splits"]) == set(TEST_SPLITS)
     for lab in data.LABELER_NAMES:
         assert 0.0 <= stats["mean"][lab]["entropy_ratio"] <= 1.0
         assert 0.0 <= stats["mean"][lab]["target_agreement"] <= 1.0
@@ -119,27 +120,27 @@ def test_table1_merge_joins_runs_and_refuses_mismatches():
     def cell(lab, trial, acc):
         return [
             {"labeler": lab, "method": "slotv", "split": s, "trial": trial, "accuracy": acc}
-            for s in defaults.TEST_SPLITS
+            for s in TEST_SPLITS
         ]
 
     def doc(cells, trials=2):
         times = [
             {"labeler": c["labeler"], "method": "slotv", "trial": c["trial"], "total_s": 1.0}
-            for c in cells[:: len(defaults.TEST_SPLITS)]
+            for c in cells[:: len(TEST_SPLITS)]
         ]
         return {
             "preset": "tiny",
             "config": {"trials": trials, "data_digest": "abc", "train": {"slotv": {}}},
             "environment": {},
             "cells": cells,
-            "summary": table1.summarise(cells),
+            "summary": grid.summarise(cells),
             "timing": {"cells": times, "data_s": 1.0},
         }
 
     a = doc(cell("dragan", 0, 0.5) + cell("dragan", 1, 0.7) + cell("effdist", 0, 0.9))
     b = doc(cell("dragan", 0, 0.5) + cell("effdist", 1, 0.8), trials=3)
-    m = table1.merge([a, b])
-    assert len(m["cells"]) == 4 * len(defaults.TEST_SPLITS)  # the shared cell counted once
+    m = grid.merge([a, b])
+    assert len(m["cells"]) == 4 * len(TEST_SPLITS)  # the shared cell counted once
     assert m["config"]["trials"] == 3 and len(m["timing"]["cells"]) == 4
     by = {(s["labeler"], s["split"]): s for s in m["summary"]}
     assert by[("dragan", "train")]["n"] == 2
@@ -148,7 +149,7 @@ def test_table1_merge_joins_runs_and_refuses_mismatches():
     other = copy.deepcopy(b)
     other["config"]["data_digest"] = "xyz"
     with pytest.raises(ValueError, match="another configuration"):
-        table1.merge([a, other])
+        grid.merge([a, other])
     clash = doc(cell("dragan", 0, 0.6))
     with pytest.raises(ValueError, match="disagree"):
-        table1.merge([a, clash])
+        grid.merge([a, clash])

@@ -1,5 +1,4 @@
-"""The output rule, the readers and the CLI error style (slotv_jax.core.fileio,
-slotv_jax.core.cli)."""
+"""The output rule, the readers and the CLI error style (slotv_jax.core.fileio, slotv_jax.cli)."""
 
 import os
 import zipfile

@@ -10,6 +10,8 @@ interpreter checks that the low modules load without the ones above them.
 from __future__ import annotations
 
 import ast
+import functools
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -51,9 +53,10 @@ def _targets(node: ast.Import | ast.ImportFrom, module: str) -> list[str]:
         for _ in range(node.level - 1):
             pkg = pkg.rpartition(".")[0]
         base = f"{pkg}.{base}".rstrip(".")
-    out = [base]
-    out += [f"{base}.{a.name}" for a in node.names if f"{base}.{a.name}" in MODULES]
-    return out
+    subs = [f"{base}.{a.name}" for a in node.names if f"{base}.{a.name}" in MODULES]
+    # ``from pkg import sub``: the names come from the submodules (the package's
+    # __init__ runs first for any import of it; that is no dependency on its names)
+    return subs if len(subs) == len(node.names) else [base, *subs]
 
 
 def _is_main_guard(node: ast.stmt) -> bool:
@@ -90,11 +93,17 @@ def _function_imports(tree: ast.Module):
                     yield fn.name, node
 
 
+@functools.cache
+def _tree(path: Path) -> ast.Module:
+    return ast.parse(path.read_text(), str(path))
+
+
+@functools.cache
 def import_graph() -> dict[str, set[str]]:
     """module -> the slotv_jax modules it imports at module level."""
     graph = {}
     for name, path in MODULES.items():
-        tree = ast.parse(path.read_text(), str(path))
+        tree = _tree(path)
         deps = set()
         for node in _module_level(tree.body, name):
             deps |= {t for t in _targets(node, name) if t in MODULES and t != name}
@@ -171,10 +180,50 @@ def test_dependencies_point_down():
         assert reaches(f"slotv_jax.{user}", "slotv_jax.training.types"), user
 
 
+# The package's folders are its layers, bottom up (ARCHITECTURE.md draws them): a module
+# imports only modules of its own folder or of a lower layer. Folders of one layer do not
+# import each other. The public names of SPEC §9 and the commands stand above the library.
+LAYERS = (
+    ("core",),
+    ("robot",),
+    ("world",),
+    ("observers",),
+    ("data", "planning", "training", "render"),
+    ("study", "runs"),
+    ("", "labelers", "train", "scene", "kinematics", "render.cli", "render.__main__"),
+    ("experiments", "benchmarks"),
+)
+
+
+def _folder(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+def _rank(module: str, rank: dict[str, int]) -> int:
+    """The layer of a module: its own entry in LAYERS ("render.cli"), else its folder's."""
+    sub = ".".join(module.split(".")[1:3])
+    return rank[sub] if sub in rank else rank[_folder(module)]
+
+
+def test_folders_are_layers():
+    rank = {f: i for i, layer in enumerate(LAYERS) for f in layer}
+    graph = import_graph()
+    unplaced = sorted({_folder(m) for m in graph} - set(rank))
+    assert not unplaced, f"folders missing from LAYERS: {unplaced}"
+    bad = [
+        f"{a} -> {b}"
+        for a, deps in graph.items()
+        for b in deps
+        if _folder(a) != _folder(b) and _rank(b, rank) >= _rank(a, rank)
+    ]
+    assert not bad, "imports that do not point down a layer:\n" + "\n".join(sorted(bad))
+
+
 def test_no_imports_inside_functions():
     bad = []
     for name, path in MODULES.items():
-        tree = ast.parse(path.read_text(), str(path))
+        tree = _tree(path)
         for fn, node in _function_imports(tree):
             for target in _targets(node, name)[:1]:
                 top = target.split(".")[0]
@@ -189,21 +238,6 @@ def test_no_imports_inside_functions():
     assert not bad, "imports inside functions (move them to module level):\n" + "\n".join(bad)
 
 
-def test_fresh_interpreter_loads_low_modules_alone():
-    """``import slotv_jax.training.evaluate`` works on its own and loads neither training nor
-    checkpoints; ``slotv_jax.load_observer`` is there; ``import slotv_jax`` loads no JAX."""
-    code = (
-        "import sys, slotv_jax; assert 'jax' not in sys.modules, 'import slotv_jax loads JAX'; "
-        "import slotv_jax.training.evaluate; "
-        "bad = [m for m in ('slotv_jax.training.trainer', 'slotv_jax.training.checkpoint', "
-        "'slotv_jax.study', 'slotv_jax.data') if m in sys.modules]; assert not bad, bad; "
-        "from slotv_jax import load_observer; "
-        "assert load_observer is slotv_jax.training.checkpoint.load_observer; print('ok')"
-    )
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
-    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-2000:]
-
-
 def test_train_script_runs_without_double_import_warning():
     r = subprocess.run(
         [sys.executable, "-W", "error::RuntimeWarning", "-m", "slotv_jax.train", "--help"],
@@ -211,3 +245,61 @@ def test_train_script_runs_without_double_import_warning():
     )  # fmt: skip
     assert r.returncode == 0, r.stderr[-2000:]
     assert "--study" in r.stdout
+
+
+IMPORT_EVERYTHING = """
+import importlib, os, pkgutil, subprocess, sys
+
+started = []
+
+
+class Watch(subprocess.Popen):
+    def __init__(self, *args, **kwargs):
+        f = sys._getframe(1)
+        while f and f.f_code.co_filename.endswith("subprocess.py"):
+            f = f.f_back
+        if f and os.sep + "slotv_jax" + os.sep in f.f_code.co_filename:
+            started.append(f"{f.f_code.co_filename}:{f.f_lineno}")
+        super().__init__(*args, **kwargs)
+
+
+subprocess.Popen = Watch
+import slotv_jax
+
+# the low modules load alone: `import slotv_jax` loads no JAX, evaluation loads neither
+# training nor checkpoints, and load_observer is the checkpoint's
+assert "jax" not in sys.modules, "import slotv_jax loads JAX"
+import slotv_jax.training.evaluate
+
+above = ("slotv_jax.training.trainer", "slotv_jax.training.checkpoint", "slotv_jax.study",
+         "slotv_jax.data")
+assert not [m for m in above if m in sys.modules], [m for m in above if m in sys.modules]
+from slotv_jax import load_observer
+
+assert load_observer is slotv_jax.training.checkpoint.load_observer
+
+for m in pkgutil.walk_packages(slotv_jax.__path__, "slotv_jax."):
+    if not m.name.endswith("__main__"):
+        importlib.import_module(m.name)
+assert not started, f"processes started by slotv_jax on import: {started}"
+"""
+
+
+def test_importing_prints_nothing_and_starts_no_process(tmp_path, monkeypatch):
+    """In a fresh interpreter, the low modules load without those above them, and importing
+    every module of the package writes nothing to stdout or stderr and starts no process of
+    its own. The XLA flag probe is the one exception, and it runs once per
+    installation: with its answers cached (here: written first), it starts none either."""
+    from slotv_jax.core import xla
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setattr(xla, "probe_flag", lambda flag: True)
+    for flag in xla.FLAGS:
+        assert xla.flag_supported(flag)
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", xla.OPT_OUT_VAR)}
+    r = subprocess.run(
+        [sys.executable, "-c", IMPORT_EVERYTHING], env=env, capture_output=True, text=True,
+        check=False, timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert r.stdout == "" and r.stderr == "", (r.stdout + r.stderr)[-3000:]

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from slotv_jax import data
+from slotv_jax.data import stats
 from slotv_jax.experiments import label_report as lr
 
 
@@ -55,16 +56,16 @@ def split() -> data.Split:
 def test_entropy_and_argmax_by_hand():
     mask = np.array([[1, 1, 1, 1, 0, 0, 0, 0]] * 3, bool)
     y = np.array([_onehot(1), U4, [0.5, 0.5, 0, 0, 0, 0, 0, 0]])
-    np.testing.assert_allclose(lr.entropy(y, mask), [0.0, math.log(4), math.log(2)], atol=1e-12)
+    np.testing.assert_allclose(stats.entropy(y, mask), [0.0, math.log(4), math.log(2)], atol=1e-12)
     # ties go to the lowest slot; a padded slot never wins, even if it is larger
-    assert lr.masked_argmax(y, mask).tolist() == [1, 0, 0]
+    assert stats.masked_argmax(y, mask).tolist() == [1, 0, 0]
     y_pad = np.array([[0.1, 0.2, 0.3, 0.4, 0.9, 0, 0, 0]])
-    assert lr.masked_argmax(y_pad, mask[:1]).tolist() == [3]
+    assert stats.masked_argmax(y_pad, mask[:1]).tolist() == [3]
 
 
 def test_label_stats_by_hand(split):
     mask = split.goal_mask
-    one = lr.label_stats(split.labels["effdist"], split.target, mask)
+    one = stats.label_stats(split.labels["effdist"], split.target, mask)
     assert one["entropy"] == 0.0
     assert one["max_prob"] == 1.0
     assert one["target_agreement"] == 1.0
@@ -74,18 +75,18 @@ def test_label_stats_by_hand(split):
     assert one["chance"] == pytest.approx((0.25 + 0.25 + 0.5) / 3)
     assert one["uniform_max_prob"] == pytest.approx(one["chance"])
 
-    flat = lr.label_stats(split.labels["nikolaidis"], split.target, mask)
+    flat = stats.label_stats(split.labels["nikolaidis"], split.target, mask)
     assert flat["entropy"] == pytest.approx(uniform, rel=1e-6)
     assert flat["entropy_ratio"] == pytest.approx(1.0, rel=1e-6)
     assert flat["max_prob"] == pytest.approx((0.25 + 0.25 + 0.5) / 3)
     assert flat["target_agreement"] == pytest.approx(1 / 3)  # argmax 0 = target only in traj 2
 
-    dragan = lr.label_stats(split.labels["dragan"], split.target, mask)
+    dragan = stats.label_stats(split.labels["dragan"], split.target, mask)
     assert dragan["target_agreement"] == pytest.approx(2 / 3)
 
 
 def test_split_stats_agreement_by_hand(split):
-    s = lr.split_stats(split)
+    s = stats.split_stats(split)
     assert s["n"] == 3 and s["goal_counts"] == {2: 1, 4: 2}
     # argmaxes: dragan 2,3,0  nikolaidis 0,0,0  effdist 2,1,0  fastapp 2,0,1
     assert s["all_agree"] == 0.0
@@ -97,7 +98,7 @@ def test_split_stats_agreement_by_hand(split):
     assert all(pw[n][n] == 1.0 for n in lr.LABELERS)
     # all four agree when every labeler is the same one-hot
     same = {n: [_onehot(2), _onehot(1), _onehot(0)] for n in lr.LABELERS}
-    s2 = lr.split_stats(_split("train", same, [2, 1, 0], [0, 0, 1], MASK))
+    s2 = stats.split_stats(_split("train", same, [2, 1, 0], [0, 0, 1], MASK))
     assert s2["all_agree"] == 1.0
 
 

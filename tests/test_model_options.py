@@ -20,7 +20,8 @@ from test_train import assert_packed_equals_dense, synthetic_split
 
 from slotv_jax import study
 from slotv_jax.observers import models, parametric
-from slotv_jax.training import checkpoint, config, types
+from slotv_jax.training import checkpoint, types
+from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
 
 OPTIONS = {  # name -> TrainConfig overrides
@@ -34,7 +35,7 @@ ALPHA = 1.6  # set instead of the initial 1, so that a wrong exponent would show
 
 
 def make(method: str, hidden=(32, 16, 8), seed=0, **opts):
-    cfg = config.quick(method, hidden=hidden, **opts)
+    cfg = train_config.quick(method, hidden=hidden, **opts)
     model = models.make_model(cfg, seed)
     if model.raw_alpha is not None:
         model.raw_alpha[...] = jnp.asarray(math.log(math.expm1(ALPHA)), jnp.float32)
@@ -93,10 +94,10 @@ def test_default_is_the_papers_network():
     """Without options the model has exactly the paper's parameters (no α), the points
     count the same, no start term; the options add one parameter, α, starting at 1."""
     for method in ("slotv", "trex"):
-        m = models.make_model(config.quick(method), 0)
+        m = models.make_model(train_config.quick(method), 0)
         assert not m.start_term and m.raw_alpha is None and m.point_weights(100) is None
         n = len(jax.tree.leaves(nnx.state(m, nnx.Param)))
-        p = models.make_model(config.quick(method, start_term=True, time_weight=True), 0)
+        p = models.make_model(train_config.quick(method, start_term=True, time_weight=True), 0)
         assert len(jax.tree.leaves(nnx.state(p, nnx.Param))) == n + 1
         assert float(p.alpha) == pytest.approx(models.ALPHA_INIT, rel=1e-6) == 1.0
 
@@ -171,7 +172,7 @@ def test_packed_updates_exact_and_reach_the_new_parameters():
     """SLOT-V+ updates on the real pairs equal the all-slots update, and the gradient reaches
     α."""
     data = types.trim_goals(types.prepare(synthetic_split(0, 64), "effdist"))
-    cfg = config.quick("slotv", hidden=(16, 8), batch_size=16, train_size=None,
+    cfg = train_config.quick("slotv", hidden=(16, 8), batch_size=16, train_size=None,
                        **OPTIONS["plus"])  # fmt: skip
     trainer = train.make_train(cfg, progress=False)
     model = trainer.model(trainer.init(jax.random.key(0)).params)
@@ -185,7 +186,7 @@ def test_checkpoint_round_trip_and_mismatch(tmp_path):
     """A SLOT-V+ checkpoint loads with its options (same logits); a checkpoint whose config
     lost them does not fit and says so."""
     split = synthetic_split(2, 64)
-    cfg = config.quick("slotv", hidden=(16, 8), batch_size=16, epochs=1, train_size=None,
+    cfg = train_config.quick("slotv", hidden=(16, 8), batch_size=16, epochs=1, train_size=None,
                        **OPTIONS["softplus_plus"])  # fmt: skip
     state, _ = train.train_trials(cfg, types.prepare(split, "effdist"), [0], progress=False)
     state = train.select_trial(state, 0)
@@ -212,16 +213,17 @@ def test_checkpoint_round_trip_and_mismatch(tmp_path):
 
 def test_config_options_errors_and_overrides():
     with pytest.raises(ValueError, match="activation"):
-        config.quick("slotv", activation="gelu")
+        train_config.quick("slotv", activation="gelu")
     with pytest.raises(ValueError, match="start_term"):
-        config.quick("slotv", start_term="yes")
+        train_config.quick("slotv", start_term="yes")
     with pytest.raises(ValueError, match="time_weight"):
-        config.quick("slotv", time_weight=1)
+        train_config.quick("slotv", time_weight=1)
     with pytest.raises(ValueError, match="archetype"):
-        config.archetype("quick", "dragan", start_term=True)
-    c = config.apply_overrides(config.quick("slotv"), ["start_term=true", "time-weight=1",
-                                                       "activation=softplus"])  # fmt: skip
+        train_config.archetype("quick", "dragan", start_term=True)
+    c = train_config.apply_overrides(
+        train_config.quick("slotv"), ["start_term=true", "time-weight=1", "activation=softplus"]
+    )
     assert (c.start_term, c.time_weight, c.activation) == (True, True, "softplus")
-    assert config.TrainConfig.from_dict(c.to_dict()) == c
+    assert train_config.TrainConfig.from_dict(c.to_dict()) == c
     with pytest.raises(ValueError, match="start_term='maybe'"):
-        config.apply_overrides(c, ["start_term=maybe"])
+        train_config.apply_overrides(c, ["start_term=maybe"])

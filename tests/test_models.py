@@ -1,4 +1,4 @@
-"""Tests for slotv_jax.models: an independent NumPy float64 forward pass, padding
+"""Tests for slotv_jax.observers.models: an independent NumPy float64 forward pass, padding
 invariance, translation invariance, the first-layer rewrite, mixed precision,
 T-REX pair sampling and input validation."""
 
@@ -12,7 +12,7 @@ from flax import nnx
 
 import slotv_jax  # noqa: F401  (applies the XLA CPU setting before JAX starts)
 from slotv_jax.observers import models
-from slotv_jax.training import config
+from slotv_jax.training import config as train_config
 
 REF_TOL = 2e-5  # float32 model against the float64 NumPy reference (relative to max |s|)
 INV_TOL = 1e-6  # probabilities under padding changes / slot moves
@@ -38,7 +38,7 @@ def scene_and_path(seed: int, n_goals: int = 3):
 
 
 def make(method: str, hidden=HIDDEN, compute_dtype="float32", seed=0):
-    cfg = config.quick(method, hidden=hidden, compute_dtype=compute_dtype)
+    cfg = train_config.quick(method, hidden=hidden, compute_dtype=compute_dtype)
     return models.make_model(cfg, seed)
 
 

@@ -1,6 +1,6 @@
-"""Tests for slotv_jax.parallel: the group plan, runs side by side on 4 CPU devices (one per
-device, no communication, the same parameters as training one after another), per-run
-labels, padded and batch-parallel groups, and the one-job-per-device dispatcher.
+"""Tests for slotv_jax.training.parallel: the group plan, runs side by side on 4 CPU devices (one
+per device, no communication, the same parameters as training one after another), per-run labels,
+padded and batch-parallel groups, and the one-job-per-device dispatcher.
 
 The multi-device checks run in a fresh process with
 ``XLA_FLAGS=--xla_force_host_platform_device_count=4`` (the flag must be set before JAX
@@ -22,18 +22,18 @@ COLLECTIVES = ("all-reduce", "all-gather", "collective-permute", "all-to-all", "
 
 
 def test_plan_hand_cases():
-    assert schedule.plan(10, 4) == [(4, 4), (4, 4), (2, 2)]  # 10 trials on 4 devices
-    assert schedule.plan(8, 4) == [(4, 4), (4, 4)]
-    assert schedule.plan(3, 4) == [(3, 4)]  # padded to 4, one run per device
-    assert schedule.plan(1, 4) == [(1, 1)]  # one run: its batch over all 4 devices
-    assert schedule.plan(5, 6) == [(5, 6)]
-    assert schedule.plan(4, 6) == [(4, 6)]
-    assert schedule.plan(3, 6) == [(3, 3)]  # two devices per run
-    assert schedule.plan(3, 1) == [(1, 1)] * 3  # one device: one unit at a time
-    assert schedule.plan(0, 4) == []
+    assert schedule.group_sizes(10, 4) == [(4, 4), (4, 4), (2, 2)]  # 10 trials on 4 devices
+    assert schedule.group_sizes(8, 4) == [(4, 4), (4, 4)]
+    assert schedule.group_sizes(3, 4) == [(3, 4)]  # padded to 4, one run per device
+    assert schedule.group_sizes(1, 4) == [(1, 1)]  # one run: its batch over all 4 devices
+    assert schedule.group_sizes(5, 6) == [(5, 6)]
+    assert schedule.group_sizes(4, 6) == [(4, 6)]
+    assert schedule.group_sizes(3, 6) == [(3, 3)]  # two devices per run
+    assert schedule.group_sizes(3, 1) == [(1, 1)] * 3  # one device: one unit at a time
+    assert schedule.group_sizes(0, 4) == []
     assert schedule.groups(list("abcde"), 2) == [(["a", "b"], 2), (["c", "d"], 2), (["e"], 1)]
     with pytest.raises(ValueError, match="n_devices"):
-        schedule.plan(3, 0)
+        schedule.group_sizes(3, 0)
     with pytest.raises(ValueError, match="seeds"):
         parallel.seeds_array([1, -2])
 

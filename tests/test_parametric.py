@@ -1,6 +1,6 @@
-"""Tests for slotv_jax.parametric (the observer archetypes, SPEC §10): at their true parameters
-they reproduce the labelers (an independent implementation); they recover known parameters
-from generated labels through the real training pipeline; jit, vmap and grad w.r.t. xyz
+"""Tests for slotv_jax.observers.parametric (the observer archetypes, SPEC §10): at their true
+parameters they reproduce the labelers (an independent implementation); they recover known
+parameters from generated labels through the real training pipeline; jit, vmap and grad w.r.t. xyz
 (against float64 central differences); checkpoints round-trip and a wrong archetype fails
 clearly; configuration and command line."""
 
@@ -18,7 +18,8 @@ import pytest
 import slotv_jax  # applies the XLA CPU setting before JAX starts
 from slotv_jax.observers import archetypes, labelers, models, parametric
 from slotv_jax.train import cli as train_cli
-from slotv_jax.training import checkpoint, config, evaluate, types
+from slotv_jax.training import checkpoint, evaluate, types
+from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
 from slotv_jax.world import scene
 
@@ -199,17 +200,19 @@ def test_unknown_archetype_and_config_validation():
     with pytest.raises(ValueError, match="model"):
         archetypes.make_archetype("gaussian")
     with pytest.raises(ValueError, match=r"TrainConfig\.model"):
-        config.TrainConfig(model="gaussian")
+        train_config.TrainConfig(model="gaussian")
     with pytest.raises(ValueError, match="T-REX trains only the MLP"):
-        config.TrainConfig(method="trex", model="dragan")
+        train_config.TrainConfig(method="trex", model="dragan")
     with pytest.raises(ValueError, match="T-REX trains only the MLP"):
-        config.preset("quick", "trex", model="mixture")
-    cfg = config.preset("quick", "slotv", model="viewpoint")
+        train_config.preset("quick", "trex", model="mixture")
+    cfg = train_config.preset("quick", "slotv", model="viewpoint")
     assert (cfg.model, cfg.optimizer, cfg.method) == ("viewpoint", "adam", "slotv")
-    assert config.TrainConfig.from_dict(cfg.to_dict()) == cfg
-    old = {k: v for k, v in config.quick("slotv").to_dict().items() if k != "model"}
-    assert config.TrainConfig.from_dict(old).model == "mlp"  # configs written before SPEC §10
-    assert config.preset("quick", "slotv") == config.quick("slotv")  # the MLP path unchanged
+    assert train_config.TrainConfig.from_dict(cfg.to_dict()) == cfg
+    old = {k: v for k, v in train_config.quick("slotv").to_dict().items() if k != "model"}
+    assert train_config.TrainConfig.from_dict(old).model == "mlp"  # configs written before SPEC §10
+    assert train_config.preset("quick", "slotv") == train_config.quick(
+        "slotv"
+    )  # the MLP path unchanged
 
 
 # ------------------------------------------------------------- jit, vmap, grad
@@ -221,7 +224,7 @@ def test_jit_vmap_and_grad_wrt_xyz(batch, name):
     model = archetypes.make_archetype(name)
     eager = np.asarray(model(xyz[:8], goals[:8], mask[:8]))
     per = np.stack([np.asarray(model(xyz[i], goals[i], mask[i])) for i in range(8)])
-    observer = checkpoint.make_observer(config.TrainConfig(model=name), _params(model))
+    observer = checkpoint.make_observer(train_config.TrainConfig(model=name), _params(model))
     vm = np.asarray(jax.jit(jax.vmap(observer))(xyz[:8], goals[:8], mask[:8]))
     np.testing.assert_allclose(per[mask[:8]], eager[mask[:8]], rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(vm[mask[:8]], eager[mask[:8]], rtol=1e-5, atol=1e-6)
@@ -234,7 +237,7 @@ def test_jit_vmap_and_grad_wrt_xyz(batch, name):
     assert np.all(np.isfinite(g32)) and np.linalg.norm(g32) > 0
     with jax.enable_x64(True):
         p64 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float64), _params(model))
-        obs64 = checkpoint.make_observer(config.TrainConfig(model=name), p64)
+        obs64 = checkpoint.make_observer(train_config.TrainConfig(model=name), p64)
         x64 = jnp.asarray(xyz[3], jnp.float64)
         g64 = np.asarray(jax.jit(jax.grad(lambda x: prob(obs64, x, 3)))(x64))
         assert g64.dtype == np.float64
@@ -270,7 +273,7 @@ def recovery_set():
 
 
 def quick_fit_cfg(model, **kw):
-    return config.archetype("quick", model, **{"train_size": None, "epochs": 4, **kw})
+    return train_config.archetype("quick", model, **{"train_size": None, "epochs": 4, **kw})
 
 
 def test_dragan_recovers_beta(recovery_set):
@@ -316,7 +319,7 @@ def test_mixture_weights_the_right_term(recovery_set, name):
 
 def test_checkpoint_round_trip_and_wrong_archetype(tmp_path, batch):
     xyz, goals, mask = batch
-    cfg = config.archetype("quick", "dragan", train_size=None, epochs=1)
+    cfg = train_config.archetype("quick", "dragan", train_size=None, epochs=1)
     y = label(lambda x, g, m: labelers.dragan(x, g, m, beta=20.0), xyz, goals, mask)
     trainer = train.make_train(cfg, progress=False)
     state, _ = jax.jit(trainer.train)(jax.random.key(0), types.make_data(xyz, goals, mask, y))
@@ -336,7 +339,7 @@ def test_checkpoint_round_trip_and_wrong_archetype(tmp_path, batch):
     ):
         slotv_jax.load_observer(path, model="viewpoint")
     with pytest.raises(ValueError, match="holds a 'dragan' observer, not the requested 'mlp'"):
-        checkpoint.restore(path, config.quick("slotv"))
+        checkpoint.restore(path, train_config.quick("slotv"))
     # a config that names another archetype than the stored arrays
     doc["config"]["model"] = "viewpoint"
     (path / "config.json").write_text(json.dumps(doc))
@@ -348,7 +351,7 @@ def test_archetype_checkpoint_resumes_exactly(tmp_path, batch):
     xyz, goals, mask = batch
     y = label(lambda x, g, m: labelers.effdist(x, g, m, beta=20.0), xyz, goals, mask)
     data = types.make_data(xyz, goals, mask, y)
-    cfg = config.archetype("quick", "mixture", train_size=None, epochs=2)
+    cfg = train_config.archetype("quick", "mixture", train_size=None, epochs=2)
     trainer = train.make_train(cfg, progress=False)
     full, _ = jax.jit(trainer.train)(jax.random.key(1), data)
     one = jax.jit(lambda s, d: trainer.run(s, d, epochs=1))
@@ -398,7 +401,7 @@ def test_make_model_dispatch():
     from flax import nnx
 
     for name in ARCHETYPES:
-        m = models.make_model(config.TrainConfig(model=name), nnx.Rngs(0))
+        m = models.make_model(train_config.TrainConfig(model=name), nnx.Rngs(0))
         assert type(m) is archetypes.ARCHETYPES[name] and m.name == name
-    cfg = dataclasses.replace(config.quick("slotv"), hidden=(8, 4))
+    cfg = dataclasses.replace(train_config.quick("slotv"), hidden=(8, 4))
     assert isinstance(models.make_model(cfg, 0), models.SlotV)

@@ -307,7 +307,8 @@ def test_bad_input(planner, problems):
 @pytest.mark.slow
 def test_readme_example(tmp_path, monkeypatch, tiny_data):
     """Runs the README's planning block verbatim, with a tiny observer at ckpt/dragan."""
-    from slotv_jax.training import checkpoint, config
+    from slotv_jax.training import checkpoint, types
+    from slotv_jax.training import config as train_config
     from slotv_jax.training import trainer as train
 
     text = (REPO / "README.md").read_text()
@@ -317,8 +318,8 @@ def test_readme_example(tmp_path, monkeypatch, tiny_data):
         re.S,
     )
     assert block, "README.md: the planning example block is missing"
-    cfg = config.quick("slotv", hidden=(16, 8), epochs=1, train_size=None)
-    state, _ = train.train_trials(cfg, train.prepare(tiny_data["train"], "dragan"), [0],
+    cfg = train_config.quick("slotv", hidden=(16, 8), epochs=1, train_size=None)
+    state, _ = train.train_trials(cfg, types.prepare(tiny_data["train"], "dragan"), [0],
                                   progress=False)  # fmt: skip
     monkeypatch.chdir(tmp_path)
     checkpoint.save(tmp_path / "ckpt" / "dragan", cfg, train.select_trial(state, 0))

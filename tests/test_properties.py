@@ -22,7 +22,8 @@ import slotv_jax
 from slotv_jax import study
 from slotv_jax.observers import labelers as L
 from slotv_jax.observers import labelling
-from slotv_jax.training import checkpoint, config
+from slotv_jax.training import checkpoint
+from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
 
 # ------------------------------------------------------------------ labelers
@@ -246,7 +247,7 @@ def test_a_corrupted_field_is_named_by_file_and_line(tables, table, pick, how):
 
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory):
-    cfg = config.quick("slotv", hidden=(8, 8), batch_size=16, epochs=1, train_size=None)
+    cfg = train_config.quick("slotv", hidden=(8, 8), batch_size=16, epochs=1, train_size=None)
     state = train.make_train(cfg, progress=False).init(jax.random.key(3))
     path = checkpoint.save(tmp_path_factory.mktemp("ck") / "ck", cfg, state)
     files = sorted(str(p.relative_to(path)) for p in path.rglob("*") if p.is_file())

@@ -21,7 +21,8 @@ from slotv_jax import study
 from slotv_jax.observers import models
 from slotv_jax.study import cli as study_cli
 from slotv_jax.train import cli as train_cli
-from slotv_jax.training import checkpoint, config, losses, types
+from slotv_jax.training import checkpoint, losses, types
+from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
 
 REL_TOL = 2e-5  # float32 loss against the float64 reference
@@ -316,7 +317,7 @@ def _np_loss(params, method, xyz, goals, mask, seen, counts, n_bar):
 
 
 def _model(method, seed=0):
-    cfg = config.quick(method, hidden=(16, 8))
+    cfg = train_config.quick(method, hidden=(16, 8))
     return models.make_model(cfg, nnx.Rngs(params=seed))
 
 
@@ -426,7 +427,7 @@ def test_fit_beta_recovers_the_simulated_beta():
 def test_cross_validation_reports_models_and_baselines():
     xyz, goals, mask = synthetic(24, 20, seed=4)
     s = study.simulate_study(jax.random.key(2), xyz, goals, mask, 3, beta=10.0)
-    cfg = config.quick("slotv", hidden=(8, 4), epochs=1, batch_size=4, train_size=None)
+    cfg = train_config.quick("slotv", hidden=(8, 4), epochs=1, batch_size=4, train_size=None)
     cv = study.cross_validate(cfg, s, folds=3, baselines=("dragan",), progress=False)
     assert set(cv) >= {"slotv", "uniform", "dragan"} and len(cv["per_fold"]) == 3
     assert sum(f["test_rows"] for f in cv["per_fold"]) == s.n_rows  # every row held out once
@@ -494,7 +495,7 @@ def test_study_trainer_matches_train_trials():
     logits = np.where(mask, rng.normal(0.0, 2.0, mask.shape), -np.inf)
     labels = np.exp(logits - logits.max(-1, keepdims=True))
     labels = (labels / labels.sum(-1, keepdims=True)).astype(np.float32)
-    cfg = config.quick("slotv", hidden=(16, 8), batch_size=8, epochs=3, train_size=None)
+    cfg = train_config.quick("slotv", hidden=(16, 8), batch_size=8, epochs=3, train_size=None)
     data = types.make_data(xyz, goals, mask, labels)
     st, _ = train.train_trials(cfg, data, [3], progress=False)
     s = study.make_study(xyz, goals, mask, np.arange(48), probs=labels, n_answers=np.ones(48))

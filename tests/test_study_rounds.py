@@ -10,7 +10,7 @@ from study_fixtures import DotRenderer, motions, write_dot_set
 
 from slotv_jax.study import cli as study_cli
 from slotv_jax.study import make_stimuli, rounds, stimuli
-from slotv_jax.training import config
+from slotv_jax.training import config as train_config
 
 
 def _candidates(n=12):
@@ -46,7 +46,7 @@ def test_next_round_is_a_valid_stimulus_set(tmp_path):
     got = rounds.read_answers(answers)
     assert got.n_answers == 4 * 2 * 3 and got.n_trajectories == 4
     cand = _candidates()
-    cfg = config.quick("slotv", hidden=(8, 4), batch_size=4, train_size=None)
+    cfg = train_config.quick("slotv", hidden=(8, 4), batch_size=4, train_size=None)
     shown = rounds.shown_stimuli(stimdir)
     assert ("m0", 0.5) in shown
     choice = rounds.choose(got, cand, n=3, taus=(0.5, 1.0), cfg=cfg, members=2,

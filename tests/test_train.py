@@ -1,5 +1,5 @@
-"""Tests for slotv_jax.config, slotv_jax.train and slotv_jax.evaluate: presets, learning on a
-tiny dataset, vmap and multi-device equivalence, in-loop validation, progress reports,
+"""Tests for slotv_jax.training.config, slotv_jax.train and slotv_jax.training.evaluate: presets,
+learning on a tiny dataset, vmap and multi-device equivalence, in-loop validation, progress reports,
 accuracy against a NumPy reference, and input validation."""
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ from flax import nnx
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
 from slotv_jax.train import cli as train_cli
-from slotv_jax.training import config, evaluate, losses, types
+from slotv_jax.training import config as train_config
+from slotv_jax.training import evaluate, losses, types
 from slotv_jax.training import trainer as train
 
 PROB_TOL = 1e-5  # goal probabilities of two runs that differ only in summation order
@@ -96,7 +97,7 @@ def tiny():
 
 def small_cfg(method, **kw):
     base = dict(hidden=(16, 8), batch_size=16, epochs=2, train_size=None, learning_rate=0.002)
-    return config.quick(method, **{**base, **kw})
+    return train_config.quick(method, **{**base, **kw})
 
 
 def probabilities(cfg, params, data, n=64):
@@ -126,38 +127,38 @@ def assert_same_run(cfg, params_a, params_b, probs_a, probs_b):
 
 
 def test_paper_presets_follow_spec():
-    s = config.paper("slotv")
+    s = train_config.paper("slotv")
     assert (s.hidden, s.optimizer, s.learning_rate, s.rho, s.momentum) == (
         (1536, 768), "rmsprop", 0.005, 0.9, 0.0)  # fmt: skip
     assert (s.batch_size, s.epochs, s.train_size, s.compute_dtype) == (32, 15, None, "float32")
-    t = config.paper("trex")
+    t = train_config.paper("trex")
     assert (t.hidden, t.optimizer, t.learning_rate, t.b1, t.b2) == (
         (1792, 768), "adam", 0.005, 0.9, 0.999)  # fmt: skip
     assert (t.batch_size, t.epochs) == (128, 25)
-    q = config.quick("trex", epochs=1)
+    q = train_config.quick("trex", epochs=1)
     assert q.epochs == 1 and q.method == "trex"
 
 
 def test_config_overrides_roundtrip_and_errors():
-    cfg = config.apply_overrides(
-        config.paper("slotv"),
+    cfg = train_config.apply_overrides(
+        train_config.paper("slotv"),
         ["hidden=256,128,64", "epochs=3", "learning_rate=0.01", "train_size=none", "eval-every=10"],
     )
     assert cfg.hidden == (256, 128, 64) and cfg.epochs == 3 and cfg.learning_rate == 0.01
     assert cfg.train_size is None and cfg.eval_every == 10
-    assert config.TrainConfig.from_dict(json.loads(cfg.to_json())) == cfg
+    assert train_config.TrainConfig.from_dict(json.loads(cfg.to_json())) == cfg
     assert cfg.steps_per_epoch(1000) == 1000 // 32 and cfg.block_size(1000) == 10
     assert cfg.evals_per_epoch(1000) == 3
     with pytest.raises(ValueError, match="unknown field"):
-        config.apply_overrides(cfg, ["hiden=3"])
+        train_config.apply_overrides(cfg, ["hiden=3"])
     with pytest.raises(ValueError, match="method"):
-        config.TrainConfig(method="dqn")
+        train_config.TrainConfig(method="dqn")
     with pytest.raises(ValueError, match="learning_rate"):
-        config.paper("slotv", learning_rate=-1.0)
+        train_config.paper("slotv", learning_rate=-1.0)
     with pytest.raises(ValueError, match="hidden"):
-        config.paper("slotv", hidden=())
+        train_config.paper("slotv", hidden=())
     with pytest.raises(ValueError, match="preset"):
-        config.preset("huge", "slotv")
+        train_config.preset("huge", "slotv")
 
 
 # ------------------------------------------------------------- learning
@@ -338,7 +339,7 @@ TWO_DEVICES = textwrap.dedent(
     import json, sys
     import numpy as np, jax
     import slotv_jax
-    from slotv_jax.training import config
+    from slotv_jax.training import config as train_config
     from slotv_jax.training import trainer as train
     sys.path.insert(0, {tests!r})
     from test_train import synthetic_split
@@ -347,7 +348,7 @@ TWO_DEVICES = textwrap.dedent(
     data = train.prepare(split, "effdist")
     out = {{}}
     for method in ("slotv", "trex"):
-        cfg = config.quick(method, hidden=(16, 8), batch_size=16, epochs=2, train_size=None)
+        cfg = train_config.quick(method, hidden=(16, 8), batch_size=16, epochs=2, train_size=None)
         res = {{}}
         for n in (1, 2):
             mesh = train.make_mesh(cfg.batch_size, jax.devices()[:n])
@@ -382,7 +383,7 @@ def test_one_and_two_devices_give_the_same_params():
     for method in ("slotv", "trex"):
         res = out[method]
         assert res["devices1"] == 1 and res["devices2"] == 2
-        cfg = config.quick(method)  # the subprocess's learning rate
+        cfg = train_config.quick(method)  # the subprocess's learning rate
         assert_same_run(
             cfg, res["1"], res["2"], np.asarray(res["probs1"]), np.asarray(res["probs2"])
         )

@@ -1,4 +1,4 @@
-"""The XLA CPU setting applied by ``import slotv_jax`` (``slotv_jax._xla``).
+"""The XLA CPU setting applied by ``import slotv_jax`` (``slotv_jax.core.xla``).
 
 ``configure`` is tested on plain dicts; the import-time behaviour, which depends
 on the state of a fresh interpreter, in subprocesses.

@@ -15,7 +15,6 @@ import numpy as np
 from slotv_jax import data as data_lib
 from slotv_jax import planning
 from slotv_jax.experiments import planning as PE
-from slotv_jax.experiments.table1 import dataset_dir
 
 EVAL_SPLITS = ("trajectory_test", *PE.SPLITS)  # the accuracies the probes print
 
@@ -46,7 +45,7 @@ class Problems:
         self.cfg, self.family = PE.PRESETS[preset](), family
         self.ds = data_lib.generate_dataset(
             self.cfg.data,
-            dataset_dir(Path("data"), self.cfg.data),
+            data_lib.dataset_dir(Path("data"), self.cfg.data),
             splits=("train", *EVAL_SPLITS),
             progress=False,
         )

@@ -32,9 +32,8 @@ import numpy as np
 from slotv_jax import data as data_lib
 from slotv_jax import planning
 from slotv_jax.experiments import planning as PE
-from slotv_jax.experiments.table1 import dataset_dir
 from slotv_jax.training import checkpoint, types
-from slotv_jax.training import config as C
+from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
 from slotv_jax.training import types as training_types
 
@@ -55,7 +54,10 @@ def log(*a):
 
 
 ds = data_lib.generate_dataset(
-    cfg.data, dataset_dir(Path("data"), cfg.data), splits=("train", *PE.SPLITS), progress=False
+    cfg.data,
+    data_lib.dataset_dir(Path("data"), cfg.data),
+    splits=("train", *PE.SPLITS),
+    progress=False,
 )
 log("data")
 problems = PE.make_problems(PE.held_out_scenes(cfg, ds))
@@ -132,7 +134,7 @@ for method in methods:
         data = types.TrainData(*[x[perm] for x in data])
 # reference: the dragan archetype fitted with SLOT-V's loss
 if family == "dragan" and "arch" in sys.argv[7:]:
-    ta = C.archetype("paper" if preset == "paper" else "quick", "dragan")
+    ta = train_config.archetype("paper" if preset == "paper" else "quick", "dragan")
     params = fit(ta, training_types.prepare(tr, family))
     planners = {cfg.planner.budget: planner_for(ta, cfg.planner.budget)}
     report("dragan archetype (SLOT-V loss)", ta, params, planners)

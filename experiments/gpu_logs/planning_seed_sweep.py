@@ -44,12 +44,12 @@ from planning_probe_setup import EVAL_SPLITS, Problems
 
 from slotv_jax.observers import models
 from slotv_jax.training import checkpoint, evaluate, types
-from slotv_jax.training import config as C
+from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
 
 preset, family, n_seeds = sys.argv[1], sys.argv[2], int(sys.argv[3])
 P = Problems(preset, family)
-tc = C.apply_overrides(P.cfg.train["slotv"], sys.argv[4:])
+tc = train_config.apply_overrides(P.cfg.train["slotv"], sys.argv[4:])
 data = types.prepare(P.ds["train"], family, size=tc.train_size)
 tc = dataclasses.replace(tc, train_size=None)
 for seed in range(n_seeds):

@@ -44,7 +44,7 @@ from planning_probe_setup import EVAL_SPLITS, Problems
 
 from slotv_jax.observers import models
 from slotv_jax.training import checkpoint, evaluate, losses, types
-from slotv_jax.training import config as C
+from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
 
 preset, family, specs = sys.argv[1], sys.argv[2], sys.argv[3:]
@@ -92,7 +92,7 @@ def score(obs):
 for spec in specs:
     label, _, rest = spec.partition("|")
     seeds, _, overrides = rest.partition("|")
-    tc = C.apply_overrides(P.cfg.train["slotv"], [o for o in overrides.split(";") if o])
+    tc = train_config.apply_overrides(P.cfg.train["slotv"], [o for o in overrides.split(";") if o])
     data = types.prepare(P.ds["train"], family, size=tc.train_size)
     tc = dataclasses.replace(tc, train_size=None)
     train._make_train.cache_clear()

@@ -6,7 +6,7 @@ XLA reads ``XLA_FLAGS`` once, when its first backend starts, so each variant run
 in a fresh interpreter (a worker subprocess of this module):
 
 - **with**: ``import slotv_jax`` appends ``--xla_cpu_use_fusion_emitters=false``
-  (see :mod:`slotv_jax._xla`);
+  (see :mod:`slotv_jax.core.xla`);
 - **without**: ``SLOTV_JAX_XLA_FLAGS=0``, XLA's defaults.
 
 Each worker measures, on the same random in-limit configurations (float32 for

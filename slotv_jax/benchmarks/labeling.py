@@ -21,7 +21,7 @@ both ways (the public way: one jitted function of the four), and the largest
 difference between the NumPy and JAX labels as a sanity check. The last column is the
 public path compiled with XLA's default vector width (``compiler_options`` of
 ``jax.jit``), against the package's ``--xla_cpu_prefer_vector_width=512``
-(:mod:`slotv_jax._xla`), in the same run. Targets (issue 17):
+(:mod:`slotv_jax.core.xla`), in the same run. Targets (issue 17):
 public >= 80x the NumPy loop for each labeler, all four <= 1 s for 160,000 and
 ``label_all`` within 1.3x of the public path.
 
@@ -204,7 +204,7 @@ def main(argv=None) -> int:
         run_pub, run_pub_np = host(f_pub, dev), host(f_pub)
         run_pub()  # compile for N
         # The same public path compiled with XLA's default vector width, for the record of
-        # the --xla_cpu_prefer_vector_width=512 setting (slotv_jax._xla), in the same run.
+        # the --xla_cpu_prefer_vector_width=512 setting (slotv_jax.core.xla), in the same run.
         f_256 = jax.jit(jax.vmap(public[name]), compiler_options={VECTOR_WIDTH: 256})
         run_256 = host(f_256, dev)
         run_256()  # compile

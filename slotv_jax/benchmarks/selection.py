@@ -29,11 +29,11 @@ import jax.numpy as jnp
 import numpy as np
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
-from slotv_jax import data
 from slotv_jax.benchmarks._machine import cpu_model
 from slotv_jax.core import cli, fileio
+from slotv_jax.core.environment import environment
 from slotv_jax.study import selection
-from slotv_jax.training import config
+from slotv_jax.training import config as train_config
 
 
 def synthetic_pool(n: int, t: int = 100, seed: int = 0) -> selection.Pool:
@@ -79,10 +79,10 @@ def main(argv=None) -> int:
         fileio.check_output_files(json_path.parent, [json_path.name], what="--json")
     on_cpu = jax.default_backend() == "cpu"
     chunk = args.chunk or (512 if on_cpu else 2048)
-    cfg = config.preset(args.preset, "slotv", train_size=None)
+    cfg = train_config.preset(args.preset, "slotv", train_size=None)
     if not on_cpu:
-        cfg = config.apply_overrides(cfg, ["compute_dtype=bfloat16"])
-    env = data.environment()
+        cfg = train_config.apply_overrides(cfg, ["compute_dtype=bfloat16"])
+    env = environment()
     print(f"# selection benchmark, {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC")
     print(
         f"# {cpu_model()}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}; devices "

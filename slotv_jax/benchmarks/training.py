@@ -5,7 +5,7 @@
     python -m slotv_jax.benchmarks.training --preset quick --steps 250 --repeats 11 \
         --dtypes float32 --variant-methods slotv,trex    # the CPU's quick sizes, variants
 
-What is timed is the real compiled training loop (:meth:`slotv_jax.train.Trainer.run`):
+What is timed is the real compiled training loop (:meth:`slotv_jax.training.trainer.Trainer.run`):
 one call runs one epoch, a ``lax.scan`` of ``--steps`` updates over synthetic data held
 on the device (no host sync per update, the state donated). Per (method, dtype):
 
@@ -58,7 +58,7 @@ import optax
 import slotv_jax  # applies the XLA CPU setting before JAX starts
 from slotv_jax.core import cli, fileio
 from slotv_jax.observers.models import BACKWARDS
-from slotv_jax.training import config
+from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
 from slotv_jax.training.trainer import default_backward, packs_updates
 
@@ -101,7 +101,7 @@ def update_flops(cfg, goal_slots: int = G) -> tuple[float, int]:
 def synthetic_data(n: int, seed: int = 0, trim: bool = True):
     """Random but valid trajectories, scenes (2, 3, 5 or 6 goals, as the training split) and
     label distributions (on the host); ``trim`` cuts the two slots no scene uses, as
-    :func:`slotv_jax.train.train_trials` does."""
+    :func:`slotv_jax.training.trainer.train_trials` does."""
 
     rng = np.random.default_rng(seed)
     counts = rng.choice([2, 3, 5, 6], n)
@@ -128,7 +128,7 @@ def paper_pair_capacity(trials: int = 10, preset: str = "paper") -> int:
     (seeds 0..trials−1, the preset's epochs) on synthetic training trajectories (100,000
     for the paper preset, the quick preset's ``train_size``)."""
 
-    cfg = config.PRESETS[preset]("slotv")
+    cfg = train_config.PRESETS[preset]("slotv")
     trainer = train.make_train(cfg, progress=False)
     keys = jax.vmap(train.Trainer.state_key)(train.trial_keys(trials))
     n = cfg.train_size or 100_000
@@ -191,7 +191,7 @@ def build_train(
     ``pairs`` > 0 packs SLOT-V updates to that many (trajectory, goal) pairs
     (:func:`slotv_jax.train.slotv_loss_packed`)."""
 
-    cfg = config.PRESETS[preset](method, compute_dtype=dtype, epochs=1, log_every=steps)
+    cfg = train_config.PRESETS[preset](method, compute_dtype=dtype, epochs=1, log_every=steps)
     cfg = dataclasses.replace(cfg, train_size=None)
     n = steps * cfg.batch_size
     pairs = pairs if method == "slotv" else 0
@@ -289,7 +289,7 @@ def build_eval(method: str, dtype: str, n: int, trim: bool = True, *, preset: st
     """Compile chunked SPEC §8 accuracy over ``n`` trajectories: (``once()``, forward FLOPs
     per call, compile seconds, cfg)."""
 
-    cfg = config.PRESETS[preset](method, compute_dtype=dtype)
+    cfg = train_config.PRESETS[preset](method, compute_dtype=dtype)
     trainer = train.make_train(cfg, progress=False)
     params = trainer.replicate(trainer.init(jax.random.key(0)).params)
     data = synthetic_data(n, seed=1, trim=trim)

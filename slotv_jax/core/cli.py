@@ -18,7 +18,7 @@ Wrap each command's ``main`` with :func:`command`::
 
 An *input error* — :class:`InputError`, any ``ValueError`` (the project's readers and
 checks raise ValueError with a message naming the argument, file, line and field;
-:class:`slotv_jax.fileio.OutputError` is one), or an ``OSError`` about a path the user
+:class:`slotv_jax.core.fileio.OutputError` is one), or an ``OSError`` about a path the user
 gave (file not found, is a directory, permission denied, ...) — prints one line
 ``error: MESSAGE`` on stderr, with no traceback, and exits with code 2, as argparse
 does for a bad flag. Anything else is a bug and keeps its traceback. Set

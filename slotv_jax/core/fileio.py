@@ -29,7 +29,7 @@ accepted, a bad byte reported with its file and line), :func:`read_json` (a trun
 or broken file named with its line and column) and :func:`load_npz` (a missing, empty,
 truncated, corrupt or non-zip ``.npz`` told apart, never a raw ``BadZipFile``).
 
-Standard library and NumPy only (no JAX), so :mod:`slotv_jax._xla` can use it before
+Standard library and NumPy only (no JAX), so :mod:`slotv_jax.core.xla` can use it before
 JAX starts.
 """
 

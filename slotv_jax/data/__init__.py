@@ -19,6 +19,7 @@ from slotv_jax.data.config import (
     with_distribution,
 )
 from slotv_jax.data.generate import (
+    cached_dataset,
     generate_dataset,
     generate_split,
     make_tiny_dataset,
@@ -28,7 +29,7 @@ from slotv_jax.data.generate import (
 from slotv_jax.data.storage import (
     FORMAT_VERSION,
     Split,
-    environment,
+    dataset_dir,
     is_dataset_dir,
     load_split,
     save_split,
@@ -45,7 +46,8 @@ __all__ = [
     "DataConfig",
     "LabelConfig",
     "Split",
-    "environment",
+    "cached_dataset",
+    "dataset_dir",
     "generate_dataset",
     "generate_split",
     "is_dataset_dir",

@@ -9,9 +9,9 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-import slotv_jax
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
+from slotv_jax.core.xla import XLA_CONFIG
 from slotv_jax.data.config import DATA_DISTRIBUTIONS, PRESETS, _config_from_json
 from slotv_jax.data.generate import generate_dataset, relabel
 from slotv_jax.data.storage import is_dataset_dir, load_split, save_split
@@ -49,7 +49,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise cli.InputError(f"--out {args.out}: holds no dataset splits to --relabel")
     # a dataset of ours is resumed (finished splits are kept); anything else is refused
     fileio.check_output_dir(args.out, ours=is_dataset_dir, resume=True)
-    print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
+    print(XLA_CONFIG.summary(), file=sys.stderr)
 
     label_kw = {f"beta_{n}": getattr(args, f"beta_{n}") for n in LABELER_NAMES}
     label_kw["camera"] = args.camera

@@ -46,10 +46,18 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
+from slotv_jax.core import distributed
 from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.data.config import DataConfig, LabelConfig
-from slotv_jax.data.storage import _TRAJ_ARRAYS, Split, _check_dir_config, load_split, save_split
+from slotv_jax.data.storage import (
+    _TRAJ_ARRAYS,
+    Split,
+    _check_dir_config,
+    dataset_dir,
+    load_split,
+    save_split,
+)
 from slotv_jax.observers.labelling import label_all
 from slotv_jax.robot import kinematics
 from slotv_jax.world.scene import Scene, check_scene, sample_goal_count, sample_scene
@@ -324,3 +332,27 @@ def make_tiny_dataset(
         **{"chunk_size": 512, **overrides},
     )
     return generate_dataset(cfg, None, splits=splits, progress=False)
+
+
+def cached_dataset(
+    cfg: DataConfig,
+    cache: str | Path,
+    *,
+    splits: Sequence[str] = SPLITS,
+    progress: bool = True,
+) -> dict[str, Split]:
+    """The ``splits`` of ``cfg`` (default all seven) from :func:`dataset_dir` ``(cache, cfg)``,
+    generated and saved there on first use (:func:`generate_dataset` resumes at the first
+    unfinished split). Under ``jax.distributed`` process 0 generates (or loads) first while
+    the others wait at a barrier, then they load: on a shared disk the dataset is made once.
+
+    >>> ds = cached_dataset(quick(), "data", splits=["train"])  # doctest: +SKIP
+    """
+    ddir = dataset_dir(cache, cfg)
+    writer = distributed.is_writer()
+    if not writer:
+        distributed.barrier(f"dataset {ddir.name}")
+    out = generate_dataset(cfg, ddir, splits=splits, progress=progress and writer)
+    if writer:
+        distributed.barrier(f"dataset {ddir.name}")
+    return out

@@ -7,18 +7,13 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import sys
 import zipfile
 from pathlib import Path
 
-import flax
-import jax
-import mujoco
 import numpy as np
-import optax
 
-import slotv_jax
 from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import atomic_write
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.data.config import DataConfig
@@ -101,20 +96,10 @@ def _sha256(a: np.ndarray) -> str:
     return h.hexdigest()
 
 
-def environment() -> dict:
-    """Library versions and devices, recorded with every output."""
-    return {
-        "slotv_jax": slotv_jax.__version__,
-        "python": sys.version.split()[0],
-        "jax": jax.__version__,
-        "flax": flax.__version__,
-        "optax": optax.__version__,
-        "mujoco": mujoco.__version__,
-        "numpy": np.__version__,
-        "devices": [str(d) for d in jax.devices()],
-        "xla_flags": slotv_jax.XLA_CONFIG.xla_flags,
-        "xla": slotv_jax.XLA_CONFIG.summary(),
-    }
+def dataset_dir(cache: str | Path, cfg: DataConfig) -> Path:
+    """Where a dataset of ``cfg`` is cached below ``cache``: one directory per config digest,
+    ``CACHE/<preset>-<digest>``, so that another config never reuses it."""
+    return Path(cache) / f"{cfg.preset}-{cfg.digest()}"
 
 
 def is_dataset_dir(path: str | Path) -> bool:

@@ -61,11 +61,11 @@ from tqdm.auto import tqdm
 import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments.active_report import fmt_answers, render, stem_of, target_of
-from slotv_jax.experiments.table1 import dataset_dir
 from slotv_jax.study import selection
-from slotv_jax.training import config as config_lib
+from slotv_jax.training import config as train_config
 from slotv_jax.training import evaluate
 from slotv_jax.training import trainer as train
 
@@ -114,15 +114,15 @@ class ActiveConfig:
         if missing:
             raise ValueError(f"study_targets: no target for {missing}")
 
-    def train_config(self, model: str) -> config_lib.TrainConfig:
+    def train_config(self, model: str) -> train_config.TrainConfig:
         if model == "dragan":
-            return config_lib.archetype(self.train_preset, "dragan", train_size=None)
-        cfg = config_lib.preset(self.train_preset, "slotv", train_size=None)
+            return train_config.archetype(self.train_preset, "dragan", train_size=None)
+        cfg = train_config.preset(self.train_preset, "slotv", train_size=None)
         if model == "slotv_plus":
             cfg = dataclasses.replace(cfg, start_term=True, time_weight=True)
         elif model != "mlp":
             raise ValueError(f"model: expected mlp, slotv_plus or dragan, got {model!r}")
-        return config_lib.apply_overrides(cfg, self.overrides)
+        return train_config.apply_overrides(cfg, self.overrides)
 
     def groups(self) -> list[tuple[str, str, str]]:
         """(setting, labeler, model) of every group, in run order."""
@@ -425,7 +425,7 @@ def run(
     doc = json.loads(path.read_text()) if path.exists() else {}
     if doc.get("config") != conf:
         doc = {"preset": cfg.preset, "config": conf, "groups": [], "timing": {}}
-    doc["environment"] = data_lib.environment()
+    doc["environment"] = environment()
     dev = jax.devices()[0]
     doc["machine"] = (
         f"{platform.machine()}, {os.cpu_count()} CPUs, {dev.platform}: {dev.device_kind}"
@@ -433,7 +433,7 @@ def run(
     doc["xla"] = slotv_jax.XLA_CONFIG.summary()
     t_start = time.perf_counter()
     load = {"cpus": os.cpu_count(), "start": os.getloadavg()[0]}
-    ddir = dataset_dir(cache, cfg.data)
+    ddir = data_lib.dataset_dir(cache, cfg.data)
     splits = data_lib.generate_dataset(
         cfg.data, ddir, progress=progress, splits=("train", "trajectory_val", "position_test")
     )

@@ -7,14 +7,14 @@ accuracy and sample efficiency (issue 16, SPEC §10).
 Steps, on the Table 1 dataset of the preset (cached by config digest, as table1):
 
 1. **Table.** For each labeler and each observer model (the MLP and the archetypes of
-   :mod:`slotv_jax.parametric`), train ``--trials`` trials with the preset's config (the
-   MLP: SLOT-V's; an archetype: :func:`slotv_jax.config.archetype`) and score them on the
+   :mod:`slotv_jax.observers.parametric`), train ``--trials`` trials with the preset's config (the
+   MLP: SLOT-V's; an archetype: :func:`slotv_jax.training.config.archetype`) and score them on the
    four Table 1 splits (SPEC §8); record each archetype's fitted parameters.
 2. **Few labels.** Each archetype again, on 1/10 and 1/100 of the MLP's training
    trajectories (its ``train_size``), with as many updates as the preset gives it on the
    full set (the epochs scaled up): does it still reach the accuracy of the MLP trained on
    all of them?
-3. **Sample efficiency** (SPEC §8's protocol, :mod:`slotv_jax.experiments.sample_efficiency`):
+3. **Sample efficiency** (SPEC §8's protocol, :mod:`slotv_jax.runs.curves`):
    the MLP and, per labeler, the archetype with the best trajectory_test accuracy in step 1,
    on Dragan and Nikolaidis labels: one epoch, validation on a fixed trajectory_val subset
    every ``--every`` updates (the MLP every 10, as the paper).
@@ -42,9 +42,10 @@ import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import save_figure, write_text
-from slotv_jax.experiments import sample_efficiency, table1
-from slotv_jax.experiments.table1 import LABELER_TITLES, SPLIT_TITLES
+from slotv_jax.runs import curves, presets
+from slotv_jax.runs.presets import LABELER_TITLES, SPLIT_TITLES
 from slotv_jax.training import config as train_config
 from slotv_jax.training import evaluate
 from slotv_jax.training import trainer as train
@@ -60,9 +61,9 @@ SE_LABELERS = ("dragan", "nikolaidis")
 FEW = (10, 100)  # train on 1/10 and 1/100 of the MLP's training trajectories
 
 
-def model_config(t1: table1.Table1Config, model: str) -> train_config.TrainConfig:
+def model_config(t1: presets.RunConfig, model: str) -> train_config.TrainConfig:
     """The training config of ``model`` in the Table 1 preset ``t1``."""
-    return table1.with_model(t1, model).train["slotv"]
+    return presets.with_model(t1, model).train["slotv"]
 
 
 def _mean_sd(a) -> tuple[float, float]:
@@ -86,10 +87,8 @@ def run(
 
     t_start = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
-    t1 = table1.PRESETS[preset]()
-    dataset = data_lib.generate_dataset(
-        t1.data, table1.dataset_dir(cache, t1.data), progress=progress
-    )
+    t1 = presets.PRESETS[preset]()
+    dataset = data_lib.cached_dataset(t1.data, cache, progress=progress)
     configs = {m: model_config(t1, m) for m in models}
     doc = {
         "preset": preset,
@@ -99,7 +98,7 @@ def run(
             "data_digest": t1.data.digest(),
             "train": {m: c.to_dict() for m, c in configs.items()},
         },
-        "environment": data_lib.environment(),
+        "environment": environment(),
         "cells": [],
         "parameters": [],
         "few_labels": [],
@@ -171,7 +170,7 @@ def run(
             if model is None or model not in models:
                 continue
             sub = out / f"sample_efficiency_{lab}_{model}"
-            se = sample_efficiency.run(
+            se = curves.run(
                 preset, sub, repeats=repeats, every=ev, methods=["slotv"], cache=cache,
                 progress=progress, model=model, labeler=lab,
             )  # fmt: skip
@@ -180,9 +179,7 @@ def run(
                 "dir": sub.name,
                 "every": ev,
                 "start_accuracy_mean": float(acc[:, 0].mean()),
-                "examples_to_0.95_mean_curve": sample_efficiency.examples_to_reach(
-                    x, acc.mean(0), 0.95
-                ),
+                "examples_to_0.95_mean_curve": curves.examples_to_reach(x, acc.mean(0), 0.95),
                 **se["summary"]["slotv"],
             }
         doc["sample_efficiency"][lab] = runs
@@ -409,7 +406,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         prog="python -m slotv_jax.experiments.explainable",
         description="Parametric (explainable) observers against the MLP (SPEC §10).",
     )
-    p.add_argument("--preset", choices=sorted(table1.PRESETS), default="quick")
+    p.add_argument("--preset", choices=sorted(presets.PRESETS), default="quick")
     p.add_argument("--trials", type=int, help="trials per cell (default: the preset's)")
     p.add_argument("--models", nargs="+", choices=MODELS, default=list(MODELS))
     p.add_argument("--labelers", nargs="+", choices=LABELER_NAMES, default=list(LABELER_NAMES))
@@ -418,7 +415,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, help="default: runs/explainable_<preset>")
     p.add_argument("--cache", type=Path, default=Path("data"))
     args = p.parse_args(argv)
-    trials = args.trials or table1.PRESETS[args.preset]().trials
+    print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
+    trials = args.trials or presets.PRESETS[args.preset]().trials
     for name, v in (("trials", trials), ("repeats", args.repeats), ("every", args.every)):
         if v < 1:
             p.error(f"--{name}: expected an integer >= 1")

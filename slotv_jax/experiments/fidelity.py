@@ -4,7 +4,7 @@ The paper does not state every choice its datasets rest on. This experiment vari
 one factor at a time from a base setting and records, for each setting:
 
 - the **label statistics** of the four labelers on the four Table 1 splits
-  (:func:`slotv_jax.experiments.label_report.split_stats`): label entropy over the
+  (:func:`slotv_jax.experiments.split_stats`): label entropy over the
   uniform entropy, the top-1/top-2 margin, how often ``argmax y`` is the true target,
   and how often all four labelers agree;
 - **SLOT-V and T-REX accuracy** on the four Table 1 splits for the trained labelers
@@ -33,7 +33,7 @@ per labeler, the box) add to the defaults they picked. Its ``default+box=tight``
 is the current default distribution (generator version 7): one via point in the table
 box, arc length, β ×4.
 
-Each setting is a Table 1 run (:func:`slotv_jax.experiments.table1.run`) in its own
+Each setting is a Table 1 run (:func:`slotv_jax.runs.grid.run`) in its own
 directory ``OUT/<setting>/``: datasets are cached by config digest and finished cells
 resume. Then ``OUT/results.json`` collects everything, and the report (tables and
 ``fidelity.png``: accuracy against each factor, the paper's values as reference lines)
@@ -68,13 +68,10 @@ from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.core.fileio import save_figure, write_text
-from slotv_jax.experiments import label_report, table1
-from slotv_jax.experiments.table1 import (
-    LABELER_TITLES,
-    METHOD_TITLES,
-    PAPER_TABLE,
-    SPLIT_TITLES,
-)
+from slotv_jax.data.stats import split_stats
+from slotv_jax.runs import grid, presets
+from slotv_jax.runs.paper import PAPER_TABLE
+from slotv_jax.runs.presets import LABELER_TITLES, METHOD_TITLES, SPLIT_TITLES
 from slotv_jax.training import config as train_config
 from slotv_jax.world.trajectories import SPEC_VIA_BOX, TABLE_VIA_BOX
 
@@ -111,7 +108,7 @@ class FidelityConfig:
     base: data_lib.DataConfig  # the base setting every factor varies from
     train: dict[str, train_config.TrainConfig]  # method -> training config
     labelers: tuple[str, ...] = ("dragan", "nikolaidis")  # labelers trained per setting
-    methods: tuple[str, ...] = table1.METHODS
+    methods: tuple[str, ...] = presets.METHODS
     trials: int = 1  # trials of an ordinary setting
     key_trials: int = 3  # trials of the settings in KEY_SETTINGS
 
@@ -143,18 +140,18 @@ def _base_data(d: data_lib.DataConfig) -> data_lib.DataConfig:
 def quick() -> FidelityConfig:
     """CPU preset: the quick networks on 4,000 training and 1,000 evaluation trajectories."""
     base = _base_data(data_lib.quick(n_train=4000, n_eval=1000))
-    return FidelityConfig("quick", base, {m: train_config.quick(m) for m in table1.METHODS})
+    return FidelityConfig("quick", base, {m: train_config.quick(m) for m in presets.METHODS})
 
 
 def paper() -> FidelityConfig:
     """The paper's dataset sizes and training hyperparameters."""
     base = _base_data(data_lib.paper())
-    return FidelityConfig("paper", base, {m: train_config.paper(m) for m in table1.METHODS})
+    return FidelityConfig("paper", base, {m: train_config.paper(m) for m in presets.METHODS})
 
 
 def tiny() -> FidelityConfig:
     """Seconds-scale preset for tests (not a result)."""
-    t1 = table1.tiny()
+    t1 = presets.tiny()
     return FidelityConfig("tiny", _base_data(t1.data), t1.train, key_trials=1)
 
 
@@ -231,14 +228,14 @@ def unique_runs(all_settings: Sequence[Setting]) -> dict[str, Setting]:
 
 
 def _label_stats(ddir: Path) -> dict:
-    """:func:`label_report.split_stats` of the four Table 1 splits, plus their mean."""
-    per = {name: label_report.split_stats(data_lib.load_split(ddir, name)) for name in TEST_SPLITS}
+    """:func:`split_stats` of the four Table 1 splits, plus their mean."""
+    per = {name: split_stats(data_lib.load_split(ddir, name)) for name in TEST_SPLITS}
     mean = {
         lab: {
             k: float(np.mean([per[s]["labelers"][lab][k] for s in TEST_SPLITS]))
             for k in ("entropy_ratio", "margin", "near_tie", "target_agreement", "chance")
         }
-        for lab in label_report.LABELERS
+        for lab in data_lib.LABELER_NAMES
     }
     all_agree = float(np.mean([per[s]["all_agree"] for s in TEST_SPLITS]))
     return {"splits": per, "mean": mean, "all_agree": all_agree}
@@ -249,8 +246,8 @@ def run_setting(
 ) -> dict:
     """Train and evaluate one setting (resuming), and collect its label statistics."""
     t0 = time.perf_counter()
-    t1 = table1.Table1Config(cfg.preset, s.trials, s.data, cfg.train)
-    doc = table1.run(
+    t1 = presets.RunConfig(cfg.preset, s.trials, s.data, cfg.train)
+    doc = grid.run(
         t1, out / s.name, labelers=cfg.labelers, methods=cfg.methods, cache=cache, progress=progress
     )
     stats_path = out / s.name / "label_stats.json"

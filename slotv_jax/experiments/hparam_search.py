@@ -44,13 +44,13 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
-from slotv_jax.core import cli, fileio
+from slotv_jax.core import cli, distributed, fileio
 from slotv_jax.core.defaults import LABELER_NAMES
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
-from slotv_jax.experiments import table1
-from slotv_jax.experiments.table1 import dataset_dir
+from slotv_jax.runs import presets
 from slotv_jax.training import config as train_config
-from slotv_jax.training import distributed, evaluate, parallel
+from slotv_jax.training import evaluate, parallel
 from slotv_jax.training import trainer as train
 
 PHASES = {
@@ -164,7 +164,7 @@ def run(
 
     Rollouts have different widths and batch sizes, so they cannot share one compiled,
     vmapped function; instead each device (every process's, under ``jax.distributed``)
-    trains one rollout at a time (:func:`slotv_jax.parallel.map_on_devices`): the host
+    trains one rollout at a time (:func:`slotv_jax.training.parallel.map_on_devices`): the host
     dispatches a round of one rollout per device and, while they run, traces and compiles
     the next round (JAX dispatch is asynchronous, so no threads). Pending rollouts are
     ordered by (phase, batch size, widths) so that a round's rollouts take similar times.
@@ -185,19 +185,12 @@ def run(
         if (old.get("search"), old.get("labeler")) != (doc["search"], labeler):
             raise ValueError(f"{path}: results of another search config; use another --out")
         doc = old
-    doc["environment"] = data_lib.environment()
+    doc["environment"] = environment()
     doc.setdefault("invocations", [])
-    dcfg = table1.PRESETS[cfg.preset]().data
-    if not writer:
-        distributed.barrier("hparam_search dataset")
-    dataset = data_lib.generate_dataset(
-        dcfg,
-        dataset_dir(cache, dcfg),
-        splits=["train", "trajectory_val"],
-        progress=progress and writer,
+    dcfg = presets.PRESETS[cfg.preset]().data
+    dataset = data_lib.cached_dataset(
+        dcfg, cache, splits=["train", "trajectory_val"], progress=progress
     )
-    if writer:
-        distributed.barrier("hparam_search dataset")
     t_data = time.perf_counter() - t_start
     tdata = train.trim_goals(train.prepare(dataset["train"], labeler, size=cfg.train_size))
     vdata = train.trim_goals(train.prepare(dataset["trajectory_val"], labeler))

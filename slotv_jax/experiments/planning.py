@@ -78,9 +78,9 @@ import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax import planning
 from slotv_jax.core import cli, fileio
+from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import atomic_write, write_text
 from slotv_jax.experiments.planning_report import FIGURES, render, report, write_doc
-from slotv_jax.experiments.table1 import dataset_dir
 from slotv_jax.observers import labelers, labelling, models
 from slotv_jax.training import checkpoint, evaluate
 from slotv_jax.training import config as train_config
@@ -312,10 +312,8 @@ def true_labels(
     ``labeler`` at ``beta`` (default: :data:`slotv_jax.labelers.DEFAULT_BETAS`, the
     datasets'), float32, compiled and batched (:func:`slotv_jax.labelers.label_all`)."""
     beta = labelers.DEFAULT_BETAS[labeler] if beta is None else beta
-    kw = {f"beta_{labeler}": beta, "camera": camera}
-    return labelling.label_all(xyz, goals, goal_mask, labelers=(labeler,), progress=False, **kw)[
-        labeler
-    ]
+    kw = {f"beta_{labeler}": beta, "camera": camera, "labelers": (labeler,), "progress": False}
+    return labelling.label_all(xyz, goals, goal_mask, **kw)[labeler]
 
 
 def path_length(xyz: np.ndarray) -> np.ndarray:
@@ -379,7 +377,7 @@ def run(
     timing: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    ddir = dataset_dir(cache, cfg.data)
+    ddir = data_lib.dataset_dir(cache, cfg.data)
     splits = ("train", *SPLITS)
     dataset = data_lib.generate_dataset(cfg.data, ddir, splits=splits, progress=progress)
     timing["data_s"] = time.perf_counter() - t0
@@ -455,7 +453,7 @@ def run(
     timing["total_s"] = time.perf_counter() - t_start
     doc = {
         "preset": cfg.preset,
-        "environment": data_lib.environment(),
+        "environment": environment(),
         "config": cfg.to_json(),
         "dataset": str(ddir),
         "observers": sources,

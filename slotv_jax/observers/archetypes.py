@@ -9,16 +9,15 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from slotv_jax.observers import common
 from slotv_jax.observers.parametric import (
     LearnableDragan,
     LearnableViewpoint,
     _alpha_words,
     _Archetype,
     _check,
-    _distances,
     _inv_softplus,
     _log,
-    _log_one_minus_t,
     _param,
     _value,
     time_weights,
@@ -85,10 +84,10 @@ class DistanceApproachMixture(_Archetype):
     ) -> tuple[Float[Array, "... G"], Float[Array, "... G"]]:
         """The two terms (E, F), in metres, before their temperatures."""
         p = self._constrained()
-        d = _distances(xyz, goals)  # (..., T, G)
+        d = common.pairwise_distances(xyz, goals)  # (..., T, G)
         T = d.shape[-2]
         u = time_weights(p["alpha_effdist"], T, d.dtype)
-        v = jax.nn.softmax(p["alpha_fastapp"] * _log_one_minus_t(T, d.dtype)[1:])
+        v = common.time_weights(common.uniform_times(T)[1:], p["alpha_fastapp"], dtype=d.dtype)
         e = -jnp.einsum("...tg,t->...g", d, u, precision=jax.lax.Precision.HIGHEST)
         approach = d[..., :-1, :] - d[..., 1:, :]  # (..., T−1, G)
         f = jnp.einsum("...tg,t->...g", approach, v, precision=jax.lax.Precision.HIGHEST)

@@ -51,8 +51,10 @@ from jaxtyping import Array, Bool, Float
 
 from slotv_jax.core import validation
 from slotv_jax.core.defaults import DEFAULT_BETAS, LABELER_NAMES
-from slotv_jax.world.scene import Camera, project
+from slotv_jax.observers.common import mask_logits, masked_softmax, time_weights
+from slotv_jax.world.scene import Camera, camera_coords, project
 from slotv_jax.world.scene import camera as scene_camera
+from slotv_jax.world.scene import image_coords as _image  # the guarded projection
 
 __all__ = [
     "DEFAULT_BETAS",
@@ -90,12 +92,10 @@ def _weights_from_tau(tau, xp) -> TimeWeights:
     zero = xp.zeros_like(tau[..., :1])
     one_minus = 1.0 - tau
 
-    # Dragan: trapezoid rule for ∫ P(t)(1 − t) dt / ∫ (1 − t) dt. The trapezoid weight
-    # of point i is half of each adjacent interval; the same weights integrate the
-    # denominator, so the labels sum to 1 over the real goals.
-    trap = (xp.concatenate([zero, h], axis=-1) + xp.concatenate([h, zero], axis=-1)) / 2
-    c = trap * one_minus
-    c = c / xp.sum(c, axis=-1, keepdims=True)
+    # Dragan: trapezoid rule for ∫ P(t)(1 − t) dt / ∫ (1 − t) dt, c_i ∝ trap_i (1 − τ_i):
+    # the same weights integrate the denominator, so the labels sum to 1 over the real
+    # goals (observers.common, shared with the archetypes and the networks' time weights).
+    c = time_weights(tau, 1.0, trapezoid_rule=True)
 
     # EffDist: each sample stands for the time around it, the two end samples
     # mirroring their single neighbour interval; for uniform τ every weight is 1/T.
@@ -188,13 +188,6 @@ def _integrals(fs: Sequence[Array], w: Float[Array, " T"]) -> Float[Array, " G"]
     return jnp.stack(_sums([f * w for f in fs]), axis=-1)
 
 
-def _masked_softmax(s: Float[Array, " G"], mask: Bool[Array, " G"]) -> Float[Array, " G"]:
-    """Softmax over the real goals; exact zeros on padded slots."""
-    s = jnp.where(mask, s, -jnp.inf)
-    e = jnp.exp(s - jnp.max(s, axis=-1, keepdims=True))
-    return e / jnp.sum(e, axis=-1, keepdims=True)
-
-
 def _dragan_core(
     pts: Sequence[Array],
     goals: Array,
@@ -215,11 +208,7 @@ def _dragan_core(
     start = [p[:1] for p in pts]
     start_scale = None if scale is None else scale[:1]
     logits = [
-        jnp.where(
-            mask[k],
-            beta * (_distance(start, g, start_scale) - _distance(pts, g, scale)),
-            -jnp.inf,
-        )
+        mask_logits(beta * (_distance(start, g, start_scale) - _distance(pts, g, scale)), mask[k])
         for k, g in enumerate(goals)
     ]  # β(‖S − g_k‖ − d_k(i))
     top = functools.reduce(jnp.maximum, logits)
@@ -236,33 +225,12 @@ def _dragan_core(
 
 def _effdist_core(pts: Sequence[Array], goals: Array, mask: Array, beta, w: Array) -> Array:
     """SPEC §4.3 [reconstruction]: ``softmax(−β Σ_i w_i d_k(i))``."""
-    return _masked_softmax(-beta * _integrals([_distance(pts, g) for g in goals], w), mask)
+    return masked_softmax(-beta * _integrals([_distance(pts, g) for g in goals], w), mask)
 
 
 def _fastapp_core(pts: Sequence[Array], goals: Array, mask: Array, beta, a: Array) -> Array:
     """SPEC §4.4 [reconstruction]: ``softmax(β Σ_i a_i d_k(i))`` (summation by parts)."""
-    return _masked_softmax(beta * _integrals([_distance(pts, g) for g in goals], a), mask)
-
-
-def _camera_frame(xyz: Float[Array, "*n 3"], pos, rot) -> list[Array]:
-    """``p_c = Rᵀ (p − c)`` as its three coordinates, each ``(*n,)`` (written out: 3×3
-    is too small for a matrix kernel to pay off)."""
-    rel = [xyz[..., k] - pos[k] for k in range(3)]
-    return [sum(rel[k] * rot[k, j] for k in range(3)) for j in range(3)]
-
-
-def _image(xyz: Float[Array, "*n 3"], pos, rot, eps) -> tuple[tuple[Array, Array], Array]:
-    """:func:`slotv_jax.scene.project` with the division guarded where depth <= eps.
-
-    Returns the image coordinates ``(u, v)``, each ``(*n,)``, and ``ok = depth > eps``;
-    where not ok, (u, v) is the finite ``(p_c.x, p_c.y)`` so that neither values nor
-    gradients become NaN.
-    """
-    pc = _camera_frame(xyz, pos, rot)
-    depth = -pc[2]
-    ok = depth > eps
-    safe = jnp.where(ok, depth, 1.0)
-    return (pc[0] / safe, pc[1] / safe), ok
+    return masked_softmax(beta * _integrals([_distance(pts, g) for g in goals], a), mask)
 
 
 def _in_front(pts: Float[Array, "*n K 3"], pos, rot, mask=None, eps=DEPTH_EPS) -> Array:
@@ -289,7 +257,7 @@ def _nikolaidis_core(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS) -> Arra
     invalid, and the labels are NaN as with the other labelers (so that
     :func:`label_all` finds it from the labels, without a pass over the points).
     """
-    pc = _camera_frame(xyz, pos, rot)
+    pc = camera_coords(xyz, pos, rot)
     depth = -pc[2]
     behind = depth <= eps  # False for a NaN depth
     (u, v), ok_g = _image(goals, pos, rot, eps)

@@ -44,7 +44,7 @@ from __future__ import annotations
 import functools
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -54,6 +54,7 @@ from jaxtyping import Array, Bool, Float
 from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers import archetypes, parametric
+from slotv_jax.observers.common import mask_logits as mask_logits
 
 _DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 BACKWARDS = ("autodiff", "fused", "recompute")  # see GoalRelativeMLP.grid
@@ -77,11 +78,6 @@ def _activation(name: str):
     if name not in ACTIVATIONS:
         raise ValueError(f"activation: expected one of {tuple(ACTIVATIONS)}, got {name!r}")
     return ACTIVATIONS[name][0]
-
-
-def mask_logits(scores: Float[Array, "... G"], goal_mask: Bool[Array, "... G"]) -> Array:
-    """Padded goal slots get −∞: softmax then gives them exactly 0."""
-    return jnp.where(goal_mask, scores, -jnp.inf)
 
 
 class GoalRelativeMLP(nnx.Module):
@@ -341,7 +337,7 @@ def goal_relative_features(
     return _features(xyz, goals, w, b, dtype, activation)
 
 
-class _Observer(nnx.Module):
+class _ScoreNetwork(nnx.Module):
     """Per-goal scores of a trajectory (``scores``, set by the subclass); ``__call__`` masks
     the padded goals to −∞.
 
@@ -396,7 +392,8 @@ class _Observer(nnx.Module):
 
     def point_weights(self, n_points: int) -> Float[Array, " T"] | None:
         """Per-point weights of mean 1, u_i · T with u the normalised (1 − t_i)^α
-        (:func:`slotv_jax.parametric.time_weights`), or None (every point counts the same)."""
+        (:func:`slotv_jax.observers.parametric.time_weights`), or None (every point counts the
+        same)."""
         if self.raw_alpha is None:
             return None
         a = self.alpha
@@ -426,9 +423,9 @@ class _Observer(nnx.Module):
         return mask_logits(self.scores(xyz, goals), goal_mask)
 
 
-class SlotV(_Observer):
+class SlotV(_ScoreNetwork):
     """SLOT-V observer: logits s_k = (1/T) Σ_i V(p_i, g_k) (SPEC §5), padded goals at −∞;
-    the options give s_k = (1/T) Σ_i u_i [V(p_i, g_k) − V(p_0, g_k)] (:class:`_Observer`).
+    the options give s_k = (1/T) Σ_i u_i [V(p_i, g_k) − V(p_0, g_k)] (:class:`_ScoreNetwork`).
     ``hidden`` defaults to the paper's (1536, 768)."""
 
     method = "slotv"
@@ -437,9 +434,9 @@ class SlotV(_Observer):
     default_hidden = (1536, 768)
 
 
-class TRex(_Observer):
+class TRex(_ScoreNetwork):
     """Adapted T-REX: per-goal returns R_k = Σ_i r(p_i, g_k) (SPEC §6), padded goals at −∞;
-    the options give R_k = Σ_i u_i [r(p_i, g_k) − r(p_0, g_k)] (:class:`_Observer`).
+    the options give R_k = Σ_i u_i [r(p_i, g_k) − r(p_0, g_k)] (:class:`_ScoreNetwork`).
     ``hidden`` defaults to the paper's (1792, 768)."""
 
     method = "trex"
@@ -449,11 +446,17 @@ class TRex(_Observer):
 
 
 Model = SlotV | TRex
+#: An observer, everywhere in the public API: a pure function from a trajectory ``xyz``
+#: (T, 3), goals (8, 3) and a goal mask (8,) to logits (8,) over the goals, padded slots
+#: −∞ (SPEC §9). :func:`slotv_jax.load_observer` returns one; a labeler with its β and
+#: camera bound is one; the planner takes one. :data:`Model` is the network behind a
+#: learned observer.
+Observer = Callable[[Array, Array, Array], Array]
 
 
 def make_model(cfg, rngs: nnx.Rngs | jax.Array | int) -> Model:
-    """Build the model a :class:`slotv_jax.config.TrainConfig` describes: its ``model``
-    archetype of :mod:`slotv_jax.parametric` (deterministic, ``rngs`` unused), or for the
+    """Build the model a :class:`slotv_jax.training.config.TrainConfig` describes: its ``model``
+    archetype of :mod:`slotv_jax.observers.parametric` (deterministic, ``rngs`` unused), or for the
     MLP (``model="mlp"``) SLOT-V's or T-REX's network."""
     model = getattr(cfg, "model", "mlp")
     if model != "mlp":

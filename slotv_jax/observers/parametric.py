@@ -4,7 +4,7 @@ The SLOT-V paper (Wallkötter et al. 2022, §VI) names the opacity of a neural o
 limitation and suggests keeping the supervised training but learning "an explicit analytic
 model for which we only learn certain parameter values". This module holds three such
 archetypes. Each maps one trajectory and the 8 goal slots to masked logits, exactly like
-:class:`slotv_jax.models.SlotV`::
+:class:`slotv_jax.observers.models.SlotV`::
 
     logits = observer(xyz (..., T, 3), goals (..., 8, 3), goal_mask (..., 8))  # (..., 8)
 
@@ -62,8 +62,9 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float
 
+from slotv_jax.observers import common
 from slotv_jax.observers.labelers import DEPTH_EPS
-from slotv_jax.world.scene import Camera
+from slotv_jax.world.scene import Camera, image_coords
 
 __all__ = [
     "CENTER",
@@ -118,78 +119,17 @@ def _value(p) -> Array:
 # ------------------------------------------------------------------ shared pieces
 
 
-def _uniform_times(T: int) -> np.ndarray:
-    return np.arange(T, dtype=np.float64) / (T - 1)
-
-
-def _log_one_minus_t(T: int, dtype) -> Array:
-    """log max(1 − t_i, ε) for t_i = i/(T − 1), ε the smallest normal number of ``dtype``."""
-    tiny = np.finfo(np.dtype(dtype)).tiny
-    return jnp.asarray(np.log(np.maximum(1.0 - _uniform_times(T), tiny)), dtype)
-
-
 def time_weights(alpha: Float[Array, ""] | float, T: int, dtype=jnp.float32) -> Float[Array, " T"]:
-    """Normalised time weights u_i = (1 − t_i)^α / Σ_j (1 − t_j)^α, t_i = i/(T − 1).
+    """Normalised time weights u_i = (1 − t_i)^α / Σ_j (1 − t_j)^α at t_i = i/(T − 1):
+    :func:`slotv_jax.observers.common.time_weights` at uniform times.
 
     The weighting of Dragan & Srinivasa's legibility integral (RSS 2013, f(t) = T − t at
     α = 1; the labels of SPEC §4.1): early points count more. α = 0 gives the plain mean.
-    Evaluated as softmax(α · log max(1 − t_i, ε)) (module docstring: Time).
 
     >>> [round(float(u), 3) for u in time_weights(1.0, 3)]
     [0.667, 0.333, 0.0]
     """
-    return jax.nn.softmax(alpha * _log_one_minus_t(T, dtype))
-
-
-def _log_trapezoid(T: int, dtype) -> Array:
-    """log of the trapezoid weights of t_i = i/(T − 1): h/2, h, …, h, h/2 with h = 1/(T − 1)."""
-    w = np.full(T, 1.0 / (T - 1))
-    w[[0, -1]] /= 2
-    return jnp.asarray(np.log(w), dtype)
-
-
-def _distances(a: Float[Array, "... T D"], b: Float[Array, "... G D"], metric=None) -> Array:
-    """d[..., i, k] = sqrt(Σ_j m_j (a_ij − b_kj)²) (m_j = 1 without ``metric``), with a
-    finite gradient where a point sits on a goal."""
-    diff = a[..., :, None, :] - b[..., None, :, :]  # (..., T, G, D)
-    sq = diff * diff if metric is None else diff * diff * metric
-    sq = jnp.sum(sq, axis=-1)
-    return jnp.sqrt(jnp.maximum(sq, jnp.finfo(sq.dtype).tiny))
-
-
-def _dragan_log_labels(
-    pts: Float[Array, "... T D"],
-    goals: Float[Array, "... G D"],
-    mask: Bool[Array, "... G"],
-    beta,
-    *,
-    alpha=1.0,
-    start_weight=1.0,
-    metric=None,
-) -> Float[Array, "... G"]:
-    """log y_k of Dragan legibility (SPEC §4.1) in the space of ``pts``, generalised::
-
-        P_k(i) = softmax_k( β (w₀ ‖S − g_k‖_M − ‖p_i − g_k‖_M) )   (real goals only)
-        y_k    = Σ_i c_i P_k(i),   c_i ∝ trap_i · (1 − t_i)^α,   Σ_i c_i = 1
-
-    computed in log space (log-softmax, then a log-sum-exp over time), so large β neither
-    overflows nor loses the small probabilities. Padded slots get finite, meaningless
-    values (their positions enter the formula but not the normalisation): callers mask
-    them. With α = 1, w₀ = 1 and no metric this is ``log labelers.dragan``.
-    """
-    d = _distances(pts, goals, metric)  # (..., T, G)
-    z = beta * (start_weight * d[..., :1, :] - d)
-    real = mask[..., None, :]
-    log_p = z - jax.nn.logsumexp(jnp.where(real, z, -jnp.inf), axis=-1, keepdims=True)
-    T = pts.shape[-2]
-    log_c = _log_trapezoid(T, z.dtype) + alpha * _log_one_minus_t(T, z.dtype)
-    log_c = log_c - jax.nn.logsumexp(log_c)
-    return jax.nn.logsumexp(log_p + log_c[:, None], axis=-2)
-
-
-def _masked(scores: Array, goal_mask: Array) -> Array:
-    """Padded goal slots at −∞ (softmax then gives them exactly 0)."""
-    return jnp.where(goal_mask, scores, -jnp.inf)
+    return common.time_weights(common.uniform_times(T), alpha, dtype=dtype)
 
 
 class _Archetype(nnx.Module):
@@ -205,7 +145,7 @@ class _Archetype(nnx.Module):
         goal_mask: Bool[Array, "... G"],
     ) -> Float[Array, "... G"]:
         """Masked logits: softmax over the real goals is the observer's P(goal | trajectory)."""
-        return _masked(self.scores(xyz, goals, goal_mask), goal_mask)
+        return common.mask_logits(self.scores(xyz, goals, goal_mask), goal_mask)
 
     def _scalar_parameters(self) -> dict[str, float]:
         out = {}
@@ -287,7 +227,7 @@ class LearnableDragan(_Archetype):
     ) -> Float[Array, "... G"]:
         """s_k = log y_k on real goals, 0 on padded slots (finite everywhere)."""
         p = self._constrained()
-        s = _dragan_log_labels(
+        s = common.dragan_log_labels(
             xyz,
             goals,
             goal_mask,
@@ -453,9 +393,9 @@ class LearnableViewpoint(_Archetype):
         p = self._constrained()
         pos, rot = camera_frame(p["yaw"], p["pitch"], p["distance"])
         pos, rot = pos.astype(xyz.dtype), rot.astype(xyz.dtype)
-        uv, ok_p = _project(xyz, pos, rot)
-        uv_g, ok_g = _project(goals, pos, rot)
-        s = _dragan_log_labels(uv, uv_g, goal_mask, p["beta"])
+        uv, ok_p = _image_points(xyz, pos, rot)
+        uv_g, ok_g = _image_points(goals, pos, rot)
+        s = common.dragan_log_labels(uv, uv_g, goal_mask, p["beta"])
         ok = jnp.all(ok_p, axis=-1) & jnp.all(ok_g | ~goal_mask, axis=-1)
         return jnp.where(goal_mask & ok[..., None], s, 0.0)
 
@@ -489,11 +429,8 @@ class LearnableViewpoint(_Archetype):
         )
 
 
-def _project(p: Float[Array, "... N 3"], pos, rot) -> tuple[Array, Array]:
-    """Image-plane points (..., N, 2) and depth validity (..., N): SPEC §4.2's projection,
-    with the division guarded where the depth is ≤ DEPTH_EPS (no inf, no NaN gradient)."""
-    pc = jnp.matmul(p - pos, rot, precision=jax.lax.Precision.HIGHEST)  # (..., N, 3)
-    depth = -pc[..., 2]
-    ok = depth > DEPTH_EPS
-    uv = pc[..., :2] / jnp.where(ok, depth, 1.0)[..., None]
-    return uv, ok
+def _image_points(p: Float[Array, "... N 3"], pos, rot) -> tuple[Array, Array]:
+    """Image-plane points (..., N, 2) and depth validity (..., N): SPEC §4.2's projection
+    (:func:`slotv_jax.world.scene.image_coords`, guarded where the depth is ≤ DEPTH_EPS)."""
+    (u, v), ok = image_coords(p, pos, rot, DEPTH_EPS)
+    return jnp.stack([u, v], axis=-1), ok

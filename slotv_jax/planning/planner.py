@@ -79,6 +79,8 @@ from jaxtyping import Array, Bool, Float, Int
 from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers import labelers
+from slotv_jax.observers.common import mask_logits, masked_log
+from slotv_jax.observers.models import Observer
 from slotv_jax.robot import kinematics
 from slotv_jax.world.scene import camera as scene_camera
 from slotv_jax.world.trajectories import resample_polyline
@@ -98,7 +100,6 @@ __all__ = [
     "straight_line",
 ]
 
-Observer = Callable[[Array, Array, Array], Array]  # (T, 3), (8, 3), (8,) -> logits (8,)
 
 MAX_RESIDUAL = 2e-3  # m: the start and the target must be reached this closely (SPEC §3)
 _RATIO_CLIP = 1.0 - 1e-5  # |tanh z| of the initial path: joints on a limit start just inside
@@ -210,10 +211,7 @@ def labeler_observer(name: str, *, beta: float | None = None, camera: str = "obs
         fn = functools.partial(fn, camera=cam)
 
     def observer(xyz, goals, goal_mask):
-        y = fn(xyz, goals, goal_mask, **kw)
-        mask = jnp.asarray(goal_mask).astype(bool)
-        # log of exact zeros on padding would give a NaN gradient (0/0): mask instead.
-        return jnp.where(mask, jnp.log(jnp.where(mask, y, 1.0)), -jnp.inf)
+        return masked_log(fn(xyz, goals, goal_mask, **kw), goal_mask)
 
     observer.name = name  # type: ignore[attr-defined]
     return observer
@@ -297,7 +295,7 @@ def _initial_z(q: Float[Array, "T 7"]) -> Float[Array, "n 7"]:
 def _legibility(observer: Observer, xyz, problem: Problem) -> Float[Array, ""]:
     """log P(target | ξ) = log softmax(observer logits)[target] over the real goals."""
     logits = observer(xyz, problem.goals, problem.goal_mask)
-    logits = jnp.where(problem.goal_mask, logits, -jnp.inf)
+    logits = mask_logits(logits, problem.goal_mask)
     return jax.nn.log_softmax(logits)[problem.target]
 
 

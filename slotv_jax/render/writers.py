@@ -10,7 +10,7 @@ through a pipe. The video is H.264 in yuv420p with the index at the front
 through Pillow.
 
 Every file is written to a temporary name beside the target and renamed
-(:func:`slotv_jax.fileio.atomic_write`).
+(:func:`slotv_jax.core.fileio.atomic_write`).
 
 >>> write_video("clip.mp4", frames, fps=30)  # doctest: +SKIP
 >>> write_png("sheet.png", contact_sheet(frames, n=6, cols=3))  # doctest: +SKIP
@@ -58,9 +58,9 @@ def check_output(
     what: str = "--out",
 ) -> Path:
     """Check, before any rendering, that ``path`` may be written: a known suffix and the
-    project's output rule (:func:`slotv_jax.fileio.check_output_file`: a writable folder,
+    project's output rule (:func:`slotv_jax.core.fileio.check_output_file`: a writable folder,
     no directory in the way, an existing file replaced only with ``overwrite``).
-    Raises :class:`slotv_jax.fileio.OutputError` (a ValueError)."""
+    Raises :class:`slotv_jax.core.fileio.OutputError` (a ValueError)."""
     path = Path(path)
     if path.suffix.lower() not in suffixes:
         raise OutputError(f"{what} {path}: expected a file ending in {' or '.join(suffixes)}")

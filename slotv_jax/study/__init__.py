@@ -22,13 +22,14 @@ from slotv_jax.study.crossval import (
     row_metrics,
 )
 from slotv_jax.study.fitting import (
+    ANSWERS,
     StudyData,
-    StudyTrainer,
+    answer_logits,
     count_nll,
-    make_study_train,
     prefix_scores,
     study_data,
     study_loss,
+    study_trainer,
     train_study,
 )
 from slotv_jax.study.format import (
@@ -56,6 +57,7 @@ from slotv_jax.study.tables import (
 )
 
 __all__ = [
+    "ANSWERS",
     "BETA_RANGE",
     "FORMAT",
     "PROB_FLOOR",
@@ -63,7 +65,7 @@ __all__ = [
     "ImportReport",
     "Study",
     "StudyData",
-    "StudyTrainer",
+    "answer_logits",
     "check_taus",
     "count_nll",
     "cross_validate",
@@ -73,7 +75,6 @@ __all__ = [
     "labeler_visible",
     "load_study",
     "make_study",
-    "make_study_train",
     "model_metrics",
     "prefix_labels",
     "prefix_scores",
@@ -85,5 +86,6 @@ __all__ = [
     "study_data",
     "study_from_guesses",
     "study_loss",
+    "study_trainer",
     "train_study",
 ]

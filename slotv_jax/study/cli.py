@@ -21,7 +21,7 @@ from slotv_jax.study.fitting import train_study
 from slotv_jax.study.storage import load_study, save_study
 from slotv_jax.study.tables import read_tables
 from slotv_jax.training import checkpoint
-from slotv_jax.training import config as config_lib
+from slotv_jax.training import config as train_config
 from slotv_jax.training.config import TrainConfig
 
 # ===================================================================== CLI
@@ -95,7 +95,7 @@ def _parse_args(argv):
     cv = sub.add_parser("cv", help="k-fold cross-validation of SLOT-V/T-REX and baselines")
     cv.add_argument("study")
     cv.add_argument("--methods", default="slotv", help="comma-separated: slotv,trex")
-    cv.add_argument("--preset", default="quick", choices=tuple(config_lib.PRESETS))
+    cv.add_argument("--preset", default="quick", choices=tuple(train_config.PRESETS))
     cv.add_argument("--folds", type=int, default=5)
     cv.add_argument("--seed", type=int, default=0)
     cv.add_argument("--epochs", type=int, default=None)
@@ -132,10 +132,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         study = study.select_condition(args.condition)
     cfgs = {}
     for m in args.methods.split(","):
-        c = config_lib.preset(args.preset, m.strip(), train_size=None)
+        c = train_config.preset(args.preset, m.strip(), train_size=None)
         if args.epochs is not None:
             c = dataclasses.replace(c, epochs=args.epochs)
-        cfgs[m.strip()] = config_lib.apply_overrides(c, args.set)
+        cfgs[m.strip()] = train_config.apply_overrides(c, args.set)
     cv = cross_validate(cfgs, study, folds=args.folds, seed=args.seed)
     print(cv_table(cv))
     if args.out:

@@ -28,7 +28,7 @@ from typing import NamedTuple
 import httpx
 import numpy as np
 
-from slotv_jax import labelers
+from slotv_jax.observers import labelers
 from slotv_jax.study import stimuli
 
 Guesser = Callable[[dict, bytes], str]  # (trial state, still bytes) -> goal label

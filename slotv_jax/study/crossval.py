@@ -18,7 +18,7 @@ from tqdm.auto import tqdm
 from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers import labelers
-from slotv_jax.study.fitting import _jit_scores, make_study_train, study_data, train_study
+from slotv_jax.study.fitting import answer_logits, train_study
 from slotv_jax.study.format import BETA_RANGE, PROB_FLOOR, Study
 from slotv_jax.training.config import TrainConfig
 from slotv_jax.world import scene
@@ -54,10 +54,8 @@ def row_metrics(logits: np.ndarray, goal_mask: np.ndarray, counts: np.ndarray) -
 
 def model_metrics(cfg: TrainConfig, params, study: Study) -> dict:
     """:func:`row_metrics` of a trained model on every answer row of ``study``."""
-    trainer = make_study_train(cfg)
-    data = study_data(study)
-    logits = np.asarray(_jit_scores(trainer)(params, trainer.base.replicate(data)))
-    g = data.counts.shape[-1]
+    logits = answer_logits(cfg, params, study)
+    g = logits.shape[-1]
     return row_metrics(logits, study.goal_mask[study.answer_trajectory, :g], study.counts[:, :g])
 
 

@@ -14,9 +14,6 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
-from jax.sharding import NamedSharding
-from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Bool, Float, Int
 from tqdm.auto import tqdm
 
@@ -121,82 +118,52 @@ def study_loss(
     return count_nll(s, goal_mask, counts).sum() / (xyz.shape[0] * answers_per_row)
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class StudyTrainer:
-    """Pure training on answer rows for one config (build with :func:`make_study_train`).
+def _rows(data: StudyData) -> int:
+    return data.counts.shape[0]
 
-    An epoch shuffles the A answer rows (``jax.random.permutation`` of ``fold_in(key,
-    epoch)``), drops the last partial batch and scans the updates; the optimiser, the
-    initialisation and the state are those of :mod:`slotv_jax.train` (RMSprop for SLOT-V,
-    Adam for T-REX), so checkpoints load with :func:`slotv_jax.load_observer`.
-    """
 
-    cfg: TrainConfig
-    base: train_lib.Trainer  # init, optimiser, mesh and gradient implementation
+def _batch(data: StudyData, idx: Int[Array, " B"]) -> tuple[Array, ...]:
+    traj = data.row_trajectory[idx]
+    return (
+        data.xyz[traj],
+        data.goals[traj],
+        data.goal_mask[traj],
+        data.row_seen[idx],
+        data.counts[idx],
+    )
 
-    def init(self, key: jax.Array) -> types.TrainState:
-        return self.base.init(key)
 
-    def _shard(self, x):
-        return jax.lax.with_sharding_constraint(x, NamedSharding(self.base.mesh, P("data")))
+def _loss(model, xyz, goals, goal_mask, seen, counts, *, data: StudyData, backward: str):
+    n_bar = data.counts.sum() / data.counts.shape[0]  # answers per row (loop-invariant)
+    return study_loss(model, xyz, goals, goal_mask, seen, counts, n_bar, backward=backward)
 
-    def steps_per_epoch(self, n_rows: int) -> int:
-        return n_rows // self.cfg.batch_size
 
-    def run(
-        self, state: types.TrainState, data: StudyData, *, epochs: int
-    ) -> tuple[types.TrainState, Float[Array, " E"]]:
-        """``epochs`` more epochs from ``state`` (pure; jit it). Returns the new state and
-        each epoch's mean training loss."""
-        a_rows = data.counts.shape[0]
-        bs = self.cfg.batch_size
-        steps = self.steps_per_epoch(a_rows)
-        if steps < 1:
-            raise ValueError(
-                f"study: {a_rows} answer rows give no full batch of {bs} "
-                "(lower batch_size, e.g. --set batch_size=8)"
-            )
-        n_bar = data.counts.sum() / a_rows
-        tx, backward = self.base.tx, self.base.backward
+#: Study fitting as an objective of the one trainer (:class:`slotv_jax.training.trainer.Trainer`):
+#: an epoch shuffles the A answer rows with ``fold_in(key, epoch)``, drops the last partial
+#: batch, and each update minimises :func:`study_loss`. Initialisation, optimiser (RMSprop for
+#: SLOT-V, Adam for T-REX), sharding, precision and state are the trainer's, so checkpoints
+#: load with :func:`slotv_jax.load_observer`.
+ANSWERS = train_lib.RowObjective(
+    "study: {n} answer rows (lower batch_size, e.g. --set batch_size=8)", _rows, _batch, _loss
+)
 
-        def step(carry, idx):
-            params, opt_state = carry
-            idx = self._shard(idx)
-            traj = data.row_trajectory[idx]
-            batch = (
-                self._shard(data.xyz[traj]),
-                self._shard(data.goals[traj]),
-                self._shard(data.goal_mask[traj]),
-                self._shard(data.row_seen[idx]),
-                self._shard(data.counts[idx]),
-            )
 
-            def f(p):
-                return study_loss(self.base.model(p), *batch, n_bar, backward=backward)
+def study_trainer(cfg: TrainConfig) -> train_lib.Trainer:
+    """The trainer of ``cfg`` on study answers (cached, so jitted calls reuse compilations).
+    ``cfg.train_size`` does not apply: every answer row is used."""
+    cfg = dataclasses.replace(cfg, train_size=None)
+    return train_lib.make_train(cfg, progress=False, objective=ANSWERS)
 
-            loss, grads = jax.value_and_grad(f)(params)
-            updates, opt_state = tx.update(grads, opt_state, params)
-            return (optax.apply_updates(params, updates), opt_state), loss
 
-        def epoch_fn(carry, _):
-            params, opt_state, epoch, key = carry
-            perm = jax.random.permutation(jax.random.fold_in(key, epoch), a_rows)
-            batches = perm[: steps * bs].reshape(steps, bs).astype(jnp.int32)
-            (params, opt_state), losses = jax.lax.scan(step, (params, opt_state), batches)
-            return (params, opt_state, epoch + 1, key), losses.mean()
+@functools.cache
+def _jit_run(trainer: train_lib.Trainer, epochs: int):
+    return jax.jit(functools.partial(trainer.run, epochs=epochs))
 
-        (params, opt_state, epoch, key), losses = jax.lax.scan(
-            epoch_fn, tuple(state), None, length=epochs
-        )
-        return types.TrainState(params, opt_state, epoch, key), losses
 
-    def train(self, key: jax.Array, data: StudyData) -> tuple[types.TrainState, Array]:
-        """Initialise from ``key`` and train ``cfg.epochs`` epochs (pure; jit it)."""
-        return self.run(self.init(key), data, epochs=self.cfg.epochs)
-
-    def scores(self, params, data: StudyData) -> Float[Array, "A G"]:
-        """Masked scores (logits) of every answer row (pure; jit it)."""
-        model = self.base.model(params)
+@functools.cache
+def _jit_scores(trainer: train_lib.Trainer):
+    def scores(params, data: StudyData) -> Float[Array, "A G"]:
+        model = trainer.model(params)
 
         def one(traj, seen):
             return prefix_scores(model, data.xyz[traj], data.goals[traj], seen)
@@ -204,21 +171,22 @@ class StudyTrainer:
         s = jax.lax.map(lambda a: one(*a), (data.row_trajectory, data.row_seen), batch_size=256)
         return models.mask_logits(s, data.goal_mask[data.row_trajectory])
 
-
-@functools.cache
-def make_study_train(cfg: TrainConfig) -> StudyTrainer:
-    """The :class:`StudyTrainer` of ``cfg`` (cached, so jitted calls reuse compilations)."""
-    return StudyTrainer(cfg, train_lib.make_train(cfg, progress=False))
+    return jax.jit(scores)
 
 
-@functools.cache
-def _jit_run(trainer: StudyTrainer, epochs: int):
-    return jax.jit(functools.partial(trainer.run, epochs=epochs))
+def answer_logits(cfg: TrainConfig, params, study: Study) -> np.ndarray:
+    """Masked scores (logits) of ``cfg``'s model with ``params`` for every answer row of
+    ``study``: each row's trajectory up to the points its participants saw, ``(A, G)``."""
+    trainer = study_trainer(cfg)
+    return np.asarray(_jit_scores(trainer)(params, trainer.replicate(study_data(study))))
 
 
-@functools.cache
-def _jit_scores(trainer: StudyTrainer):
-    return jax.jit(trainer.scores)
+def _epoch_loss(cfg: TrainConfig, n_rows: int, block_losses) -> float:
+    """The mean loss of one epoch's updates from its blocks' mean losses."""
+    steps, k = cfg.steps_per_epoch(n_rows), cfg.block_size(n_rows)
+    full, tail = divmod(steps, k)
+    w = np.array([k] * full + ([tail] if tail else []), np.float64)
+    return float(np.dot(np.asarray(block_losses, np.float64), w) / steps)
 
 
 def train_study(
@@ -234,11 +202,11 @@ def train_study(
 
     ``cfg.train_size`` is ignored (every answer row is used). ``on_epoch(state, loss)`` is
     called after each epoch (e.g. to checkpoint). ``state`` resumes a run. Returns the final
-    :class:`slotv_jax.types.TrainState`.
+    :class:`slotv_jax.training.types.TrainState`.
     """
-    trainer = make_study_train(cfg)
+    trainer = study_trainer(cfg)
     data = study_data(study) if isinstance(study, Study) else study
-    data = trainer.base.replicate(data)
+    data = trainer.replicate(data)
     state = trainer.init(key) if state is None else state
     # one compiled call per epoch when the caller looks at every epoch, else one for all
     chunk = 1 if on_epoch is not None else max(cfg.epochs - int(state.epoch), 1)
@@ -248,8 +216,8 @@ def train_study(
         disable=not progress, leave=False, file=sys.stderr,
     )  # fmt: skip
     while int(state.epoch) < cfg.epochs:
-        state, losses = run(state, data)
-        loss = float(losses[-1])
+        state, metrics = run(state, data)
+        loss = _epoch_loss(trainer.cfg, _rows(data), metrics.loss[-1])
         if not math.isfinite(loss):
             raise ValueError(f"study training: the loss became {loss} at epoch {int(state.epoch)}")
         bar.update(chunk)

@@ -41,7 +41,7 @@ from slotv_jax.study import make_stimuli, selection, stimuli
 from slotv_jax.study.database import connect
 from slotv_jax.study.format import Study
 from slotv_jax.study.tables import read_tables
-from slotv_jax.training import config as config_lib
+from slotv_jax.training import config as train_config
 
 MODELS = ("mlp", "slotv_plus")  # observers of prefixes (archetypes score whole motions)
 
@@ -100,7 +100,7 @@ def choose(
     n: int,
     taus: Sequence[float],
     strategy: str = "margin",
-    cfg: config_lib.TrainConfig | None = None,
+    cfg: train_config.TrainConfig | None = None,
     members: int = 4,
     updates: int = 500,
     subset: int = 5000,
@@ -116,7 +116,7 @@ def choose(
     """
     if strategy not in selection.STRATEGIES:
         raise ValueError(f"--strategy: expected one of {selection.STRATEGIES}, got {strategy!r}")
-    cfg = config_lib.quick("slotv", train_size=None) if cfg is None else cfg
+    cfg = train_config.quick("slotv", train_size=None) if cfg is None else cfg
     if cfg.model != "mlp":
         raise ValueError("--model: study next trains the MLP family (mlp, slotv_plus)")
     taus = np.asarray(sorted({float(t) for t in taus}))
@@ -218,7 +218,7 @@ def add_command(sub) -> None:
     p.add_argument("--taus", default="0.4,0.7,1.0", help="candidate stop times in (0, 1]")
     p.add_argument("--strategy", default="margin", choices=selection.STRATEGIES)
     p.add_argument("--model", default="mlp", choices=MODELS)
-    p.add_argument("--preset", default="quick", choices=tuple(config_lib.PRESETS))
+    p.add_argument("--preset", default="quick", choices=tuple(train_config.PRESETS))
     p.add_argument("--members", type=int, default=4, help="ensemble size")
     p.add_argument("--updates", type=int, default=500, help="training updates per member")
     p.add_argument("--subset", type=int, default=5000, help="candidates scored (at random)")
@@ -243,7 +243,7 @@ def next_main(args: argparse.Namespace) -> int:
     settings = json.loads((stimuli.round_dir(stimdir, 0) / stimuli.MANIFEST).read_text())
     answers = read_answers(args.answers, args.db)
     motions = make_stimuli.motions_from_split(load_split(args.data, args.split))
-    cfg = config_lib.preset(args.preset, "slotv", train_size=None)
+    cfg = train_config.preset(args.preset, "slotv", train_size=None)
     if args.model == "slotv_plus":
         cfg = dataclasses.replace(cfg, start_term=True, time_weight=True)
     choice = choose(

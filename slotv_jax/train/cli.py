@@ -6,9 +6,9 @@
 
 Trains one model on a generated dataset (or on a study's answers,
 :func:`slotv_jax.study.train_main`), writes an Orbax checkpoint with its JSON config
-after every epoch (:mod:`slotv_jax.checkpoint`), and reports the accuracy on the four
+after every epoch (:mod:`slotv_jax.training.checkpoint`), and reports the accuracy on the four
 Table 1 splits. It drives :mod:`slotv_jax.train`, :mod:`slotv_jax.data`,
-:mod:`slotv_jax.checkpoint` and :mod:`slotv_jax.study`, so it sits above all of them;
+:mod:`slotv_jax.training.checkpoint` and :mod:`slotv_jax.study`, so it sits above all of them;
 ``slotv_jax/train.py`` runs :func:`main` when executed as a script.
 """
 
@@ -31,8 +31,9 @@ from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.core.xla import XLA_CONFIG
 from slotv_jax.study import cli as study_cli
 from slotv_jax.training import checkpoint, evaluate
-from slotv_jax.training import config as config_lib
-from slotv_jax.training.trainer import make_train, packed_trainer, prepare, trim_goals
+from slotv_jax.training import config as train_config
+from slotv_jax.training.trainer import make_train, packed_trainer
+from slotv_jax.training.types import prepare, trim_goals
 
 
 def _parse_args(argv):
@@ -47,17 +48,17 @@ def _parse_args(argv):
     )
     ap.add_argument("--condition", default=None, help="--study: use this condition's answers")
     ap.add_argument("--cv", type=int, default=0, help="--study: also run K-fold cross-validation")
-    ap.add_argument("--method", required=True, choices=config_lib.METHODS)
-    ap.add_argument("--preset", default="quick", choices=tuple(config_lib.PRESETS))
+    ap.add_argument("--method", required=True, choices=train_config.METHODS)
+    ap.add_argument("--preset", default="quick", choices=tuple(train_config.PRESETS))
     ap.add_argument(
-        "--model", default="mlp", choices=config_lib.MODELS,
+        "--model", default="mlp", choices=train_config.MODELS,
         help="observer: the paper's network (mlp) or a parametric archetype (SPEC §10; "
         "needs --method slotv; its preset is config.archetype)",
     )  # fmt: skip
     ap.add_argument("--out", required=True, help="checkpoint directory to write")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--epochs", type=int, default=None, help="override the preset's epochs")
-    ap.add_argument("--compute-dtype", default=None, choices=config_lib.COMPUTE_DTYPES)
+    ap.add_argument("--compute-dtype", default=None, choices=train_config.COMPUTE_DTYPES)
     ap.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE",
         help="override any TrainConfig field, e.g. --set hidden=256,128 --set learning_rate=0.01",
@@ -88,12 +89,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
     if args.epochs is not None and args.epochs < 1:
         raise cli.InputError(f"--epochs: expected an integer >= 1, got {args.epochs}")
-    cfg = config_lib.preset(args.preset, args.method, model=args.model)
+    cfg = train_config.preset(args.preset, args.method, model=args.model)
     if args.epochs is not None:
         cfg = dataclasses.replace(cfg, epochs=args.epochs)
     if args.compute_dtype is not None:
         cfg = dataclasses.replace(cfg, compute_dtype=args.compute_dtype)
-    cfg = config_lib.apply_overrides(cfg, args.set)
+    cfg = train_config.apply_overrides(cfg, args.set)
     fileio.check_output_dir(
         args.out, ours=checkpoint.exists, resume=args.resume, overwrite=args.overwrite,
         resume_hint="pass --resume to continue training it",

@@ -2,7 +2,7 @@
 
 A checkpoint is a directory:
 
-- ``config.json`` — format tag, the :class:`~slotv_jax.config.TrainConfig` that
+- ``config.json`` — format tag, the :class:`~slotv_jax.training.config.TrainConfig` that
   rebuilds the model, the epoch, free-form ``meta`` (labeler, seed, accuracies),
   and the path, shape and dtype of every saved array;
 - ``state/`` — an Orbax checkpoint of the parameters, the optimiser state, the
@@ -11,7 +11,7 @@ A checkpoint is a directory:
 
 Writes are atomic: everything goes to a temporary sibling directory that is
 renamed into place; an existing checkpoint is swapped out only after the new one
-is complete (:func:`slotv_jax.fileio.replace_dir`). Anything at the path that is
+is complete (:func:`slotv_jax.core.fileio.replace_dir`). Anything at the path that is
 not a checkpoint (a file, a user's directory) is never replaced. Loading checks
 the saved shapes against the model the config builds (and, for resuming, against
 the caller's config) and raises ValueError naming the mismatch; a missing path
@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -96,7 +96,7 @@ def exists(path: str | os.PathLike) -> bool:
 def save(
     path: str | os.PathLike, cfg: TrainConfig, state, *, meta: Mapping[str, Any] | None = None
 ) -> Path:
-    """Write ``state`` (a :class:`~slotv_jax.types.TrainState` of one trial) atomically."""
+    """Write ``state`` (a :class:`~slotv_jax.training.types.TrainState` of one trial) atomically."""
     path = Path(path).absolute()
     flat = _flatten(_raw_key(state))
     want = _describe(_flatten(_template(cfg)))
@@ -230,14 +230,13 @@ def _wrong_model(path, saved: str, requested: str) -> str:
     )
 
 
-def make_observer(cfg: TrainConfig, params) -> Callable:
+def make_observer(cfg: TrainConfig, params) -> models.Observer:
     """The pure function ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
 
-    SLOT-V: s_k = (1/T) Σ_i V(p_i, g_k); T-REX: R_k = Σ_i r(p_i, g_k) (with the config's
-    options, :class:`slotv_jax.models.SlotV`); padded slots −∞. Shapes are checked on every
-    call; values (NaN, an empty mask) on concrete inputs. Works under ``jit``, ``vmap`` and
-    ``grad`` (w.r.t. ``xyz`` or ``goals``). The function carries its ``config`` and
-    ``params``.
+    SLOT-V: s_k = (1/T) Σ_i V(p_i, g_k); T-REX: R_k = Σ_i r(p_i, g_k) (with the config's options,
+    :class:`slotv_jax.observers.models.SlotV`); padded slots −∞. Shapes are checked on every call;
+    values (NaN, an empty mask) on concrete inputs. Works under ``jit``, ``vmap`` and ``grad``
+    (w.r.t. ``xyz`` or ``goals``). The function carries its ``config`` and ``params``.
     """
     abstract = nnx.eval_shape(lambda: models.make_model(cfg, nnx.Rngs(0)))
     graphdef, _ = nnx.split(abstract)
@@ -258,7 +257,7 @@ def make_observer(cfg: TrainConfig, params) -> Callable:
     return observer
 
 
-def load_observer(path: str | os.PathLike, model: str | None = None) -> Callable:
+def load_observer(path: str | os.PathLike, model: str | None = None) -> models.Observer:
     """Load a checkpoint as ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
 
     The logits are SLOT-V's observer scores (softmax gives P(goal | trajectory)) or

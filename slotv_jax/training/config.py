@@ -30,7 +30,7 @@ from typing import Any
 
 METHODS = ("slotv", "trex")
 # Observer models: "mlp" is the paper's network (SPEC §5); the others are the parametric
-# archetypes of slotv_jax.parametric, trained with SLOT-V's loss (SPEC §10).
+# archetypes of slotv_jax.observers.parametric, trained with SLOT-V's loss (SPEC §10).
 MODELS = ("mlp", "dragan", "viewpoint", "mixture")
 # Activation elements per (point, goal) pair an archetype holds, standing in for
 # hidden[0] when the evaluation chunk is sized (a handful of values per pair).
@@ -38,7 +38,7 @@ ARCHETYPE_WIDTH = 8
 OPTIMIZERS = ("rmsprop", "adam")
 COMPUTE_DTYPES = ("float32", "bfloat16")
 # Hidden activations of the MLP: "relu" is the paper's (SPEC §5); "softplus" makes V smooth,
-# which legible planning needs (slotv_jax.models, experiments/planning_paper.md).
+# which legible planning needs (slotv_jax.observers.models, experiments/planning_paper.md).
 ACTIVATIONS = ("relu", "softplus")
 # Elements of the first hidden activation (rows × width) one evaluation chunk may hold:
 # small on CPUs (cache-friendly), large on accelerators (fewer, bigger matmuls).
@@ -55,11 +55,13 @@ class TrainConfig:
     """
 
     method: str = "slotv"  # "slotv" (SPEC §5) or "trex" (SPEC §6)
-    model: str = "mlp"  # observer: the MLP, or an archetype of slotv_jax.parametric (SPEC §10)
+    model: str = (
+        "mlp"  # observer: the MLP, or an archetype of slotv_jax.observers.parametric (SPEC §10)
+    )
     hidden: tuple[int, ...] = (1536, 768)  # hidden widths after the r − g layer
     activation: str = "relu"  # of the hidden layers: "relu" (the paper) or "softplus" (smooth)
     start_term: bool = False  # values relative to the start's, f(p_i, g) − f(p_0, g) (models)
-    time_weight: bool = False  # weight the points by (1 − t)^α, α learned (models._Observer)
+    time_weight: bool = False  # weight the points by (1 − t)^α, α learned (models._ScoreNetwork)
     compute_dtype: str = "float32"  # matmul dtype of the hidden layers; params stay float32
     optimizer: str = "rmsprop"  # "rmsprop" or "adam"
     learning_rate: float = 0.005

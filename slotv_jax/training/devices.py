@@ -4,7 +4,7 @@ The batch axis of every update (and every evaluation chunk) is sharded over the
 mesh's ``"data"`` axis through ``with_sharding_constraint`` under ``jit``;
 parameters and the dataset are replicated, and XLA inserts the gradient
 all-reduce. The same code runs on 1 CPU, 1 GPU or N GPUs. A mesh may also have a
-``"trial"`` axis for independent runs (:mod:`slotv_jax.parallel`).
+``"trial"`` axis for independent runs (:mod:`slotv_jax.training.parallel`).
 
 >>> mesh = make_mesh(32)
 >>> data_size(mesh) >= 1, platform(mesh) in ("cpu", "gpu", "tpu")

@@ -58,7 +58,7 @@ def predict(scores: Float[Array, "... 8"], goal_mask: Bool[Array, "... 8"]) -> I
 
 def target(labels: Float[Array, "... 8"], goal_mask: Bool[Array, "... 8"]) -> Int[Array, "..."]:
     """argmax over real goals of the labeler's distribution (ties: lowest index)."""
-    return jnp.argmax(jnp.where(goal_mask, labels, -jnp.inf), axis=-1)
+    return jnp.argmax(models.mask_logits(labels, goal_mask), axis=-1)
 
 
 def chunk(data, size: int) -> EvalData:
@@ -120,7 +120,7 @@ def chunked_pairwise_accuracy(
 
 def eval_data(cfg: TrainConfig, mesh: Mesh, data: TrainData, size: int | None = None) -> EvalData:
     """The first ``size`` (default ``cfg.eval_size``) trajectories of ``data``, chunked for
-    ``mesh``: chunks of :meth:`~slotv_jax.config.TrainConfig.eval_chunk_size` trajectories
+    ``mesh``: chunks of :meth:`~slotv_jax.training.config.TrainConfig.eval_chunk_size` trajectories
     (at most ``size`` rounded up to the data-axis size)."""
     n = cfg.eval_size if size is None else size
     n_data = devices.data_size(mesh)
@@ -160,14 +160,14 @@ def _jit_accuracy(cfg: TrainConfig, mesh: Mesh, batched: bool):
 def accuracy(cfg, params, data, labeler: str | None = None, *, mesh=None) -> np.ndarray:
     """SPEC §8 accuracy of ``params`` on a whole split (jit-compiled, chunked, sharded).
 
-    ``data`` is a :class:`slotv_jax.types.TrainData` or a ``Split`` with ``labeler``.
-    Goal slots that no trajectory of ``data`` uses are cut first (they cannot change an
-    argmax over real goals). ``params`` may carry a leading trial axis (from
-    :func:`slotv_jax.train.train_trials`): then the result has shape (n_trials,), else it is
-    a scalar array. The result is the exact fraction correct / N in float64: the kernel's
-    float32 ratio, whose last bit depends on how XLA compiled the division, is rounded back
-    to its count (:func:`exact_fraction`). ``mesh`` defaults to
-    :func:`slotv_jax.devices.make_mesh` of the batch size.
+    ``data`` is a :class:`slotv_jax.training.types.TrainData` or a ``Split`` with ``labeler``. Goal
+    slots that no trajectory of ``data`` uses are cut first (they cannot change an argmax over real
+    goals). ``params`` may carry a leading trial axis (from
+    :func:`slotv_jax.training.trainer.train_trials`): then the result has shape (n_trials,), else it
+    is a scalar array. The result is the exact fraction correct / N in float64: the kernel's float32
+    ratio, whose last bit depends on how XLA compiled the division, is rounded back to its count
+    (:func:`exact_fraction`). ``mesh`` defaults to :func:`slotv_jax.training.devices.make_mesh` of
+    the batch size.
     """
     return exact_fraction(*start_accuracy(cfg, params, data, labeler, mesh=mesh))
 

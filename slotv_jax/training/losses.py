@@ -11,8 +11,6 @@ from jaxtyping import Array, Float
 
 from slotv_jax.observers import models
 from slotv_jax.training.config import TrainConfig
-from slotv_jax.training.types import make_data as make_data
-from slotv_jax.training.types import prepare as prepare
 
 
 def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
@@ -44,7 +42,8 @@ def slotv_loss(
 
 def observer_loss(model, xyz, goals, goal_mask, labels) -> Float[Array, ""]:
     """SPEC §5's cross-entropy for any observer with ``scores(xyz, goals, goal_mask)``
-    (finite per-goal scores, e.g. the archetypes of :mod:`slotv_jax.parametric`): batch mean
+    (finite per-goal scores, e.g. the archetypes of :mod:`slotv_jax.observers.parametric`): batch
+    mean
     of −Σ_k y_k log softmax_k(s) over the real goals."""
     return _cross_entropy(model.scores(xyz, goals, goal_mask), goal_mask, labels)
 

@@ -3,8 +3,8 @@
 Table 1's trials, the sample-efficiency repeats and the hyperparameter rollouts are
 independent training runs. There are two ways to give them several devices:
 
-- **batch-parallel** (:func:`slotv_jax.train.make_mesh`): one run's minibatch is split over
-  a 1-D ("data",) mesh and XLA all-reduces the gradient after every update. A paper-size
+- **batch-parallel** (:func:`slotv_jax.training.devices.make_mesh`): one run's minibatch is
+  split over a 1-D ("data",) mesh and XLA all-reduces the gradient after every update. A paper-size
   update is small (SLOT-V: 32 trajectories, 0.35 ms on one H100), so this scales poorly:
   measured on two H200s (paper preset, Dragan, bf16, one cell) 1.30× for SLOT-V and 1.45×
   for T-REX over one of them (issue 13).
@@ -17,8 +17,9 @@ independent training runs. There are two ways to give them several devices:
   (experiments/BENCHMARKS.md, "Training"), the GPU is already busy with one.
 
 Both are one 2-D mesh ("trial", "data") of shape (t, d) (:func:`unit_mesh`): a group of
-t runs has its run axis on "trial" and each run's batch on "data". :func:`plan` chooses
-the groups from the number of pending units U and devices N:
+t runs has its run axis on "trial" and each run's batch on "data".
+:func:`slotv_jax.training.schedule.group_sizes` chooses the groups from the number of
+pending units U and devices N:
 
 - while at least N units are pending: groups of t = N, one run per device (d = 1);
 - the last k < N units: one group with t the smallest divisor of N that is ≥ k and
@@ -58,10 +59,10 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float, Int
 
+from slotv_jax.core.distributed import broadcast, fetch
 from slotv_jax.training import evaluate, types
 from slotv_jax.training import trainer as train
 from slotv_jax.training.config import TrainConfig
-from slotv_jax.training.distributed import broadcast, fetch
 from slotv_jax.training.schedule import TRIAL, U
 
 # ---------------------------------------------------------------- one group of runs
@@ -99,13 +100,14 @@ def train_group(
     """Train one run per seed side by side, the run axis sharded over ``mesh``'s "trial" axis.
 
     Run i is ``trainer.train(jax.random.key(seeds[i]), data_i, val)`` of
-    :func:`slotv_jax.train.train_trials`, with ``data_i`` = ``data`` whose labels are
+    :func:`slotv_jax.training.trainer.train_trials`, with ``data_i`` = ``data`` whose labels are
     ``labels[i]`` when given (several labelers' runs in one group: the trajectories are
     shared). The run axis is padded to a multiple of t = mesh.shape["trial"] (the padding
     runs repeat the last seed and are dropped), so each device row holds the same number of
-    runs (:func:`plan`'s groups: one). Returns states and metrics with that padded leading
-    axis, sharded over "trial": entry i < len(seeds) is run i. (Cutting the padding off
-    on the device would move data between devices, and between hosts under
+    runs (:func:`slotv_jax.training.schedule.group_sizes`: one). Returns states and metrics
+    with that padded leading axis, sharded over "trial": entry i < len(seeds) is run i.
+    (Cutting the padding off on the device would move data between devices, and between
+    hosts under
     ``jax.distributed``; callers cut it after :func:`fetch`.)
     """
     t = int(mesh.shape[TRIAL])
@@ -169,7 +171,7 @@ def group_accuracy(
 
     ``labels[i]`` replaces ``data.labels`` for run i when given (fewer label sets than
     runs: the last one is repeated for the padding runs). Returns the exact fractions
-    (float64, :func:`slotv_jax.evaluate.exact_fraction`) of every run of ``params``,
+    (float64, :func:`slotv_jax.training.evaluate.exact_fraction`) of every run of ``params``,
     padding included, gathered to every process.
     """
     t = int(mesh.shape[TRIAL])
@@ -267,9 +269,9 @@ def precompile_group(cfg: TrainConfig, n: int, n_points: int, n_goals: int, mesh
     """Compile :func:`train_group`'s function for a full group on ``mesh`` ahead of the data.
 
     For a training split of ``n`` trajectories of ``n_points`` points and ``n_goals`` goal
-    slots after :func:`slotv_jax.train.trim_goals`, per-run labels, no validation set (as
+    slots after :func:`slotv_jax.training.trainer.trim_goals`, per-run labels, no validation set (as
     Table 1 calls it); a later :func:`train_group` call of that shape reuses the
-    compilation. Like :func:`slotv_jax.train.precompile` it can run in a thread while the
+    compilation. Like :func:`slotv_jax.training.trainer.precompile` it can run in a thread while the
     dataset is generated. Returns False, compiling nothing, for a one-run group (the
     batch-parallel path) or where the compiled function depends on the data (packed SLOT-V
     updates on CPUs).

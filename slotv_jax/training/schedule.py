@@ -16,22 +16,22 @@ DATA = "data"  # mesh axis of one run's minibatch (train.Trainer shards over it)
 U = TypeVar("U")
 
 
-# ---------------------------------------------------------------- planning
+# ---------------------------------------------------------------- groups
 
 
-def plan(n_units: int, n_devices: int) -> list[tuple[int, int]]:
+def group_sizes(n_units: int, n_devices: int) -> list[tuple[int, int]]:
     """(units, trial-axis size t) of each group that runs ``n_units`` on ``n_devices``.
 
     Groups of t = N while N or more units are left; the last k < N as one group with t the
     smallest divisor of N that is ≥ k (its batch axis then spans d = N / t devices). One
     device: one unit per group.
 
-    >>> plan(10, 4), plan(1, 4), plan(3, 1)
+    >>> group_sizes(10, 4), group_sizes(1, 4), group_sizes(3, 1)
     ([(4, 4), (4, 4), (2, 2)], [(1, 1)], [(1, 1), (1, 1), (1, 1)])
     """
     if n_units < 0 or n_devices < 1:
         raise ValueError(
-            f"plan: expected n_units >= 0 and n_devices >= 1, got {n_units}, {n_devices}"
+            f"group_sizes: expected n_units >= 0 and n_devices >= 1, got {n_units}, {n_devices}"
         )
     full, rest = divmod(n_units, n_devices)
     out = [(n_devices, n_devices)] * full
@@ -41,9 +41,9 @@ def plan(n_units: int, n_devices: int) -> list[tuple[int, int]]:
 
 
 def groups(units: Sequence[U], n_devices: int) -> list[tuple[list[U], int]]:
-    """``units`` cut into the groups of :func:`plan`, in order: (units, trial-axis size)."""
+    """``units`` cut into the groups of :func:`group_sizes`, in order: (units, trial-axis size)."""
     out, i = [], 0
-    for k, t in plan(len(units), n_devices):
+    for k, t in group_sizes(len(units), n_devices):
         out.append((list(units[i : i + k]), t))
         i += k
     return out

@@ -37,7 +37,7 @@ bfloat16; parameters, gradients and optimiser state stay float32.
 
 Implementation choices that do not change the values (up to float rounding):
 ``make_train(backward=...)`` selects how the gradient of the first layers is formed
-(see :meth:`slotv_jax.models.GoalRelativeMLP.grid`; "auto" takes the fastest measured
+(see :meth:`slotv_jax.observers.models.GoalRelativeMLP.grid`; "auto" takes the fastest measured
 one per platform and method, :func:`default_backward`); :func:`train_trials` cuts the
 goal slots no training trajectory uses (:func:`trim_goals`) and, on CPUs, packs SLOT-V
 updates to each batch's real (trajectory, goal) pairs (:func:`slotv_loss_packed`, with a
@@ -60,7 +60,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax
@@ -86,7 +86,7 @@ from slotv_jax.training.losses import (
 )
 from slotv_jax.training.types import EvalData, Metrics, TrainData, TrainState, subset, trim_goals
 
-# Re-exported: the shared types and their constructors live in slotv_jax.types.
+# Re-exported: the shared types and their constructors live in slotv_jax.training.types.
 from slotv_jax.training.types import make_data as make_data
 from slotv_jax.training.types import prepare as prepare
 
@@ -127,6 +127,28 @@ class _Progress:
             self.bar = None
 
 
+# ---------------------------------------------------------------- objectives
+
+
+@dataclasses.dataclass(frozen=True)
+class RowObjective:
+    """A loss over the rows of another data set than :class:`TrainData` (for example a
+    study's answer rows, :mod:`slotv_jax.study.fitting`), trained by the one :class:`Trainer`.
+
+    An epoch shuffles the ``rows(data)`` rows with the run's key (as SLOT-V's epochs do),
+    cuts ⌊rows / B⌋ batches of row indices ``idx``, and each update minimises
+    ``loss(model, *batch(data, idx), data=data, backward=...)``, where every array of
+    ``batch`` has the batch axis first (it is sharded over the mesh's "data" axis).
+    Initialisation, optimiser, sharding, precision, blocks and progress are the trainer's.
+    The objective is hashable (module-level functions), so trainers stay cached.
+    """
+
+    what: str  # the rows in error messages, "{n}" their number ("study: {n} answer rows")
+    rows: Callable[[Any], int]
+    batch: Callable[[Any, Int[Array, " B"]], tuple]
+    loss: Callable[..., Float[Array, ""]]
+
+
 # ---------------------------------------------------------------- the trainer
 
 
@@ -143,6 +165,7 @@ class Trainer:
     # SLOT-V: real (trajectory, goal) pairs computed per update (0: all B·G slots). Set by
     # train_trials and the CLI from an exact count over every batch (pair_capacity).
     packed_pairs: int = 0
+    objective: RowObjective | None = None  # None: SLOT-V's or T-REX's loss on TrainData
 
     # ---- sharding helpers
     def _shard_batch(self, x):
@@ -156,14 +179,17 @@ class Trainer:
     @property
     def n_data(self) -> int:
         """Devices the batch axis is split over: the mesh's "data" axis (a mesh may also
-        have a "trial" axis for independent runs, :mod:`slotv_jax.parallel`)."""
+        have a "trial" axis for independent runs, :mod:`slotv_jax.training.parallel`)."""
         return devices.data_size(self.mesh)
 
     @property
     def packs(self) -> bool:
         """Whether :func:`train_trials` packs this trainer's updates to the real pairs."""
         return (
-            self.cfg.method == "slotv" and self.cfg.model == "mlp" and packs_updates(self.platform)
+            self.cfg.method == "slotv"
+            and self.cfg.model == "mlp"
+            and self.objective is None
+            and packs_updates(self.platform)
         )
 
     def replicate(self, tree):
@@ -215,6 +241,12 @@ class Trainer:
             loss = functools.partial(slotv_loss, backward=self.backward)
         return self._update(carry, loss, *batch)
 
+    def _objective_step(self, data, carry, idx):
+        idx = self._shard_batch(idx)
+        batch = [self._shard_batch(x) for x in self.objective.batch(data, idx)]
+        loss = functools.partial(self.objective.loss, data=data, backward=self.backward)
+        return self._update(carry, loss, *batch)
+
     def slotv_batches(self, key: jax.Array, epoch, n: int) -> Int[Array, "S B"]:
         """The minibatches (trajectory indices) of SLOT-V epoch ``epoch`` of a run whose
         state key is ``key``: a fresh permutation, cut into ⌊n/B⌋ batches (pure)."""
@@ -260,7 +292,7 @@ class Trainer:
 
     def eval_data(self, data: TrainData, size: int | None = None) -> EvalData:
         """The fixed validation subset (first ``size`` or ``cfg.eval_size``), chunked
-        (:func:`slotv_jax.evaluate.eval_data`)."""
+        (:func:`slotv_jax.training.evaluate.eval_data`)."""
         return evaluate.eval_data(self.cfg, self.mesh, data, size)
 
     # ---- the compiled loop
@@ -273,21 +305,26 @@ class Trainer:
         epochs: int,
     ) -> tuple[TrainState, Metrics]:
         """``epochs`` more epochs from ``state`` (pure; jit it, vmap it over states)."""
-        cfg = self.cfg
-        data = subset(data, cfg.n_used(data.xyz.shape[0]))
-        n = data.xyz.shape[0]
+        cfg, objective = self.cfg, self.objective
+        if objective is None:
+            data = subset(data, cfg.n_used(data.xyz.shape[0]))
+            n = data.xyz.shape[0]
+        else:
+            n = cfg.n_used(objective.rows(data))
         steps = cfg.steps_per_epoch(n)
         if steps < 1:
-            raise ValueError(
-                f"training set: {n} trajectories give no full batch of {cfg.batch_size}"
-            )
+            what = "training set: {n} trajectories" if objective is None else objective.what
+            raise ValueError(what.format(n=n) + f" give no full batch of {cfg.batch_size}")
         k = cfg.block_size(n)
         n_blocks, tail = divmod(steps, k)
         validate = cfg.eval_every > 0 and val is not None
         total = cfg.epochs * steps
-        step_fn = functools.partial(
-            self._slotv_step if cfg.method == "slotv" else self._trex_step, data
-        )
+        if objective is not None:
+            step_fn = functools.partial(self._objective_step, data)
+        else:
+            step_fn = functools.partial(
+                self._slotv_step if cfg.method == "slotv" else self._trex_step, data
+            )
 
         def report(updates, loss):
             if self.progress is not None:
@@ -304,7 +341,7 @@ class Trainer:
 
         def epoch_fn(carry, _):
             params, opt_state, epoch, key = carry
-            if cfg.method == "slotv":
+            if cfg.method == "slotv" or objective is not None:
                 inputs = self.slotv_batches(key, epoch, n)
             else:
                 inputs = jax.random.split(jax.random.fold_in(key, epoch), steps)
@@ -338,12 +375,17 @@ class Trainer:
 
 @functools.cache
 def _make_train(
-    cfg: TrainConfig, mesh: Mesh, progress: bool, backward: str, packed_pairs: int
+    cfg: TrainConfig,
+    mesh: Mesh,
+    progress: bool,
+    backward: str,
+    packed_pairs: int,
+    objective: RowObjective | None,
 ) -> Trainer:
     graphdef = models.graphdef(cfg)
     bar = _Progress(f"{cfg.method} ", cfg.batch_size) if progress else None
     tx = make_optimizer(cfg)
-    return Trainer(cfg, mesh, graphdef, tx, bar, backward, packed_pairs)
+    return Trainer(cfg, mesh, graphdef, tx, bar, backward, packed_pairs, objective)
 
 
 def default_backward(platform: str, method: str = "slotv") -> str:
@@ -369,16 +411,18 @@ def make_train(
     progress: bool = True,
     backward: str = "auto",
     packed_pairs: int = 0,
+    objective: RowObjective | None = None,
 ) -> Trainer:
     """The :class:`Trainer` for ``cfg`` (cached: the same arguments give the same object, so
     jitted calls reuse their compilation).
 
     ``mesh`` defaults to :func:`make_mesh`; ``progress`` reports to a tqdm bar;
     ``backward`` picks the implementation of the first layers' gradient (same values, see
-    :meth:`slotv_jax.models.GoalRelativeMLP.grid`; "auto": :func:`default_backward`);
+    :meth:`slotv_jax.observers.models.GoalRelativeMLP.grid`; "auto": :func:`default_backward`);
     ``packed_pairs`` > 0 computes SLOT-V updates on that many real (trajectory, goal) pairs
     (:func:`slotv_loss_packed`): it must come from :meth:`Trainer.pair_capacity` for the
-    runs it trains, as in :func:`train_trials`.
+    runs it trains, as in :func:`train_trials`. ``objective`` trains another loss over
+    another data set's rows (:class:`RowObjective`) instead of SLOT-V's or T-REX's.
     """
     if not isinstance(cfg, TrainConfig):
         raise ValueError(f"cfg: expected a TrainConfig, got {type(cfg).__name__}")
@@ -390,9 +434,9 @@ def make_train(
         raise ValueError(
             f"backward: expected 'auto' or one of {models.BACKWARDS}, got {backward!r}"
         )
-    if packed_pairs and cfg.method != "slotv":
-        raise ValueError("packed_pairs: only SLOT-V updates can be packed")
-    return _make_train(cfg, mesh, bool(progress), backward, int(packed_pairs))
+    if packed_pairs and (cfg.method != "slotv" or objective is not None):
+        raise ValueError("packed_pairs: only SLOT-V updates on TrainData can be packed")
+    return _make_train(cfg, mesh, bool(progress), backward, int(packed_pairs), objective)
 
 
 def packed_trainer(trainer: Trainer, state_keys: jax.Array, data: TrainData, epochs) -> Trainer:

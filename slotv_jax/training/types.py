@@ -1,7 +1,7 @@
 """The arrays that flow between training, evaluation, checkpoints and the experiments.
 
-They live here, below every module that uses them (:mod:`slotv_jax.evaluate`,
-:mod:`slotv_jax.train`, :mod:`slotv_jax.checkpoint`, :mod:`slotv_jax.parallel`,
+They live here, below every module that uses them (:mod:`slotv_jax.training.evaluate`,
+:mod:`slotv_jax.train`, :mod:`slotv_jax.training.checkpoint`, :mod:`slotv_jax.training.parallel`,
 :mod:`slotv_jax.study`), so that no module has to import one above it to name them:
 
 - :class:`TrainData` — one labelled split, with the functions that build it
@@ -10,7 +10,7 @@ They live here, below every module that uses them (:mod:`slotv_jax.evaluate`,
 - :class:`TrainState` — everything a resumed run needs (what a checkpoint stores);
 - :class:`Metrics` — what one training call records.
 
-``slotv_jax.train`` and ``slotv_jax.evaluate`` re-export them under their old names.
+``slotv_jax.train`` and ``slotv_jax.training.evaluate`` re-export them under their old names.
 
 >>> import numpy as np
 >>> mask = np.arange(8) < 2

@@ -157,13 +157,42 @@ def camera(name: str = "observer") -> Camera:
     return _camera_cached(str(name))
 
 
+def camera_coords(points: Float[Array, "*n 3"], pos, rot) -> list[Array]:
+    """The camera frame of SPEC §4.2, ``p_c = Rᵀ (p − c)``, as its three coordinates, each
+    ``(*n,)``, for a camera at ``pos (3,)`` with world-from-camera rotation ``rot (3, 3)``
+    (MuJoCo's ``cam_xmat``: the camera looks along its −z axis, x right, y up).
+
+    The one definition of the projection: :func:`project`, :func:`image_coords`, the
+    labelers and the viewpoint archetype build on it. Written out (a 3×3 product is too
+    small for a matrix kernel to pay off, and the sums fuse into the labelers' loops);
+    NumPy and JAX arrays alike.
+    """
+    rel = [points[..., k] - pos[k] for k in range(3)]
+    return [sum(rel[k] * rot[k, j] for k in range(3)) for j in range(3)]
+
+
+def image_coords(
+    points: Float[Array, "*n 3"], pos, rot, eps: float
+) -> tuple[tuple[Array, Array], Bool[Array, "*n"]]:
+    """:func:`project` for traced code: the image coordinates ``(u, v)``, each ``(*n,)``,
+    and ``ok = depth > eps``; where not ok, (u, v) is the finite ``(p_c.x, p_c.y)``, so
+    that neither values nor gradients become NaN."""
+    pc = camera_coords(points, pos, rot)
+    depth = -pc[2]
+    ok = depth > eps
+    safe = jnp.where(ok, depth, 1.0)
+    return (pc[0] / safe, pc[1] / safe), ok
+
+
 def project(
     points: Float[Array, "*n 3"], cam: Camera
 ) -> tuple[Float[Array, "*n 2"], Float[Array, "*n"]]:
     """Normalised image-plane coordinates and depth of world points (SPEC §4.2).
 
-    ``p_c = Rᵀ (p − c)``, ``(u, v) = (p_c.x, p_c.y) / (−p_c.z)``; depth is ``−p_c.z``.
+    ``p_c = Rᵀ (p − c)`` (:func:`camera_coords`), ``(u, v) = (p_c.x, p_c.y) / (−p_c.z)``;
+    depth is ``−p_c.z``. NumPy in (points and camera), NumPy out.
     """
-    pc = (points - cam.pos) @ cam.rot
-    depth = -pc[..., 2]
-    return pc[..., :2] / depth[..., None], depth
+    x, y, z = camera_coords(points, cam.pos, cam.rot)
+    depth = -z
+    xp = jnp if isinstance(depth, jax.Array) else np
+    return xp.stack([x / depth, y / depth], axis=-1), depth

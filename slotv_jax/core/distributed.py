@@ -31,7 +31,9 @@ def initialize(
 
 def add_cli_args(parser: argparse.ArgumentParser) -> None:
     """The multi-host flags shared by the experiment CLIs."""
-    g = parser.add_argument_group("many hosts (one process per host; see slotv_jax.parallel)")
+    g = parser.add_argument_group(
+        "many hosts (one process per host; see slotv_jax.training.parallel)"
+    )
     g.add_argument("--distributed", action="store_true",
                    help="jax.distributed.initialize() with cluster auto-detection")  # fmt: skip
     g.add_argument("--coordinator", help="host:port of process 0 (with the two flags below)")

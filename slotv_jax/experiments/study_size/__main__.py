@@ -1,0 +1,84 @@
+"""The command line: ``python -m slotv_jax.experiments.study_size``."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import slotv_jax
+from slotv_jax import data as data_lib
+from slotv_jax.core.fileio import write_text
+from slotv_jax.experiments.study_size import PRESETS, p_name, run
+from slotv_jax.experiments.study_size.report import plot, report
+
+
+def _parse_args(argv):
+    ap = argparse.ArgumentParser(
+        prog="python -m slotv_jax.experiments.study_size",
+        description="Simulated studies: trajectories × participants for a learned observer.",
+    )
+    ap.add_argument("--preset", default="quick", choices=tuple(PRESETS))
+    ap.add_argument("--out", default="experiments", help="output folder (default: experiments)")
+    ap.add_argument("--cache", default="data", help="dataset cache folder")
+    ap.add_argument("--n-grid", default=None, help="comma-separated N, e.g. 100,1000")
+    ap.add_argument("--participants", default=None, help="comma-separated P; 0 means ∞")
+    ap.add_argument("--trials", type=int, default=None)
+    ap.add_argument("--taus", default=None, help="stop times, e.g. 0.25,0.5,0.75,1")
+    ap.add_argument("--lapse", type=float, default=None)
+    ap.add_argument("--labeler", default=None, choices=data_lib.LABELER_NAMES)
+    ap.add_argument("--updates", type=int, default=None, help="updates per cell (both methods)")
+    ap.add_argument(
+        "--no-budget-check", action="store_true", help="skip the accuracy-against-updates check"
+    )
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="TrainConfig override (both methods, after the preset's), e.g. "
+        "--set compute_dtype=bfloat16",
+    )
+    ap.add_argument("--no-progress", action="store_true")
+    return ap.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parse_args(argv)
+    print(slotv_jax.XLA_CONFIG.summary(), flush=True)
+    kw: dict = {}
+    if args.n_grid:
+        kw["n_grid"] = tuple(int(v) for v in args.n_grid.split(","))
+    if args.participants:
+        kw["participants"] = tuple(int(v) for v in args.participants.split(","))
+    if args.taus:
+        kw["taus"] = tuple(float(v) for v in args.taus.split(","))
+    for name in ("trials", "lapse", "labeler"):
+        if getattr(args, name) is not None:
+            kw[name] = getattr(args, name)
+    if args.updates is not None:
+        kw["updates"] = args.updates
+    if args.no_budget_check:
+        kw["budget_check"] = False
+    cfg = PRESETS[args.preset](**kw)
+    if args.set:  # after the preset's own overrides
+        cfg = dataclasses.replace(cfg, overrides=cfg.overrides + tuple(args.set))
+    out = Path(args.out)
+    doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress)
+    stem = "study_size" if cfg.preset == "quick" else f"study_size_{cfg.preset}"
+    plot(doc, out / f"{stem}.png")
+    command = "python -m slotv_jax.experiments.study_size " + " ".join(
+        sys.argv[1:] if argv is None else list(argv)
+    )
+    write_text(out / f"{stem}.md", report(doc, stem, command.strip()))
+    for r in doc["needed"]:
+        got = "not reached" if r["n"] is None else f"N ≈ {r['n']:,.0f}"
+        print(f"{r['method']} P={p_name(r['participants'])}: {got} (best {r['best']:.3f})")
+    print(f"wrote {out / (stem + '.md')}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
