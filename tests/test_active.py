@@ -91,6 +91,9 @@ def test_strategies_pick_the_informative_motions():
     assert pick("bald") == [1, 2]  # top-2 BALD: B and its copy
     assert pick("bald_fantasy") == [1, 3]  # after B's fantasised answer, B' teaches nothing
     assert pick("bald_cluster") == [1, 3]  # B' is at distance 0, C and A have BALD 0
+    # margin ties A, B, B', D (p̄ = 50/50 each): A first (the lowest index), then B (√2
+    # from A in the members' predictions, D only √1.28), then D (B' is at distance 0 from B)
+    assert pick("margin_cluster", 3) == [0, 1, 3]
     for seed in range(8):  # whatever answer is fantasised for B, D comes next
         got = SELECT("bald_fantasy", jax.random.key(seed), logp, avail, 2)
         assert np.asarray(got).tolist() == [1, 3]
@@ -112,7 +115,7 @@ def test_selection_is_deterministic_and_prefix_consistent():
         a = np.asarray(SELECT(s, key, logp, avail, 16, shortlist=64))
         b = np.asarray(SELECT(s, key, logp, avail, 16, shortlist=64))
         np.testing.assert_array_equal(a, b)
-        if s in ("random", "bald_fantasy", "bald_cluster"):  # sequential picks
+        if s in ("random", "bald_fantasy", "bald_cluster", "margin_cluster"):  # sequential picks
             c = np.asarray(SELECT(s, key, logp, avail, 8, shortlist=64))
             np.testing.assert_array_equal(a[:8], c)  # the experiment takes a prefix of k_max
         assert np.unique(a).size == 16 and np.asarray(avail)[a].all(), s

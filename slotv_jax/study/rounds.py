@@ -150,7 +150,8 @@ def choose(
     k = jax.random.fold_in(key, 2)
     pick = np.asarray(_SELECT(strategy, k, logp, jnp.ones(len(cand), bool), n))
     crit = {"random": selection.bald, "uncertainty": selection.uncertainty,
-            "margin": selection.margin}.get(strategy, selection.bald)  # fmt: skip
+            "margin": selection.margin, "margin_cluster": selection.margin
+            }.get(strategy, selection.bald)  # fmt: skip
     score = np.asarray(crit(logp))
     return {
         "picks": [(cand[p][0], float(taus[cand[p][1]])) for p in pick],

@@ -44,7 +44,10 @@ Criteria (per candidate, from the members' predictive distributions p_e)
   BatchBALD, Kirsch et al. 2019);
 - ``bald_cluster``: the ``shortlist`` candidates of highest BALD, then a k-centre greedy
   (Sener & Savarese 2018) weighted by BALD in the space of the members' predictions
-  (E·G numbers per candidate), starting from the best BALD.
+  (E·G numbers per candidate), starting from the best BALD;
+- ``margin_cluster``: the same diversity on top of ``margin``: its ``shortlist`` best,
+  then the k-centre greedy weighted by margin (a tie nearest the decision is worth asking
+  once, not k times).
 
 All criteria are pure functions of fixed-shape arrays: :func:`select` compiles once for
 a pool size and k, and scores 100,000 candidates in one call
@@ -77,8 +80,16 @@ from slotv_jax.study import format as study
 from slotv_jax.training import trainer as train_lib
 from slotv_jax.training.config import TrainConfig
 
-STRATEGIES = ("random", "uncertainty", "margin", "bald", "bald_fantasy", "bald_cluster")
-SHORTLIST = 4  # bald_cluster's shortlist: SHORTLIST × k candidates of highest BALD (default)
+STRATEGIES = (
+    "random",
+    "uncertainty",
+    "margin",
+    "margin_cluster",
+    "bald",
+    "bald_fantasy",
+    "bald_cluster",
+)
+SHORTLIST = 4  # the *_cluster shortlist: SHORTLIST × k candidates of highest score (default)
 
 
 # ================================================================ the data
@@ -286,18 +297,22 @@ def select_cluster(
     k: int,
     shortlist: int | None = None,
     weights: Float[Array, " E"] | None = None,
+    criterion: str = "bald",
 ) -> Int[Array, " k"]:
-    """Diverse BALD: among the ``shortlist`` (default ``SHORTLIST`` · k) available
-    candidates of highest BALD, start at the best and then add, k − 1 times, the one that
-    maximises BALD × its Euclidean distance to the nearest pick so far, in the space of
-    the members' predictions p_e (E·G numbers per candidate): a k-centre greedy (Sener &
-    Savarese 2018) weighted by informativeness, so that a copy of a pick (distance 0)
-    and a motion every member agrees on (BALD 0) both score 0. The first j picks do not
-    depend on k for a fixed ``shortlist``."""
+    """Diverse picks by ``criterion`` (``"bald"`` or ``"margin"``, score s ≥ 0): among the
+    ``shortlist`` (default ``SHORTLIST`` · k) available candidates of highest s, start at
+    the best and then add, k − 1 times, the one that maximises s × its Euclidean distance
+    to the nearest pick so far, in the space of the members' predictions p_e (E·G numbers
+    per candidate): a k-centre greedy (Sener & Savarese 2018) weighted by informativeness,
+    so that a copy of a pick (distance 0) and a motion with nothing to teach (s = 0) both
+    score 0. The first j picks do not depend on k for a fixed ``shortlist``."""
     m = min(SHORTLIST * k if shortlist is None else shortlist, logp.shape[1])
     if m < k:
         raise ValueError(f"shortlist: expected at least k = {k}, got {m}")
-    info = jnp.where(available, bald(logp, weights), -jnp.inf)
+    if criterion not in ("bald", "margin"):
+        raise ValueError(f"criterion: expected 'bald' or 'margin', got {criterion!r}")
+    score = (bald if criterion == "bald" else margin)(logp, weights)
+    info = jnp.where(available, score, -jnp.inf)
     val, top = jax.lax.top_k(info, m)  # (m,), best first
     feat = jnp.exp(logp[:, top]).transpose(1, 0, 2).reshape(m, -1)  # (m, E·G)
     ok = jnp.isfinite(val)
@@ -339,6 +354,8 @@ def select(
         return select_fantasy(key, logp, available, k)
     if strategy == "bald_cluster":
         return select_cluster(logp, available, k, shortlist)
+    if strategy == "margin_cluster":
+        return select_cluster(logp, available, k, shortlist, criterion="margin")
     raise ValueError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
 
 
