@@ -81,18 +81,21 @@ class ActiveConfig:
     study_models: tuple[str, ...]  # the study setting's observers: mlp, slotv_plus, dragan
     label_sizes: tuple[int, ...]  # labelled motions after each round (labels setting)
     study_sizes: tuple[int, ...]  # motions asked after each round (study setting)
-    updates: int  # updates per round of the labels setting (warm start)
-    study_updates: int  # updates per round of the study setting (one guess per answer: noisier)
+    updates: int  # least updates per round of the labels setting (warm start), a block
+    study_updates: int  # the same for the study setting (one guess per answer: noisier)
     participants: int  # simulated answers per motion (study setting)
     study_targets: tuple[tuple[str, float], ...]  # held-out accuracy target per model
     strategies: tuple[str, ...] = selection.STRATEGIES
     seeds: int = 3
+    first_seed: int = 0  # seeds first_seed … first_seed + seeds − 1 (tuning runs use others)
+    round_epochs: float = 0.0  # each round passes this often over the answers so far (≥ updates)
     members: int = 4  # ensemble size E
     subset: int = 1000  # candidates scored per run and round
     stride: int = 1  # keep every stride-th point of each motion (1: all)
     study_labeler: str = "dragan"
     labels_target: float = 0.8
     eval_size: int = 1000
+    eval_offset: int = 0  # held-out motions eval_offset … + eval_size (tuning runs use others)
     chunk: int = 256  # candidates per scoring chunk
     overrides: tuple[str, ...] = ()  # TrainConfig key=value overrides (MLP models)
 
@@ -110,6 +113,8 @@ class ActiveConfig:
         bad = [s for s in self.strategies if s not in selection.STRATEGIES]
         if bad or "random" not in self.strategies:
             raise ValueError(f"strategies: expected 'random' and names of {selection.STRATEGIES}")
+        if self.round_epochs < 0 or self.updates < 1 or self.study_updates < 1:
+            raise ValueError("updates, study_updates: expected >= 1; round_epochs: >= 0")
         missing = [m for m in self.study_models if m not in dict(self.study_targets)]
         if missing:
             raise ValueError(f"study_targets: no target for {missing}")
@@ -123,6 +128,15 @@ class ActiveConfig:
         elif model != "mlp":
             raise ValueError(f"model: expected mlp, slotv_plus or dragan, got {model!r}")
         return train_config.apply_overrides(cfg, self.overrides)
+
+    def round_updates(self, setting: str, size: int) -> int:
+        """Updates of round with ``size`` answer rows: the smallest multiple of the block
+        (``updates``, study ``study_updates``) that passes ``round_epochs`` times over the
+        rows (warm start: every round trains until the answers so far are fitted, not a
+        fixed budget that the largest sizes outgrow)."""
+        block = self.updates if setting == "labels" else self.study_updates
+        batch = self.train_config("mlp").batch_size
+        return block * max(1, math.ceil(self.round_epochs * size / (batch * block)))
 
     def groups(self) -> list[tuple[str, str, str]]:
         """(setting, labeler, model) of every group, in run order."""
@@ -160,6 +174,7 @@ def quick(**overrides) -> ActiveConfig:
         members=3,
         stride=4,
         subset=1024,
+        round_epochs=4.0,
     )
     return dataclasses.replace(base, **overrides)
 
@@ -173,14 +188,18 @@ def paper(**overrides) -> ActiveConfig:
         train_preset="paper",
         labels_labelers=("dragan", "nikolaidis"),
         study_models=("mlp", "slotv_plus", "dragan"),
-        label_sizes=geometric(8, 4096, 2.0),
-        study_sizes=geometric(8, 1024, 2.0),
+        label_sizes=geometric(8, 1024, math.sqrt(2)),
+        study_sizes=geometric(8, 2048, math.sqrt(2))[:-1],  # 8 … 1,448
         updates=100,
         study_updates=300,
+        round_epochs=4.0,
         participants=20,
         study_targets=(("mlp", 0.8), ("slotv_plus", 0.8), ("dragan", 0.9)),
+        strategies=("random", "uncertainty", "margin", "bald", "bald_cluster"),
+        seeds=5,
         members=3,
-        subset=4096,
+        subset=8192,
+        eval_size=3000,
         chunk=64,
         overrides=("compute_dtype=bfloat16",),
     )
@@ -229,22 +248,31 @@ def run_group(
     eval_split = "trajectory_val" if setting == "labels" else "position_test"
     xyz, goals, mask, probs = _strided(splits["train"], labeler, cfg.stride)
     pool = selection.make_pool(xyz, goals, mask)
-    exyz, egoals, emask, elabels = _strided(splits[eval_split], labeler, cfg.stride, cfg.eval_size)
+    exyz, egoals, emask, elabels = _strided(
+        splits[eval_split], labeler, cfg.stride, cfg.eval_offset + cfg.eval_size
+    )
+    exyz, egoals, emask, elabels = (a[cfg.eval_offset :] for a in (exyz, egoals, emask, elabels))
+    if exyz.shape[0] != cfg.eval_size:
+        raise ValueError(
+            f"eval_offset, eval_size: {eval_split} holds {cfg.eval_offset + exyz.shape[0]} "
+            f"motions, asked for {cfg.eval_offset} + {cfg.eval_size}"
+        )
     evpool = selection.make_pool(exyz, egoals, emask)
     etarget = np.asarray(evaluate.target(jnp.asarray(elabels), jnp.asarray(emask)))
     n_pool, per = pool.traj.shape[0], 1 if setting == "labels" else cfg.participants
     if sizes[-1] > n_pool:
         raise ValueError(f"sizes: {sizes[-1]} motions asked, the pool holds {n_pool}")
-    runs = [(s, seed) for s in cfg.strategies for seed in range(cfg.seeds)]
+    seeds = range(cfg.first_seed, cfg.first_seed + cfg.seeds)
+    runs = [(s, seed) for s in cfg.strategies for seed in seeds]
     n_runs, cap, g = len(runs), sizes[-1], probs.shape[1]
     sel = selection.make_selector(tc, cfg.members, cap)
-    seed_keys = [jax.random.key(1000 + seed) for seed in range(cfg.seeds)]
+    seed_keys = {seed: jax.random.key(1000 + seed) for seed in seeds}
     ens = jax.jit(jax.vmap(sel.init))(jnp.stack([seed_keys[sd] for _, sd in runs]))
     answers_all = {
         sd: probs.astype(np.float32)
         if setting == "labels"
         else _guesses(sd, probs, mask, cfg.participants)
-        for sd in range(cfg.seeds)
+        for sd in seeds
     }
     cand = np.zeros((n_runs, cap), np.int32)
     counts = np.zeros((n_runs, cap, g), np.float32)
@@ -253,7 +281,7 @@ def run_group(
         first = np.random.default_rng([sd, 1]).choice(n_pool, sizes[0], replace=False)
         cand[i, : sizes[0]] = first
         asked[i, first] = True
-    updates = cfg.updates if setting == "labels" else cfg.study_updates
+    updates = cfg.updates if setting == "labels" else cfg.study_updates  # one block
     fit = jax.jit(jax.vmap(lambda e, a, k: sel.fit(e, pool, a, k, updates=updates)))
     evc = jnp.arange(evpool.traj.shape[0])
     acc_fn = jax.jit(
@@ -286,7 +314,9 @@ def run_group(
         )
         keys = jnp.stack([jax.random.fold_in(seed_keys[sd], 100 + r) for _, sd in runs])
         t0 = time.perf_counter()
-        ens, _ = fit(ens, ans, keys)
+        for j in range(cfg.round_updates(setting, size) // updates):
+            kj = keys if j == 0 else jax.vmap(lambda k, j=j: jax.random.fold_in(k, 10 + j))(keys)
+            ens, _ = fit(ens, ans, kj)
         jax.block_until_ready(ens.params)
         t1 = time.perf_counter()
         pred = np.asarray(acc_fn(ens.params))
@@ -468,6 +498,10 @@ def _parse_args(argv):
     ap.add_argument("--updates", type=int, default=None, help="updates per round (labels)")
     ap.add_argument("--study-updates", type=int, default=None, help="updates per round (study)")
     ap.add_argument("--members", type=int, default=None, help="ensemble size E")
+    ap.add_argument("--first-seed", type=int, default=None, help="seeds from this one (tuning)")
+    ap.add_argument(
+        "--eval-offset", type=int, default=None, help="held-out motions from this one (tuning)"
+    )
     ap.add_argument(
         "--groups",
         default=None,
@@ -489,7 +523,7 @@ def _parse_args(argv):
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
     kw: dict = {}
-    for name in ("seeds", "updates", "study_updates", "members"):
+    for name in ("seeds", "updates", "study_updates", "members", "first_seed", "eval_offset"):
         if getattr(args, name) is not None:
             kw[name] = getattr(args, name)
     if args.strategies:
