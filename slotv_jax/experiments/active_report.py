@@ -86,7 +86,7 @@ def report(doc: dict, stem: str, command: str) -> str:
         f"simulated participants each (sampling the {cfg['study_labeler']} labeler), targets "
         + ", ".join(f"{MODEL_TITLES[m]} {t:.0%}" for m, t in cfg["study_targets"])
         + f" on {_held_out(cfg)} of `position_test`.",
-        f"- Time: {doc['timing'].get('total_s', 0) / 60:.1f} min for the whole command"
+        f"- Time: {doc['timing'].get('total_s', 0) / 60:.1f} min of running in all"
         + (
             f"; 1-minute load average {doc['load']['start']:.1f} at the start and "
             f"{doc['load']['end']:.1f} at the end on {doc['load']['cpus']} CPUs (shared)"
