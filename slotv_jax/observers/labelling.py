@@ -34,6 +34,7 @@ from slotv_jax.observers.labelers import (
     nikolaidis,
 )
 from slotv_jax.world.scene import Camera
+from slotv_jax.world.scene import camera as scene_camera
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,7 +180,7 @@ def label_with(
         raise ValueError(f"labels: expected a LabelConfig, got {type(labels).__name__}")
     names, (xyz, goals, goal_mask, t) = _bulk_inputs(labelers, xyz, goals, goal_mask, t, chunk_size)
     betas = {n: jnp.float32(getattr(labels, f"beta_{n}")) for n in names}  # traced
-    cam = _as_camera(labels.camera)
+    cam = labels.camera if isinstance(labels.camera, Camera) else scene_camera(labels.camera)
     chunk_size = CHUNK_LABELS // len(names) if chunk_size is None else chunk_size
     N, C = len(xyz), min(chunk_size, max(len(xyz), 1))
     out = {n: np.empty((N, G_MAX), np.float32) for n in names}
