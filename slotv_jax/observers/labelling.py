@@ -34,13 +34,12 @@ from slotv_jax.observers.labelers import (
     nikolaidis,
 )
 from slotv_jax.world.scene import Camera
-from slotv_jax.world.scene import camera as scene_camera
 
 
 @dataclasses.dataclass(frozen=True)
 class LabelConfig:
-    """Inverse temperatures of the four labelers (SPEC §4) and the Nikolaidis camera,
-    checked once, here.
+    """Inverse temperatures of the four labelers (SPEC §4), checked once, here, and the
+    Nikolaidis camera (checked where it is used: a name needs the scene model).
 
     The defaults are :data:`slotv_jax.core.defaults.DEFAULT_BETAS`, the labelers' own: four
     times the first version's (5, 7.5, 5 and 5). The paper does not state its
@@ -58,7 +57,6 @@ class LabelConfig:
     def __post_init__(self):
         for n in LABELER_NAMES:
             validation.check_positive(f"beta_{n}", getattr(self, f"beta_{n}"))
-        _as_camera(self.camera)
 
     def betas(self) -> dict[str, float]:
         """``{labeler: β}`` in the order of :data:`LABELER_NAMES`."""
@@ -180,7 +178,7 @@ def label_with(
         raise ValueError(f"labels: expected a LabelConfig, got {type(labels).__name__}")
     names, (xyz, goals, goal_mask, t) = _bulk_inputs(labelers, xyz, goals, goal_mask, t, chunk_size)
     betas = {n: jnp.float32(getattr(labels, f"beta_{n}")) for n in names}  # traced
-    cam = labels.camera if isinstance(labels.camera, Camera) else scene_camera(labels.camera)
+    cam = _as_camera(labels.camera)  # a name is looked up here, not when the config is made
     chunk_size = CHUNK_LABELS // len(names) if chunk_size is None else chunk_size
     N, C = len(xyz), min(chunk_size, max(len(xyz), 1))
     out = {n: np.empty((N, G_MAX), np.float32) for n in names}
