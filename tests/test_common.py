@@ -52,18 +52,21 @@ def test_time_weights_by_hand_and_in_both_forms():
             np.testing.assert_allclose(np.exp(log_w), want[np.float32], rtol=2e-6, atol=1e-37)
 
 
-@pytest.mark.parametrize("beta", [5.0, 20.0])
+@pytest.mark.parametrize("beta", [5.0, 20.0, 400.0])
 def test_dragan_kernel_equals_the_labeler_and_the_reference(beta):
+    """The one Dragan kernel in both forms, log space (the archetypes) and linear (the
+    labelers), against a float64 reference, up to a β far above the datasets'."""
     rng = np.random.default_rng(3)
     for n in (2, 5, 8):
         xyz = rng.uniform([0.25, -0.5, 0.1], [0.7, 0.5, 0.4], (40, 3))
         goals = np.zeros((8, 3))
         goals[:n, :2] = rng.uniform([0.3, -0.45], [0.7, 0.45], (n, 2))
         mask = np.arange(8) < n
+        want = ref.dragan(xyz, goals, mask, beta=beta)
         log_y = common.dragan_log_labels(jnp.asarray(xyz, jnp.float32),
                                          jnp.asarray(goals, jnp.float32), mask, beta)  # fmt: skip
         y = np.exp(np.asarray(common.mask_logits(log_y, mask)))
-        np.testing.assert_allclose(y, ref.dragan(xyz, goals, mask, beta=beta), atol=1e-6)
+        np.testing.assert_allclose(y, want, atol=1e-6)
         y_fused = labelers.dragan(xyz.astype(np.float32), goals, mask, beta=beta)
         np.testing.assert_allclose(y, np.asarray(y_fused), atol=1e-6)
 

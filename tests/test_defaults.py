@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from slotv_jax import data
-from slotv_jax.core import defaults
+from slotv_jax.core import defaults, validation
 from slotv_jax.labelers import cli as labelers_cli
 from slotv_jax.observers import labelers, labelling
 from slotv_jax.world import scene
@@ -81,3 +81,28 @@ def test_label_all_and_the_command_line_default_to_the_table(tmp_path):
     for name in defaults.LABELER_NAMES:
         one = labelers.LABELERS[name](xyz[1], goals, mask, **(kw if name == "nikolaidis" else {}))
         np.testing.assert_allclose(y[name][1], np.asarray(one), rtol=0, atol=2e-6, err_msg=name)
+
+
+def test_beta_is_checked_once_on_the_dataset_path(tiny_data, monkeypatch):
+    """β is checked when the LabelConfig is made, and not again while a split is labelled
+    (the labelers' own check only sees concrete values; under label_with β is traced)."""
+    seen = []
+    check = validation.check_positive
+
+    def counting(name, value):
+        if validation.is_concrete(value):
+            seen.append(name)
+        return check(name, value)
+
+    monkeypatch.setattr(validation, "check_positive", counting)
+    labels = data.LabelConfig(beta_dragan=21.0)
+    assert seen == [f"beta_{n}" for n in defaults.LABELER_NAMES]
+    seen.clear()
+    split = tiny_data["position_test"]
+    out = data.relabel(split, labels, progress=False)
+    assert seen == []
+    y = labelers.dragan(split.xyz[0], split.goals[0], split.goal_mask[0], beta=21.0)
+    np.testing.assert_allclose(out.labels["dragan"][0], np.asarray(y), rtol=0, atol=2e-6)
+    assert seen == ["beta"]  # the public labeler checks its own (concrete) β
+    with pytest.raises(ValueError, match="beta_effdist: expected a finite number > 0"):
+        labelling.label_all(split.xyz[:2], split.goals[:2], split.goal_mask[:2], beta_effdist=0)

@@ -16,8 +16,8 @@ import pytest
 from PIL import Image
 
 from slotv_jax import render
-from slotv_jax.render import frames as frames_lib
-from slotv_jax.render import overlay, writers
+from slotv_jax.rendering import compare, overlay, writers
+from slotv_jax.rendering import frames as frames_lib
 from slotv_jax.robot import kinematics
 from slotv_jax.world import scene
 
@@ -44,7 +44,7 @@ def renderer():
 @pytest.fixture(scope="module")
 def mjx_ref():
     """MJX kinematics of the scene model at Q_A (one compiled call): the TCP and the
-    three cameras, as slotv_jax.scene.Camera (the reference render.camera is checked on)."""
+    three cameras, as slotv_jax.scene.Camera (the reference rendering.camera is checked on)."""
     m = kinematics.mj_model(kinematics.SCENE_XML)
     site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, kinematics.TCP_SITE)
 
@@ -64,7 +64,7 @@ def mjx_ref():
 
 
 def _mjx_pixel(point, cam, size):
-    """Pixel of a world point through an MJX-posed camera (independent of render.camera)."""
+    """Pixel of a world point through an MJX-posed camera (independent of rendering.camera)."""
     uv, _ = scene.project(np.asarray(point, np.float64), cam)
     w, h = size
     f = (h / 2) / np.tan(np.deg2rad(float(cam.fovy)) / 2)
@@ -279,12 +279,12 @@ def test_compare_layouts(renderer):
     copies of one motion (one colour) is that motion's clip under a legend."""
     q1, q2 = _path(), _path()[::-1].copy()
     kw = {"size": SIZE, "fps": 4, "duration": 1, "hold": 0, "renderer": renderer}
-    c = render.compare.PALETTE
+    c = compare.PALETTE
     side = render.compare_frames([q1, q2], GOALS, MASK, names=["a", "b"], **kw)
     h, w = SIZE[1], SIZE[0]
     bar = side.shape[1] - h
-    assert side.shape == (5, bar + h, 2 * w + render.compare.GAP, 3)
-    for q, x, rgba in ((q1, 0, c[0]), (q2, w + render.compare.GAP, c[1])):
+    assert side.shape == (5, bar + h, 2 * w + compare.GAP, 3)
+    for q, x, rgba in ((q1, 0, c[0]), (q2, w + compare.GAP, c[1])):
         own = render.motion_frames(q, GOALS, MASK, trace_rgba=rgba, **kw)
         np.testing.assert_array_equal(side[:, bar:, x : x + w], own)
     over = render.compare_frames(

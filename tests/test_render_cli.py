@@ -12,7 +12,8 @@ import pytest
 from slotv_jax import data, render, study
 from slotv_jax.experiments import planning_render
 from slotv_jax.render import cli
-from slotv_jax.render import frames as frames_lib
+from slotv_jax.rendering import compare, overlay
+from slotv_jax.rendering import frames as frames_lib
 from slotv_jax.robot import kinematics
 
 SIZE = (64, 48)
@@ -91,11 +92,11 @@ def test_plans_side_by_side_and_one_planner(tmp_path):
     both = tmp_path / "both.png"
     assert cli.main(["--plans", str(plans), "--problem", "1", "--out", str(both), *FAST]) == 0
     img = render.read_video(both)[0]
-    assert img.shape[1] == 2 * SIZE[0] + render.compare.GAP
+    assert img.shape[1] == 2 * SIZE[0] + compare.GAP
     one = tmp_path / "one.png"
     args = ["--plans", str(plans), "--problem", "1", "--planner", "oracle", "--out", str(one)]
     assert cli.main([*args, *FAST]) == 0
-    right = img[:, SIZE[0] + render.compare.GAP :]
+    right = img[:, SIZE[0] + compare.GAP :]
     np.testing.assert_array_equal(render.read_video(one)[0][:, :, :3], right)  # same panel
     swapped = tmp_path / "swapped.png"
     args = ["--plans", str(plans), "--problem", "1", "--planner", "oracle,straight"]
@@ -183,10 +184,10 @@ def test_planning_figure_rows_and_panels(tmp_path):
     args = ["--plans", str(plans), "--out", str(out), "--size", "64x48", "--problems", "0,2"]
     assert planning_render.main(args) == 0
     img = render.read_video(out)[0]
-    bar = render.overlay.title(np.zeros((48, 64, 3), np.uint8), "x").shape[0]
+    bar = overlay.title(np.zeros((48, 64, 3), np.uint8), "x").shape[0]
     assert img.shape[:2] == (
-        2 * (2 * bar + 48) + render.compare.GAP,
-        3 * 64 + 2 * render.compare.GAP,
+        2 * (2 * bar + 48) + compare.GAP,
+        3 * 64 + 2 * compare.GAP,
     )
 
 

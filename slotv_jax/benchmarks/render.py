@@ -39,8 +39,8 @@ from OpenGL import GL  # PyOpenGL: a dependency of mujoco's GL backends
 from slotv_jax import render
 from slotv_jax.benchmarks._machine import cpu_model
 from slotv_jax.core import cli, fileio
-from slotv_jax.render import writers
 from slotv_jax.render.cli import parse_size
+from slotv_jax.rendering import writers
 from slotv_jax.robot import kinematics
 
 Q_END = np.array([0.3, -0.2, 0.1, -2.0, 0.05, 1.9, 0.7])

@@ -10,9 +10,9 @@ import json
 
 import numpy as np
 
-from slotv_jax.core import validation
-from slotv_jax.core.defaults import BETAS_V1, DEFAULT_BETAS, LABELER_NAMES
+from slotv_jax.core.defaults import BETAS_V1
 from slotv_jax.core.validation import G_MAX
+from slotv_jax.observers.labelling import LabelConfig
 from slotv_jax.robot import kinematics
 from slotv_jax.world.scene import SceneConfig
 from slotv_jax.world.trajectories import DISTRIBUTIONS, TrajectoryConfig
@@ -27,32 +27,6 @@ GENERATOR_VERSION = 8  # 2: IK locks joints at their limits; 3: home TCP by one 
 
 
 # ----------------------------------------------------------------------- config
-
-
-@dataclasses.dataclass(frozen=True)
-class LabelConfig:
-    """Inverse temperatures of the four labelers (SPEC §4) and the Nikolaidis camera.
-
-    The defaults are :data:`slotv_jax.core.defaults.DEFAULT_BETAS`, the labelers' own: four
-    times the first version's (5, 7.5, 5 and 5). The paper does not state its
-    temperatures, and at ×4 T-REX's accuracy on Dragan labels matches the paper's while
-    SLOT-V's does not move (``experiments/fidelity.md``). :data:`LABELS_V1` keeps the
-    first version's temperatures.
-    """
-
-    beta_dragan: float = DEFAULT_BETAS["dragan"]  # m⁻¹
-    beta_nikolaidis: float = DEFAULT_BETAS["nikolaidis"]  # per unit of image-plane distance
-    beta_effdist: float = DEFAULT_BETAS["effdist"]  # m⁻¹
-    beta_fastapp: float = DEFAULT_BETAS["fastapp"]  # m⁻¹
-    camera: str = "observer"
-
-    def __post_init__(self):
-        for n in LABELER_NAMES:
-            validation.check_positive(f"LabelConfig.beta_{n}", getattr(self, f"beta_{n}"))
-
-    def betas(self) -> dict[str, float]:
-        """``{labeler: β}`` in the order of :data:`LABELER_NAMES`."""
-        return {n: float(getattr(self, f"beta_{n}")) for n in LABELER_NAMES}
 
 
 #: The first version's label temperatures (:data:`slotv_jax.core.defaults.BETAS_V1`).

@@ -58,7 +58,7 @@ from slotv_jax.data.storage import (
     load_split,
     save_split,
 )
-from slotv_jax.observers.labelling import label_all
+from slotv_jax.observers.labelling import label_with
 from slotv_jax.robot import kinematics
 from slotv_jax.world.scene import Scene, check_scene, sample_goal_count, sample_scene
 from slotv_jax.world.trajectories import TrajectoryConfig, plan_path, straight_path
@@ -261,15 +261,7 @@ def generate_split(
 def relabel(split: Split, labels: LabelConfig, *, progress: bool = True) -> Split:
     """Recompute the four labels of a split (for example after a β change)."""
     t0 = time.perf_counter()
-    y = label_all(
-        split.xyz,
-        split.goals,
-        split.goal_mask,
-        progress=progress,
-        labelers=LABELER_NAMES,
-        camera=labels.camera,
-        **{f"beta_{n}": getattr(labels, f"beta_{n}") for n in LABELER_NAMES},
-    )
+    y = label_with(labels, split.xyz, split.goals, split.goal_mask, progress=progress)
     meta = json.loads(json.dumps(split.meta))
     meta.setdefault("timing_s", {})["labels"] = time.perf_counter() - t0
     meta["label_config"] = dataclasses.asdict(labels)

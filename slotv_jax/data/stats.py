@@ -8,7 +8,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from slotv_jax.data.config import LABELER_NAMES
+from slotv_jax.core.defaults import LABELER_NAMES
 from slotv_jax.data.storage import Split
 
 NEAR_TIE = 0.01  # a top-2 probability gap below this makes the argmax a close call

@@ -23,11 +23,11 @@ from pathlib import Path
 import numpy as np
 
 from slotv_jax.core import cli, fileio
-from slotv_jax.render import compare, writers
-from slotv_jax.render.camera import CAMERAS, View
 from slotv_jax.render.cli import PLAN_ARRAYS, parse_indices, parse_size
-from slotv_jax.render.frames import MotionRenderer, RenderBackendError, check_timing
-from slotv_jax.render.overlay import title
+from slotv_jax.rendering import compare, writers
+from slotv_jax.rendering.camera import CAMERAS, View
+from slotv_jax.rendering.frames import MotionRenderer, RenderBackendError, check_timing
+from slotv_jax.rendering.overlay import title
 
 
 def default_problems(family: np.ndarray, n: int = 3) -> list[int]:

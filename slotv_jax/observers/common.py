@@ -8,8 +8,9 @@ SLOT-V / T-REX networks and the planner use these, and no copy of them.
   :func:`time_weights` / :func:`log_time_weights`, ``u_i ∝ [trap_i] · (1 − τ_i)^α``: at
   α = 1 with the trapezoid rule these are SPEC §4.1's integration weights (Dragan &
   Srinivasa's f(t) = T − t); α = 0 gives the plain mean.
-- Dragan's legibility in log space, :func:`dragan_log_labels` (SPEC §4.1, generalised by
-  a time exponent, a start weight and a metric), on :func:`pairwise_distances`.
+- Dragan's legibility, :func:`dragan_kernel` (SPEC §4.1, with a start weight, in linear
+  form for the labelers or in log space for the archetypes), on :func:`distances` and the
+  fused time integrals :func:`integrals`; :func:`pairwise_distances` for arrays of points.
 
 The camera projection of SPEC §4.2 belongs to the world's cameras:
 :func:`slotv_jax.world.scene.camera_coords` and :func:`slotv_jax.world.scene.image_coords`.
@@ -29,18 +30,25 @@ dtype's smallest normal number, so that log weights stay finite at τ = 1.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Sequence
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
 __all__ = [
+    "distances",
+    "dragan_kernel",
     "dragan_log_labels",
+    "integrals",
     "log_time_weights",
     "mask_logits",
     "masked_log",
     "masked_softmax",
     "pairwise_distances",
+    "sums",
     "time_weights",
     "trapezoid",
     "uniform_times",
@@ -143,6 +151,114 @@ def pairwise_distances(
     return jnp.sqrt(jnp.maximum(sq, jnp.finfo(sq.dtype).tiny))
 
 
+# The Dragan kernel labels one trajectory. Points are passed coordinate by coordinate,
+# ``pts[j]`` of shape ``(T,)``, and the goal slots are a loop over the rows of ``goals``:
+# every per-goal quantity is a list of arrays over the points, and sums or maxima over the
+# goals are elementwise folds of that list. Under ``jax.vmap`` these are ``(N, T)`` arrays
+# of one shape, and the time integrals of all goals are one reduction (:func:`integrals`),
+# so XLA compiles a batch of labels into a single loop over the points that computes each
+# distance and exponential once and stores no ``(N, 8, T)`` array.
+
+
+def distances(
+    pts: Sequence[Float[Array, " T"]], g: Float[Array, " D"], scale: Array | None = None
+) -> Float[Array, " T"]:
+    """``‖p_i − g‖`` for points given by their coordinates ``pts[j] (T,)``; with a
+    ``scale (T,)`` > 0, ``‖p_i − s_i g‖ / s_i = ‖p_i / s_i − g‖`` (the homogeneous
+    image-plane distance of :func:`slotv_jax.observers.labelers.nikolaidis`).
+
+    ``max(·, tiny)`` keeps the gradient finite when a point sits exactly on the goal
+    (a trajectory ending at its target); it changes the distance only below 1e-19 m.
+    """
+    if scale is None:
+        sq = sum((g[j] - p) ** 2 for j, p in enumerate(pts))
+        return jnp.sqrt(jnp.maximum(sq, jnp.finfo(sq.dtype).tiny))
+    sq = sum((p - scale * g[j]) ** 2 for j, p in enumerate(pts))
+    return jnp.sqrt(jnp.maximum(sq, jnp.finfo(sq.dtype).tiny)) / scale
+
+
+def sums(fs: Sequence[Array]) -> tuple[Array, ...]:
+    """``Σ_i f(i)`` over the last axis for each ``f`` in ``fs``, as one variadic reduction.
+
+    One reduction, not one per array: XLA fuses the computation of every ``f`` into
+    it, so what they share (a point, Dragan's normaliser) is computed once per point
+    and nothing of size ``(G, T)`` is stored.
+    """
+    zero = jnp.zeros((), fs[0].dtype)
+    return tuple(
+        jax.lax.reduce(
+            tuple(fs),
+            (zero,) * len(fs),
+            lambda a, b: tuple(x + y for x, y in zip(a, b, strict=True)),
+            (fs[0].ndim - 1,),
+        )
+    )
+
+
+def integrals(fs: Sequence[Array], w: Float[Array, " T"]) -> Float[Array, " G"]:
+    """``[Σ_i w_i f_k(i) for f_k in fs]``, as one reduction (:func:`sums`)."""
+    return jnp.stack(sums([f * w for f in fs]), axis=-1)
+
+
+def dragan_kernel(
+    pts: Sequence[Float[Array, " T"]],
+    goals: Float[Array, "G D"],
+    mask: Bool[Array, " G"],
+    beta,
+    weights: Float[Array, " T"],
+    *,
+    start_weight=None,
+    scale: Array | None = None,
+    invalid: Array | None = None,
+    log: bool = False,
+) -> Float[Array, " G"]:
+    """Dragan legibility (SPEC §4.1; Dragan & Srinivasa, RSS 2013) of one trajectory, the one
+    definition that the labelers, the archetypes and (through them) the planner use::
+
+        P_k(i) = softmax_k( β (w₀ ‖S − g_k‖ − ‖p_i − g_k‖) )     (real goals only)
+        y_k    = Σ_i c_i P_k(i)
+
+    for points ``pts[j] (T,)`` (``S`` = the first), goals ``(G, D)``, integration weights
+    ``c = weights`` (SPEC §4.1: the trapezoid rule times ``1 − t``; :func:`time_weights`)
+    and ``w₀ = start_weight`` (None: 1, Dragan's own).
+
+    ``log=False`` (the labelers): ``y``, with ``P_k(i) = e_k(i) / Σ_l e_l(i)``,
+    ``e = exp(logits − max_k logits)``, exactly 0 on padded slots, every integral in one
+    fused reduction (fast on many trajectories). ``scale (T,)``: distances as in
+    :func:`distances` (nikolaidis). ``invalid (T,)``: where any is True the label is
+    uniform over the real goals; it is counted in the same loop as the integrals.
+
+    ``log=True`` (the archetypes, whose fitted β may be large): ``log y``, from
+    ``weights = log c`` by a log-softmax over goals and a log-sum-exp over time, so that
+    small probabilities neither underflow nor take the gradient with them. Padded slots get
+    finite, meaningless values (their positions enter the formula but not the
+    normalisation): callers mask them. ``scale`` and ``invalid`` are for ``log=False``.
+    """
+    start = [p[:1] for p in pts]
+    start_scale = None if scale is None else scale[:1]
+    d_start = [distances(start, g, start_scale) for g in goals]
+    if start_weight is not None:
+        d_start = [start_weight * d for d in d_start]
+    z = [beta * (d0 - distances(pts, g, scale)) for d0, g in zip(d_start, goals, strict=True)]
+    logits = [mask_logits(zk, mask[k]) for k, zk in enumerate(z)]  # β(w₀‖S − g_k‖ − d_k(i))
+    top = functools.reduce(jnp.maximum, logits)
+    e = [jnp.exp(logit - top) for logit in logits]
+    norm = functools.reduce(jnp.add, e)
+    if log:
+        if scale is not None or invalid is not None:
+            raise ValueError("dragan_kernel: scale and invalid are for log=False")
+        log_p = jnp.stack(z, axis=-1) - (top + jnp.log(norm))[:, None]  # (T, G)
+        return jax.nn.logsumexp(log_p + weights[:, None], axis=0)
+    w = weights / norm
+    if invalid is None:
+        return integrals(e, w)
+    # 0 · w, not 0: lax.reduce cannot differentiate an operand without a tangent; and
+    # a NaN weight of a valid point (overflow) then keeps the labels NaN, not uniform.
+    *ys, n_invalid = sums([f * w for f in e] + [jnp.where(invalid, 1.0, 0.0 * w)])
+    uniform = (mask / jnp.sum(mask, axis=-1, keepdims=True)).astype(w.dtype)
+    return jnp.where(n_invalid > 0, uniform, jnp.stack(ys, axis=-1))
+
+
 def dragan_log_labels(
     pts: Float[Array, "... T D"],
     goals: Float[Array, "... G D"],
@@ -150,24 +266,27 @@ def dragan_log_labels(
     beta,
     *,
     alpha=1.0,
-    start_weight=1.0,
+    start_weight=None,
     metric=None,
 ) -> Float[Array, "... G"]:
-    """log y_k of Dragan legibility (SPEC §4.1) in the space of ``pts``, generalised::
+    """log y_k of :func:`dragan_kernel` for arrays of trajectories, generalised as the
+    learnable archetypes need::
 
         P_k(i) = softmax_k( β (w₀ ‖S − g_k‖_M − ‖p_i − g_k‖_M) )   (real goals only)
         y_k    = Σ_i c_i P_k(i),   c_i ∝ trap_i · (1 − t_i)^α,   Σ_i c_i = 1
 
-    at t_i = i/(T − 1), in log space (log-softmax, then a log-sum-exp over time), so that
-    large β neither overflows nor loses the small probabilities. Padded slots get finite,
-    meaningless values (their positions enter the formula but not the normalisation):
-    callers mask them. With α = 1, w₀ = 1 and no metric this is ``log labelers.dragan``
-    at the same β, whose fused form labels many trajectories fast (both are tested
-    against one float64 reference and against each other).
+    at t_i = i/(T − 1), with ``‖x‖_M² = Σ_j m_j x_j²`` (``metric``: the weights ``m``;
+    None: Euclidean), computed as the kernel's Euclidean distance of ``√m ⊙ x``; the
+    batch axes ``...`` broadcast (``jnp.vectorize``). With α = 1, w₀ = 1 and no metric
+    this is ``log labelers.dragan`` at the same β (tested against one float64 reference).
     """
-    d = pairwise_distances(pts, goals, metric)  # (..., T, G)
-    z = beta * (start_weight * d[..., :1, :] - d)
-    log_p = z - jax.nn.logsumexp(mask_logits(z, mask[..., None, :]), axis=-1, keepdims=True)
+    if metric is not None:
+        root = jnp.sqrt(jnp.asarray(metric))
+        pts, goals = pts * root, goals * root
     log_c = log_time_weights(uniform_times(pts.shape[-2]), alpha, trapezoid_rule=True,
-                             dtype=z.dtype)  # fmt: skip
-    return jax.nn.logsumexp(log_p + log_c[:, None], axis=-2)
+                             dtype=jnp.result_type(pts.dtype, goals.dtype))  # fmt: skip
+
+    def one(p, g, m):
+        return dragan_kernel(tuple(p.T), g, m, beta, log_c, start_weight=start_weight, log=True)
+
+    return jnp.vectorize(one, signature="(t,d),(g,d),(g)->(g)")(pts, goals, mask)

@@ -40,18 +40,22 @@ Command line (label user trajectories from an ``.npz`` holding ``xyz (N, T, 3)``
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from slotv_jax.core import validation
 from slotv_jax.core.defaults import DEFAULT_BETAS, LABELER_NAMES
-from slotv_jax.observers.common import mask_logits, masked_softmax, time_weights
+from slotv_jax.observers.common import (
+    distances,
+    dragan_kernel,
+    integrals,
+    masked_softmax,
+    time_weights,
+)
 from slotv_jax.world.scene import Camera, camera_coords, project
 from slotv_jax.world.scene import camera as scene_camera
 from slotv_jax.world.scene import image_coords as _image  # the guarded projection
@@ -139,98 +143,18 @@ def _time_weights(t, T: int, dtype) -> TimeWeights:
 
 
 # ------------------------------------------------------------------- cores
-# Each core labels one trajectory. Points are passed coordinate by coordinate, ``pts[j]``
-# of shape ``(T,)``, and the goal slots are a loop over the 8 rows of ``goals``: every
-# per-goal quantity is a list of 8 arrays over the points, and sums or maxima over the
-# goals are elementwise folds of that list. Under ``jax.vmap`` these are ``(N, T)`` arrays
-# of one shape, and the time integrals of all 8 goals are one reduction
-# (:func:`_integrals`), so XLA compiles a batch of labels into a single loop over the
-# points that computes each distance and exponential once and stores no ``(N, 8, T)``
-# array.
-
-
-def _distance(
-    pts: Sequence[Array], g: Float[Array, " D"], scale: Array | None = None
-) -> Float[Array, " T"]:
-    """``‖p_i − g‖`` for points given by their coordinates ``pts[j] (T,)``; with a
-    ``scale (T,)`` > 0, ``‖p_i − s_i g‖ / s_i = ‖p_i / s_i − g‖`` (see :func:`_nikolaidis_core`).
-
-    ``max(·, tiny)`` keeps the gradient finite when a point sits exactly on the goal
-    (a trajectory ending at its target); it changes the distance only below 1e-19 m.
-    """
-    if scale is None:
-        sq = sum((g[j] - p) ** 2 for j, p in enumerate(pts))
-        return jnp.sqrt(jnp.maximum(sq, jnp.finfo(sq.dtype).tiny))
-    sq = sum((p - scale * g[j]) ** 2 for j, p in enumerate(pts))
-    return jnp.sqrt(jnp.maximum(sq, jnp.finfo(sq.dtype).tiny)) / scale
-
-
-def _sums(fs: Sequence[Array]) -> tuple[Array, ...]:
-    """``Σ_i f(i)`` over the last axis for each ``f`` in ``fs``, as one variadic reduction.
-
-    One reduction, not one per array: XLA fuses the computation of every ``f`` into
-    it, so what they share (a point, Dragan's normaliser) is computed once per point
-    and nothing of size ``(G, T)`` is stored.
-    """
-    zero = jnp.zeros((), fs[0].dtype)
-    return tuple(
-        jax.lax.reduce(
-            tuple(fs),
-            (zero,) * len(fs),
-            lambda a, b: tuple(x + y for x, y in zip(a, b, strict=True)),
-            (fs[0].ndim - 1,),
-        )
-    )
-
-
-def _integrals(fs: Sequence[Array], w: Float[Array, " T"]) -> Float[Array, " G"]:
-    """``[Σ_i w_i f_k(i) for f_k in fs]``, as one reduction (:func:`_sums`)."""
-    return jnp.stack(_sums([f * w for f in fs]), axis=-1)
-
-
-def _dragan_core(
-    pts: Sequence[Array],
-    goals: Array,
-    mask: Array,
-    beta,
-    c: Array,
-    scale: Array | None = None,
-    invalid: Array | None = None,
-) -> Array:
-    """SPEC §4.1 from points ``pts[j] (T,)``, goals ``(G, D)`` and integration weights
-    ``c (T,)``: ``y_k = Σ_i c_i P_k(i)`` with ``P_k(i) = e_k(i) / Σ_l e_l(i)`` and
-    ``e = exp(logits − max_k logits)`` (exactly 0 on padded slots).
-
-    ``scale (T,)``: distances as in :func:`_distance` (nikolaidis). ``invalid (T,)``:
-    where any is True the label is uniform over the real goals; it is counted in the
-    same loop as the integrals.
-    """
-    start = [p[:1] for p in pts]
-    start_scale = None if scale is None else scale[:1]
-    logits = [
-        mask_logits(beta * (_distance(start, g, start_scale) - _distance(pts, g, scale)), mask[k])
-        for k, g in enumerate(goals)
-    ]  # β(‖S − g_k‖ − d_k(i))
-    top = functools.reduce(jnp.maximum, logits)
-    e = [jnp.exp(logit - top) for logit in logits]
-    w = c / functools.reduce(jnp.add, e)
-    if invalid is None:
-        return _integrals(e, w)
-    # 0 · w, not 0: lax.reduce cannot differentiate an operand without a tangent; and
-    # a NaN weight of a valid point (overflow) then keeps the labels NaN, not uniform.
-    *sums, n_invalid = _sums([f * w for f in e] + [jnp.where(invalid, 1.0, 0.0 * w)])
-    uniform = (mask / jnp.sum(mask, axis=-1, keepdims=True)).astype(w.dtype)
-    return jnp.where(n_invalid > 0, uniform, jnp.stack(sums, axis=-1))
+# Each core labels one trajectory, its points coordinate by coordinate (``pts[j] (T,)``),
+# on the fused kernels of :mod:`slotv_jax.observers.common`.
 
 
 def _effdist_core(pts: Sequence[Array], goals: Array, mask: Array, beta, w: Array) -> Array:
     """SPEC §4.3 [reconstruction]: ``softmax(−β Σ_i w_i d_k(i))``."""
-    return masked_softmax(-beta * _integrals([_distance(pts, g) for g in goals], w), mask)
+    return masked_softmax(-beta * integrals([distances(pts, g) for g in goals], w), mask)
 
 
 def _fastapp_core(pts: Sequence[Array], goals: Array, mask: Array, beta, a: Array) -> Array:
     """SPEC §4.4 [reconstruction]: ``softmax(β Σ_i a_i d_k(i))`` (summation by parts)."""
-    return masked_softmax(beta * _integrals([_distance(pts, g) for g in goals], a), mask)
+    return masked_softmax(beta * integrals([distances(pts, g) for g in goals], a), mask)
 
 
 def _in_front(pts: Float[Array, "*n K 3"], pos, rot, mask=None, eps=DEPTH_EPS) -> Array:
@@ -248,10 +172,10 @@ def _nikolaidis_core(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS) -> Arra
     is taken in homogeneous form, ``‖(p_c.x, p_c.y) / z − (u_k, v_k)‖ = ‖p_c − z r_k‖ / z``
     with the goal's ray ``r_k = (u_k, v_k, −1)`` (the third coordinate of ``p_c − z r_k``
     is exactly 0). The points stay 3-vectors, so under ``vmap`` the projection fuses
-    into the one loop of :func:`_dragan_core`, with no ``(N, T)`` image arrays stored,
-    and that loop compiles like Dragan's 3-D one (measured 1.5× faster than dividing
-    first). The depth check is counted in the same loop (10 % faster than a separate
-    pass over the points). See experiments/BENCHMARKS.md.
+    into the one loop of :func:`~slotv_jax.observers.common.dragan_kernel`, with no
+    ``(N, T)`` image arrays stored, and that loop compiles like Dragan's 3-D one (measured
+    1.5× faster than dividing first). The depth check is counted in the same loop (10 %
+    faster than a separate pass over the points). See experiments/BENCHMARKS.md.
 
     A non-finite point is not a depth problem: its depth is NaN, neither valid nor
     invalid, and the labels are NaN as with the other labelers (so that
@@ -264,7 +188,7 @@ def _nikolaidis_core(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS) -> Arra
     rays = jnp.stack([u, v, -jnp.ones_like(u)], axis=-1)
     goal_behind = ~jnp.all(ok_g | ~mask, axis=-1)
     scale = jnp.where(behind, 1.0, depth)
-    return _dragan_core(pc, rays, mask, beta, c, scale=scale, invalid=behind | goal_behind)
+    return dragan_kernel(pc, rays, mask, beta, c, scale=scale, invalid=behind | goal_behind)
 
 
 # ------------------------------------------------------------ public labelers
@@ -351,7 +275,7 @@ def dragan(
     (True, 1.0)
     """
     xyz, goals, mask, tw = _prepare(xyz, goals, goal_mask, beta, t)
-    return _finite(_dragan_core(_coords(xyz), goals, mask, beta, tw.dragan))
+    return _finite(dragan_kernel(_coords(xyz), goals, mask, beta, tw.dragan))
 
 
 def effdist(

@@ -1,10 +1,15 @@
 """Labelling many trajectories at once: :func:`label_all`, one compiled ``jit(vmap)`` of the
 four labelers per chunk, with every check that cannot raise inside the compiled call done
 per trajectory and reported by index (SPEC §4, §7).
+
+The temperatures and the camera travel together as one :class:`LabelConfig`, checked once
+when it is made: :func:`label_all` makes one from its keyword arguments, a dataset's
+:class:`slotv_jax.data.DataConfig` holds one, and both label through :func:`label_with`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Sequence
 
@@ -29,6 +34,34 @@ from slotv_jax.observers.labelers import (
     nikolaidis,
 )
 from slotv_jax.world.scene import Camera
+
+
+@dataclasses.dataclass(frozen=True)
+class LabelConfig:
+    """Inverse temperatures of the four labelers (SPEC §4), checked once, here, and the
+    Nikolaidis camera (checked where it is used: a name needs the scene model).
+
+    The defaults are :data:`slotv_jax.core.defaults.DEFAULT_BETAS`, the labelers' own: four
+    times the first version's (5, 7.5, 5 and 5). The paper does not state its
+    temperatures, and at ×4 T-REX's accuracy on Dragan labels matches the paper's while
+    SLOT-V's does not move (``experiments/fidelity.md``).
+    :data:`slotv_jax.data.LABELS_V1` keeps the first version's temperatures.
+    """
+
+    beta_dragan: float = DEFAULT_BETAS["dragan"]  # m⁻¹
+    beta_nikolaidis: float = DEFAULT_BETAS["nikolaidis"]  # per unit of image-plane distance
+    beta_effdist: float = DEFAULT_BETAS["effdist"]  # m⁻¹
+    beta_fastapp: float = DEFAULT_BETAS["fastapp"]  # m⁻¹
+    camera: str | Camera = "observer"  # a camera name of slotv_jax.scene, or a Camera
+
+    def __post_init__(self):
+        for n in LABELER_NAMES:
+            validation.check_positive(f"beta_{n}", getattr(self, f"beta_{n}"))
+
+    def betas(self) -> dict[str, float]:
+        """``{labeler: β}`` in the order of :data:`LABELER_NAMES`."""
+        return {n: float(getattr(self, f"beta_{n}")) for n in LABELER_NAMES}
+
 
 # ------------------------------------------------------------ bulk labelling
 
@@ -120,11 +153,32 @@ def label_all(
     >>> sorted(y), y["dragan"].shape
     (['dragan', 'effdist', 'fastapp', 'nikolaidis'], (10, 8))
     """
-    betas = dict(dragan=beta_dragan, nikolaidis=beta_nikolaidis, effdist=beta_effdist)
-    betas["fastapp"] = beta_fastapp
-    names, (xyz, goals, goal_mask, t), betas, cam = _bulk_inputs(
-        labelers, xyz, goals, goal_mask, t, chunk_size, betas, camera
-    )
+    labels = LabelConfig(beta_dragan, beta_nikolaidis, beta_effdist, beta_fastapp, camera)
+    return label_with(
+        labels, xyz, goals, goal_mask, t=t, chunk_size=chunk_size, progress=progress,
+        labelers=labelers,
+    )  # fmt: skip
+
+
+def label_with(
+    labels: LabelConfig,
+    xyz: Float[np.ndarray, "N T 3"],
+    goals: Float[np.ndarray, "N 8 3"],
+    goal_mask: Bool[np.ndarray, "N 8"],
+    *,
+    t: Float[np.ndarray, "*N T"] | None = None,
+    chunk_size: int | None = None,
+    progress: bool = True,
+    labelers: Sequence[str] = LABELER_NAMES,
+) -> dict[str, np.ndarray]:
+    """:func:`label_all` at the temperatures and camera of ``labels`` (checked when it was
+    made): ``{name: y (N, 8)}``, each ``y_k`` as SPEC §4 defines it at β = ``labels.beta_name``.
+    """
+    if not isinstance(labels, LabelConfig):
+        raise ValueError(f"labels: expected a LabelConfig, got {type(labels).__name__}")
+    names, (xyz, goals, goal_mask, t) = _bulk_inputs(labelers, xyz, goals, goal_mask, t, chunk_size)
+    betas = {n: jnp.float32(getattr(labels, f"beta_{n}")) for n in names}  # traced
+    cam = _as_camera(labels.camera)  # a name is looked up here, not when the config is made
     chunk_size = CHUNK_LABELS // len(names) if chunk_size is None else chunk_size
     N, C = len(xyz), min(chunk_size, max(len(xyz), 1))
     out = {n: np.empty((N, G_MAX), np.float32) for n in names}
@@ -166,9 +220,9 @@ def _recheck_points(ok: np.ndarray, xyz: np.ndarray, cam: Camera) -> None:
         ok[rows, 3] = in_front
 
 
-def _bulk_inputs(labelers, xyz, goals, goal_mask, t, chunk_size, betas, camera):
-    """:func:`label_all`'s boundary checks; its names, arrays (float32, goals and mask
-    broadcast to ``(N, ...)``, ``t`` normalised), betas (traced) and camera."""
+def _bulk_inputs(labelers, xyz, goals, goal_mask, t, chunk_size):
+    """:func:`label_with`'s boundary checks; its names and arrays (float32, goals and mask
+    broadcast to ``(N, ...)``, ``t`` normalised)."""
     names = (labelers,) if isinstance(labelers, str) else tuple(labelers)  # one name
     if not names or any(n not in LABELERS for n in names):
         raise ValueError(f"labelers: expected a non-empty subset of {LABELER_NAMES}, got {names}")
@@ -187,9 +241,7 @@ def _bulk_inputs(labelers, xyz, goals, goal_mask, t, chunk_size, betas, camera):
     if t is not None:  # normalised in float64 (see _time_weights)
         _check_times("t", t, (T,) if np.ndim(t) == 1 else (N, T))
         t = _normalise_times(np.asarray(t, np.float64), np).astype(np.float32)
-    for n in names:
-        validation.check_positive(f"beta_{n}", betas[n])
     if chunk_size is not None and int(chunk_size) < 1:
         raise ValueError(f"chunk_size: expected a positive integer, got {chunk_size}")
     arrays = (np.asarray(xyz, np.float32), goals, goal_mask.astype(bool, copy=False), t)
-    return names, arrays, {n: jnp.float32(betas[n]) for n in names}, _as_camera(camera)
+    return names, arrays

@@ -39,9 +39,9 @@ from tqdm.auto import tqdm
 
 from slotv_jax.core import cli, fileio
 from slotv_jax.data import SPLITS, load_split
-from slotv_jax.render.camera import CAMERAS, FreeCamera
-from slotv_jax.render.compare import LAYOUTS, PALETTE, compare_frames
-from slotv_jax.render.frames import (
+from slotv_jax.rendering.camera import CAMERAS, FreeCamera
+from slotv_jax.rendering.compare import LAYOUTS, PALETTE, compare_frames
+from slotv_jax.rendering.frames import (
     MotionRenderer,
     RenderBackendError,
     check_motion,
@@ -50,7 +50,13 @@ from slotv_jax.render.frames import (
     joints_from_tcp,
     motion_frames,
 )
-from slotv_jax.render.writers import SUFFIXES, check_output, contact_sheet, write_png, write_video
+from slotv_jax.rendering.writers import (
+    SUFFIXES,
+    check_output,
+    contact_sheet,
+    write_png,
+    write_video,
+)
 from slotv_jax.robot import kinematics
 from slotv_jax.study import load_study
 

@@ -1,4 +1,4 @@
-"""Render stimulus sets with :mod:`slotv_jax.render`: ``python -m slotv_jax.study stimuli``.
+"""Render stimulus sets with :mod:`slotv_jax.rendering`: ``python -m slotv_jax.study stimuli``.
 
 The set's layout is documented in :mod:`slotv_jax.study.stimuli`. This module draws the
 clips through MuJoCo (it needs OpenGL: ``MUJOCO_GL=egl`` on a headless machine), so the
@@ -18,7 +18,7 @@ a whole motion) and ``--hold`` (seconds the last frame stays) shape the clips. S
 - ``--study FILE``: a study file's trajectories (no targets: ``--attention 0``).
 
 A TCP path without joints gets them by the project's IK from ``Q_HOME``
-(:func:`slotv_jax.render.joints_from_tcp`); a path it misses by more than 5 mm is refused.
+(:func:`slotv_jax.rendering.joints_from_tcp`); a path it misses by more than 5 mm is refused.
 
 >>> r = SceneRenderer(size=(320, 180), fps=20)                         # doctest: +SKIP
 >>> write_stimulus_set("stim", q=q, xyz=xyz, goals=goals, goal_mask=mask, ids=ids,
@@ -37,10 +37,10 @@ import numpy as np
 from jaxtyping import Float, UInt8
 from tqdm.auto import tqdm
 
-from slotv_jax import render  # first: it picks MUJOCO_GL=egl before MuJoCo loads
+from slotv_jax import rendering  # first: it picks MUJOCO_GL=egl before MuJoCo loads
 from slotv_jax.core.fileio import check_output_dir, load_npz
 from slotv_jax.data import SPLITS, Split, load_split
-from slotv_jax.render.overlay import LABEL_LIFT
+from slotv_jax.rendering.overlay import LABEL_LIFT
 from slotv_jax.study.stimuli import (
     MANIFEST,
     Motion,
@@ -68,7 +68,7 @@ class SceneRenderer:
     ):
         self.size, self.fps, self.duration, self.hold = tuple(size), fps, duration, hold
         self.trace = trace
-        self.renderer = render.MotionRenderer(self.size)
+        self.renderer = rendering.MotionRenderer(self.size)
 
     @classmethod
     def like(cls, stimdir: str | Path, *, trace: bool = True) -> SceneRenderer:
@@ -81,20 +81,20 @@ class SceneRenderer:
         self, motion: Motion, tau: float, camera: str
     ) -> tuple[UInt8[np.ndarray, "F H W 3"], Float[np.ndarray, "G 2"]]:
         """The clip cut at τ, goals labelled (no target marked), and the labels' pixels."""
-        f = render.motion_frames(
+        f = rendering.motion_frames(
             motion.q, motion.goals, motion.goal_mask, camera=camera, tau=tau, size=self.size,
             fps=self.fps, duration=self.duration, hold=self.hold, t=motion.t,
             labels=motion.labels, trace=self.trace, renderer=self.renderer,
         )  # fmt: skip
         anchor = np.asarray(motion.goals, np.float64)[motion.goal_mask] + [0.0, 0.0, LABEL_LIFT]
-        px, _ = render.pixels(anchor, camera, self.size)
+        px, _ = rendering.pixels(anchor, camera, self.size)
         return f, px
 
     def write_video(self, path: Path, frames) -> None:
-        render.write_video(path, frames, self.fps)
+        rendering.write_video(path, frames, self.fps)
 
     def write_image(self, path: Path, image) -> None:
-        render.write_png(path, image)
+        rendering.write_png(path, image)
 
     def settings(self) -> dict:
         return {"size": list(self.size), "fps": self.fps, "duration": self.duration,
@@ -122,7 +122,7 @@ def _ik(xyz: np.ndarray, length: np.ndarray, what: str) -> np.ndarray:
     """Joint paths of TCP paths by the project's IK from Q_HOME (a miss > 5 mm is an error)."""
     q = np.zeros((*xyz.shape[:2], 7), np.float32)
     for i in tqdm(range(len(xyz)), desc="IK", disable=len(xyz) < 20):
-        q[i, : length[i]], worst = render.joints_from_tcp(xyz[i, : length[i]])
+        q[i, : length[i]], worst = rendering.joints_from_tcp(xyz[i, : length[i]])
         if worst > IK_TOLERANCE:
             raise ValueError(f"{what} [{i}]: IK misses the path by {worst * 1e3:.1f} mm")
     return q
@@ -262,7 +262,7 @@ def add_command(sub) -> None:
     p.add_argument("--split", default="trajectory_test", choices=SPLITS)
     p.add_argument("--n", type=int, default=10, help="motions shown at every tau")
     p.add_argument("--taus", default="0.4,0.7,1.0", help="stop times in (0, 1]")
-    p.add_argument("--cameras", default="observer", help=f"comma-separated: {render.CAMERAS}")
+    p.add_argument("--cameras", default="observer", help=f"comma-separated: {rendering.CAMERAS}")
     p.add_argument("--attention", type=int, default=2, help="attention-check motions (tau 1)")
     p.add_argument("--no-practice", action="store_true", help="no practice trial")
     p.add_argument("--size", default="480x270", help="WIDTHxHEIGHT of the clips")
@@ -283,8 +283,8 @@ def stimuli_main(args: argparse.Namespace) -> int:
     size = _size(args.size)
     cameras = tuple(c.strip() for c in args.cameras.split(","))
     for c in cameras:
-        if c not in render.CAMERAS:
-            raise ValueError(f"--cameras {args.cameras}: {c!r} is not one of {render.CAMERAS}")
+        if c not in rendering.CAMERAS:
+            raise ValueError(f"--cameras {args.cameras}: {c!r} is not one of {rendering.CAMERAS}")
     if args.attention < 0:
         raise ValueError(f"--attention {args.attention}: expected an integer >= 0")
     for name in ("fps", "duration"):
@@ -304,7 +304,7 @@ def stimuli_main(args: argparse.Namespace) -> int:
         motions, source = motions_from_study(args.study), {"kind": "study", "file": args.study}
     try:
         r = SceneRenderer(size, args.fps, args.duration, args.hold, trace=not args.no_trace)
-    except render.RenderBackendError as e:
+    except rendering.RenderBackendError as e:
         raise ValueError(str(e)) from None  # one line: how to get OpenGL
     try:
         m = make_set(

@@ -1,6 +1,6 @@
 """Frames to files: MP4 (H.264), GIF, PNG stills and contact sheets.
 
-Rendering and encoding are two steps: :mod:`slotv_jax.render.frames` returns uint8 arrays
+Rendering and encoding are two steps: :mod:`slotv_jax.rendering.frames` returns uint8 arrays
 (F, H, W, 3) and the functions here write them. MP4 goes through PyAV (``av``), whose
 wheel carries its own FFmpeg with libx264: no system ffmpeg, and numpy frames go to the
 encoder in-process, without a subprocess and a pipe. It was chosen over imageio-ffmpeg,
@@ -31,7 +31,7 @@ from jaxtyping import UInt8
 from PIL import Image
 
 from slotv_jax.core.fileio import OutputError, atomic_write, check_output_file
-from slotv_jax.render.overlay import title
+from slotv_jax.rendering.overlay import title
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 IMAGE_SUFFIXES = (".png",)

@@ -17,7 +17,7 @@ frame at τ when ``τ · fps · duration`` is a whole number.
 Drawn into MuJoCo's scene (``MjvScene`` user geoms): the TCP trace up to ``s`` (the tool
 centre point's path, GL lines 3 px wide at 360 rows) and, optionally, a disc under the
 target cube.
-Drawn onto the pixels afterwards (:mod:`slotv_jax.render.overlay`): goal labels.
+Drawn onto the pixels afterwards (:mod:`slotv_jax.rendering.overlay`): goal labels.
 
 Opening a renderer needs OpenGL; :class:`RenderBackendError` says what to install when
 none can be opened. Nothing else in this module needs it.
@@ -41,9 +41,9 @@ from jaxtyping import Bool, Float, UInt8
 
 from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
-from slotv_jax.render.backend import RenderBackendError, backend_message
-from slotv_jax.render.camera import View, check_view, scene_model
-from slotv_jax.render.overlay import draw_goal_labels
+from slotv_jax.rendering.backend import RenderBackendError, backend_message
+from slotv_jax.rendering.camera import View, check_view, scene_model
+from slotv_jax.rendering.overlay import draw_goal_labels
 from slotv_jax.robot import kinematics
 
 MAX_SIDE = 4096  # largest frame width or height (pixels)

@@ -1,7 +1,7 @@
 """Text drawn onto rendered frames with Pillow: goal labels and panel titles.
 
 A goal's label stands above its cube: the point 6 cm over the cube's centre is projected
-through the camera (:func:`slotv_jax.render.camera.pixels`) and the label is centred
+through the camera (:func:`slotv_jax.rendering.camera.pixels`) and the label is centred
 there, dark letters on a light rounded box with the cube's colour as its border, so that
 a participant can name the cube ("B") whatever is behind it. The labels of a clip do not
 move (the camera and cubes stand still), so they are drawn once into an RGBA layer and
@@ -19,7 +19,7 @@ import numpy as np
 from jaxtyping import UInt8
 from PIL import Image, ImageDraw, ImageFont
 
-from slotv_jax.render.camera import View, pixels, scene_model
+from slotv_jax.rendering.camera import View, pixels, scene_model
 
 LABEL_LIFT = 0.06  # metres above the cube centre where a label is anchored
 

@@ -18,8 +18,8 @@ from collections.abc import Sequence
 import numpy as np
 from jaxtyping import Bool, Float, UInt8
 
-from slotv_jax.render.camera import View, check_view
-from slotv_jax.render.frames import (
+from slotv_jax.rendering.camera import View, check_view
+from slotv_jax.rendering.frames import (
     MotionRenderer,
     check_motion,
     check_size,
@@ -27,7 +27,7 @@ from slotv_jax.render.frames import (
     frame_times,
     goal_labels,
 )
-from slotv_jax.render.overlay import draw_goal_labels, legend, title
+from slotv_jax.rendering.overlay import draw_goal_labels, legend, title
 
 LAYOUTS = ("side", "overlay")
 # Trace colours of the compared motions, in order: dark grey, blue, orange, green, purple, red,
