@@ -115,7 +115,8 @@ def test_selection_is_deterministic_and_prefix_consistent():
         a = np.asarray(SELECT(s, key, logp, avail, 16, shortlist=64))
         b = np.asarray(SELECT(s, key, logp, avail, 16, shortlist=64))
         np.testing.assert_array_equal(a, b)
-        if s in ("random", "bald_fantasy", "bald_cluster", "margin_cluster"):  # sequential picks
+        if s in ("random", "bald_fantasy", "bald_cluster"):  # sequential picks (margin_cluster:
+            # the same k-centre loop as bald_cluster)
             c = np.asarray(SELECT(s, key, logp, avail, 8, shortlist=64))
             np.testing.assert_array_equal(a[:8], c)  # the experiment takes a prefix of k_max
         assert np.unique(a).size == 16 and np.asarray(avail)[a].all(), s
@@ -180,6 +181,8 @@ def test_ensemble_vmap_equals_a_loop_over_members(trained):
         upd, opt = tx.update(grads, opt, params)
         return optax.apply_updates(params, upd), opt, loss
 
+    whole = jnp.flatnonzero(pool.seen == pool.xyz.shape[1])[:7]
+    lp_all = sel.log_probs(ens.params, pool, whole, chunk=4)  # every member at once
     for e in range(e_count):
         # member e alone: its own init and key stream, one Python step per update
         state = sel.base.init(jax.random.fold_in(k_members, e))
@@ -192,8 +195,7 @@ def test_ensemble_vmap_equals_a_loop_over_members(trained):
         for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(params), strict=True):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=FLOAT32_STEPS, atol=1e-6)
         # log_probs of member e against the model's own masked call on the whole motions
-        whole = jnp.flatnonzero(pool.seen == pool.xyz.shape[1])[:7]
-        lp = sel.log_probs(ens.params, pool, whole, chunk=4)[e]
+        lp = lp_all[e]
         model = nnx.merge(sel.base.graphdef, params)
         t = pool.traj[whole]
         ref = jax.nn.log_softmax(model(pool.xyz[t], pool.goals[t], pool.goal_mask[t]), -1)

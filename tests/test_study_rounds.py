@@ -9,7 +9,7 @@ import pytest
 from study_fixtures import DotRenderer, motions, write_dot_set
 
 from slotv_jax.study import cli as study_cli
-from slotv_jax.study import make_stimuli, rounds, stimuli
+from slotv_jax.study import database, make_stimuli, rounds, stimuli
 from slotv_jax.training import config as train_config
 
 
@@ -19,13 +19,18 @@ def _candidates(n=12):
     return make_stimuli.Motions(q, xyz, goals, mask, ids, ids, target, np.full(n, 6), None)
 
 
+def _guess(goals, k, p):
+    """Participant p's guess at trial stimulus k: p 0 and 1 agree, p 2 guesses the next goal."""
+    return goals[(k + p // 2) % len(goals)]
+
+
 def _answer_round0(stimdir, out):
     """Answers to round 0's trial stimuli (each guessed by 3 people), in the export format."""
     m = json.loads((stimdir / stimuli.MANIFEST).read_text())
     rows = []
     for k, s in enumerate(x for x in m["stimuli"] if x["kind"] == "trial"):
         for p in range(3):
-            rows.append([s["trajectory"], s["tau"], s["goals"][(k + p) % len(s["goals"])],
+            rows.append([s["trajectory"], s["tau"], _guess(s["goals"], k, p),
                          f"p{p}", s["camera"]])  # fmt: skip
     out.mkdir()
     with open(out / "answers.csv", "w", newline="") as f:
@@ -39,12 +44,42 @@ def _answer_round0(stimdir, out):
             csv.writer(f).writerows([table[0], *(r for r in table[1:] if r[0] in answered)])
 
 
+def _answer_in_db(stimdir, path):
+    """The answers of :func:`_answer_round0`, given through the server's database (3
+    participants, each shown every stimulus of round 0)."""
+    st = stimuli.load_stimulus_set(stimdir)
+    trial_ids = [s["id"] for s in st.manifest["stimuli"] if s["kind"] == "trial"]
+    db = database.connect(path)
+    db.load_round(0, st.manifest, st.trajectories, st.goals)
+    for p in range(3):
+        pid = db.create_participant(f"sha{p}", {}, lambda s, c, seed: [x.key for x in s], p, "C")
+        for t in db.trials(pid):
+            if t["kind"] == "trial":
+                guess = _guess(t["goals"], trial_ids.index(t["id"]), p)
+                db.answer(pid, t["position"], guess, None, 1.0)
+    db.close()
+
+
+def _rows(study):
+    """{(trajectory id, τ): guesses per goal name} of a study's answer rows."""
+    out = {}
+    for i, n in enumerate(study.answer_trajectory):
+        names = study.goal_names[n][study.goal_mask[n]].tolist()
+        key = (study.trajectory_ids[n], round(float(study.answer_tau[i]), 6))
+        out[key] = dict(zip(names, study.counts[i][: len(names)].tolist(), strict=True))
+    return out
+
+
 def test_next_round_is_a_valid_stimulus_set(tmp_path):
     stimdir, answers = tmp_path / "study", tmp_path / "answers"
     write_dot_set(stimdir, n=4)
     _answer_round0(stimdir, answers)
     got = rounds.read_answers(answers)
     assert got.n_answers == 4 * 2 * 3 and got.n_trajectories == 4
+    # study next --db: the server's database gives the answers its export gives
+    _answer_in_db(stimdir, tmp_path / "study.db")
+    from_db = rounds.read_answers(db=tmp_path / "study.db")
+    assert _rows(from_db) == _rows(got) and sorted(_rows(got)[("m0", 0.5)].values())[-1] == 2
     cand = _candidates()
     cfg = train_config.quick("slotv", hidden=(8, 4), batch_size=4, train_size=None)
     shown = rounds.shown_stimuli(stimdir)
