@@ -19,9 +19,10 @@ Protocol (every strategy and seed of a group in one vmapped call per step):
 
 1. round 0: ``sizes[0]`` motions drawn at random, the same for every strategy of a seed;
 2. each round trains the ensemble (E = ``members``: member 0 a plain run, the others
-   bootstrapped; warm start) ``updates`` (study: ``study_updates``) more updates of
-   ``batch_size`` answer rows, and records member 0's held-out accuracy against the
-   number of answers so far;
+   bootstrapped; warm start) more updates of ``batch_size`` answer rows: blocks of
+   ``updates`` (study: ``study_updates``), as many as pass ``round_epochs`` times over the
+   answers so far (:meth:`ActiveConfig.round_updates`), and records member 0's held-out
+   accuracy against the number of answers so far;
 3. the strategy scores ``subset`` motions drawn from the unasked part of the pool (the
    same draw for every strategy of a seed) and asks about the next ``sizes[r+1] −
    sizes[r]``.
@@ -31,6 +32,8 @@ the participants' answers to each motion), so the curves differ by the selection
 answers a run needs for the target: the first round whose accuracy reaches it,
 interpolated linearly in log answers from the round before; the mean over seeds is
 ``answers_to_target`` (null when a seed never reaches it within the largest size).
+Choices of protocol are tried on other seeds and held-out motions than the reported
+ones (``--first-seed``, ``--eval-offset``).
 
     python -m slotv_jax.experiments.active                  # quick (CPU, minutes)
     python -m slotv_jax.experiments.active --preset paper   # the paper's network (GPU)
