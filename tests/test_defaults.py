@@ -106,3 +106,5 @@ def test_beta_is_checked_once_on_the_dataset_path(tiny_data, monkeypatch):
     assert seen == ["beta"]  # the public labeler checks its own (concrete) β
     with pytest.raises(ValueError, match="beta_effdist: expected a finite number > 0"):
         labelling.label_all(split.xyz[:2], split.goals[:2], split.goal_mask[:2], beta_effdist=0)
+    with pytest.raises(ValueError, match=r"DataConfig\.labels: expected a LabelConfig"):
+        data.DataConfig(labels=data.LabelConfig(camera=scene.camera("observer")))

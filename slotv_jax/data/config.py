@@ -77,6 +77,11 @@ class DataConfig:
                 raise ValueError(
                     f"DataConfig.{f}: expected goal counts in 1..{G_MAX}, got {counts!r}"
                 )
+        if not isinstance(self.labels, LabelConfig) or not isinstance(self.labels.camera, str):
+            raise ValueError(
+                "DataConfig.labels: expected a LabelConfig with a camera name (a dataset's "
+                f"config is stored as JSON), got {self.labels!r}"
+            )
 
     def split_size(self, name: str) -> int:
         return self.n_train if name == "train" else self.n_eval
