@@ -546,14 +546,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
     out = Path(args.out)
     stem = stem_of(cfg.preset)
-    out.mkdir(parents=True, exist_ok=True)
+    # the report and figure are rewritten from the results; the results file must be ours
+    fileio.check_output_files(out, [f"{stem}{s}" for s in ("_results.json", ".md", ".png")])
     results = out / f"{stem}_results.json"
     if results.exists() and not is_results(results):
         raise cli.InputError(
             f"--out {out}: {results.name} exists and is not ours; choose another --out"
         )
-    for suffix in (".md", ".png"):  # rewritten from the results: a file or nothing there
-        fileio.check_output_file(out / f"{stem}{suffix}", overwrite=True)
+    out.mkdir(parents=True, exist_ok=True)
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)
     doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress, only=only)
     command = " ".join(
