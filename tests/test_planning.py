@@ -31,6 +31,10 @@ from slotv_jax.robot import kinematics
 from slotv_jax.world import scene
 
 REPO = Path(__file__).resolve().parent.parent
+# Every test here shares one pytest-xdist worker (--dist loadgroup), so that the module's
+# planner is compiled and its straight lines and 200 plans are computed once, not once
+# per worker.
+pytestmark = pytest.mark.xdist_group("planning")
 N_PROBLEMS = 200
 GOAL_COUNTS = (
     2,
@@ -123,10 +127,7 @@ def cost64(xyz) -> np.ndarray:
 # ----------------------------------------------------------------- the oracle
 
 
-# The two tests of the 200 solved problems share a worker (pytest-xdist --dist loadgroup),
-# so that the minute of planning them is spent once.
 @pytest.mark.slow
-@pytest.mark.xdist_group("solved")
 def test_oracle_raises_true_legibility_within_budget(problems, solved):
     goals, mask, target = problems
     straight, res = solved
@@ -145,7 +146,6 @@ def test_oracle_raises_true_legibility_within_budget(problems, solved):
 # ------------------------------------------------------------- constraints
 
 
-@pytest.mark.xdist_group("solved")
 def test_endpoints_limits_table(problems, solved):
     goals, _, target = problems
     straight, res = solved

@@ -16,7 +16,7 @@ from study_fixtures import write_dot_set
 from slotv_jax import study
 from slotv_jax.study import design, export, stimuli
 from slotv_jax.study.database import SQLiteStorage
-from slotv_jax.study.server import COOKIE, MAX_BODY, make_app
+from slotv_jax.study.server import COOKIE, LOOPBACK_HOSTS, MAX_BODY, make_app
 from slotv_jax.study.service import StudyService
 
 ADMIN = "admin-token-for-tests-0123456789"
@@ -164,6 +164,21 @@ def test_tokens(server):
     csv_text = anon.get("/api/admin/export/answers.csv", headers=ok).text
     assert csv_text.splitlines()[0].startswith("trajectory,tau,guess,participant,condition")
     assert anon.get("/admin").status_code == 200
+
+
+def test_host_header_is_checked(stimdir, tmp_path):
+    """A server on the loopback answers only the loopback names: a page of another site
+    that rebinds its name to 127.0.0.1 is refused (DNS rebinding), before any route."""
+    service = StudyService(stimdir, SQLiteStorage(tmp_path / "study.db"))
+    app = make_app(service, ADMIN, LOOPBACK_HOSTS)
+    for host in ("127.0.0.1", "localhost:8000"):
+        assert TestClient(app, base_url=f"http://{host}").get("/api/texts").status_code == 200
+    evil = TestClient(app, base_url="http://evil.example")
+    r = evil.post("/api/start", json={"consent": True, "ids": {}})
+    assert r.status_code == 400 and "content-security-policy" in r.headers
+    assert service.storage.answers() == [] and evil.get("/api/texts").status_code == 400
+    with pytest.raises(ValueError, match="allowed_hosts"):
+        make_app(service, ADMIN, "localhost")
 
 
 def test_traversal_attempts(server, stimdir, tmp_path):

@@ -26,7 +26,9 @@ Safety: a participant reaches only their own trials (their token is a random 256
 cookie, stored hashed); files are looked up by trial, never by a path from the request;
 request bodies are JSON of at most :data:`MAX_BODY` bytes with known keys and types;
 errors answer ``{"error": "..."}`` and never a traceback; every response carries a
-strict Content-Security-Policy and ``nosniff``.
+strict Content-Security-Policy and ``nosniff``; a request whose ``Host`` header is not one
+of ``allowed_hosts`` is refused (400), which stops DNS rebinding against a server on
+127.0.0.1 (``serve`` allows only the loopback names there unless ``--allowed-hosts``).
 
 >>> app = make_app(StudyService("stim", SQLiteStorage("study.db")), "admin-token")  # doctest: +SKIP
 >>> TestClient(app).get("/api/texts").json()["title"]  # doctest: +SKIP
@@ -39,11 +41,13 @@ import json
 import logging
 import math
 import secrets
+from collections.abc import Sequence
 from pathlib import Path
 
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException
+from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route
@@ -177,10 +181,21 @@ def parse_answer(doc: dict) -> tuple[int, str, int | None, float]:
 # ---------------------------------------------------------------------- the app
 
 
-def make_app(service: StudyService, admin_token: str) -> Starlette:
-    """The ASGI application of one study (see the module docstring)."""
+#: The Host names of a server on the loopback interface.
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
+
+
+def make_app(
+    service: StudyService, admin_token: str, allowed_hosts: Sequence[str] = ("*",)
+) -> Starlette:
+    """The ASGI application of one study (see the module docstring). ``allowed_hosts``:
+    the ``Host`` header values it answers (``"*"``: any; ``"*.example.org"``: subdomains)."""
     if len(admin_token) < 16:
         raise ValueError("admin_token: expected at least 16 characters")
+    if isinstance(allowed_hosts, str) or not allowed_hosts:
+        raise ValueError(
+            f"allowed_hosts: expected a non-empty list of names, got {allowed_hosts!r}"
+        )
 
     def admin(request: Request) -> None:
         auth = request.headers.get("authorization", "")
@@ -294,5 +309,6 @@ def make_app(service: StudyService, admin_token: str) -> Starlette:
             Exception: internal,
         },
     )
-    app.add_middleware(SecurityHeaders)
+    app.add_middleware(TrustedHostMiddleware, allowed_hosts=list(allowed_hosts))
+    app.add_middleware(SecurityHeaders)  # the outermost: headers on refusals too
     return app

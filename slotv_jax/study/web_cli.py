@@ -15,7 +15,7 @@ import uvicorn
 from slotv_jax.study import client, make_stimuli
 from slotv_jax.study import export as export_lib
 from slotv_jax.study.database import SYNC, connect
-from slotv_jax.study.server import make_app
+from slotv_jax.study.server import LOOPBACK_HOSTS, make_app
 from slotv_jax.study.service import StudyService
 
 
@@ -25,6 +25,9 @@ def _add_web_commands(sub) -> None:
     serve.add_argument("--db", required=True, help="SQLite file of the answers (created if new)")
     serve.add_argument("--host", default="127.0.0.1", help="address to listen on")
     serve.add_argument("--port", type=int, default=8000)
+    serve.add_argument("--allowed-hosts", default=None,
+                       help="comma-separated Host names participants use (default: the "
+                       "loopback names on a loopback --host, else any)")  # fmt: skip
     serve.add_argument("--sync", default="full", choices=SYNC,
                        help="full: each answer on disk before the reply (survives power "
                        "loss); normal: faster, survives a crashed server")  # fmt: skip
@@ -53,9 +56,19 @@ def serve_main(args: argparse.Namespace) -> int:
         raise ValueError(f"--db {db}: the folder {db.parent} does not exist")
     if not 0 < args.port < 65536:
         raise ValueError(f"--port {args.port}: expected 1..65535")
+    if args.allowed_hosts is not None:
+        hosts = [h.strip() for h in args.allowed_hosts.split(",") if h.strip()]
+        if not hosts:
+            raise ValueError(f"--allowed-hosts {args.allowed_hosts!r}: expected host names")
+    elif args.host in LOOPBACK_HOSTS:
+        hosts = list(LOOPBACK_HOSTS)
+    else:
+        hosts = ["*"]
+        print(f"note: any Host header is answered on {args.host}; pass --allowed-hosts "
+              "with the name participants use", flush=True)  # fmt: skip
     service = StudyService(stimdir, connect(db, sync=args.sync))
     token = secrets.token_urlsafe(24)
-    app = make_app(service, token)
+    app = make_app(service, token, hosts)
     url = f"http://{args.host}:{args.port}"
     print(f"study: {url}/  (rounds {', '.join(map(str, sorted(service.sets)))})")
     print(f"admin: {url}/admin")
