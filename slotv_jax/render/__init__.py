@@ -6,42 +6,5 @@
 >>> render.write_video("clip.mp4", frames, fps=30)  # doctest: +SKIP
 """
 
-from slotv_jax.rendering import (
-    CAMERAS,
-    LAYOUTS,
-    FreeCamera,
-    MotionRenderer,
-    RenderBackendError,
-    compare_frames,
-    contact_sheet,
-    frame_times,
-    goal_labels,
-    grid,
-    joints_from_tcp,
-    motion_frames,
-    pixels,
-    read_video,
-    still,
-    write_png,
-    write_video,
-)
-
-__all__ = [
-    "CAMERAS",
-    "LAYOUTS",
-    "FreeCamera",
-    "MotionRenderer",
-    "RenderBackendError",
-    "compare_frames",
-    "contact_sheet",
-    "frame_times",
-    "goal_labels",
-    "grid",
-    "joints_from_tcp",
-    "motion_frames",
-    "pixels",
-    "read_video",
-    "still",
-    "write_png",
-    "write_video",
-]
+from slotv_jax.rendering import *  # noqa: F403  (exactly rendering's __all__)
+from slotv_jax.rendering import __all__ as __all__

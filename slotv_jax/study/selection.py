@@ -411,7 +411,8 @@ class Selector:
         boot = boot.astype(jnp.float32).at[0].set(1.0)
         return Ensemble(states.params, states.opt_state, boot)
 
-    def _logp(self, params, pool: Pool, cand: Int[Array, " B"]) -> Float[Array, "B G"]:
+    def _scores(self, params, pool: Pool, cand: Int[Array, " B"]) -> tuple[Array, Array]:
+        """One member's scores of the candidates ``cand`` and their goal masks."""
         t = pool.traj[cand]
         s = candidate_scores(
             self.base.model(params),
@@ -421,21 +422,16 @@ class Selector:
             pool.seen[cand],
             backward=self.base.backward,
         )
-        return jax.nn.log_softmax(models.mask_logits(s, pool.goal_mask[t]), axis=-1)
+        return s, pool.goal_mask[t]
+
+    def _logp(self, params, pool: Pool, cand: Int[Array, " B"]) -> Float[Array, "B G"]:
+        s, mask = self._scores(params, pool, cand)
+        return jax.nn.log_softmax(models.mask_logits(s, mask), axis=-1)
 
     def loss(self, params, pool: Pool, answers: Answers, rows: Int[Array, " B"], boot):
         """Minibatch count NLL of ``rows`` weighted by ``boot`` (per answer, unbiased)."""
-        c = answers.cand[rows]
-        t = pool.traj[c]
-        s = candidate_scores(
-            self.base.model(params),
-            pool.xyz[t],
-            pool.goals[t],
-            pool.goal_mask[t],
-            pool.seen[c],
-            backward=self.base.backward,
-        )
-        nll = fitting.count_nll(s, pool.goal_mask[t], answers.counts[rows])
+        s, mask = self._scores(params, pool, answers.cand[rows])
+        nll = fitting.count_nll(s, mask, answers.counts[rows])
         filled = jnp.arange(self.capacity) < answers.n
         n_bar = jnp.sum(jnp.where(filled[:, None], answers.counts, 0.0)) / jnp.maximum(answers.n, 1)
         return jnp.sum(boot[rows] * nll) / (rows.shape[0] * n_bar)
