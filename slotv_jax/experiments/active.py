@@ -72,6 +72,26 @@ from slotv_jax.training import config as train_config
 from slotv_jax.training import evaluate
 from slotv_jax.training import trainer as train
 
+# Oracles: criteria that read the labels of the candidates (the labeler's noise-free guess
+# distribution y), which no study has before it asks. They are not strategies but bounds on
+# what a criterion of the observer's own could reach:
+# - ``oracle_loss``: the k candidates of largest cross-entropy −Σ_g y_g log p_g of member 0
+#   (the observer's worst mistakes, known);
+# - ``oracle_margin``: the k candidates of smallest gap between the labeler's two most likely
+#   goals (the true decision boundary, known).
+ORACLES = ("oracle_loss", "oracle_margin")
+
+
+def oracle_score(name: str, logp0: jax.Array, labels: jax.Array) -> jax.Array:
+    """(C,) score of an oracle (higher: ask first) from member 0's log probabilities
+    (C, G; −∞ on padded goals) and the labeler's distributions (C, G; 0 on padded goals)."""
+    if name == "oracle_loss":
+        return -jnp.sum(jnp.where(labels > 0, labels * logp0, 0.0), -1)
+    if name == "oracle_margin":
+        top2 = jax.lax.top_k(labels, 2)[0]
+        return 1.0 - (top2[:, 0] - top2[:, 1])
+    raise ValueError(f"strategy: expected one of {ORACLES}, got {name!r}")
+
 
 @dataclasses.dataclass(frozen=True)
 class ActiveConfig:
@@ -88,7 +108,7 @@ class ActiveConfig:
     study_updates: int  # the same for the study setting (one guess per answer: noisier)
     participants: int  # simulated answers per motion (study setting)
     study_targets: tuple[tuple[str, float], ...]  # held-out accuracy target per model
-    strategies: tuple[str, ...] = selection.STRATEGIES
+    strategies: tuple[str, ...] = selection.STRATEGIES + ORACLES  # oracles: bounds
     seeds: int = 3
     first_seed: int = 0  # seeds first_seed … first_seed + seeds − 1 (tuning runs use others)
     round_epochs: float = 0.0  # each round passes this often over the answers so far (≥ updates)
@@ -113,9 +133,11 @@ class ActiveConfig:
                     f"subset: expected at least twice the largest batch ({k_max} in {name}), "
                     f"got {self.subset}"
                 )
-        bad = [s for s in self.strategies if s not in selection.STRATEGIES]
+        bad = [s for s in self.strategies if s not in selection.STRATEGIES + ORACLES]
         if bad or "random" not in self.strategies:
-            raise ValueError(f"strategies: expected 'random' and names of {selection.STRATEGIES}")
+            raise ValueError(
+                f"strategies: expected 'random' and names of {selection.STRATEGIES + ORACLES}"
+            )
         if self.round_epochs < 0 or self.updates < 1 or self.study_updates < 1:
             raise ValueError("updates, study_updates: expected >= 1; round_epochs: >= 0")
         missing = [m for m in self.study_models if m not in dict(self.study_targets)]
@@ -198,7 +220,7 @@ def paper(**overrides) -> ActiveConfig:
         round_epochs=4.0,
         participants=20,
         study_targets=(("mlp", 0.8), ("slotv_plus", 0.8), ("dragan", 0.9)),
-        strategies=("random", "uncertainty", "margin", "bald", "bald_cluster"),
+        strategies=("random", "uncertainty", "margin", "bald", "bald_cluster", "epig", *ORACLES),
         seeds=5,
         members=3,
         subset=8192,
@@ -297,8 +319,19 @@ def run_group(
     score = jax.jit(jax.vmap(lambda p, c: sel.log_probs(p, pool, c, chunk=cfg.chunk)))
     k_max = max(b - a for a, b in itertools.pairwise(sizes))
     pickers = {
-        s: jax.jit(jax.vmap(lambda k, lp, av, s=s: selection.select(s, k, lp, av, k_max)))
+        s: jax.jit(jax.vmap(lambda k, lp, av, y, s=s: selection.select(s, k, lp, av, k_max)))
         for s in cfg.strategies
+        if s not in ORACLES
+    } | {
+        s: jax.jit(
+            jax.vmap(
+                lambda k, lp, av, y, s=s: jax.lax.top_k(
+                    jnp.where(av, oracle_score(s, lp[0], y), -jnp.inf), k_max
+                )[1]
+            )
+        )
+        for s in cfg.strategies
+        if s in ORACLES
     }
     acc = np.zeros((n_runs, len(sizes)))
     times = {"fit_s": 0.0, "score_s": 0.0, "select_s": 0.0, "eval_s": 0.0}
@@ -346,7 +379,8 @@ def run_group(
             idx = [i for i, run in enumerate(runs) if run[0] == s]
             pk = jnp.stack([jax.random.fold_in(keys[i], 1) for i in idx])
             avail = jnp.ones((len(idx), cfg.subset), bool)
-            pick[idx] = np.asarray(fn(pk, logp[np.asarray(idx)], avail))
+            y = jnp.asarray(probs[sub[idx]]) if s in ORACLES else jnp.zeros((len(idx),))
+            pick[idx] = np.asarray(fn(pk, logp[np.asarray(idx)], avail, y))
         times["score_s"] += t1 - t0
         times["select_s"] += time.perf_counter() - t1
         for i in range(n_runs):

@@ -20,6 +20,9 @@ STRATEGY_COLORS = {
     "bald": "tab:blue",
     "bald_fantasy": "tab:green",
     "bald_cluster": "tab:purple",
+    "epig": "tab:olive",
+    "oracle_loss": "tab:gray",
+    "oracle_margin": "tab:pink",
 }
 
 
@@ -133,7 +136,13 @@ def report(doc: dict, stem: str, command: str) -> str:
             == (grp["setting"], grp["labeler"], grp["model"])
         ]
         rnd = next(c for c in cs if c["strategy"] == "random")
-        hit = [c for c in cs if c["strategy"] != "random" and c["answers_to_target"] is not None]
+        hit = [
+            c
+            for c in cs
+            if c["strategy"] != "random"
+            and not c["strategy"].startswith("oracle_")  # bounds that read the labels
+            and c["answers_to_target"] is not None
+        ]
         name = f"{grp['setting']} / {grp['labeler']} / {MODEL_TITLES[grp['model']]}"
         if not hit:
             lines.append(

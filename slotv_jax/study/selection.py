@@ -47,7 +47,14 @@ Criteria (per candidate, from the members' predictive distributions p_e)
   (E·G numbers per candidate), starting from the best BALD;
 - ``margin_cluster``: the same diversity on top of ``margin``: its ``shortlist`` best,
   then the k-centre greedy weighted by margin (a tie nearest the decision is worth asking
-  once, not k times).
+  once, not k times);
+- ``epig``: the expected predictive information gain (Bickford Smith et al. 2023),
+  EPIG(x) = E_{x*}[I(y; y* | x, x*)], the mutual information between the next answer y
+  at x and the answer y* at an input x* drawn from those the observer will be asked to
+  predict, under the members' joint p(y, y*) = Σ_e π_e p_e(y | x) p_e(y* | x*). BALD
+  rewards any disagreement about θ, also where it never changes a prediction; EPIG only
+  what changes the predictions at the x* (``targets`` scored candidates, standing in for
+  the pool's input distribution).
 
 All criteria are pure functions of fixed-shape arrays: :func:`select` compiles once for
 a pool size and k, and scores 100,000 candidates in one call
@@ -55,7 +62,8 @@ a pool size and k, and scores 100,000 candidates in one call
 
 >>> sel = make_selector(config.quick("slotv"), members=4, capacity=512)   # doctest: +SKIP
 >>> ens = sel.init(jax.random.key(0))                                      # doctest: +SKIP
->>> ens, _ = jax.jit(sel.fit, static_argnames="updates")(ens, pool, answers, key, updates=200)
+>>> fit = jax.jit(sel.fit, static_argnames="updates")                        # doctest: +SKIP
+>>> ens, _ = fit(ens, pool, answers, key, updates=200)                     # doctest: +SKIP
 >>> logp = jax.jit(sel.log_probs)(ens.params, pool, candidates)            # doctest: +SKIP
 >>> pick = select("bald_fantasy", key, logp, available, k=32)              # doctest: +SKIP
 """
@@ -88,8 +96,10 @@ STRATEGIES = (
     "bald",
     "bald_fantasy",
     "bald_cluster",
+    "epig",
 )
 SHORTLIST = 4  # the *_cluster shortlist: SHORTLIST × k candidates of highest score (default)
+TARGETS = 1024  # epig: scored candidates standing in for the inputs to predict (default)
 
 
 # ================================================================ the data
@@ -254,6 +264,56 @@ def bald(
     return _entropy(predictive(logp, w)) - jnp.einsum("e,ec->c", w, _entropy(jnp.exp(logp)))
 
 
+def epig(
+    logp: Float[Array, "E C G"],
+    target_logp: Float[Array, "E S G"],
+    weights: Float[Array, " E"] | None = None,
+    *,
+    chunk: int = 128,
+) -> Float[Array, " C"]:
+    """EPIG: the expected predictive information gain of each candidate x about the
+    answers at the targets x*_s (nats; Bickford Smith et al. 2023, eq. 4):
+
+        EPIG(x) = 1/S Σ_s I(y; y*_s) = H[p̄(y)] + 1/S Σ_s (H[p̄(y*_s)] − H[p(y, y*_s)]),
+
+    with the joint p(y, y*) = Σ_e π_e p_e(y | x) p_e(y* | x*_s) of the members (and its
+    marginals p̄). ``chunk`` candidates at a time (memory C·S·G² → chunk·S·G²).
+
+    >>> split = jnp.log(jnp.array([[[1.0, 0.0]], [[0.0, 1.0]]]))  # members disagree
+    >>> same = jnp.log(jnp.array([[[0.5, 0.5]], [[0.5, 0.5]]]))  # members agree
+    >>> float(epig(split, split)[0]), float(epig(split, same)[0])  # y tells y*: log 2
+    (0.6931..., 0.0)
+    """
+    w = _weights(logp, weights)
+    p, q = jnp.exp(logp), jnp.exp(target_logp)
+    h_target = jnp.mean(_entropy(predictive(target_logp, w)))
+    c = logp.shape[1]
+    pad = (-c) % chunk
+    pc = jnp.pad(p, ((0, 0), (0, pad), (0, 0))).reshape(p.shape[0], -1, chunk, p.shape[-1])
+
+    def block(pb: Float[Array, "E B G"]) -> Float[Array, " B"]:
+        joint = jnp.einsum("e,ebg,esh->bsgh", w, pb, q)
+        h_joint = _entropy(joint.reshape(*joint.shape[:2], -1)).mean(-1)
+        return _entropy(jnp.einsum("e,ebg->bg", w, pb)) + h_target - h_joint
+
+    return jax.lax.map(block, pc.transpose(1, 0, 2, 3)).reshape(-1)[:c]
+
+
+def select_epig(
+    key: jax.Array,
+    logp: Float[Array, "E C G"],
+    available: Bool[Array, " C"],
+    k: int,
+    targets: int | None = None,
+) -> Int[Array, " k"]:
+    """The k available candidates of highest :func:`epig`, the targets x* being
+    ``targets`` (default :data:`TARGETS`) of the C scored candidates drawn uniformly
+    without replacement (``key``): a sample of the inputs the observer will meet."""
+    s = min(TARGETS if targets is None else targets, logp.shape[1])
+    tgt = jax.random.choice(key, logp.shape[1], (s,), replace=False)
+    return _masked_top_k(epig(logp, logp[:, tgt]), available, k)
+
+
 def _masked_top_k(score: Float[Array, " C"], available: Bool[Array, " C"], k: int):
     return jax.lax.top_k(jnp.where(available, score, -jnp.inf), k)[1]
 
@@ -356,6 +416,8 @@ def select(
         return select_cluster(logp, available, k, shortlist)
     if strategy == "margin_cluster":
         return select_cluster(logp, available, k, shortlist, criterion="margin")
+    if strategy == "epig":
+        return select_epig(key, logp, available, k)
     raise ValueError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
 
 
