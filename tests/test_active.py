@@ -107,6 +107,69 @@ def test_strategies_pick_the_informative_motions():
         selection.select("entropy", key, logp, avail, 1)
 
 
+def _epig_reference(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """float64 EPIG from its definition: the mean over targets of
+    Σ_{y,y*} p(y, y*) log(p(y, y*) / (p(y) p(y*))), p(y, y*) = Σ_e w_e p_e(y) q_e(y*)."""
+    out = np.zeros(p.shape[1])
+    for c in range(p.shape[1]):
+        for s in range(q.shape[1]):
+            joint = np.einsum("e,eg,eh->gh", w, p[:, c], q[:, s])
+            indep = np.outer(joint.sum(1), joint.sum(0))
+            nz = joint > 0
+            out[c] += np.sum(joint[nz] * np.log(joint[nz] / indep[nz])) / q.shape[1]
+    return out
+
+
+def test_epig_matches_a_float64_reference():
+    rng = np.random.default_rng(0)
+    e, c, s, g = 3, 21, 7, 4
+    logits = rng.normal(0, 2, (e, c + s, g))
+    logits[:, ::3, 3] = -np.inf  # padded goal slots (three goals) on every third motion
+    logp = logits - np.logaddexp.reduce(logits, -1, keepdims=True)
+    p = np.exp(logp)
+    for w in (np.full(e, 1 / e), np.array([0.6, 0.3, 0.1])):
+        got = selection.epig(
+            jnp.asarray(logp[:, :c], jnp.float32),
+            jnp.asarray(logp[:, c:], jnp.float32),
+            jnp.asarray(w, jnp.float32),
+            chunk=8,  # 21 candidates: a padded last chunk
+        )
+        np.testing.assert_allclose(
+            np.asarray(got), _epig_reference(p[:, :c], p[:, c:], w), atol=2e-6
+        )
+        assert np.isfinite(np.asarray(got)).all()
+
+
+def test_epig_asks_what_changes_the_predictions():
+    logp, _ = _two_goal_logp()
+    # targets = the five motions: y at B tells which pair of members is right, and so y*
+    # at B and B'; D's answer splits the members the other way, which B and B' ignore
+    # (their members agree within each pair of D's split): EPIG(B) = 2/5 I(y_B; y*_B)
+    got = np.asarray(selection.epig(logp, logp), np.float64)
+    i_b = 2 * math.log(2) - H([0.5 - EPS + EPS**2, EPS - EPS**2, EPS - EPS**2, 0.5 - EPS + EPS**2])
+    i_d = 2 * math.log(2) - H([0.41, 0.09, 0.09, 0.41])
+    np.testing.assert_allclose(got, [0.0, 0.4 * i_b, 0.4 * i_b, 0.2 * i_d, 0.0], atol=2e-6)
+    # BALD rewards B's disagreement wherever it goes; EPIG only where it changes what the
+    # observer will predict: with A and C as the targets (all members agree) B teaches nothing
+    np.testing.assert_allclose(np.asarray(selection.epig(logp, logp[:, [0, 4]])), 0.0, atol=2e-6)
+    assert float(selection.bald(logp)[1]) > 0.69
+    avail = jnp.ones(5, bool)
+    assert sorted(np.asarray(SELECT("epig", jax.random.key(0), logp, avail, 2)).tolist()) == [1, 2]
+
+
+def test_oracles_read_the_labels():
+    labels = jnp.array([[0.6, 0.4, 0.0], [0.1, 0.1, 0.8]])  # the second motion: 3 goals
+    with np.errstate(divide="ignore"):
+        logp0 = jnp.asarray(np.log([[0.5, 0.5, 0.0], [0.2, 0.2, 0.6]]), jnp.float32)
+    loss = np.asarray(active.oracle_score("oracle_loss", logp0, labels))
+    np.testing.assert_allclose(loss, [math.log(2), -(0.2 * math.log(0.2) + 0.8 * math.log(0.6))],
+                               rtol=1e-6)  # fmt: skip
+    gap = np.asarray(active.oracle_score("oracle_margin", logp0, labels))
+    np.testing.assert_allclose(gap, [1 - 0.2, 1 - 0.7], atol=1e-6)
+    with pytest.raises(ValueError, match="strategy"):
+        active.oracle_score("oracle_entropy", logp0, labels)
+
+
 def test_selection_is_deterministic_and_prefix_consistent():
     key = jax.random.key(3)
     logp = jax.nn.log_softmax(jax.random.normal(key, (3, 200, 5)), -1)

@@ -91,6 +91,11 @@ def test_next_round_is_a_valid_stimulus_set(tmp_path):
     again = rounds.choose(got, cand, n=3, taus=(0.5, 1.0), cfg=cfg, members=2,
                               updates=10, exclude={("cand0", 0.5)}, seed=1)  # fmt: skip
     assert again["picks"] == choice["picks"]  # deterministic
+    ep = rounds.choose(got, cand, n=3, taus=(0.5, 1.0), cfg=cfg, members=2, updates=10,
+                       strategy="epig", seed=1)  # fmt: skip
+    # the recorded scores are the picks' own EPIG (the targets it picked with), best first
+    assert ep["score"] == "epig" and len(set(ep["picks"])) == 3
+    assert ep["scores"] == sorted(ep["scores"], reverse=True) and min(ep["scores"]) >= 0
     r, _ = rounds.write_round(
         stimdir, cand, choice["picks"], renderer=DotRenderer(), attention=1,
         source={"kind": "active", **{k: v for k, v in choice.items() if k != "picks"}},

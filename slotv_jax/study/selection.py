@@ -307,11 +307,16 @@ def select_epig(
     targets: int | None = None,
 ) -> Int[Array, " k"]:
     """The k available candidates of highest :func:`epig`, the targets x* being
-    ``targets`` (default :data:`TARGETS`) of the C scored candidates drawn uniformly
-    without replacement (``key``): a sample of the inputs the observer will meet."""
-    s = min(TARGETS if targets is None else targets, logp.shape[1])
-    tgt = jax.random.choice(key, logp.shape[1], (s,), replace=False)
+    :func:`epig_targets` of the C scored candidates."""
+    tgt = epig_targets(key, logp.shape[1], targets)
     return _masked_top_k(epig(logp, logp[:, tgt]), available, k)
+
+
+def epig_targets(key: jax.Array, n: int, targets: int | None = None) -> Int[Array, " S"]:
+    """S = min(``targets`` (default :data:`TARGETS`), n) of n scored candidates, uniformly
+    without replacement: a sample of the inputs the observer will meet (the pool)."""
+    s = min(TARGETS if targets is None else targets, n)
+    return jax.random.choice(key, n, (s,), replace=False)
 
 
 def _masked_top_k(score: Float[Array, " C"], available: Bool[Array, " C"], k: int):
