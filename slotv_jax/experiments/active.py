@@ -181,6 +181,20 @@ def geometric(start: int, stop: int, ratio: float) -> tuple[int, ...]:
     return tuple(sorted({round(start * ratio**i) for i in range(n)}))
 
 
+def up_to(sizes: Sequence[int], stop: int) -> tuple[int, ...]:
+    """``sizes`` cut at ``stop``, or continued by their last ratio up to it.
+
+    >>> up_to((8, 11, 16), 23), up_to((16, 32, 64), 300), up_to((16, 32, 64), 40)
+    ((8, 11, 16, 23), (16, 32, 64, 128, 256), (16, 32))
+    """
+    out = [s for s in sizes if s <= stop]
+    if len(out) == len(sizes):
+        ratio = sizes[-1] / sizes[-2]
+        while round(out[-1] * ratio) <= stop:
+            out.append(round(out[-1] * ratio))
+    return tuple(out)
+
+
 def quick(**overrides) -> ActiveConfig:
     """CPU preset: the quick dataset, hidden 64/32 networks on every 4th point, E = 3, up to
     256 motions; study targets 75 % (the quick network's budget, ``study_size``)."""
@@ -535,6 +549,13 @@ def _parse_args(argv):
     ap.add_argument("--updates", type=int, default=None, help="updates per round (labels)")
     ap.add_argument("--study-updates", type=int, default=None, help="updates per round (study)")
     ap.add_argument("--members", type=int, default=None, help="ensemble size E")
+    ap.add_argument(
+        "--study-max",
+        type=int,
+        default=None,
+        metavar="MOTIONS",
+        help="study setting: continue the preset's geometric sizes up to this many motions",
+    )
     ap.add_argument("--first-seed", type=int, default=None, help="seeds from this one (tuning)")
     ap.add_argument(
         "--eval-offset", type=int, default=None, help="held-out motions from this one (tuning)"
@@ -565,6 +586,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             kw[name] = getattr(args, name)
     if args.strategies:
         kw["strategies"] = tuple(s.strip() for s in args.strategies.split(","))
+    if args.study_max is not None:
+        base = PRESETS[args.preset]().study_sizes
+        if args.study_max < base[1]:
+            raise cli.InputError(f"--study-max: expected at least {base[1]} motions")
+        kw["study_sizes"] = up_to(base, args.study_max)
     cfg = PRESETS[args.preset](**kw)
     if args.set:
         cfg = dataclasses.replace(cfg, overrides=cfg.overrides + tuple(args.set))

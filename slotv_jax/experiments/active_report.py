@@ -222,6 +222,27 @@ def _floor(doc: dict) -> list[str]:
     return out
 
 
+def _oracles(doc: dict) -> list[str]:
+    """'group: oracle ratio, …' of every group that ran an oracle."""
+    out = []
+    for grp in doc["groups"]:
+        cs = [c for c in doc["comparisons"]
+              if (c["setting"], c["labeler"], c["model"])
+              == (grp["setting"], grp["labeler"], grp["model"])
+              and c["strategy"].startswith("oracle_")]  # fmt: skip
+        if cs:
+            parts = []
+            for c in cs:
+                r, low = c["ratio_random_over_this"], c.get("ratio_at_least")
+                shown = "not reached" if c["answers_to_target"] is None else (
+                    f"≥ {low:.2f}" if r is None and low is not None else
+                    "—" if r is None else f"{r:.2f}")  # fmt: skip
+                parts.append(f"{c['strategy']} {shown}")
+            out.append(f"{grp['setting']} / {grp['labeler']} / {MODEL_TITLES[grp['model']]} "
+                       + ", ".join(parts))  # fmt: skip
+    return out
+
+
 def notes(doc: dict) -> list[str]:
     """The report's notes: what the ratios mean and what bounds them (from the document,
     plus the tuning runs of the paper preset)."""
@@ -243,6 +264,17 @@ def notes(doc: dict) -> list[str]:
         f"the largest step asks about {k_max:,} of them ({k_max / cfg['subset']:.0%}), and "
         "the closer to all of them, the closer any criterion is to random.",
     ]
+    oracles = _oracles(doc)
+    if oracles:
+        out.append(
+            "- The oracles read the labels of the candidates (the labeler's noise-free guess "
+            "distribution), which no study has before it asks: `oracle_loss` asks about the "
+            "motions member 0 gets most wrong (largest cross-entropy), `oracle_margin` about "
+            "those nearest the labeler's own decision between two goals. They are not "
+            "strategies (left out of the best strategy above) and not strict bounds (the best "
+            "set of questions needs a search over sets), but two natural uses of knowledge no "
+            "criterion of the observer's own can have. Random / oracle: " + "; ".join(oracles) + "."
+        )
     floor = _floor(doc)
     if floor:
         out.append(
@@ -275,6 +307,11 @@ NOTES = [
     "coarse posterior).",
     "- `margin_cluster` adds the diversity of `bald_cluster` to `margin`: of motions tied "
     "at the decision, ask about one of each kind.",
+    "- `epig` (expected predictive information gain) keeps only the disagreement of the "
+    "members that changes their predictions on the pool (1,024 of the scored candidates "
+    "stand in for it), where BALD rewards any disagreement about the observer. Both measure "
+    "information about the guess distribution, and so also about how sure the observer "
+    "is; held-out accuracy depends only on the decision, which `margin` aims at directly.",
 ]
 
 # Tuning runs of the paper preset (python -m slotv_jax.experiments.active --preset paper
