@@ -294,6 +294,15 @@ def test_answers_to_target_and_comparisons():
     for c in out:
         assert {"setting", "model", "labeler", "strategy", "answers_to_target", "seeds"} <= set(c)
         assert c["seeds"] == 2
+    # an oracle reads the labels: it is kept out of the strategies' comparisons
+    cfg["strategies"].append("oracle_loss")
+    grp["runs"] += [
+        {"strategy": "oracle_loss", "seed": s, "accuracy": [0.5, 0.9, 0.9]} for s in (0, 1)
+    ]
+    doc = active.summarise({"config": cfg, "groups": [grp]})
+    assert [c["strategy"] for c in doc["comparisons"]] == ["random", "bald"]
+    assert [c["strategy"] for c in doc["oracles"]] == ["oracle_loss"]
+    assert doc["oracles"][0]["ratio_random_over_this"] == pytest.approx(30.0 / 10.0)
 
 
 def test_config_rejects_bad_settings():
@@ -304,4 +313,6 @@ def test_config_rejects_bad_settings():
     with pytest.raises(ValueError, match="study_targets"):
         active.quick(study_targets=(("mlp", 0.8),))
     assert active.geometric(16, 512, 2.0) == (16, 32, 64, 128, 256, 512)
+    assert active.up_to((16, 32, 64), 256) == (16, 32, 64, 128, 256)  # --study-max
+    assert active.up_to((16, 32, 64), 40) == (16, 32)
     assert active.quick().groups()[0] == ("labels", "dragan", "mlp")

@@ -437,7 +437,8 @@ def answers_to(answers: Sequence[float], acc: Sequence[float], target: float) ->
 
 
 def comparisons(doc: dict) -> list[dict]:
-    """The SPEC §11 list: one entry per (setting, labeler, model, strategy)."""
+    """One entry per (setting, labeler, model, strategy), the oracles' too (SPEC §11's list
+    ``comparisons`` is that of the strategies: :func:`summarise`)."""
     out = []
     for grp in doc["groups"]:
         target = target_of(doc["config"], grp["setting"], grp["model"])
@@ -478,6 +479,15 @@ def comparisons(doc: dict) -> list[dict]:
             else None
         )
     return out
+
+
+def summarise(doc: dict) -> dict:
+    """Set the document's ``comparisons`` (the strategies, SPEC §11) and ``oracles`` (the
+    same entries for the oracles, kept apart: they read the labels) from its groups."""
+    every = comparisons(doc)
+    doc["comparisons"] = [c for c in every if c["strategy"] not in ORACLES]
+    doc["oracles"] = [c for c in every if c["strategy"] in ORACLES]
+    return doc
 
 
 def is_results(path: Path) -> bool:
@@ -526,9 +536,9 @@ def run(
         grp = run_group(cfg, splits, setting, labeler, model, progress=progress)
         grp["timing"]["total_s"] = round(time.perf_counter() - t0, 2)
         doc["groups"].append(grp)
-        doc["comparisons"] = comparisons(doc)
+        summarise(doc)
         write_text(path, json.dumps(doc, indent=1))
-    doc["comparisons"] = comparisons(doc)
+    summarise(doc)
     doc["timing"]["total_s"] = doc["timing"].get("total_s", 0.0) + time.perf_counter() - t_start
     if todo or "load" not in doc:
         doc["load"] = {**load, "end": os.getloadavg()[0]}
@@ -620,7 +630,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         ["python -m slotv_jax.experiments.active", *(sys.argv[1:] if argv is None else argv)]
     )
     render(doc, out, command)
-    for c in doc["comparisons"]:
+    for c in doc["comparisons"] + doc["oracles"]:
         print(
             f"{c['setting']}/{c['labeler']}/{c['model']} {c['strategy']}: "
             f"{fmt_answers(c['answers_to_target'])} answers"

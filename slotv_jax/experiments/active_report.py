@@ -35,6 +35,11 @@ def target_of(doc_cfg: dict, setting: str, model: str) -> float:
 # ------------------------------------------------------------------ rendering
 
 
+def _every(doc: dict) -> list[dict]:
+    """The strategies' comparisons, then the oracles'."""
+    return doc["comparisons"] + doc.get("oracles", [])
+
+
 def fmt_answers(x: float | None) -> str:
     return "not reached" if x is None else f"{x:,.0f}"
 
@@ -106,7 +111,7 @@ def report(doc: dict, stem: str, command: str) -> str:
         "| random / this | final accuracy |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    for c in doc["comparisons"]:
+    for c in _every(doc):
         ratio = c["ratio_random_over_this"]
         shown = "—" if ratio is None else f"{ratio:.2f}"
         if c.get("ratio_at_least") is not None:
@@ -136,13 +141,7 @@ def report(doc: dict, stem: str, command: str) -> str:
             == (grp["setting"], grp["labeler"], grp["model"])
         ]
         rnd = next(c for c in cs if c["strategy"] == "random")
-        hit = [
-            c
-            for c in cs
-            if c["strategy"] != "random"
-            and not c["strategy"].startswith("oracle_")  # bounds that read the labels
-            and c["answers_to_target"] is not None
-        ]
+        hit = [c for c in cs if c["strategy"] != "random" and c["answers_to_target"] is not None]
         name = f"{grp['setting']} / {grp['labeler']} / {MODEL_TITLES[grp['model']]}"
         if not hit:
             lines.append(
@@ -212,7 +211,7 @@ def _floor(doc: dict) -> list[str]:
     """Groups where a seed reaches the target at the first size with every strategy."""
     out = []
     for grp in doc["groups"]:
-        cs = [c for c in doc["comparisons"]
+        cs = [c for c in _every(doc)
               if (c["setting"], c["labeler"], c["model"])
               == (grp["setting"], grp["labeler"], grp["model"])]  # fmt: skip
         first = grp["answers"][0]
@@ -226,10 +225,9 @@ def _oracles(doc: dict) -> list[str]:
     """'group: oracle ratio, …' of every group that ran an oracle."""
     out = []
     for grp in doc["groups"]:
-        cs = [c for c in doc["comparisons"]
+        cs = [c for c in doc.get("oracles", [])
               if (c["setting"], c["labeler"], c["model"])
-              == (grp["setting"], grp["labeler"], grp["model"])
-              and c["strategy"].startswith("oracle_")]  # fmt: skip
+              == (grp["setting"], grp["labeler"], grp["model"])]  # fmt: skip
         if cs:
             parts = []
             for c in cs:
@@ -358,7 +356,8 @@ def plot(doc: dict, path: Path) -> None:
             acc = np.array([r["accuracy"] for r in grp["runs"] if r["strategy"] == s])
             m, sd = acc.mean(0), acc.std(0)
             col = STRATEGY_COLORS.get(s)
-            ax.plot(x, m, marker="o", ms=3, color=col, label=s)
+            oracle = s.startswith("oracle_")  # reads the labels: dashed
+            ax.plot(x, m, marker="o", ms=3, color=col, label=s, linestyle="--" if oracle else "-")
             ax.fill_between(x, m - sd, m + sd, color=col, alpha=0.15, linewidth=0)
         ax.axhline(target, color="grey", linestyle="--", linewidth=0.8)
         ax.set_xscale("log")
