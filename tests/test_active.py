@@ -2,6 +2,7 @@
 against hand-computed two-goal pools, determinism, the vmapped ensemble against a loop
 over members, and the experiment's bookkeeping."""
 
+import json
 import math
 
 import jax
@@ -316,3 +317,32 @@ def test_config_rejects_bad_settings():
     assert active.up_to((16, 32, 64), 256) == (16, 32, 64, 128, 256)  # --study-max
     assert active.up_to((16, 32, 64), 40) == (16, 32)
     assert active.quick().groups()[0] == ("labels", "dragan", "mlp")
+
+
+def test_a_finished_document_is_summarised_again_without_work(tmp_path):
+    """Re-running a finished experiment (e.g. to re-render its report on another machine)
+    generates no dataset and keeps where and when it ran."""
+    cfg = active.quick(
+        strategies=("random", "oracle_loss"), seeds=1, labels_labelers=("dragan",),
+        study_models=("dragan",),
+    )  # fmt: skip
+    groups = [
+        {"setting": s, "labeler": lab, "model": m, "answers": [16, 32], "motions": [16, 32],
+         "runs": [{"strategy": st, "seed": 0, "accuracy": [0.5, 0.95]} for st in cfg.strategies],
+         "timing": {"fit_s": 1.0, "score_s": 1.0, "select_s": 1.0, "eval_s": 1.0}}
+        for s, lab, m in cfg.groups()
+    ]  # fmt: skip
+    doc = {"preset": "quick", "config": cfg.to_json(), "groups": groups,
+           "timing": {"total_s": 5.0}, "environment": {"devices": ["cuda:0"]},
+           "machine": "x86_64, gpu: H100", "date": "then"}  # fmt: skip
+    (tmp_path / "active_results.json").write_text(json.dumps(doc))
+    got = active.run(cfg, tmp_path, cache=tmp_path / "cache", progress=False)
+    assert not (tmp_path / "cache").exists()  # no dataset made
+    assert (got["machine"], got["date"], got["timing"]) == (
+        doc["machine"],
+        "then",
+        {"total_s": 5.0},
+    )
+    assert [c["strategy"] for c in got["comparisons"]] == ["random", "random"]
+    assert [c["strategy"] for c in got["oracles"]] == ["oracle_loss", "oracle_loss"]
+    assert json.loads((tmp_path / "active_results.json").read_text()) == got

@@ -516,21 +516,22 @@ def run(
     doc = json.loads(path.read_text()) if path.exists() else {}
     if doc.get("config") != conf:
         doc = {"preset": cfg.preset, "config": conf, "groups": [], "timing": {}}
-    doc["environment"] = environment()
-    dev = jax.devices()[0]
-    doc["machine"] = (
-        f"{platform.machine()}, {os.cpu_count()} CPUs, {dev.platform}: {dev.device_kind}"
-    )
-    doc["xla"] = slotv_jax.XLA_CONFIG.summary()
-    t_start = time.perf_counter()
-    load = {"cpus": os.cpu_count(), "start": os.getloadavg()[0]}
-    ddir = data_lib.dataset_dir(cache, cfg.data)
-    splits = data_lib.generate_dataset(
-        cfg.data, ddir, progress=progress, splits=("train", "trajectory_val", "position_test")
-    )
-    doc["dataset"] = str(ddir)
     done = {(g["setting"], g["labeler"], g["model"]) for g in doc["groups"]}
     todo = [g for g in cfg.groups() if g not in done and (only is None or g in only)]
+    t_start = time.perf_counter()
+    load = {"cpus": os.cpu_count(), "start": os.getloadavg()[0]}
+    if todo:  # a finished document is only summarised again (where it ran, as it was)
+        doc["environment"] = environment()
+        dev = jax.devices()[0]
+        doc["machine"] = (
+            f"{platform.machine()}, {os.cpu_count()} CPUs, {dev.platform}: {dev.device_kind}"
+        )
+        doc["xla"] = slotv_jax.XLA_CONFIG.summary()
+        ddir = data_lib.dataset_dir(cache, cfg.data)
+        splits = data_lib.generate_dataset(
+            cfg.data, ddir, progress=progress, splits=("train", "trajectory_val", "position_test")
+        )
+        doc["dataset"] = str(ddir)
     for setting, labeler, model in tqdm(todo, desc="active groups", disable=not progress):
         t0 = time.perf_counter()
         grp = run_group(cfg, splits, setting, labeler, model, progress=progress)
@@ -539,8 +540,8 @@ def run(
         summarise(doc)
         write_text(path, json.dumps(doc, indent=1))
     summarise(doc)
-    doc["timing"]["total_s"] = doc["timing"].get("total_s", 0.0) + time.perf_counter() - t_start
-    if todo or "load" not in doc:
+    if todo:
+        doc["timing"]["total_s"] = doc["timing"].get("total_s", 0.0) + time.perf_counter() - t_start
         doc["load"] = {**load, "end": os.getloadavg()[0]}
         doc["date"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     write_text(path, json.dumps(doc, indent=1))
