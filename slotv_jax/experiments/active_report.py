@@ -329,7 +329,8 @@ PAPER_NOTES = [
     "(labels 69 vs 46 motions, random 47; studies 10,467 vs 6,639 answers, random 14,202) "
     "and the preset leaves it out, as it does `bald_fantasy` (behind `bald_cluster` in 4 of "
     "5 groups of a 3-seed run), to pay for 5 seeds; both ran beside random in a run of "
-    "their own (`experiments/active_paper_diversity/`), and the quick preset runs all. `epig` and the oracles were first run there "
+    "their own (`experiments/active_paper_diversity/`), and the quick preset runs all. "
+    "`epig` and the oracles were first tried on the tuning seeds "
     "(labels: random 56, uncertainty 41, margin 47, epig 81, oracle_loss 61, oracle_margin "
     "64 motions; studies: random 15,286, margin 8,082, epig 13,923, oracle_loss 7,239 "
     "answers) and kept as they were.",
