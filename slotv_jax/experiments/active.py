@@ -59,6 +59,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 from tqdm.auto import tqdm
 
 import slotv_jax
@@ -82,9 +83,13 @@ from slotv_jax.training import trainer as train
 ORACLES = ("oracle_loss", "oracle_margin")
 
 
-def oracle_score(name: str, logp0: jax.Array, labels: jax.Array) -> jax.Array:
-    """(C,) score of an oracle (higher: ask first) from member 0's log probabilities
-    (C, G; −∞ on padded goals) and the labeler's distributions (C, G; 0 on padded goals)."""
+def oracle_score(
+    name: str, logp0: Float[Array, "C G"], labels: Float[Array, "C G"]
+) -> Float[Array, " C"]:
+    """Score of an oracle (higher: ask first) from member 0's log probabilities log p_g
+    (−∞ on padded goals) and the labeler's distributions y (0 on padded goals):
+    ``oracle_loss`` the cross-entropy −Σ_g y_g log p_g, ``oracle_margin`` the labeler's
+    margin 1 − (y_(1) − y_(2)) (Scheffer et al. 2001, with the true distribution)."""
     if name == "oracle_loss":
         return -jnp.sum(jnp.where(labels > 0, labels * logp0, 0.0), -1)
     if name == "oracle_margin":
