@@ -297,3 +297,30 @@ def test_importing_prints_nothing_and_starts_no_process(tmp_path, monkeypatch):
     )  # fmt: skip
     assert r.returncode == 0, r.stderr[-3000:]
     assert r.stdout == "" and r.stderr == "", (r.stdout + r.stderr)[-3000:]
+
+
+def test_third_party_imports_are_declared_dependencies():
+    """Every module-level import of another distribution is one of the package's own
+    dependencies (pyproject's ``[project] dependencies``), so that a plain ``pip install``
+    runs every command; test extras may appear only inside functions (:data:`OPTIONAL`).
+    (``study`` once imported httpx, then a test extra, and failed without it.)"""
+    import importlib.metadata
+    import re
+    import tomllib
+
+    project = tomllib.loads((PACKAGE_DIR.parent / "pyproject.toml").read_text())["project"]
+    norm = lambda d: re.split(r"[<>=!~\[; ]", d, maxsplit=1)[0].lower().replace("_", "-")  # noqa: E731
+    declared = {norm(d) for d in project["dependencies"]}
+    dists = importlib.metadata.packages_distributions()  # top-level module -> distributions
+    missing: dict[str, set[str]] = {}
+    for name, path in MODULES.items():
+        for node in _module_level(_tree(path).body, name):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                continue  # relative: the package itself
+            mods = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module]
+            for top in {m.split(".")[0] for m in mods}:
+                if top in ("slotv_jax", "__future__") or top in sys.stdlib_module_names:
+                    continue
+                if not {norm(d) for d in dists.get(top, [])} & declared:
+                    missing.setdefault(top, set()).add(name)
+    assert not missing, f"imported at module level but not a dependency: {missing}"
