@@ -338,8 +338,10 @@ PAPER_NOTES = [
     "differently when the compiled program changes (another set of strategies vmapped "
     "together, another capacity): a last-bit difference in the predictive distribution "
     "reorders near-ties, and the runs part. Seeds 20–29 run twice with different largest "
-    "sizes gave random identical curves and margin 10,898 and 11,550 answers: the seeds' "
-    "spread, not the strategy, sets the ± above.",
+    "sizes gave random identical curves and margin 10,898 and 11,550 answers; seeds 0–4 "
+    "gave random 72 and 77 labelled motions (Dragan) and 22,637 and 20,705 answers (studies, "
+    "paper MLP) in the main run and in `experiments/active_paper_diversity/`. Differences "
+    "of this size between strategies are within what one seed's rerun moves.",
 ]
 
 
