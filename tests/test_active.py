@@ -12,7 +12,7 @@ import optax
 import pytest
 from flax import nnx
 
-from slotv_jax.experiments import active
+from slotv_jax.experiments import active, active_report
 from slotv_jax.study import selection
 from slotv_jax.training import config as train_config
 
@@ -276,9 +276,9 @@ def test_fit_is_deterministic(trained):
 
 
 def test_answers_to_target_and_comparisons():
-    assert active.answers_to([10, 100], [0.6, 0.9], 0.75) == pytest.approx(math.sqrt(1000))
-    assert active.answers_to([10, 100], [0.85, 0.9], 0.8) == 10.0
-    assert active.answers_to([10, 100], [0.5, 0.7], 0.8) is None
+    assert active_report.answers_to([10, 100], [0.6, 0.9], 0.75) == pytest.approx(math.sqrt(1000))
+    assert active_report.answers_to([10, 100], [0.85, 0.9], 0.8) == 10.0
+    assert active_report.answers_to([10, 100], [0.5, 0.7], 0.8) is None
     cfg = {"labels_target": 0.8, "study_targets": [["mlp", 0.8]], "strategies": ["random", "bald"]}
     runs = [
         {"strategy": "random", "seed": 0, "accuracy": [0.5, 0.7, 0.8]},
@@ -288,7 +288,7 @@ def test_answers_to_target_and_comparisons():
     ]
     grp = {"setting": "labels", "labeler": "dragan", "model": "mlp", "answers": [10, 20, 40],
            "runs": runs}  # fmt: skip
-    out = active.comparisons({"config": cfg, "groups": [grp]})
+    out = active_report.comparisons({"config": cfg, "groups": [grp]})
     by = {c["strategy"]: c for c in out}
     assert by["random"]["answers_to_target"] == pytest.approx(30.0)  # mean of 40 and 20
     assert by["bald"]["answers_to_target"] is None and by["bald"]["seeds_reached"] == 1
@@ -300,7 +300,7 @@ def test_answers_to_target_and_comparisons():
     grp["runs"] += [
         {"strategy": "oracle_loss", "seed": s, "accuracy": [0.8, 0.9, 0.9]} for s in (0, 1)
     ]
-    doc = active.summarise({"config": cfg, "groups": [grp]})
+    doc = active_report.summarise({"config": cfg, "groups": [grp]})
     assert [c["strategy"] for c in doc["comparisons"]] == ["random", "bald"]
     assert [c["strategy"] for c in doc["oracles"]] == ["oracle_loss"]
     assert doc["oracles"][0]["ratio_random_over_this"] == pytest.approx(30.0 / 10.0)

@@ -67,20 +67,20 @@ from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
-from slotv_jax.experiments.active_report import fmt_answers, render, stem_of, target_of
+from slotv_jax.experiments.active_report import ORACLES, fmt_answers, render, stem_of, summarise
 from slotv_jax.study import selection
 from slotv_jax.training import config as train_config
 from slotv_jax.training import evaluate
 from slotv_jax.training import trainer as train
 
-# Oracles: criteria that read the labels of the candidates (the labeler's noise-free guess
-# distribution y), which no study has before it asks. They are not strategies but bounds on
-# what a criterion of the observer's own could reach:
+# Oracles (ORACLES, defined beside the report, which keeps them apart): criteria that read
+# the labels of the candidates (the labeler's noise-free guess distribution y), which no
+# study has before it asks. They are not strategies but bounds on what a criterion of the
+# observer's own could reach:
 # - ``oracle_loss``: the k candidates of largest cross-entropy −Σ_g y_g log p_g of member 0
 #   (the observer's worst mistakes, known);
 # - ``oracle_margin``: the k candidates of smallest gap between the labeler's two most likely
 #   goals (the true decision boundary, known).
-ORACLES = ("oracle_loss", "oracle_margin")
 
 
 def oracle_score(
@@ -337,21 +337,13 @@ def run_group(
     )
     score = jax.jit(jax.vmap(lambda p, c: sel.log_probs(p, pool, c, chunk=cfg.chunk)))
     k_max = max(b - a for a, b in itertools.pairwise(sizes))
-    pickers = {
-        s: jax.jit(jax.vmap(lambda k, lp, av, y, s=s: selection.select(s, k, lp, av, k_max)))
-        for s in cfg.strategies
-        if s not in ORACLES
-    } | {
-        s: jax.jit(
-            jax.vmap(
-                lambda k, lp, av, y, s=s: jax.lax.top_k(
-                    jnp.where(av, oracle_score(s, lp[0], y), -jnp.inf), k_max
-                )[1]
-            )
-        )
-        for s in cfg.strategies
-        if s in ORACLES
-    }
+
+    def picker(s):  # (key, log p (E, C, G), available (C,), labels (C, G)) -> k_max picks
+        if s in ORACLES:
+            return lambda k, lp, av, y: selection.masked_top_k(oracle_score(s, lp[0], y), av, k_max)
+        return lambda k, lp, av, y: selection.select(s, k, lp, av, k_max)
+
+    pickers = {s: jax.jit(jax.vmap(picker(s))) for s in cfg.strategies}
     acc = np.zeros((n_runs, len(sizes)))
     times = {"fit_s": 0.0, "score_s": 0.0, "select_s": 0.0, "eval_s": 0.0}
     bar = tqdm(
@@ -420,79 +412,6 @@ def run_group(
         ],
         "timing": {k: round(v, 2) for k, v in times.items()},
     }
-
-
-def answers_to(answers: Sequence[float], acc: Sequence[float], target: float) -> float | None:
-    """Answers at which ``acc`` first reaches ``target``: linear in log answers between the
-    round before and the first round at or above it (the first round's answers if it
-    already is); None if never.
-
-    >>> answers_to([10, 100], [0.6, 0.9], 0.75)  # halfway in log: sqrt(10 · 100)
-    31.62...
-    """
-    a, x = np.asarray(answers, float), np.asarray(acc, float)
-    hit = np.flatnonzero(x >= target)
-    if hit.size == 0:
-        return None
-    j = int(hit[0])
-    if j == 0:
-        return float(a[0])
-    f = (target - x[j - 1]) / (x[j] - x[j - 1])
-    return float(np.exp(np.log(a[j - 1]) + f * (np.log(a[j]) - np.log(a[j - 1]))))
-
-
-def comparisons(doc: dict) -> list[dict]:
-    """One entry per (setting, labeler, model, strategy), the oracles' too (SPEC §11's list
-    ``comparisons`` is that of the strategies: :func:`summarise`)."""
-    out = []
-    for grp in doc["groups"]:
-        target = target_of(doc["config"], grp["setting"], grp["model"])
-        for s in doc["config"]["strategies"]:
-            runs = [r for r in grp["runs"] if r["strategy"] == s]
-            per = [answers_to(grp["answers"], r["accuracy"], target) for r in runs]
-            reached = [p for p in per if p is not None]
-            final = [r["accuracy"][-1] for r in runs]
-            out.append(
-                {
-                    "setting": grp["setting"],
-                    "model": grp["model"],
-                    "labeler": grp["labeler"],
-                    "strategy": s,
-                    "answers_to_target": float(np.mean(per)) if len(reached) == len(per) else None,
-                    "seeds": len(runs),
-                    "target": target,
-                    "per_seed": per,
-                    "seeds_reached": len(reached),
-                    "final_accuracy": float(np.mean(final)),
-                    "answers_max": grp["answers"][-1],
-                }
-            )
-    for c in out:  # random's answers over this strategy's (same group): > 1 is a saving
-        rnd = next(
-            d
-            for d in out
-            if (d["setting"], d["labeler"], d["model"], d["strategy"])
-            == (c["setting"], c["labeler"], c["model"], "random")
-        )
-        a, b = rnd["answers_to_target"], c["answers_to_target"]
-        c["ratio_random_over_this"] = None if a is None or b is None else a / b
-        # random's seeds that never reached it needed more than the largest size: a bound
-        low = [c["answers_max"] if p is None else p for p in rnd["per_seed"]]
-        c["ratio_at_least"] = (
-            float(np.mean(low)) / b
-            if a is None and b is not None and rnd["seeds_reached"]
-            else None
-        )
-    return out
-
-
-def summarise(doc: dict) -> dict:
-    """Set the document's ``comparisons`` (the strategies, SPEC §11) and ``oracles`` (the
-    same entries for the oracles, kept apart: they read the labels) from its groups."""
-    every = comparisons(doc)
-    doc["comparisons"] = [c for c in every if c["strategy"] not in ORACLES]
-    doc["oracles"] = [c for c in every if c["strategy"] in ORACLES]
-    return doc
 
 
 def is_results(path: Path) -> bool:

@@ -1,16 +1,19 @@
-"""Rendering of the active-selection experiment: the Markdown report and the figure, from
-the results document alone (``python -m slotv_jax.experiments.active``)."""
+"""The active-selection experiment's results, from the results document alone
+(``python -m slotv_jax.experiments.active``): answers to the target and the comparisons
+(SPEC §11), the Markdown report and the figure."""
 
 from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from slotv_jax.core.fileio import save_figure, write_text
 
+ORACLES = ("oracle_loss", "oracle_margin")  # read the labels: bounds, not strategies
 MODEL_TITLES = {"mlp": "SLOT-V (paper MLP)", "slotv_plus": "SLOT-V+", "dragan": "Dragan archetype"}
 STRATEGY_COLORS = {
     "random": "black",
@@ -30,6 +33,82 @@ def target_of(doc_cfg: dict, setting: str, model: str) -> float:
     if setting == "labels":
         return float(doc_cfg["labels_target"])
     return float(dict(doc_cfg["study_targets"])[model])
+
+
+# ------------------------------------------------------------------ the summary
+
+
+def answers_to(answers: Sequence[float], acc: Sequence[float], target: float) -> float | None:
+    """Answers at which ``acc`` first reaches ``target``: linear in log answers between the
+    round before and the first round at or above it (the first round's answers if it
+    already is); None if never.
+
+    >>> answers_to([10, 100], [0.6, 0.9], 0.75)  # halfway in log: sqrt(10 · 100)
+    31.62...
+    """
+    a, x = np.asarray(answers, float), np.asarray(acc, float)
+    hit = np.flatnonzero(x >= target)
+    if hit.size == 0:
+        return None
+    j = int(hit[0])
+    if j == 0:
+        return float(a[0])
+    f = (target - x[j - 1]) / (x[j] - x[j - 1])
+    return float(np.exp(np.log(a[j - 1]) + f * (np.log(a[j]) - np.log(a[j - 1]))))
+
+
+def comparisons(doc: dict) -> list[dict]:
+    """One entry per (setting, labeler, model, strategy), the oracles' too (SPEC §11's list
+    ``comparisons`` is that of the strategies: :func:`summarise`)."""
+    out = []
+    for grp in doc["groups"]:
+        target = target_of(doc["config"], grp["setting"], grp["model"])
+        for s in doc["config"]["strategies"]:
+            runs = [r for r in grp["runs"] if r["strategy"] == s]
+            per = [answers_to(grp["answers"], r["accuracy"], target) for r in runs]
+            reached = [p for p in per if p is not None]
+            final = [r["accuracy"][-1] for r in runs]
+            out.append(
+                {
+                    "setting": grp["setting"],
+                    "model": grp["model"],
+                    "labeler": grp["labeler"],
+                    "strategy": s,
+                    "answers_to_target": float(np.mean(per)) if len(reached) == len(per) else None,
+                    "seeds": len(runs),
+                    "target": target,
+                    "per_seed": per,
+                    "seeds_reached": len(reached),
+                    "final_accuracy": float(np.mean(final)),
+                    "answers_max": grp["answers"][-1],
+                }
+            )
+    for c in out:  # random's answers over this strategy's (same group): > 1 is a saving
+        rnd = next(
+            d
+            for d in out
+            if (d["setting"], d["labeler"], d["model"], d["strategy"])
+            == (c["setting"], c["labeler"], c["model"], "random")
+        )
+        a, b = rnd["answers_to_target"], c["answers_to_target"]
+        c["ratio_random_over_this"] = None if a is None or b is None else a / b
+        # random's seeds that never reached it needed more than the largest size: a bound
+        low = [c["answers_max"] if p is None else p for p in rnd["per_seed"]]
+        c["ratio_at_least"] = (
+            float(np.mean(low)) / b
+            if a is None and b is not None and rnd["seeds_reached"]
+            else None
+        )
+    return out
+
+
+def summarise(doc: dict) -> dict:
+    """Set the document's ``comparisons`` (the strategies, SPEC §11) and ``oracles`` (the
+    same entries for the oracles, kept apart: they read the labels) from its groups."""
+    every = comparisons(doc)
+    doc["comparisons"] = [c for c in every if c["strategy"] not in ORACLES]
+    doc["oracles"] = [c for c in every if c["strategy"] in ORACLES]
+    return doc
 
 
 # ------------------------------------------------------------------ rendering
@@ -354,7 +433,7 @@ def _three_fold(doc: dict) -> list[str]:
         return []
     per, first = rnd["per_seed"], doc["config"]["label_sizes"][0]
     third = rnd["answers_to_target"] / 3
-    best = min((c for s, c in cs.items() if s != "random" and not s.startswith("oracle_")
+    best = min((c for s, c in cs.items() if s != "random" and s not in ORACLES
                 and c["answers_to_target"] is not None),
                key=lambda c: c["answers_to_target"], default=None)  # fmt: skip
     line = (
@@ -365,7 +444,7 @@ def _three_fold(doc: dict) -> list[str]:
     )
     if best is not None:
         line += f" ({best['strategy']}'s best seed needs {min(best['per_seed']):.0f})"
-    oracles = [c for s, c in cs.items() if s.startswith("oracle_")
+    oracles = [c for s, c in cs.items() if s in ORACLES
                and c["ratio_random_over_this"] is not None]  # fmt: skip
     labelled = [c["ratio_random_over_this"] for c in doc.get("oracles", [])
                 if c["setting"] == "labels"
@@ -404,8 +483,8 @@ def plot(doc: dict, path: Path) -> None:
             acc = np.array([r["accuracy"] for r in grp["runs"] if r["strategy"] == s])
             m, sd = acc.mean(0), acc.std(0)
             col = STRATEGY_COLORS.get(s)
-            oracle = s.startswith("oracle_")  # reads the labels: dashed
-            ax.plot(x, m, marker="o", ms=3, color=col, label=s, linestyle="--" if oracle else "-")
+            style = "--" if s in ORACLES else "-"  # an oracle reads the labels: dashed
+            ax.plot(x, m, marker="o", ms=3, color=col, label=s, linestyle=style)
             ax.fill_between(x, m - sd, m + sd, color=col, alpha=0.15, linewidth=0)
         ax.axhline(target, color="grey", linestyle="--", linewidth=0.8)
         ax.set_xscale("log")

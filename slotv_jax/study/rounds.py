@@ -149,13 +149,7 @@ def choose(
     logp = log_probs(ens.params, pool, idx)
     k = jax.random.fold_in(key, 2)
     pick = np.asarray(_SELECT(strategy, k, logp, jnp.ones(len(cand), bool), n))
-    if strategy == "epig":  # its own score, against the targets it picked with
-        name, score = "epig", selection.epig(logp, logp[:, selection.epig_targets(k, len(cand))])
-    else:
-        crit = {"random": selection.bald, "uncertainty": selection.uncertainty,
-                "margin": selection.margin, "margin_cluster": selection.margin
-                }.get(strategy, selection.bald)  # fmt: skip
-        name, score = crit.__name__, crit(logp)
+    name, score = selection.ranking_score(strategy, k, logp)
     score = np.asarray(score)
     return {
         "picks": [(cand[p][0], float(taus[cand[p][1]])) for p in pick],

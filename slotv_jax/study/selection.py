@@ -309,7 +309,7 @@ def select_epig(
     """The k available candidates of highest :func:`epig`, the targets x* being
     :func:`epig_targets` of the C scored candidates."""
     tgt = epig_targets(key, logp.shape[1], targets)
-    return _masked_top_k(epig(logp, logp[:, tgt]), available, k)
+    return masked_top_k(epig(logp, logp[:, tgt]), available, k)
 
 
 def epig_targets(key: jax.Array, n: int, targets: int | None = None) -> Int[Array, " S"]:
@@ -319,13 +319,16 @@ def epig_targets(key: jax.Array, n: int, targets: int | None = None) -> Int[Arra
     return jax.random.choice(key, n, (s,), replace=False)
 
 
-def _masked_top_k(score: Float[Array, " C"], available: Bool[Array, " C"], k: int):
+def masked_top_k(
+    score: Float[Array, " C"], available: Bool[Array, " C"], k: int
+) -> Int[Array, " k"]:
+    """The k available candidates of highest ``score``, best first."""
     return jax.lax.top_k(jnp.where(available, score, -jnp.inf), k)[1]
 
 
 def select_random(key: jax.Array, available: Bool[Array, " C"], k: int) -> Int[Array, " k"]:
     """k available candidates uniformly without replacement (Gumbel top-k)."""
-    return _masked_top_k(jax.random.gumbel(key, available.shape), available, k)
+    return masked_top_k(jax.random.gumbel(key, available.shape), available, k)
 
 
 def select_fantasy(
@@ -410,11 +413,11 @@ def select(
     if strategy == "random":
         return select_random(key, available, k)
     if strategy == "uncertainty":
-        return _masked_top_k(uncertainty(logp), available, k)
+        return masked_top_k(uncertainty(logp), available, k)
     if strategy == "margin":
-        return _masked_top_k(margin(logp), available, k)
+        return masked_top_k(margin(logp), available, k)
     if strategy == "bald":
-        return _masked_top_k(bald(logp), available, k)
+        return masked_top_k(bald(logp), available, k)
     if strategy == "bald_fantasy":
         return select_fantasy(key, logp, available, k)
     if strategy == "bald_cluster":
@@ -424,6 +427,23 @@ def select(
     if strategy == "epig":
         return select_epig(key, logp, available, k)
     raise ValueError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
+
+
+def ranking_score(
+    strategy: str, key: jax.Array, logp: Float[Array, "E C G"]
+) -> tuple[str, Float[Array, " C"]]:
+    """The criterion ``strategy`` ranks candidates by, as (name, score) for the record of
+    a round: ``margin`` for the margin strategies, ``uncertainty``, ``epig`` against the
+    targets :func:`select` draws with ``key``, and ``bald`` for the BALD family and for
+    ``random`` (how informative its picks were)."""
+    if strategy not in STRATEGIES:
+        raise ValueError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
+    if strategy == "epig":
+        return "epig", epig(logp, logp[:, epig_targets(key, logp.shape[1])])
+    crit = {"uncertainty": uncertainty, "margin": margin, "margin_cluster": margin}.get(
+        strategy, bald
+    )
+    return crit.__name__, crit(logp)
 
 
 # ================================================================ the ensemble
