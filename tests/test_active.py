@@ -12,7 +12,7 @@ import optax
 import pytest
 from flax import nnx
 
-from slotv_jax.experiments import active, active_report
+from slotv_jax.experiments import active, active_report, active_stream
 from slotv_jax.study import selection
 from slotv_jax.training import config as train_config
 
@@ -346,3 +346,71 @@ def test_a_finished_document_is_summarised_again_without_work(tmp_path):
     assert [c["strategy"] for c in got["comparisons"]] == ["random", "random"]
     assert [c["strategy"] for c in got["oracles"]] == ["oracle_loss", "oracle_loss"]
     assert json.loads((tmp_path / "active_results.json").read_text()) == got
+
+
+# ---------------------------------------------------------- the one-pass protocol
+
+
+def test_stream_labels_each_motion_once_for_one_update():
+    """The paper's Fig. 3 protocol with selected batches: each labelled motion is used for
+    exactly one optimiser step, in order (against a hand loop of the optimiser on the
+    cross-entropy of the same batches), the oracle picks the batch of largest loss, and
+    the same seed gives the same curves."""
+    xyz, goals, mask, rng = _tiny_pool(n=400, t=6)
+    labels = np.where(mask, rng.dirichlet(np.ones(8), 400), 0.0).astype(np.float32)
+    labels /= labels.sum(-1, keepdims=True)
+    train, held = (xyz, goals, mask, labels), (xyz[:60], goals[:60], mask[:60], labels[:60])
+    # eps = 1 makes RMSprop's step lr·g/(√ν + 1) smooth in g: with the default ε, a unit
+    # whose gradient is ~1e-10 (float32 cancellation) moves by lr·g/√ν, any size
+    cfg = active_stream.quick(
+        strategies=("random", "margin", "oracle_loss"), steps=3, subset=64, every=2, seeds=1,
+        stride=1, overrides=("eps=1.0",),
+    )  # fmt: skip
+    res = active_stream.run_seeds(cfg, train, held, progress=False)
+    again = active_stream.run_seeds(cfg, train, held, progress=False)
+    assert res["runs"] == again["runs"] and res["examples"] == [0, 64, 96]
+    lab = res["labelled"]
+    assert lab.shape == (3, 96) and all(np.unique(row).size == 96 for row in lab)
+    sel = selection.make_selector(cfg.train_config(), 1, 32)
+    pool = selection.make_pool(xyz, goals, mask)
+    # hand loop: the random run's three batches, one RMSprop step each on the mean CE
+    ens = sel.init(jax.random.key(1000))
+    params, opt = ens.params, ens.opt_state
+
+    y_all = jnp.asarray(labels)
+
+    @jax.jit
+    def ce(p, idx):  # (len(idx),) cross-entropies −Σ_g y_g log p_g
+        lp, y = sel.log_probs(p, pool, idx, chunk=32)[0], y_all[idx]
+        return -jnp.sum(jnp.where(y > 0, y * lp, 0.0), -1)
+
+    for u in range(3):
+        batch = jnp.asarray(lab[0, u * 32 : (u + 1) * 32])
+        grads = jax.grad(lambda p, b=batch: ce(p, b).mean())(params)
+        upd, opt = jax.vmap(sel.base.tx.update)(grads, opt, params)
+        params = optax.apply_updates(params, upd)
+    leaves = zip(*(jax.tree.leaves(p) for p in (ens.params, params, res["params"])), strict=True)
+    for p0, hand, run in leaves:  # the steps agree to float32 rounding of the parameters
+        p0, hand, run = np.asarray(p0), np.asarray(hand), np.asarray(run)[0]
+        assert np.abs(hand - p0).max() > 1e-5  # the steps are not lost in the tolerance
+        np.testing.assert_allclose(hand - p0, run - p0, rtol=1e-3, atol=1e-7)
+    # the oracle's first batch: the 32 of the first subset the initial observer fits worst
+    sub = np.random.default_rng([0, 2, 0]).choice(400, 64, replace=False)
+    loss = np.asarray(ce(ens.params, jnp.asarray(sub)))
+    assert set(lab[2, :32]) == set(sub[np.argsort(loss)[-32:]])
+
+
+def test_stream_summary_and_config():
+    curves = {("random", 0): [0.1, 0.5, 0.7, 0.85], ("random", 1): [0.1, 0.5, 0.81, 0.9],
+              ("margin", 0): [0.1, 0.8, 0.9, 0.9], ("margin", 1): [0.1, 0.5, 0.6, 0.7]}  # fmt: skip
+    runs = [{"strategy": s, "seed": sd, "accuracy": a} for (s, sd), a in curves.items()]
+    doc = {"config": {"target": 0.8, "strategies": ["random", "margin"]},
+           "examples": [0, 32, 64, 96], "runs": runs}  # fmt: skip
+    rnd, mar = active_stream.summarise(doc)["summary"]
+    assert rnd["per_seed"] == [96, 64] and rnd["examples_to_target"] == 80
+    assert mar["per_seed"] == [32, None] and mar["examples_to_target"] is None
+    assert rnd["ratio_random_over_this"] == 1.0 and mar["ratio_random_over_this"] is None
+    with pytest.raises(ValueError, match="strategies"):
+        active_stream.quick(strategies=("random", "bald"))  # an ensemble's criterion
+    with pytest.raises(ValueError, match="subset"):
+        active_stream.quick(subset=8)
