@@ -52,6 +52,21 @@ def test_output_file_rule(tmp_path):
         fileio.check_output_file(tmp_path / "a.npz" / "b.npz")
 
 
+def test_report_files_resume_only_from_our_results(tmp_path):
+    """A results document the command resumes from must be ours: somebody else's file of
+    that name is refused and left as it was; the reports beside it are regenerated."""
+    names = ["x_results.json", "x.md"]
+    ours = {"x_results.json": lambda p: p.read_text().startswith("{")}
+    fileio.check_output_files(tmp_path / "new", names, ours=ours)  # nothing there yet
+    (tmp_path / "x.md").write_text("an old report")
+    (tmp_path / "x_results.json").write_text("my notes")
+    with pytest.raises(fileio.OutputError, match=r"x_results\.json exists and is not ours"):
+        fileio.check_output_files(tmp_path, names, ours=ours)
+    assert (tmp_path / "x_results.json").read_text() == "my notes"
+    (tmp_path / "x_results.json").write_text("{}")
+    fileio.check_output_files(tmp_path, names, ours=ours)
+
+
 def test_unwritable_places_are_caught_even_for_root(tmp_path):
     # chmod does not stop root; /proc and a read-only mount do, and so does a file parent
     with pytest.raises(fileio.OutputError, match="cannot write in /proc"):

@@ -43,7 +43,7 @@ import tempfile
 import uuid
 import zipfile
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO, Literal
 
@@ -155,13 +155,19 @@ def is_results_dir(path: str | os.PathLike, depth: int = 2) -> bool:
 
 
 def check_output_files(
-    folder: str | os.PathLike, names: Sequence[str], *, what: str = "--out"
+    folder: str | os.PathLike,
+    names: Sequence[str],
+    *,
+    what: str = "--out",
+    ours: Mapping[str, Callable[[Path], bool]] | None = None,
 ) -> None:
     """Check, before any work, that the files ``names`` can be written into ``folder``.
 
     For a command that writes named reports into a shared folder (``experiments/``): the
     folder is a directory or can be made, it can be written, and no name is a directory.
-    Files of those names are regenerated; nothing else in the folder is touched.
+    Files of those names are regenerated; nothing else in the folder is touched. A file
+    named in ``ours`` (a results document the command resumes from) that exists must
+    pass its check, or the command is refused: it is somebody else's file.
     """
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
@@ -170,6 +176,11 @@ def check_output_files(
     for name in names:
         if (folder / name).is_dir():
             raise OutputError(f"{what} {folder}: {folder / name} is a directory, not a file")
+    for name, is_ours in (ours or {}).items():
+        if (folder / name).exists() and not is_ours(folder / name):
+            raise OutputError(
+                f"{what} {folder}: {name} exists and is not ours; choose another {what}"
+            )
 
 
 def temp_dir_beside(path: str | os.PathLike) -> Path:

@@ -256,7 +256,9 @@ PRESETS = {"quick": quick, "paper": paper}
 # ------------------------------------------------------------------- running
 
 
-def _strided(split, labeler: str, stride: int, n: int | None = None):
+def motion_arrays(split, labeler: str, stride: int, n: int | None = None):
+    """(xyz (N, T', 3), goals (N, G, 3), goal_mask (N, G), labels (N, G)) of the first ``n``
+    motions of a split (all: None), on every ``stride``-th point and always the last."""
     d = train.prepare(split, labeler)
     cut = slice(None) if n is None else slice(0, n)
     xyz = np.asarray(d.xyz[cut])
@@ -290,9 +292,9 @@ def run_group(
     tc = cfg.train_config(model)
     sizes = cfg.label_sizes if setting == "labels" else cfg.study_sizes
     eval_split = "trajectory_val" if setting == "labels" else "position_test"
-    xyz, goals, mask, probs = _strided(splits["train"], labeler, cfg.stride)
+    xyz, goals, mask, probs = motion_arrays(splits["train"], labeler, cfg.stride)
     pool = selection.make_pool(xyz, goals, mask)
-    exyz, egoals, emask, elabels = _strided(
+    exyz, egoals, emask, elabels = motion_arrays(
         splits[eval_split], labeler, cfg.stride, cfg.eval_offset + cfg.eval_size
     )
     exyz, egoals, emask, elabels = (a[cfg.eval_offset :] for a in (exyz, egoals, emask, elabels))
@@ -541,13 +543,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
     out = Path(args.out)
     stem = stem_of(cfg.preset)
-    # the report and figure are rewritten from the results; the results file must be ours
-    fileio.check_output_files(out, [f"{stem}{s}" for s in ("_results.json", ".md", ".png")])
-    results = out / f"{stem}_results.json"
-    if results.exists() and not is_results(results):
-        raise cli.InputError(
-            f"--out {out}: {results.name} exists and is not ours; choose another --out"
-        )
+    # the report and figure are rewritten from the results document, which must be ours
+    names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png")]
+    fileio.check_output_files(out, names, ours={names[0]: is_results})  # resumed: ours only
     out.mkdir(parents=True, exist_ok=True)
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)
     doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress, only=only)

@@ -52,7 +52,7 @@ from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import save_figure, write_text
-from slotv_jax.experiments.active import _strided, oracle_score
+from slotv_jax.experiments.active import motion_arrays, oracle_score
 from slotv_jax.experiments.active_report import ORACLES, STRATEGY_COLORS
 from slotv_jax.runs.curves import examples_to_reach
 from slotv_jax.study import selection
@@ -285,8 +285,8 @@ def run(cfg: StreamConfig, out: Path, *, cache: Path = Path("data"), progress: b
     splits = data_lib.generate_dataset(
         cfg.data, ddir, progress=progress, splits=("train", "trajectory_val")
     )
-    train = _strided(splits["train"], cfg.labeler, cfg.stride)
-    held = _strided(
+    train = motion_arrays(splits["train"], cfg.labeler, cfg.stride)
+    held = motion_arrays(
         splits["trajectory_val"], cfg.labeler, cfg.stride, cfg.eval_offset + cfg.eval_size
     )
     held = tuple(a[cfg.eval_offset :] for a in held)
@@ -455,12 +455,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     cfg = PRESETS[args.preset](**kw)
     out = Path(args.out)
     stem = stem_of(cfg.preset)
-    fileio.check_output_files(out, [f"{stem}{s}" for s in ("_results.json", ".md", ".png")])
-    results = out / f"{stem}_results.json"
-    if results.exists() and not is_results(results):
-        raise cli.InputError(
-            f"--out {out}: {results.name} exists and is not ours; choose another --out"
-        )
+    names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png")]
+    fileio.check_output_files(out, names, ours={names[0]: is_results})  # resumed: ours only
     out.mkdir(parents=True, exist_ok=True)
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)
     doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress)
