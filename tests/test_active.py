@@ -83,6 +83,28 @@ def test_margin_prefers_a_tie_of_two_goals_to_a_flat_spread():
     assert int(SELECT("uncertainty", jax.random.key(0), logp, avail, 1)[0]) == 1
 
 
+def test_error_asks_where_the_observer_stands_alone():
+    """``error`` = 1 − p̄(ŷ₀): a motion where member 0 holds to a goal the others reject
+    comes before a tie that everyone shares, which ``margin`` asks first."""
+    p = np.array(
+        [
+            [[0.5, 0.5], [0.9, 0.1], [0.8, 0.2], [0.6, 0.4]],  # member 0: tie, A, A, A
+            [[0.5, 0.5], [0.1, 0.9], [0.8, 0.2], [0.6, 0.4]],
+            [[0.5, 0.5], [0.1, 0.9], [0.8, 0.2], [0.2, 0.8]],
+        ]
+    )  # (E=3, C=4, G=2): a shared tie; member 0 alone; all agree; one member doubts
+    logp = jnp.asarray(np.log(p), jnp.float32)
+    pbar = p.mean(0)  # float64 by hand; member 0's guesses: A (the tie to the first goal)
+    expect = 1.0 - pbar[:, 0]  # [0.5, 1 − 1.1/3, 0.2, 1 − 1.4/3]
+    np.testing.assert_allclose(np.asarray(selection.error(logp)), expect, atol=1e-6)
+    w = jnp.array([1.0, 0.0, 0.0])  # member 0 alone: its own least confidence
+    np.testing.assert_allclose(np.asarray(selection.error(logp, w)), 1 - p[0].max(-1), atol=1e-6)
+    avail = jnp.ones(4, bool)
+    first = lambda s: int(SELECT(s, jax.random.key(0), logp, avail, 1)[0])  # noqa: E731
+    assert (first("error"), first("margin")) == (1, 0)
+    assert selection.ranking_score("error", jax.random.key(0), logp)[0] == "error"
+
+
 def test_strategies_pick_the_informative_motions():
     logp, _ = _two_goal_logp()
     avail = jnp.ones(5, bool)

@@ -20,6 +20,7 @@ STRATEGY_COLORS = {
     "uncertainty": "tab:orange",
     "margin": "tab:red",
     "margin_cluster": "tab:brown",
+    "error": "tab:cyan",
     "bald": "tab:blue",
     "bald_fantasy": "tab:green",
     "bald_cluster": "tab:purple",

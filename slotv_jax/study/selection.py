@@ -35,6 +35,13 @@ Criteria (per candidate, from the members' predictive distributions p_e)
 - ``margin``: the smallest gap between the two most likely goals, 1 − (p̄_(1) − p̄_(2))
   (Scheffer et al. 2001): the motions nearest the observer's decision boundary, which is
   what accuracy (the argmax) depends on; entropy also rewards a flat spread over many goals;
+- ``error``: the probability, under the ensemble, that the observer's guess is wrong,
+  1 − p̄(ŷ₀) with ŷ₀ = argmax_k p_0,k the guess of member 0 (the observer the answers give):
+  the expected 0-1 loss of its decision (least confidence, Lewis & Gale 1994, taken
+  against the posterior predictive rather than the observer's own p_0). Where member 0
+  holds to a goal the other members reject it is high though p̄ has a clear favourite,
+  which ``margin`` scores low; accuracy is the observer's decision, so these are its
+  likely mistakes;
 - ``bald``: the mutual information between the next answer y and the observer,
   I(y; θ) = H[p̄] − Σ_e π_e H[p_e] (Houlsby et al. 2011, "BALD"; Gal et al. 2017):
   high where the members disagree, zero where they agree on a noisy answer;
@@ -93,6 +100,7 @@ STRATEGIES = (
     "uncertainty",
     "margin",
     "margin_cluster",
+    "error",
     "bald",
     "bald_fantasy",
     "bald_cluster",
@@ -247,6 +255,22 @@ def margin(
     """
     top2 = jax.lax.top_k(predictive(logp, weights), 2)[0]
     return 1.0 - (top2[:, 0] - top2[:, 1])
+
+
+def error(
+    logp: Float[Array, "E C G"], weights: Float[Array, " E"] | None = None
+) -> Float[Array, " C"]:
+    """The posterior probability that member 0's guess is wrong, 1 − p̄(ŷ₀) with
+    ŷ₀ = argmax_k p_0,k and p̄ = Σ_e π_e p_e (ties to the lowest goal, as SPEC §8).
+
+    >>> tie = jnp.log(jnp.array([[[0.5, 0.5]], [[0.5, 0.5]]]))  # everyone at a tie
+    >>> lone = jnp.log(jnp.array([[[0.9, 0.1]], [[0.1, 0.9]], [[0.1, 0.9]]]))  # member 0 alone
+    >>> float(error(tie)[0]), round(float(error(lone)[0]), 6)
+    (0.5, 0.633333)
+    """
+    guess = jnp.argmax(logp[0], axis=-1)  # (C,) member 0's decision
+    pbar = predictive(logp, weights)
+    return 1.0 - jnp.take_along_axis(pbar, guess[:, None], axis=-1)[:, 0]
 
 
 def bald(
@@ -416,6 +440,8 @@ def select(
         return masked_top_k(uncertainty(logp), available, k)
     if strategy == "margin":
         return masked_top_k(margin(logp), available, k)
+    if strategy == "error":
+        return masked_top_k(error(logp), available, k)
     if strategy == "bald":
         return masked_top_k(bald(logp), available, k)
     if strategy == "bald_fantasy":
@@ -433,16 +459,19 @@ def ranking_score(
     strategy: str, key: jax.Array, logp: Float[Array, "E C G"]
 ) -> tuple[str, Float[Array, " C"]]:
     """The criterion ``strategy`` ranks candidates by, as (name, score) for the record of
-    a round: ``margin`` for the margin strategies, ``uncertainty``, ``epig`` against the
+    a round: ``margin`` for the margin strategies, ``uncertainty``, ``error``, ``epig`` against the
     targets :func:`select` draws with ``key``, and ``bald`` for the BALD family and for
     ``random`` (how informative its picks were)."""
     if strategy not in STRATEGIES:
         raise ValueError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
     if strategy == "epig":
         return "epig", epig(logp, logp[:, epig_targets(key, logp.shape[1])])
-    crit = {"uncertainty": uncertainty, "margin": margin, "margin_cluster": margin}.get(
-        strategy, bald
-    )
+    crit = {
+        "uncertainty": uncertainty,
+        "margin": margin,
+        "margin_cluster": margin,
+        "error": error,
+    }.get(strategy, bald)
     return crit.__name__, crit(logp)
 
 
