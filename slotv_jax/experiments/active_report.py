@@ -423,6 +423,12 @@ PAPER_NOTES = [
     "24,058 and margin 14,694 answers (1.64×). More rounds mean more updates on the same "
     "single guesses, which fit their noise, and the schedule moves random itself by 1.7×; "
     "the preset keeps three members and ×√2.",
+    "- `error` (1 − p̄(ŷ₀), the ensemble's doubt about the observer's own guess) was "
+    "first tried on seeds 10–14 in studies with the paper MLP: random 14,524, margin "
+    "10,347 (1.40×), error 7,675 answers (1.89×; with p̄ over members 1 and 2 only, 9,511). "
+    "It was then run, with random and margin beside it, on seeds 30–39 that no run had "
+    "used (`experiments/active_paper_error/fresh_seeds_30-39`: 2.08×, margin 1.77×), and "
+    "on seeds 0–4 and 20–29 (`experiments/active_paper_error/`).",
     "- The paper's own protocol (Fig. 3: one pass, each label used for one update; "
     "`python -m slotv_jax.experiments.active_stream --preset paper`, "
     "`experiments/active_stream_paper.md`, seeds 0–4): a strategy picking each batch of 32 "
