@@ -103,7 +103,7 @@ def test_next_round_is_a_valid_stimulus_set(tmp_path):
     )  # fmt: skip
     assert r == 1 and stimuli.find_rounds(stimdir) == [0, 1]
     loaded = stimuli.load_stimulus_set(stimdir / "round-1", verify=True)  # checksums, tables
-    assert loaded.round == 1 and loaded.manifest["source"]["strategy"] == "error"
+    assert loaded.round == 1 and loaded.manifest["source"]["strategy"] == "margin"
     trials = [(s["trajectory"], s["tau"]) for s in loaded.manifest["stimuli"]
               if s["kind"] == "trial"]  # fmt: skip
     assert sorted(trials) == sorted((cand.ids[i], t) for i, t in choice["picks"])

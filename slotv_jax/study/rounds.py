@@ -10,9 +10,11 @@
    guesses;
 3. scores candidate stimuli, the motions of a dataset split at each stop time of
    ``--taus`` that no earlier round showed (a random ``--subset`` of them), and picks
-   ``--n`` of them by ``--strategy`` (default ``error``: the motions whose guess the
-   ensemble most doubts, the fewest answers to a target accuracy in the simulated
-   studies of ``experiments/active_paper_error``);
+   ``--n`` of them by ``--strategy`` (default ``margin``: the motions nearest the
+   observer's decision between two goals, never behind random selection in the simulated
+   studies of ``experiments.active`` at either preset; ``error`` needed the fewest answers
+   with the paper's network, ``experiments/active_paper_error``, but fell behind margin
+   with the quick one);
 4. renders them as the next round of the study folder, ``STIMDIR/round-R`` (round 0 is
    the folder itself), with the renderer settings of round 0, plus attention checks and
    a practice trial as ``study stimuli`` adds them. The server (``study serve``) serves a
@@ -100,7 +102,7 @@ def choose(
     *,
     n: int,
     taus: Sequence[float],
-    strategy: str = "error",
+    strategy: str = "margin",
     cfg: train_config.TrainConfig | None = None,
     members: int = 4,
     updates: int = 500,
@@ -216,7 +218,7 @@ def add_command(sub) -> None:
     p.add_argument("--split", default="trajectory_test", choices=SPLITS)
     p.add_argument("--n", type=int, default=10, help="stimuli to choose")
     p.add_argument("--taus", default="0.4,0.7,1.0", help="candidate stop times in (0, 1]")
-    p.add_argument("--strategy", default="error", choices=selection.STRATEGIES)
+    p.add_argument("--strategy", default="margin", choices=selection.STRATEGIES)
     p.add_argument("--model", default="mlp", choices=MODELS)
     p.add_argument("--preset", default="quick", choices=tuple(train_config.PRESETS))
     p.add_argument("--members", type=int, default=4, help="ensemble size")
