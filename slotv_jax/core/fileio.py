@@ -280,6 +280,16 @@ def read_json(path: str | os.PathLike) -> Any:
         ) from None
 
 
+def is_json_object_with(path: str | os.PathLike, keys: Sequence[str]) -> bool:
+    """Whether ``path`` holds a JSON object with at least the ``keys`` (a command's results
+    document, which it may resume: :func:`check_output_files`'s ``ours``)."""
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and set(keys) <= set(doc)
+
+
 _ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")  # a local file header; an empty archive
 
 

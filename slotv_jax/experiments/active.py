@@ -418,11 +418,7 @@ def run_group(
 
 def is_results(path: Path) -> bool:
     """Whether ``path`` holds a results document of this experiment (ours to resume)."""
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return False
-    return isinstance(doc, dict) and {"preset", "config", "groups"} <= set(doc)
+    return fileio.is_json_object_with(path, ("preset", "config", "groups"))
 
 
 def run(

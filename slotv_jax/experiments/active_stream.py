@@ -52,6 +52,7 @@ from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import save_figure, write_text
+from slotv_jax.experiments import active
 from slotv_jax.experiments.active import motion_arrays, oracle_score
 from slotv_jax.experiments.active_report import ORACLES, STRATEGY_COLORS
 from slotv_jax.runs.curves import examples_to_reach
@@ -116,28 +117,23 @@ class StreamConfig:
         return json.loads(json.dumps(d))
 
 
+def _from_active(a: active.ActiveConfig, **kw) -> StreamConfig:
+    """The active experiment's preset ``a``: its dataset, network, points, seeds and
+    held-out motions."""
+    same = ("preset", "data", "train_preset", "seeds", "eval_size", "stride", "chunk", "overrides")
+    return StreamConfig(**{k: getattr(a, k) for k in same}, **kw)
+
+
 def quick(**overrides) -> StreamConfig:
     """CPU preset: the quick dataset and network (64/32) on every 4th point, target 75 %
     (the quick network's one-pass accuracy stays near 80 % within 8,000 examples)."""
-    base = StreamConfig(
-        preset="quick", data=data_lib.quick(), train_preset="quick", stride=4, target=0.75
-    )
-    return dataclasses.replace(base, **overrides)
+    return dataclasses.replace(_from_active(active.quick(), target=0.75), **overrides)
 
 
 def paper(**overrides) -> StreamConfig:
     """GPU preset: the paper's dataset and SLOT-V network (1536/768, bfloat16 matmuls) on
     every point, 5 seeds, 3,000 held-out motions."""
-    base = StreamConfig(
-        preset="paper",
-        data=data_lib.paper(),
-        train_preset="paper",
-        seeds=5,
-        eval_size=3000,
-        chunk=64,
-        overrides=("compute_dtype=bfloat16",),
-    )
-    return dataclasses.replace(base, **overrides)
+    return dataclasses.replace(_from_active(active.paper()), **overrides)
 
 
 PRESETS = {"quick": quick, "paper": paper}
@@ -424,11 +420,7 @@ def render(doc: dict, out: Path, command: str) -> None:
 
 def is_results(path: Path) -> bool:
     """Whether ``path`` holds a results document of this experiment."""
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return False
-    return isinstance(doc, dict) and {"preset", "config", "runs"} <= set(doc)
+    return fileio.is_json_object_with(path, ("preset", "config", "runs"))
 
 
 @cli.command
