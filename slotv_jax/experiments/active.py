@@ -470,15 +470,45 @@ def run(
     return doc
 
 
-def _parse_args(argv):
-    ap = argparse.ArgumentParser(
-        prog="python -m slotv_jax.experiments.active", description=__doc__.split("\n\n")[0]
-    )
-    ap.add_argument("--preset", default="quick", choices=tuple(PRESETS))
+def parser(prog: str, description: str, presets: Sequence[str]) -> argparse.ArgumentParser:
+    """The command line both active-selection experiments share (``experiments.active``
+    and ``active_stream``): preset, output and cache folders, seeds, held-out motions,
+    strategies; :func:`config_overrides` reads it back."""
+    ap = argparse.ArgumentParser(prog=prog, description=description)
+    ap.add_argument("--preset", default="quick", choices=tuple(presets))
     ap.add_argument("--out", default="experiments", help="output folder (default: experiments)")
     ap.add_argument("--cache", default="data", help="dataset cache folder")
     ap.add_argument("--seeds", type=int, default=None)
+    ap.add_argument("--first-seed", type=int, default=None, help="seeds from this one (tuning)")
+    ap.add_argument(
+        "--eval-offset", type=int, default=None, help="held-out motions from this one (tuning)"
+    )
     ap.add_argument("--strategies", default=None, help="comma-separated, random among them")
+    ap.add_argument("--no-progress", action="store_true")
+    return ap
+
+
+def config_overrides(args: argparse.Namespace, names: Sequence[str] = ()) -> dict:
+    """The preset's fields the command line sets: seeds, first_seed, eval_offset, the
+    strategies, and the integer flags ``names``."""
+    kw = {n: getattr(args, n) for n in ("seeds", "first_seed", "eval_offset", *names)}
+    kw = {n: v for n, v in kw.items() if v is not None}
+    if args.strategies:
+        kw["strategies"] = tuple(s.strip() for s in args.strategies.split(","))
+    return kw
+
+
+def prepare_out(out: Path, stem: str, is_ours) -> None:
+    """Before any work: ``OUT/STEM_results.json``, ``.md`` and ``.png`` can be written, and
+    the results document, if there, is ours (``is_ours``; it is resumed and the report and
+    figure rewritten from it); then make ``out``."""
+    names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png")]
+    fileio.check_output_files(out, names, ours={names[0]: is_ours})
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def _parse_args(argv):
+    ap = parser("python -m slotv_jax.experiments.active", __doc__.split("\n\n")[0], PRESETS)
     ap.add_argument("--updates", type=int, default=None, help="updates per round (labels)")
     ap.add_argument("--study-updates", type=int, default=None, help="updates per round (study)")
     ap.add_argument("--members", type=int, default=None, help="ensemble size E")
@@ -488,10 +518,6 @@ def _parse_args(argv):
         default=None,
         metavar="MOTIONS",
         help="study setting: continue the preset's geometric sizes up to this many motions",
-    )
-    ap.add_argument("--first-seed", type=int, default=None, help="seeds from this one (tuning)")
-    ap.add_argument(
-        "--eval-offset", type=int, default=None, help="held-out motions from this one (tuning)"
     )
     ap.add_argument(
         "--groups",
@@ -506,19 +532,13 @@ def _parse_args(argv):
         metavar="KEY=VALUE",
         help="TrainConfig override of the MLP models, e.g. compute_dtype=bfloat16",
     )
-    ap.add_argument("--no-progress", action="store_true")
     return ap.parse_args(argv)
 
 
 @cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
-    kw: dict = {}
-    for name in ("seeds", "updates", "study_updates", "members", "first_seed", "eval_offset"):
-        if getattr(args, name) is not None:
-            kw[name] = getattr(args, name)
-    if args.strategies:
-        kw["strategies"] = tuple(s.strip() for s in args.strategies.split(","))
+    kw = config_overrides(args, ("updates", "study_updates", "members"))
     if args.study_max is not None:
         base = PRESETS[args.preset]().study_sizes
         if args.study_max < base[1]:
@@ -538,11 +558,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"of {', '.join('/'.join(g) for g in cfg.groups())}"
             )
     out = Path(args.out)
-    stem = stem_of(cfg.preset)
-    # the report and figure are rewritten from the results document, which must be ours
-    names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png")]
-    fileio.check_output_files(out, names, ours={names[0]: is_results})  # resumed: ours only
-    out.mkdir(parents=True, exist_ok=True)
+    prepare_out(out, stem_of(cfg.preset), is_results)
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)
     doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress, only=only)
     command = " ".join(

@@ -31,7 +31,6 @@ the same config only renders the report again).
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import os
@@ -425,31 +424,15 @@ def is_results(path: Path) -> bool:
 
 @cli.command
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m slotv_jax.experiments.active_stream", description=__doc__.split("\n\n")[0]
+    ap = active.parser(
+        "python -m slotv_jax.experiments.active_stream", __doc__.split("\n\n")[0], PRESETS
     )
-    ap.add_argument("--preset", default="quick", choices=tuple(PRESETS))
-    ap.add_argument("--out", default="experiments", help="output folder (default: experiments)")
-    ap.add_argument("--cache", default="data", help="dataset cache folder")
-    ap.add_argument("--seeds", type=int, default=None)
-    ap.add_argument("--first-seed", type=int, default=None, help="seeds from this one (tuning)")
-    ap.add_argument("--eval-offset", type=int, default=None, help="held-out motions from here")
     ap.add_argument("--steps", type=int, default=None, help="updates (each on a new batch)")
-    ap.add_argument("--strategies", default=None, help="comma-separated, random among them")
-    ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
-    kw: dict = {}
-    for name in ("seeds", "first_seed", "eval_offset", "steps"):
-        if getattr(args, name) is not None:
-            kw[name] = getattr(args, name)
-    if args.strategies:
-        kw["strategies"] = tuple(s.strip() for s in args.strategies.split(","))
+    kw = active.config_overrides(args, ("steps",))
     cfg = PRESETS[args.preset](**kw)
     out = Path(args.out)
-    stem = stem_of(cfg.preset)
-    names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png")]
-    fileio.check_output_files(out, names, ours={names[0]: is_results})  # resumed: ours only
-    out.mkdir(parents=True, exist_ok=True)
+    active.prepare_out(out, stem_of(cfg.preset), is_results)
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)
     doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress)
     command = " ".join(

@@ -35,13 +35,10 @@ Criteria (per candidate, from the members' predictive distributions p_e)
 - ``margin``: the smallest gap between the two most likely goals, 1 − (p̄_(1) − p̄_(2))
   (Scheffer et al. 2001): the motions nearest the observer's decision boundary, which is
   what accuracy (the argmax) depends on; entropy also rewards a flat spread over many goals;
-- ``error``: the probability, under the ensemble, that the observer's guess is wrong,
-  1 − p̄(ŷ₀) with ŷ₀ = argmax_k p_0,k the guess of member 0 (the observer the answers give):
-  the expected 0-1 loss of its decision (least confidence, Lewis & Gale 1994, taken
-  against the posterior predictive rather than the observer's own p_0). Where member 0
-  holds to a goal the other members reject it is high though p̄ has a clear favourite,
-  which ``margin`` scores low; accuracy is the observer's decision, so these are its
-  likely mistakes;
+- ``error``: the posterior probability that the observer's guess ŷ₀ = argmax p_0 (member
+  0's) is wrong, 1 − p̄(ŷ₀) (least confidence, Lewis & Gale 1994, against the posterior):
+  high where member 0 holds to a goal the others reject, which ``margin`` scores low when
+  p̄ has a clear favourite; these are the observer's likely mistakes;
 - ``bald``: the mutual information between the next answer y and the observer,
   I(y; θ) = H[p̄] − Σ_e π_e H[p_e] (Houlsby et al. 2011, "BALD"; Gal et al. 2017):
   high where the members disagree, zero where they agree on a noisy answer;
@@ -403,7 +400,7 @@ def select_cluster(
         raise ValueError(f"shortlist: expected at least k = {k}, got {m}")
     if criterion not in ("bald", "margin"):
         raise ValueError(f"criterion: expected 'bald' or 'margin', got {criterion!r}")
-    score = (bald if criterion == "bald" else margin)(logp, weights)
+    score = CRITERIA[criterion](logp, weights)
     info = jnp.where(available, score, -jnp.inf)
     val, top = jax.lax.top_k(info, m)  # (m,), best first
     feat = jnp.exp(logp[:, top]).transpose(1, 0, 2).reshape(m, -1)  # (m, E·G)
@@ -418,6 +415,10 @@ def select_cluster(
 
     init = (jnp.full((m,), jnp.inf), jnp.zeros((m,), bool), jnp.zeros((k,), jnp.int32))
     return jax.lax.fori_loop(0, k, pick, init)[2]
+
+
+CRITERIA = {"uncertainty": uncertainty, "margin": margin, "error": error, "bald": bald}
+RANKS_BY = {"margin_cluster": "margin", "bald_fantasy": "bald", "bald_cluster": "bald"}
 
 
 def select(
@@ -436,20 +437,12 @@ def select(
     static."""
     if strategy == "random":
         return select_random(key, available, k)
-    if strategy == "uncertainty":
-        return masked_top_k(uncertainty(logp), available, k)
-    if strategy == "margin":
-        return masked_top_k(margin(logp), available, k)
-    if strategy == "error":
-        return masked_top_k(error(logp), available, k)
-    if strategy == "bald":
-        return masked_top_k(bald(logp), available, k)
+    if strategy in CRITERIA:
+        return masked_top_k(CRITERIA[strategy](logp), available, k)
     if strategy == "bald_fantasy":
         return select_fantasy(key, logp, available, k)
-    if strategy == "bald_cluster":
-        return select_cluster(logp, available, k, shortlist)
-    if strategy == "margin_cluster":
-        return select_cluster(logp, available, k, shortlist, criterion="margin")
+    if strategy in ("bald_cluster", "margin_cluster"):
+        return select_cluster(logp, available, k, shortlist, criterion=RANKS_BY[strategy])
     if strategy == "epig":
         return select_epig(key, logp, available, k)
     raise ValueError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
@@ -459,20 +452,15 @@ def ranking_score(
     strategy: str, key: jax.Array, logp: Float[Array, "E C G"]
 ) -> tuple[str, Float[Array, " C"]]:
     """The criterion ``strategy`` ranks candidates by, as (name, score) for the record of
-    a round: ``margin`` for the margin strategies, ``uncertainty``, ``error``, ``epig`` against the
-    targets :func:`select` draws with ``key``, and ``bald`` for the BALD family and for
-    ``random`` (how informative its picks were)."""
+    a round: its own (:data:`CRITERIA`), that of its diverse or greedy form
+    (:data:`RANKS_BY`), ``epig`` against the targets :func:`select` draws with ``key``, and
+    ``bald`` for ``random`` (how informative its picks were)."""
     if strategy not in STRATEGIES:
         raise ValueError(f"strategy: expected one of {STRATEGIES}, got {strategy!r}")
     if strategy == "epig":
         return "epig", epig(logp, logp[:, epig_targets(key, logp.shape[1])])
-    crit = {
-        "uncertainty": uncertainty,
-        "margin": margin,
-        "margin_cluster": margin,
-        "error": error,
-    }.get(strategy, bald)
-    return crit.__name__, crit(logp)
+    name = strategy if strategy in CRITERIA else RANKS_BY.get(strategy, "bald")
+    return name, CRITERIA[name](logp)
 
 
 # ================================================================ the ensemble
