@@ -20,7 +20,7 @@ import numpy as np
 from PIL import Image
 
 from slotv_jax import kinematics, render
-from slotv_jax.study import stimuli
+from slotv_jax.webstudy import stimuli
 
 SIZE = (64, 48)
 ROOT = str(Path(__file__).resolve().parents[1])

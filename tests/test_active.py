@@ -1,4 +1,4 @@
-"""Active selection (slotv_jax.study.selection, slotv_jax.experiments.active): the criteria
+"""Active selection (slotv_jax.asking.selection, slotv_jax.experiments.active): the criteria
 against hand-computed two-goal pools, determinism, the vmapped ensemble against a loop
 over members, and the experiment's bookkeeping."""
 
@@ -12,8 +12,8 @@ import optax
 import pytest
 from flax import nnx
 
+from slotv_jax.asking import selection
 from slotv_jax.experiments import active, active_report, active_stream
-from slotv_jax.study import selection
 from slotv_jax.training import config as train_config
 
 EPS = 1e-6  # "certain" members give the other goal this probability

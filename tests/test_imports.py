@@ -168,14 +168,14 @@ def test_dependencies_point_down():
 
     assert not reaches("slotv_jax.training.evaluate", "slotv_jax.training.trainer")
     assert not reaches("slotv_jax.training.trainer", "slotv_jax.training.checkpoint")
-    assert not reaches("slotv_jax.training.trainer", "slotv_jax.study")
+    assert not reaches("slotv_jax.training.trainer", "slotv_jax.answers")
     assert not reaches("slotv_jax.training.types", "slotv_jax.observers.models")
     for user in (
         "training.evaluate",
         "training.trainer",
         "training.checkpoint",
         "training.parallel",
-        "study",
+        "answers",
     ):
         assert reaches(f"slotv_jax.{user}", "slotv_jax.training.types"), user
 
@@ -189,7 +189,9 @@ LAYERS = (
     ("world",),
     ("observers",),
     ("data", "planning", "training", "rendering"),
-    ("study", "runs"),
+    ("answers", "runs"),
+    ("asking", "webstudy"),
+    ("study",),
     ("", "labelers", "train", "render", "scene", "kinematics"),
     ("experiments", "benchmarks"),
 )
@@ -265,8 +267,8 @@ import slotv_jax
 assert "jax" not in sys.modules, "import slotv_jax loads JAX"
 import slotv_jax.training.evaluate
 
-above = ("slotv_jax.training.trainer", "slotv_jax.training.checkpoint", "slotv_jax.study",
-         "slotv_jax.data")
+above = ("slotv_jax.training.trainer", "slotv_jax.training.checkpoint", "slotv_jax.answers",
+         "slotv_jax.study", "slotv_jax.data")
 assert not [m for m in above if m in sys.modules], [m for m in above if m in sys.modules]
 from slotv_jax import load_observer
 

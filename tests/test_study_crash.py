@@ -9,7 +9,7 @@ import time
 
 from study_fixtures import ServerProcess, write_dot_set
 
-from slotv_jax.study import client
+from slotv_jax.webstudy import client
 
 
 def _stored(db) -> dict[tuple[str, int], str]:

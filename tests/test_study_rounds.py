@@ -9,8 +9,9 @@ import pytest
 from study_fixtures import DotRenderer, motions, write_dot_set
 
 from slotv_jax.study import cli as study_cli
-from slotv_jax.study import database, make_stimuli, rounds, stimuli
+from slotv_jax.study import rounds
 from slotv_jax.training import config as train_config
+from slotv_jax.webstudy import database, make_stimuli, stimuli
 
 
 def _candidates(n=12):

@@ -14,10 +14,10 @@ from starlette.testclient import TestClient
 from study_fixtures import write_dot_set
 
 from slotv_jax import study
-from slotv_jax.study import design, export, stimuli
-from slotv_jax.study.database import SQLiteStorage
-from slotv_jax.study.server import COOKIE, LOOPBACK_HOSTS, MAX_BODY, make_app
-from slotv_jax.study.service import StudyService
+from slotv_jax.webstudy import design, export, stimuli
+from slotv_jax.webstudy.database import SQLiteStorage
+from slotv_jax.webstudy.server import COOKIE, LOOPBACK_HOSTS, MAX_BODY, make_app
+from slotv_jax.webstudy.service import StudyService
 
 ADMIN = "admin-token-for-tests-0123456789"
 

@@ -9,7 +9,7 @@ import pytest
 from study_fixtures import robot_motions
 
 from slotv_jax import render, study
-from slotv_jax.study import make_stimuli, stimuli
+from slotv_jax.webstudy import make_stimuli, stimuli
 
 SIZE, FPS, DURATION, HOLD = (160, 96), 10.0, 1.0, 0.2
 

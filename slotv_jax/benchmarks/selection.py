@@ -4,7 +4,7 @@
     python -m slotv_jax.benchmarks.selection --preset paper     # the paper's network (GPU)
 
 A synthetic pool (straight-ish motions of T = 100 points to one of 2-6 goals) and an
-untrained ensemble of E members of SLOT-V's network (:mod:`slotv_jax.study.selection`). Timed,
+untrained ensemble of E members of SLOT-V's network (:mod:`slotv_jax.asking.selection`). Timed,
 each compiled once and then the median of ``--repeats`` calls (results waited for):
 
 - scoring: every member's log guess probabilities of every candidate
@@ -29,10 +29,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
+from slotv_jax.asking import selection
 from slotv_jax.benchmarks._machine import cpu_model
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
-from slotv_jax.study import selection
 from slotv_jax.training import config as train_config
 
 

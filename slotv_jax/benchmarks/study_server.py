@@ -53,9 +53,9 @@ from slotv_jax import render  # render first: it picks MUJOCO_GL=egl before MuJo
 from slotv_jax.benchmarks._machine import cpu_model
 from slotv_jax.core import cli
 from slotv_jax.kinematics import Q_HOME
-from slotv_jax.study import client
-from slotv_jax.study.make_stimuli import SceneRenderer
-from slotv_jax.study.stimuli import cross_specs, write_stimulus_set
+from slotv_jax.webstudy import client
+from slotv_jax.webstudy.make_stimuli import SceneRenderer
+from slotv_jax.webstudy.stimuli import cross_specs, write_stimulus_set
 
 SERVE = [sys.executable, "-m", "slotv_jax.study", "serve"]
 

@@ -3,7 +3,7 @@
 The paper's second limitation (§VI): SLOT-V needs "about 10,000 unique examples" for
 80 %, and "it would be interesting to see if this number can be reduced … by more
 intelligently sampling trajectories". This experiment runs pool-based active learning
-(:mod:`slotv_jax.study.selection`) with each strategy, side by side, in two settings:
+(:mod:`slotv_jax.asking.selection`) with each strategy, side by side, in two settings:
 
 - ``labels`` (the paper's): the pool is the ``train`` split, an answer is the
   hand-crafted labeler's distribution of a whole motion (Dragan, Nikolaidis), the
@@ -64,11 +64,11 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.asking import selection
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments.active_report import ORACLES, fmt_answers, render, stem_of, summarise
-from slotv_jax.study import selection
 from slotv_jax.training import config as train_config
 from slotv_jax.training import evaluate
 from slotv_jax.training import trainer as train

@@ -18,7 +18,7 @@ protocol and lets a strategy choose each batch:
    ``eval_offset``, SPEC §8) is recorded against the examples labelled so far; the
    examples to the target are the first such count at or above it (as Fig. 3).
 
-Strategies: ``random``, ``uncertainty`` and ``margin`` (:mod:`slotv_jax.study.selection`:
+Strategies: ``random``, ``uncertainty`` and ``margin`` (:mod:`slotv_jax.asking.selection`:
 with one member the ensemble's criteria reduce to these) and the two oracles of the
 active experiment, which read the candidates' labels (bounds, not strategies).
 
@@ -48,6 +48,7 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.asking import selection
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import save_figure, write_text
@@ -55,7 +56,6 @@ from slotv_jax.experiments import active
 from slotv_jax.experiments.active import motion_arrays, oracle_score
 from slotv_jax.experiments.active_report import ORACLES, STRATEGY_COLORS
 from slotv_jax.runs.curves import examples_to_reach
-from slotv_jax.study import selection
 from slotv_jax.training import config as train_config
 from slotv_jax.training import evaluate
 

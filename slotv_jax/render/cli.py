@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
+from slotv_jax.answers.storage import load_study
 from slotv_jax.core import cli, fileio
 from slotv_jax.data import SPLITS, load_split
 from slotv_jax.rendering.camera import CAMERAS, FreeCamera
@@ -58,7 +59,6 @@ from slotv_jax.rendering.writers import (
     write_video,
 )
 from slotv_jax.robot import kinematics
-from slotv_jax.study import load_study
 
 IK_WARN = 5e-3  # metres: a TCP path the IK misses by more is reported
 LABEL_CHOICES = ("letters", "names", "none")

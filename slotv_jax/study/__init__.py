@@ -1,18 +1,22 @@
-"""Observers learned from people: the study format (:mod:`.format`), files (:mod:`.storage`),
-CSV import (:mod:`.tables`), fitting on goal guesses (:mod:`.fitting`), cross-validation
-against the hand-crafted observers (:mod:`.crossval`), simulated participants
-(:mod:`.simulate`) and the command line (:mod:`.cli`, ``python -m slotv_jax.study``).
+"""Studies with people, as one command and one public face: ``python -m slotv_jax.study``
+(:mod:`.cli`: import, show, train, cv, stimuli, serve, simulate, export, next) and the next
+round of a running study (:mod:`.rounds`, which asks :mod:`slotv_jax.asking` what to show and
+renders it with :mod:`slotv_jax.webstudy`).
 
-Running a study with people: stimulus sets and their rounds (:mod:`.stimuli`, rendered by
-:mod:`.make_stimuli`), the design (:mod:`.design`), the answers database
-(:mod:`.database`), the server (:mod:`.service`, :mod:`.server`, ``static/``), export
-into the import format (:mod:`.export`), participants over HTTP (:mod:`.client`) and
-their commands (:mod:`.web_cli`); import them from their modules.
+The work lives in three rooms below this one, one concern each:
 
-This package re-exports the public names of its modules.
+- :mod:`slotv_jax.answers`: people's answers as data (format, files, CSV import), fitting
+  observers on them, cross-validation, simulated participants;
+- :mod:`slotv_jax.asking`: choosing what to ask next (:mod:`slotv_jax.asking.selection`);
+- :mod:`slotv_jax.webstudy`: running a study in the browser (stimuli, design, database,
+  server, static page, participants over HTTP, export).
+
+This package re-exports the public names of :mod:`slotv_jax.answers` (``from
+slotv_jax.study import load_study, train_study, ...`` keeps working) and the module
+:mod:`slotv_jax.asking.selection` as ``slotv_jax.study.selection``.
 """
 
-from slotv_jax.study.crossval import (
+from slotv_jax.answers.crossval import (
     cross_validate,
     cv_table,
     fit_beta,
@@ -21,7 +25,7 @@ from slotv_jax.study.crossval import (
     model_metrics,
     row_metrics,
 )
-from slotv_jax.study.fitting import (
+from slotv_jax.answers.fitting import (
     ANSWERS,
     StudyData,
     answer_logits,
@@ -32,7 +36,7 @@ from slotv_jax.study.fitting import (
     study_trainer,
     train_study,
 )
-from slotv_jax.study.format import (
+from slotv_jax.answers.format import (
     BETA_RANGE,
     FORMAT,
     PROB_FLOOR,
@@ -40,21 +44,22 @@ from slotv_jax.study.format import (
     Study,
     make_study,
 )
-from slotv_jax.study.simulate import (
+from slotv_jax.answers.simulate import (
     check_taus,
     prefix_labels,
     simulate_guesses,
     simulate_study,
     study_from_guesses,
 )
-from slotv_jax.study.storage import (
+from slotv_jax.answers.storage import (
     load_study,
     save_study,
 )
-from slotv_jax.study.tables import (
+from slotv_jax.answers.tables import (
     ImportReport,
     read_tables,
 )
+from slotv_jax.asking import selection
 
 __all__ = [
     "ANSWERS",
@@ -81,6 +86,7 @@ __all__ = [
     "read_tables",
     "row_metrics",
     "save_study",
+    "selection",
     "simulate_guesses",
     "simulate_study",
     "study_data",

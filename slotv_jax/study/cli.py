@@ -1,5 +1,5 @@
 """The command line of studies: ``python -m slotv_jax.study`` (import, show, train, cv;
-stimuli, serve, export, simulate: :mod:`slotv_jax.study.web_cli`)."""
+stimuli, serve, export, simulate: :mod:`slotv_jax.webstudy.web_cli`)."""
 
 from __future__ import annotations
 
@@ -13,16 +13,17 @@ from typing import Any
 
 import jax
 
+from slotv_jax.answers.crossval import cross_validate, cv_table, model_metrics
+from slotv_jax.answers.fitting import train_study
+from slotv_jax.answers.storage import load_study, save_study
+from slotv_jax.answers.tables import read_tables
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.fileio import write_text
-from slotv_jax.study import rounds, web_cli
-from slotv_jax.study.crossval import cross_validate, cv_table, model_metrics
-from slotv_jax.study.fitting import train_study
-from slotv_jax.study.storage import load_study, save_study
-from slotv_jax.study.tables import read_tables
+from slotv_jax.study import rounds
 from slotv_jax.training import checkpoint
 from slotv_jax.training import config as train_config
 from slotv_jax.training.config import TrainConfig
+from slotv_jax.webstudy import web_cli
 
 # ===================================================================== CLI
 

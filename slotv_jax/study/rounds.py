@@ -38,13 +38,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from slotv_jax.answers.format import Study
+from slotv_jax.answers.tables import read_tables
+from slotv_jax.asking import selection
 from slotv_jax.data import SPLITS, load_split
-from slotv_jax.study import export as export_lib
-from slotv_jax.study import make_stimuli, selection, stimuli
-from slotv_jax.study.database import connect
-from slotv_jax.study.format import Study
-from slotv_jax.study.tables import read_tables
 from slotv_jax.training import config as train_config
+from slotv_jax.webstudy import export as export_lib
+from slotv_jax.webstudy import make_stimuli, stimuli
+from slotv_jax.webstudy.database import connect
 
 MODELS = ("mlp", "slotv_plus")  # observers of prefixes (archetypes score whole motions)
 

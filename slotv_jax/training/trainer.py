@@ -133,7 +133,7 @@ class _Progress:
 @dataclasses.dataclass(frozen=True)
 class RowObjective:
     """A loss over the rows of another data set than :class:`TrainData` (for example a
-    study's answer rows, :mod:`slotv_jax.study.fitting`), trained by the one :class:`Trainer`.
+    study's answer rows, :mod:`slotv_jax.answers.fitting`), trained by the one :class:`Trainer`.
 
     An epoch shuffles the ``rows(data)`` rows with the run's key (as SLOT-V's epochs do),
     cuts ⌊rows / B⌋ batches of row indices ``idx``, and each update minimises

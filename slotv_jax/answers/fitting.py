@@ -17,9 +17,9 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 from tqdm.auto import tqdm
 
+from slotv_jax.answers.format import Study
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers import models
-from slotv_jax.study.format import Study
 from slotv_jax.training import trainer as train_lib
 from slotv_jax.training import types
 from slotv_jax.training.config import TrainConfig

@@ -38,7 +38,7 @@ A stimulus set (one round)
     clips/ID.mp4         H.264, cut at τ
     stills/ID.png        the clip's last frame, goals labelled
 
-``manifest.json`` holds ``format`` (``"slotv_jax.study.stimuli/1"``), ``round``,
+``manifest.json`` holds ``format`` (``"slotv_jax.webstudy.stimuli/1"``), ``round``,
 ``source`` (where the motions came from), ``size`` [W, H], ``fps``, ``duration`` (seconds
 of a whole motion), ``hold`` (seconds the last frame is held), ``trajectories`` and
 ``goals`` (the tables' file names) and ``stimuli``, a list of objects:
@@ -91,9 +91,9 @@ from slotv_jax.core.fileio import (
     temp_dir_beside,
     write_text,
 )
-from slotv_jax.study.design import KINDS
+from slotv_jax.webstudy.design import KINDS
 
-FORMAT = "slotv_jax.study.stimuli/1"
+FORMAT = "slotv_jax.webstudy.stimuli/1"
 MANIFEST = "manifest.json"
 ROUND_DIR = "round-{}"
 TABLES = ("trajectories.csv", "goals.csv")  # the tables in the study import format

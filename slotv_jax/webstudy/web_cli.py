@@ -12,11 +12,11 @@ from pathlib import Path
 import httpx
 import uvicorn
 
-from slotv_jax.study import client, make_stimuli
-from slotv_jax.study import export as export_lib
-from slotv_jax.study.database import SYNC, connect
-from slotv_jax.study.server import LOOPBACK_HOSTS, make_app
-from slotv_jax.study.service import StudyService
+from slotv_jax.webstudy import client, make_stimuli
+from slotv_jax.webstudy import export as export_lib
+from slotv_jax.webstudy.database import SYNC, connect
+from slotv_jax.webstudy.server import LOOPBACK_HOSTS, make_app
+from slotv_jax.webstudy.service import StudyService
 
 
 def _add_web_commands(sub) -> None:

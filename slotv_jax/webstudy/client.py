@@ -29,7 +29,7 @@ import httpx
 import numpy as np
 
 from slotv_jax.observers import labelers
-from slotv_jax.study import stimuli
+from slotv_jax.webstudy import stimuli
 
 Guesser = Callable[[dict, bytes], str]  # (trial state, still bytes) -> goal label
 

@@ -30,8 +30,8 @@ import io
 from pathlib import Path
 
 from slotv_jax.core.fileio import write_text
-from slotv_jax.study.database import Storage
-from slotv_jax.study.stimuli import goal_rows, trajectory_rows
+from slotv_jax.webstudy.database import Storage
+from slotv_jax.webstudy.stimuli import goal_rows, trajectory_rows
 
 ANSWER_COLUMNS = ("trajectory", "tau", "guess", "participant", "condition", "confidence",
                   "response_ms", "stimulus", "round", "position", "reloads",

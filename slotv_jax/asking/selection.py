@@ -86,9 +86,9 @@ import optax
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
+from slotv_jax.answers import fitting
+from slotv_jax.answers import format as study
 from slotv_jax.observers import models
-from slotv_jax.study import fitting
-from slotv_jax.study import format as study
 from slotv_jax.training import trainer as train_lib
 from slotv_jax.training.config import TrainConfig
 

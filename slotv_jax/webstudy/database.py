@@ -40,7 +40,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Protocol
 
-from slotv_jax.study.design import Stimulus
+from slotv_jax.webstudy.design import Stimulus
 
 SCHEMA_VERSION = 1
 SYNC = ("full", "normal")  # SQLite's synchronous setting (see Durability)

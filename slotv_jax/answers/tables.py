@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from slotv_jax.answers.format import TAU_RTOL, Study, make_study
 from slotv_jax.core import fileio
 from slotv_jax.core.validation import G_MAX
-from slotv_jax.study.format import TAU_RTOL, Study, make_study
 
 # ------------------------------------------------------------ table import
 

@@ -1,6 +1,6 @@
 """Render stimulus sets with :mod:`slotv_jax.rendering`: ``python -m slotv_jax.study stimuli``.
 
-The set's layout is documented in :mod:`slotv_jax.study.stimuli`. This module draws the
+The set's layout is documented in :mod:`slotv_jax.webstudy.stimuli`. This module draws the
 clips through MuJoCo (it needs OpenGL: ``MUJOCO_GL=egl`` on a headless machine), so the
 study server, which only reads sets, never imports it.
 
@@ -38,24 +38,24 @@ from jaxtyping import Float, UInt8
 from tqdm.auto import tqdm
 
 from slotv_jax import rendering  # first: it picks MUJOCO_GL=egl before MuJoCo loads
+from slotv_jax.answers.storage import load_study
 from slotv_jax.core.fileio import check_output_dir, load_npz
 from slotv_jax.data import SPLITS, Split, load_split
 from slotv_jax.rendering.overlay import LABEL_LIFT
-from slotv_jax.study.stimuli import (
+from slotv_jax.webstudy.stimuli import (
     MANIFEST,
     Motion,
     cross_specs,
     load_stimulus_set,
     write_stimulus_set,
 )
-from slotv_jax.study.storage import load_study
 
 IK_TOLERANCE = 5e-3  # metres: a TCP path the IK misses by more is refused
 DEFAULTS = {"size": (480, 270), "fps": 25.0, "duration": 3.0, "hold": 0.5}
 
 
 class SceneRenderer:
-    """:class:`slotv_jax.study.stimuli.Renderer` on MuJoCo (one renderer, reused)."""
+    """:class:`slotv_jax.webstudy.stimuli.Renderer` on MuJoCo (one renderer, reused)."""
 
     def __init__(
         self,

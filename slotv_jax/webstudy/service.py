@@ -1,6 +1,6 @@
 """The study as plain functions: participants, their trials, answers, media, progress.
 
-The web layer (:mod:`slotv_jax.study.server`) validates requests and calls these;
+The web layer (:mod:`slotv_jax.webstudy.server`) validates requests and calls these;
 nothing here knows about HTTP. A participant is identified by a random token (256 bits,
 ``secrets.token_urlsafe``); storage keeps only its SHA-256, so a copy of the database
 does not let anyone answer in a participant's name.
@@ -19,8 +19,8 @@ import secrets
 import threading
 from pathlib import Path
 
-from slotv_jax.study import design, stimuli
-from slotv_jax.study.database import Storage, unanswered
+from slotv_jax.webstudy import design, stimuli
+from slotv_jax.webstudy.database import Storage, unanswered
 
 MAX_RESPONSE_MS = 3_600_000.0  # one hour: longer response times are rejected
 CONFIDENCE = (1, 5)  # the confidence scale (1: a guess, 5: sure)

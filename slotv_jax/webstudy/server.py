@@ -53,9 +53,9 @@ from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from slotv_jax.study.database import Conflict
-from slotv_jax.study.export import TABLES, tables
-from slotv_jax.study.service import (
+from slotv_jax.webstudy.database import Conflict
+from slotv_jax.webstudy.export import TABLES, tables
+from slotv_jax.webstudy.service import (
     CONFIDENCE,
     ID_PARAMS,
     MAX_RESPONSE_MS,

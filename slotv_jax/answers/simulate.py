@@ -10,9 +10,9 @@ import jax
 import numpy as np
 from jaxtyping import Bool, Float, Int
 
+from slotv_jax.answers.crossval import labeler_probs
+from slotv_jax.answers.format import Study, make_study
 from slotv_jax.core.validation import G_MAX
-from slotv_jax.study.crossval import labeler_probs
-from slotv_jax.study.format import Study, make_study
 
 # ============================================================== simulation
 

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from slotv_jax.answers.format import FORMAT, Study, _Where, make_study
 from slotv_jax.core import fileio
 from slotv_jax.core.fileio import atomic_write
-from slotv_jax.study.format import FORMAT, Study, _Where, make_study
 
 # ---------------------------------------------------------------- file I/O
 

@@ -15,11 +15,11 @@ import numpy as np
 from jaxtyping import Float
 from tqdm.auto import tqdm
 
+from slotv_jax.answers.fitting import answer_logits, train_study
+from slotv_jax.answers.format import BETA_RANGE, PROB_FLOOR, Study
 from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers import labelers
-from slotv_jax.study.fitting import answer_logits, train_study
-from slotv_jax.study.format import BETA_RANGE, PROB_FLOOR, Study
 from slotv_jax.training.config import TrainConfig
 from slotv_jax.world import scene
 
