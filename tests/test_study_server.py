@@ -4,18 +4,19 @@ from __future__ import annotations
 
 import json
 import shutil
+import sqlite3
 from collections import Counter
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from starlette.testclient import TestClient
 from study_fixtures import write_dot_set
 
 from slotv_jax import study
 from slotv_jax.webstudy import design, export, stimuli
-from slotv_jax.webstudy.database import SQLiteStorage
+from slotv_jax.webstudy.database import PENDING_SECONDS, SQLiteStorage
 from slotv_jax.webstudy.server import COOKIE, LOOPBACK_HOSTS, MAX_BODY, make_app
 from slotv_jax.webstudy.service import StudyService
 
@@ -166,6 +167,177 @@ def test_tokens(server):
     assert anon.get("/admin").status_code == 200
 
 
+def test_a_token_is_checked_whole(server):
+    """A token that differs from a real one in its last characters only, or its first, is
+    no token (a comparison of a prefix would let it in)."""
+    app, service = server
+    c, state = client(app)
+    token = c.cookies[COOKIE]
+
+    def other(ch: str) -> str:
+        return "B" if ch == "A" else "A"
+
+    forged = [token[:-1] + other(token[-1]), token[:-6] + "".join(map(other, token[-6:])),
+              other(token[0]) + token[1:], token[:16], token + "A"]  # fmt: skip
+    for f in forged:
+        assert f != token
+        fc = TestClient(app, cookies={COOKIE: f})
+        assert fc.get("/api/state").status_code == 401, f
+        assert fc.get(state["clip"]).status_code == 401
+        assert answer(fc, state).status_code == 401
+        assert fc.post("/api/resume", json={"token": f}).status_code == 401
+    assert service.storage.answers() == []
+    assert TestClient(app, cookies={COOKIE: token}).get("/api/state").status_code == 200
+    for f in (ADMIN[:-1] + other(ADMIN[-1]), other(ADMIN[0]) + ADMIN[1:]):
+        r = TestClient(app).get("/api/admin/progress", headers={"Authorization": f"Bearer {f}"})
+        assert r.status_code == 401
+
+
+def test_lost_start_resumes_until_the_first_answer(server):
+    """A start whose reply was lost (a killed server, the network, a cleared cookie) is
+    the same request again: it resumes the same participant (one row, the same trials)
+    while they have no answer; from their first answer on, only their token does."""
+    app, service = server
+    ids = {"PROLIFIC_PID": "lost1", "STUDY_ID": "s1"}
+    first = TestClient(app).post("/api/start", json={"consent": True, "ids": ids})
+    assert first.status_code == 200
+    lost = first.cookies[COOKIE]  # the reply that never arrived
+    trials = service.storage.trials(1)
+    c, state = client(app, **ids)
+    assert state == first.json() and c.cookies[COOKIE] != lost
+    people = service.storage.participants()
+    assert len(people) == 1 and people[0]["starts"] == 2 and service.storage.trials(1) == trials
+    assert TestClient(app, cookies={COOKIE: lost}).get("/api/state").status_code == 401
+    state = answer(c, state).json()["state"]
+    # an answer is stored: a start with the id but not the token is refused, saying what to do
+    for _ in range(2):
+        r = TestClient(app).post("/api/start", json={"consent": True, "ids": ids})
+        assert r.status_code == 409 and "researcher" in r.json()["error"]
+    # ... the participant's own browser (a refresh, a second tab) goes on at the next trial
+    r = c.post("/api/start", json={"consent": True, "ids": ids})
+    assert r.status_code == 200 and r.json()["position"] == state["position"] == 1
+    assert c.get("/api/state").json()["position"] == 1
+    assert len(service.storage.participants()) == 1
+    assert [a["participant"] for a in service.storage.answers()] == [1]
+    # the same id in another study is another participant; a cookie does not carry over to
+    # another person's id on a shared computer
+    assert client(app, PROLIFIC_PID="lost1", STUDY_ID="s2")[1]["position"] == 0
+    r = c.post("/api/start", json={"consent": True, "ids": {"PROLIFIC_PID": "next"}})
+    assert r.status_code == 200 and r.json()["position"] == 0
+    people = service.storage.participants()
+    assert [(p["external_id"], p["study_id"], p["answered"]) for p in people] == [
+        ("lost1", "s1", 1), ("lost1", "s2", 0), ("next", None, 0)]  # fmt: skip
+
+
+def test_unanswered_starts_hold_trials_briefly(server):
+    """A participant without an answer (a lost start nobody resumed) holds their trials
+    for the balance only PENDING_SECONDS after last seen; one who answered, an hour."""
+    _, service = server
+    db = service.storage
+    seen: list[dict] = []
+
+    def plan(stims, counts, seed):
+        seen.append(dict(counts))
+        return [s.key for s in stims if s.kind == "trial"][:2]
+
+    def age(pid: int, seconds: float) -> None:
+        con = sqlite3.connect(db.path)
+        con.execute("UPDATE participants SET last_seen = last_seen - ? WHERE participant = ?",
+                    (seconds, pid))  # fmt: skip
+        con.commit()
+        con.close()
+
+    for p in (1, 2):
+        assert db.create_participant(f"h{p}", {}, plan, p, "C") == p
+    k0, k1 = db.trials(1)[0]["stimulus"], db.trials(1)[1]["stimulus"]
+    assert seen == [{}, {k0: 1, k1: 1}]
+    db.answer(2, 0, "A", None, 100.0)
+    age(1, PENDING_SECONDS + 60)  # no answer, 11 minutes ago: released
+    age(2, PENDING_SECONDS + 60)  # answered 11 minutes ago: still holds both trials
+    db.create_participant("h3", {}, plan, 3, "C")
+    assert seen[-1] == {k0: 1, k1: 1}
+    age(2, 3600.0)  # answered over an hour ago: only the answer counts
+    age(3, PENDING_SECONDS + 60)
+    db.create_participant("h4", {}, plan, 4, "C")
+    assert seen[-1] == {k0: 1}
+    # a resumed start re-uses its row and trials: no new draw, no second row
+    db.create_participant("h5", {"external_id": "e"}, plan, 5, "C")
+    n, trials = len(seen), db.trials(5)
+    assert db.create_participant("h6", {"external_id": "e"}, plan, 6, "C", resume=True) == 5
+    assert len(seen) == n and db.trials(5) == trials and db.participant("h5") is None
+    assert db.participant("h6")["starts"] == 2 and len(db.participants()) == 5
+
+
+def test_a_database_of_schema_1_is_brought_up_to_date(server):
+    """A study database written before ``participants.starts`` opens with its rows."""
+    app, service = server
+    client(app, PROLIFIC_PID="before")
+    path = service.storage.path
+    con = sqlite3.connect(path)
+    con.execute("ALTER TABLE participants DROP COLUMN starts")
+    con.execute("UPDATE meta SET value = '1' WHERE key = 'schema'")
+    con.commit()
+    con.close()
+    db = SQLiteStorage(path)
+    assert [(p["external_id"], p["starts"]) for p in db.participants()] == [("before", 1)]
+    con = sqlite3.connect(path)
+    assert con.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone() == ("2",)
+    con.execute("UPDATE meta SET value = '9' WHERE key = 'schema'")
+    con.commit()
+    con.close()
+    with pytest.raises(ValueError, match="schema version 9, expected 2"):
+        SQLiteStorage(path)
+
+
+def test_resume_link(server):
+    """The researcher's way on for someone who answered and then lost their cookie (another
+    browser): a link with a new token; the old one stops working."""
+    app, service = server
+    c, state = client(app, PROLIFIC_PID="moved")
+    state = answer(c, state).json()["state"]
+    anon, ok = TestClient(app), {"Authorization": f"Bearer {ADMIN}"}
+    assert anon.post("/api/admin/resume-link/1").status_code == 401
+    assert anon.post("/api/admin/resume-link/9", headers=ok).status_code == 404
+    url = anon.post("/api/admin/resume-link/1", headers=ok).json()["url"]
+    assert url.startswith("http://testserver/#resume=")
+    other = TestClient(app)  # the other browser opens the link
+    r = other.post("/api/resume", json={"token": url.split("#resume=")[1]})
+    assert r.status_code == 200 and r.json()["position"] == state["position"]
+    assert c.get("/api/state").status_code == 401  # the token it had stops working
+    assert finish(other, r.json())["stage"] == "done"
+    assert len(service.storage.answers()) == 6
+    assert service.storage.participants()[0]["starts"] == 2
+    for body, code in (({"token": "x" * 43}, 401), ({"token": 5}, 400), ({}, 400),
+                       ({"token": "x" * 500}, 400), ({"token": "x", "t": 1}, 400)):  # fmt: skip
+        r = TestClient(app).post("/api/resume", json=body)
+        assert r.status_code == code and set(r.json()) == {"error"}, body
+
+
+JSON = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(max_size=6),
+    lambda inner: st.lists(inner, max_size=3)
+    | st.dictionaries(st.sampled_from(["position", "guess", "confidence", "response_ms",
+                                       "consent", "ids", "token", "PROLIFIC_PID", "x"]),
+                      inner, max_size=5),
+    max_leaves=12,
+)  # fmt: skip
+
+
+@settings(max_examples=150, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])  # fmt: skip
+@given(body=JSON | st.binary(max_size=64), route=st.sampled_from(["start", "answer", "resume"]))
+def test_any_body_is_answered_without_a_server_error(server, body, route):
+    """Whatever the body, the answer is a 200 or a 4xx with ``{"error": ...}``."""
+    app, _ = server
+    c = TestClient(app, cookies={COOKIE: "x" * 43})
+    if isinstance(body, bytes):
+        r = c.post(f"/api/{route}", content=body, headers={"content-type": "application/json"})
+    else:
+        r = c.post(f"/api/{route}", json=body)
+    assert r.status_code == 200 or 400 <= r.status_code < 500, (body, r.status_code)
+    assert r.status_code == 200 or set(r.json()) == {"error"}
+
+
 def test_host_header_is_checked(stimdir, tmp_path):
     """A server on the loopback answers only the loopback names: a page of another site
     that rebinds its name to 127.0.0.1 is refused (DNS rebinding), before any route."""
@@ -173,12 +345,18 @@ def test_host_header_is_checked(stimdir, tmp_path):
     app = make_app(service, ADMIN, LOOPBACK_HOSTS)
     for host in ("127.0.0.1", "localhost:8000"):
         assert TestClient(app, base_url=f"http://{host}").get("/api/texts").status_code == 200
+    assert TestClient(app, base_url="http://[::1]:8000").get("/api/texts").status_code == 200
     evil = TestClient(app, base_url="http://evil.example")
     r = evil.post("/api/start", json={"consent": True, "ids": {}})
     assert r.status_code == 400 and "content-security-policy" in r.headers
+    assert set(r.json()) == {"error"} and "Host" in r.json()["error"]  # JSON like every error
     assert service.storage.answers() == [] and evil.get("/api/texts").status_code == 400
-    with pytest.raises(ValueError, match="allowed_hosts"):
-        make_app(service, ADMIN, "localhost")
+    for host in ("127.0.0.1.evil.example", "localhost:80:80", "[::1", "", "local host"):
+        r = TestClient(app).get("/api/texts", headers={"host": host})
+        assert r.status_code == 400 and set(r.json()) == {"error"}, host
+    for bad in ("localhost", ("*evil.example",), ("a.*.org",), ("",)):
+        with pytest.raises(ValueError, match="allowed_hosts"):
+            make_app(service, ADMIN, bad)
 
 
 def test_traversal_attempts(server, stimdir, tmp_path):
@@ -234,10 +412,62 @@ def test_malformed_bodies(server):
     r = c.post("/api/answer", content=json.dumps(good), headers={"content-type": "text/plain"})
     assert r.status_code == 415
     assert c.post("/api/start", json={"consent": False}).status_code == 400
-    assert TestClient(app).post("/api/start", json={"consent": True, "ids": {
-        "PROLIFIC_PID": "<script>"}}).status_code == 400  # fmt: skip
     assert service.storage.answers() == []
     assert c.post("/api/answer", json=good).status_code == 200
+
+
+def post_raw(c: TestClient, route: str, body: bytes):
+    return c.post(route, content=body, headers={"content-type": "application/json"})
+
+
+def test_deeply_nested_bodies_are_refused(server):
+    """2,000 nested lists in 4 kB: a 400 with ``{"error": ...}``, not a RecursionError
+    and a 500."""
+    app, service = server
+    c, state = client(app)
+    deep = [
+        b'{"position":' + b"[" * 2000 + b"]" * 2000 + b"}",
+        b"[" * 4000,
+        b'{"":[' * 560 + b"1" + b"]}" * 560,  # objects and lists, 1,120 levels
+    ]
+    for route in ("/api/answer", "/api/start", "/api/resume"):
+        for body in deep:
+            r = post_raw(c, route, body)
+            assert r.status_code == 400 and set(r.json()) == {"error"}, (route, body[:20])
+    assert service.storage.answers() == [] and answer(c, state).status_code == 200
+
+
+def test_duplicate_fields_are_refused(server):
+    """A field given twice is refused, whichever of its values json would have kept."""
+    app, service = server
+    c, _ = client(app)
+    bodies = {
+        "/api/answer": [
+            b'{"position": 0, "guess": "A", "guess": "B", "response_ms": 5}',
+            b'{"position": 0, "guess": "A", "response_ms": 5, "response_ms": 5}',
+        ],
+        "/api/start": [
+            b'{"consent": true, "consent": false}',
+            b'{"consent": true, "ids": {"PROLIFIC_PID": "a", "PROLIFIC_PID": "b"}}',
+        ],
+    }
+    for route, docs in bodies.items():
+        for body in docs:
+            r = post_raw(TestClient(app, cookies=c.cookies), route, body)
+            assert r.status_code == 400 and "twice" in r.json()["error"], body
+    assert service.storage.answers() == [] and len(service.storage.participants()) == 1
+
+
+def test_external_ids_are_ascii(server):
+    """External ids: at most 128 ASCII letters, digits and -_.:@, as the error says
+    (``str.isalnum`` takes the letters and digits of every script)."""
+    app, service = server
+    for pid in ("<script>", "p\u0663", "caf\u00e9", "\uff11\uff12", "\u00b2", "a b", "x" * 129):
+        r = TestClient(app).post("/api/start", json={"consent": True, "ids": {
+            "PROLIFIC_PID": pid}})  # fmt: skip
+        assert r.status_code == 400 and "ASCII" in r.json()["error"], pid
+    assert service.storage.participants() == []
+    assert client(app, PROLIFIC_PID="Ab-1_2.x:y@z" + "9" * 116)[1]["stage"] == "trial"
 
 
 def test_errors_show_no_internals(server):

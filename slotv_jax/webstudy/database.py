@@ -20,7 +20,8 @@ Tables
 ``rounds`` (round, manifest JSON), ``trajectories`` (id, points JSON [[t, x, y, z], ...]),
 ``goals`` (trajectory, slot, goal name, x, y, z), ``stimuli`` (round, id, trajectory, τ,
 camera, kind, target, goal names), ``participants`` (sha256 of the token, the external
-participant / study / session ids, the seed of their draw, timestamps, completion code),
+participant / study / session ids, the seed of their draw, timestamps, completion code,
+``starts``: how many times the participant was issued a token),
 ``trials`` (participant, position in their order, stimulus), ``answers`` (trial, guess,
 confidence, response time; the trial is the primary key, so an answer is stored once).
 
@@ -42,9 +43,10 @@ from typing import Protocol
 
 from slotv_jax.webstudy.design import Stimulus
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: participants.starts
 SYNC = ("full", "normal")  # SQLite's synchronous setting (see Durability)
 ACTIVE_SECONDS = 3600.0  # an unfinished participant seen this recently still holds trials
+PENDING_SECONDS = 600.0  # ... and one with no answer yet (e.g. a lost start) this long
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS rounds (
@@ -62,7 +64,8 @@ CREATE TABLE IF NOT EXISTS participants (
     participant INTEGER PRIMARY KEY, token_sha256 TEXT NOT NULL UNIQUE,
     external_id TEXT, study_id TEXT, session_id TEXT, round INTEGER NOT NULL,
     seed INTEGER NOT NULL, created REAL NOT NULL, last_seen REAL NOT NULL,
-    finished REAL, completion_code TEXT NOT NULL, user_agent TEXT);
+    finished REAL, completion_code TEXT NOT NULL, user_agent TEXT,
+    starts INTEGER NOT NULL DEFAULT 1);
 CREATE UNIQUE INDEX IF NOT EXISTS participants_external
     ON participants (external_id, study_id);
 CREATE TABLE IF NOT EXISTS trials (
@@ -75,8 +78,13 @@ CREATE TABLE IF NOT EXISTS answers (
 """
 
 
+_MIGRATIONS = {  # schema version -> the statements that take it to the next one
+    1: ("ALTER TABLE participants ADD COLUMN starts INTEGER NOT NULL DEFAULT 1",),
+}
+
+
 class Conflict(Exception):
-    """The request contradicts what is stored (e.g. an external id that already started)."""
+    """The request contradicts what is stored (e.g. an external id that already answered)."""
 
 
 class Storage(Protocol):
@@ -94,7 +102,10 @@ class Storage(Protocol):
         plan: Callable[[list[Stimulus], dict[int, int], int], list[int]],
         seed: int,
         code: str,
+        *,
+        resume: bool = False,
     ) -> int: ...
+    def set_token(self, participant: int, token_sha256: str) -> bool: ...
     def participant(self, token_sha256: str) -> dict | None: ...
     def trials(self, participant: int) -> list[dict]: ...
     def mark_shown(self, participant: int, position: int) -> None: ...
@@ -127,10 +138,17 @@ class SQLiteStorage:
             row = db.execute("SELECT value FROM meta WHERE key = 'schema'").fetchone()
             if row is None:
                 db.execute("INSERT INTO meta VALUES ('schema', ?)", (str(SCHEMA_VERSION),))
-            elif row[0] != str(SCHEMA_VERSION):
+                return
+            version = int(row[0]) if row[0].isdigit() else row[0]
+            while version in _MIGRATIONS:  # an older database: brought up to date in place
+                for statement in _MIGRATIONS[version]:
+                    db.execute(statement)
+                version += 1
+            if version != SCHEMA_VERSION:
                 raise ValueError(
                     f"--db {self.path}: schema version {row[0]}, expected {SCHEMA_VERSION}"
                 )
+            db.execute("UPDATE meta SET value = ? WHERE key = 'schema'", (str(version),))
 
     # ------------------------------------------------------------ connections
 
@@ -232,13 +250,21 @@ class SQLiteStorage:
         plan: Callable[[list[Stimulus], dict[int, int], int], list[int]],
         seed: int,
         code: str,
+        *,
+        resume: bool = False,
     ) -> int:
         """Create a participant with the trials ``plan(stimuli, counts, seed)`` draws.
 
         The stimuli are those of the newest round; ``counts`` holds each one's answers plus
-        its unanswered trials of participants seen in the last :data:`ACTIVE_SECONDS`. One
-        transaction, so concurrent participants see each other's draws. Raises
-        :class:`Conflict` when the external (participant, study) ids already started.
+        the unanswered trials of participants still active: seen in the last
+        :data:`ACTIVE_SECONDS`, or in the last :data:`PENDING_SECONDS` for one without an
+        answer yet (a start whose reply was lost and nobody resumed). One transaction, so
+        concurrent participants see each other's draws.
+
+        When the external (participant, study) ids already started: with ``resume`` and no
+        answer stored for them, that participant is re-issued to ``token_sha256`` (the
+        same row and trials; the token it held before stops working; ``starts`` counts
+        the issues) and its number returned; otherwise :class:`Conflict`.
         """
         now = time.time()
         with self._tx() as db:
@@ -246,14 +272,25 @@ class SQLiteStorage:
             if row[0] is None:
                 raise ValueError("no stimulus round is loaded")
             round_ = row[0]
-            if (
-                ids.get("external_id")
-                and db.execute(
-                    "SELECT 1 FROM participants WHERE external_id = ? AND study_id IS ?",
+            if ids.get("external_id"):
+                old = db.execute(
+                    "SELECT participant FROM participants WHERE external_id = ? AND study_id IS ?",
                     (ids["external_id"], ids.get("study_id")),
                 ).fetchone()
-            ):
-                raise Conflict("this participant id has already started the study")
+                if old is not None:
+                    answered = db.execute(
+                        "SELECT 1 FROM trials t JOIN answers a ON a.trial = t.trial "
+                        "WHERE t.participant = ? LIMIT 1",
+                        (old[0],),
+                    ).fetchone()
+                    if answered or not resume:
+                        raise Conflict("this participant id has already answered")
+                    db.execute(
+                        "UPDATE participants SET token_sha256 = ?, last_seen = ?, "
+                        "starts = starts + 1 WHERE participant = ?",
+                        (token_sha256, now, old[0]),
+                    )
+                    return int(old[0])
             stims = [
                 Stimulus(r[0], r[1], r[2])
                 for r in db.execute(
@@ -268,9 +305,11 @@ class SQLiteStorage:
                     "SELECT t.stimulus, COUNT(*) FROM trials t "
                     "JOIN participants p ON p.participant = t.participant "
                     "LEFT JOIN answers a ON a.trial = t.trial "
-                    "WHERE a.trial IS NOT NULL OR (p.finished IS NULL AND p.last_seen > ?) "
+                    "WHERE a.trial IS NOT NULL OR (p.finished IS NULL AND (p.last_seen > ? "
+                    "OR (p.last_seen > ? AND EXISTS (SELECT 1 FROM trials t2 JOIN answers a2 "
+                    "ON a2.trial = t2.trial WHERE t2.participant = p.participant)))) "
                     "GROUP BY t.stimulus",
-                    (now - ACTIVE_SECONDS,),
+                    (now - PENDING_SECONDS, now - ACTIVE_SECONDS),
                 )
             }
             order = plan(stims, counts, seed)
@@ -287,6 +326,17 @@ class SQLiteStorage:
                 [(pid, i, s) for i, s in enumerate(order)],
             )
         return pid
+
+    def set_token(self, participant: int, token_sha256: str) -> bool:
+        """Give a participant a new token (the old one stops working); False: no such
+        participant. The researcher's way to let someone go on in another browser."""
+        with self._tx() as db:
+            cur = db.execute(
+                "UPDATE participants SET token_sha256 = ?, starts = starts + 1 "
+                "WHERE participant = ?",
+                (token_sha256, participant),
+            )
+        return cur.rowcount == 1
 
     def participant(self, token_sha256: str) -> dict | None:
         """The participant holding this token (``None``: no such participant)."""
@@ -394,10 +444,12 @@ class SQLiteStorage:
         }
 
     def participants(self) -> list[dict]:
-        """Every participant: ids, timestamps, answered trials, attention checks passed."""
+        """Every participant: ids, timestamps, starts, answered trials, attention checks
+        passed."""
         rows = self._con().execute(
             "SELECT p.participant, p.external_id, p.study_id, p.session_id, p.round, p.seed, "
-            "p.created, p.last_seen, p.finished, p.completion_code, COUNT(t.trial) AS trials, "
+            "p.created, p.last_seen, p.finished, p.completion_code, p.starts, "
+            "COUNT(t.trial) AS trials, "
             "COUNT(a.trial) AS answered, "
             "SUM(CASE WHEN s.kind = 'attention' AND a.trial IS NOT NULL THEN 1 ELSE 0 END) "
             "AS attention_answered, "

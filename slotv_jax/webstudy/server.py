@@ -10,8 +10,11 @@ route                                 what
 ``GET /``                             the participant page (``static/index.html``);
                                       ``?PROLIFIC_PID=&STUDY_ID=&SESSION_ID=`` are kept
 ``GET /api/texts``                    title, consent and instructions (editable files)
-``POST /api/start``                   ``{"consent": true, "ids": {...}}``: a participant;
-                                      sets the participant cookie (HttpOnly, SameSite)
+``POST /api/start``                   ``{"consent": true, "ids": {...}}``: a participant
+                                      (new, or resumed: see ``StudyService.begin``); sets
+                                      the participant cookie (HttpOnly, SameSite)
+``POST /api/resume``                  ``{"token": ...}`` of a resume link (``/#resume=``):
+                                      sets the cookie, returns the state
 ``GET /api/state``                    the next unanswered trial, or the completion code
 ``POST /api/answer``                  ``{"position", "guess", "confidence",
                                       "response_ms"}``: stores it once, returns the state
@@ -20,15 +23,19 @@ route                                 what
                                       ``Authorization: Bearer <admin token>``:
 ``GET /api/admin/progress``           answers per stimulus and per participant
 ``GET /api/admin/export/{name}.csv``  answers, trajectories, goals, participants
+``POST /api/admin/resume-link/{n}``   a new token for participant ``n`` (the one they
+                                      held stops working) and its link ``/#resume=``
 ====================================  ==================================================
 
 Safety: a participant reaches only their own trials (their token is a random 256-bit
 cookie, stored hashed); files are looked up by trial, never by a path from the request;
-request bodies are JSON of at most :data:`MAX_BODY` bytes with known keys and types;
-errors answer ``{"error": "..."}`` and never a traceback; every response carries a
-strict Content-Security-Policy and ``nosniff``; a request whose ``Host`` header is not one
-of ``allowed_hosts`` is refused (400), which stops DNS rebinding against a server on
-127.0.0.1 (``serve`` allows only the loopback names there unless ``--allowed-hosts``).
+request bodies are JSON objects of at most :data:`MAX_BODY` bytes with known keys (each
+once) and types, and any other body is a 4xx; errors answer ``{"error": "..."}`` and
+never a traceback; every response carries a strict Content-Security-Policy and
+``nosniff``; a request whose ``Host`` header is not one of ``allowed_hosts`` is refused
+(400, JSON), which stops DNS rebinding against a server on 127.0.0.1 (``serve`` allows
+only the loopback names there unless ``--allowed-hosts``). Who can resume whom: the
+module docstring of :mod:`slotv_jax.webstudy.service` and the README.
 
 >>> app = make_app(StudyService("stim", SQLiteStorage("study.db")), "admin-token")  # doctest: +SKIP
 >>> TestClient(app).get("/api/texts").json()["title"]  # doctest: +SKIP
@@ -40,14 +47,15 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 import secrets
 from collections.abc import Sequence
 from pathlib import Path
 
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException
-from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, Response
 from starlette.routing import Mount, Route
@@ -59,6 +67,7 @@ from slotv_jax.webstudy.service import (
     CONFIDENCE,
     ID_PARAMS,
     MAX_RESPONSE_MS,
+    MAX_TOKEN,
     Forbidden,
     Invalid,
     StudyService,
@@ -69,6 +78,8 @@ STATIC = Path(__file__).with_name("static")
 COOKIE = "slotv_study"
 MAX_BODY = 4096  # bytes of a request body
 MAX_ID = 128  # characters of an external id
+ID_CHARS = re.compile(r"[A-Za-z0-9_.:@-]+")  # ASCII only: str.isalnum takes any script
+HOST = re.compile(r"(?P<name>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)(?::[0-9]{1,5})?")
 MEDIA_TYPES = {"clip": "video/mp4", "still": "image/png"}
 HEADERS = {
     "Content-Security-Policy": "default-src 'self'; object-src 'none'; base-uri 'none'; "
@@ -103,6 +114,45 @@ class SecurityHeaders:
         await self.app(scope, receive, send_with_headers)
 
 
+def host_patterns(allowed_hosts: Sequence[str]) -> list[str]:
+    """``allowed_hosts`` checked (names, ``"*"`` or ``"*.domain"``) and in lower case."""
+    if isinstance(allowed_hosts, str) or not allowed_hosts:
+        raise ValueError(
+            f"allowed_hosts: expected a non-empty list of names, got {allowed_hosts!r}"
+        )
+    for p in allowed_hosts:
+        wild = p.startswith("*") and p != "*"
+        if not p or "*" in p[1:] or (wild and not p.startswith("*.")):
+            raise ValueError(f"allowed_hosts: {p!r} is not a name, '*' or '*.domain'")
+    return [p.lower() for p in allowed_hosts]
+
+
+class AllowedHosts:
+    """ASGI middleware: a request whose ``Host`` header names none of ``patterns``
+    (``"*"``: any; ``"*.example.org"``: its subdomains) is refused, 400 with JSON."""
+
+    def __init__(self, app, patterns: Sequence[str]):
+        self.app = app
+        self.patterns = host_patterns(patterns)
+
+    def allowed(self, header: str | None) -> bool:
+        """Whether a ``Host`` header (a name, an ``[IPv6]``, an optional port) is allowed."""
+        if "*" in self.patterns:
+            return True
+        m = HOST.fullmatch(header or "")
+        if m is None:
+            return False
+        name = m["name"].lower()
+        return any(name == p or (p.startswith("*.") and name.endswith(p[1:]))
+                   for p in self.patterns)  # fmt: skip
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] == "http" and not self.allowed(Headers(scope=scope).get("host")):
+            refusal = JSONResponse({"error": "this server does not answer that Host name"}, 400)
+            return await refusal(scope, receive, send)
+        await self.app(scope, receive, send)
+
+
 # ------------------------------------------------------------------ validation
 
 
@@ -120,11 +170,27 @@ async def read_json(request: Request) -> dict:
         if len(body) > MAX_BODY:
             raise HTTPException(413, f"request body over {MAX_BODY} bytes")
     try:
-        doc = json.loads(body)
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise HTTPException(400, "expected a JSON object") from None
+        doc = json.loads(body, object_pairs_hook=_unique_keys)
+    except RecursionError:  # e.g. 2,000 nested brackets
+        raise HTTPException(400, "expected a JSON object (nested too deeply)") from None
+    except ValueError as e:  # JSONDecodeError, UnicodeDecodeError, a duplicate key
+        detail = str(e) if isinstance(e, DuplicateKey) else "expected a JSON object"
+        raise HTTPException(400, detail) from None
     if not isinstance(doc, dict):
         raise HTTPException(400, "expected a JSON object")
+    return doc
+
+
+class DuplicateKey(ValueError):
+    """A JSON object names a field twice (refused: which one counts would be a guess)."""
+
+
+def _unique_keys(pairs: list[tuple[str, object]]) -> dict:
+    doc = dict(pairs)
+    if len(doc) != len(pairs):
+        seen: set[str] = set()
+        dup = next(k for k, _ in pairs if k in seen or seen.add(k))
+        raise DuplicateKey(f"field {dup[:40]!r} given twice")
     return doc
 
 
@@ -145,11 +211,11 @@ def parse_ids(raw) -> dict[str, str | None]:
         vals = [raw[n] for n in names if raw.get(n) not in (None, "")]
         v = vals[0] if vals else None
         if v is not None and (
-            not isinstance(v, str)
-            or len(v) > MAX_ID
-            or not all(c.isalnum() or c in "-_.:@" for c in v)
+            not isinstance(v, str) or len(v) > MAX_ID or not ID_CHARS.fullmatch(v)
         ):
-            raise HTTPException(400, f"ids: {names[0]} must be at most {MAX_ID} letters/digits")
+            raise HTTPException(
+                400, f"ids: {names[0]} must be at most {MAX_ID} ASCII letters, digits or -_.:@"
+            )
         out[field] = v
     return out
 
@@ -178,6 +244,12 @@ def parse_answer(doc: dict) -> tuple[int, str, int | None, float]:
     return pos, guess, conf, float(rt)
 
 
+def set_cookie(request: Request, resp: Response, token: str) -> None:
+    """The participant cookie: HttpOnly, SameSite=Strict, Secure behind HTTPS, 30 days."""
+    resp.set_cookie(COOKIE, token, httponly=True, samesite="strict",
+                    secure=request.url.scheme == "https", max_age=30 * 86400)  # fmt: skip
+
+
 # ---------------------------------------------------------------------- the app
 
 
@@ -192,10 +264,7 @@ def make_app(
     the ``Host`` header values it answers (``"*"``: any; ``"*.example.org"``: subdomains)."""
     if len(admin_token) < 16:
         raise ValueError("admin_token: expected at least 16 characters")
-    if isinstance(allowed_hosts, str) or not allowed_hosts:
-        raise ValueError(
-            f"allowed_hosts: expected a non-empty list of names, got {allowed_hosts!r}"
-        )
+    patterns = host_patterns(allowed_hosts)
 
     def admin(request: Request) -> None:
         auth = request.headers.get("authorization", "")
@@ -218,16 +287,22 @@ def make_app(
         if doc["consent"] is not True:
             raise HTTPException(400, "consent: the study starts only with consent")
         ids = parse_ids(doc.get("ids", {}))
-        p = await run_in_threadpool(service.participant, request.cookies.get(COOKIE))
-        token = None
-        if p is None:  # a participant who refreshes the consent page keeps their trials
-            ua = request.headers.get("user-agent", "")[:200]
-            token = await run_in_threadpool(service.start, ids, ua)
-            p = await run_in_threadpool(service.participant, token)
+        ua = request.headers.get("user-agent", "")[:200]
+        p, token = await run_in_threadpool(service.begin, request.cookies.get(COOKIE), ids, ua)
         resp = JSONResponse(await run_in_threadpool(service.state, p))
         if token is not None:
-            resp.set_cookie(COOKIE, token, httponly=True, samesite="strict",
-                            secure=request.url.scheme == "https", max_age=30 * 86400)  # fmt: skip
+            set_cookie(request, resp, token)
+        return resp
+
+    async def resume(request: Request) -> Response:
+        doc = await read_json(request)
+        _keys(doc, {"token"}, set())
+        token = doc["token"]
+        if not isinstance(token, str) or not 1 <= len(token) <= MAX_TOKEN:
+            raise HTTPException(400, "token: expected the token of a resume link")
+        p = await run_in_threadpool(service.require, token)
+        resp = JSONResponse(await run_in_threadpool(service.state, p))
+        set_cookie(request, resp, token)
         return resp
 
     async def state(request: Request) -> Response:
@@ -252,6 +327,13 @@ def make_app(
     async def progress(request: Request) -> Response:
         admin(request)
         return JSONResponse(await run_in_threadpool(service.progress))
+
+    async def resume_link(request: Request) -> Response:
+        admin(request)
+        n = request.path_params["participant"]
+        token = await run_in_threadpool(service.reissue, n)
+        url = f"{str(request.base_url).rstrip('/')}/#resume={token}"
+        return JSONResponse({"participant": n, "url": url})
 
     async def export(request: Request) -> Response:
         admin(request)
@@ -291,11 +373,13 @@ def make_app(
         Route("/healthz", health),
         Route("/api/texts", texts),
         Route("/api/start", start, methods=["POST"]),
+        Route("/api/resume", resume, methods=["POST"]),
         Route("/api/state", state),
         Route("/api/answer", answer, methods=["POST"]),
         Route("/api/media/{position:int}/{which:str}", media),
         Route("/api/admin/progress", progress),
         Route("/api/admin/export/{name:str}.csv", export),
+        Route("/api/admin/resume-link/{participant:int}", resume_link, methods=["POST"]),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
     app = Starlette(
@@ -309,6 +393,6 @@ def make_app(
             Exception: internal,
         },
     )
-    app.add_middleware(TrustedHostMiddleware, allowed_hosts=list(allowed_hosts))
+    app.add_middleware(AllowedHosts, patterns=patterns)
     app.add_middleware(SecurityHeaders)  # the outermost: headers on refusals too
     return app

@@ -3,7 +3,18 @@
 The web layer (:mod:`slotv_jax.webstudy.server`) validates requests and calls these;
 nothing here knows about HTTP. A participant is identified by a random token (256 bits,
 ``secrets.token_urlsafe``); storage keeps only its SHA-256, so a copy of the database
-does not let anyone answer in a participant's name.
+does not let anyone answer in a participant's name. A token is checked whole: storage
+finds the row by the token's hash and :func:`hmac.compare_digest` compares the full hash
+again in constant time (a backend that matched loosely would still not let a near miss in).
+
+Starting and resuming (the threat model is in the README, "Running a study with people"):
+the external ids (``PROLIFIC_PID`` ...) come from the study URL and are not secret. A
+start for an external id that has no answer stored yet is *resumable*: it re-issues that
+participant (same row, same trials) to a new token, so someone whose start reply was lost
+(a killed server, the network, another browser, cleared cookies) goes on where they
+were. Once an answer is stored, only the participant's token reaches their trials: a
+start with that id and without the token is refused (:class:`Conflict`, 409) with what to
+do, and the researcher can issue a resume link (:meth:`StudyService.reissue`).
 
 A participant's *state* is what their page shows next (jsPsych's timeline, one trial at
 a time): ``{"stage": "trial", ...}`` with the next unanswered trial, or
@@ -14,17 +25,23 @@ for the state again and lands on the same trial.
 from __future__ import annotations
 
 import hashlib
+import hmac
 import logging
 import secrets
 import threading
 from pathlib import Path
 
 from slotv_jax.webstudy import design, stimuli
-from slotv_jax.webstudy.database import Storage, unanswered
+from slotv_jax.webstudy.database import Conflict, Storage, unanswered
 
 MAX_RESPONSE_MS = 3_600_000.0  # one hour: longer response times are rejected
 CONFIDENCE = (1, 5)  # the confidence scale (1: a guess, 5: sure)
 log = logging.getLogger("slotv_jax.study")
+MAX_TOKEN = 100  # characters of a participant token (they have 43)
+ALREADY_ANSWERED = (
+    "this participant id has already answered in another browser or session: go on in the "
+    "browser where you started, or ask the researcher for a link to continue"
+)
 ID_PARAMS = {  # external ids taken from the study URL (Prolific, MTurk, plain names)
     "external_id": ("PROLIFIC_PID", "workerId", "participant"),
     "study_id": ("STUDY_ID", "hitId", "study"),
@@ -107,7 +124,9 @@ class StudyService:
     # ----------------------------------------------------------- participants
 
     def start(self, ids: dict[str, str | None], user_agent: str | None) -> str:
-        """A new participant with their drawn trials; returns their token."""
+        """A new participant with their drawn trials, or the resumed participant of an
+        external id without an answer yet (see the module docstring); returns the token.
+        :class:`Conflict` when the external id has answered already."""
         self.refresh()
         token = secrets.token_urlsafe(32)
         seed = secrets.randbits(63)
@@ -118,16 +137,49 @@ class StudyService:
         def plan(stims, counts, seed):
             return design.plan_trials(stims, counts, k=k, n_attention=n_att, seed=seed)
 
-        self.storage.create_participant(
-            token_hash(token), {**ids, "user_agent": user_agent}, plan, seed, code
-        )
+        try:
+            self.storage.create_participant(
+                token_hash(token), {**ids, "user_agent": user_agent}, plan, seed, code,
+                resume=True,
+            )  # fmt: skip
+        except Conflict:
+            raise Conflict(ALREADY_ANSWERED) from None
+        return token
+
+    def begin(
+        self, token: str | None, ids: dict[str, str | None], user_agent: str | None
+    ) -> tuple[dict, str | None]:
+        """The participant of a start request and their new token (``None``: keep the one
+        they have). A valid token is kept (a refreshed consent page, a second tab) unless
+        the ids name another external participant (a shared computer); otherwise
+        :meth:`start`."""
+        p = self.participant(token)
+        ext = ids.get("external_id")
+        if p is not None and (
+            not ext or (p["external_id"], p["study_id"]) == (ext, ids.get("study_id"))
+        ):
+            return p, None
+        token = self.start(ids, user_agent)
+        return self.require(token), token
+
+    def reissue(self, participant: int) -> str:
+        """A new token for a participant (their old one stops working): the researcher's
+        resume link for someone who answered and then lost their browser's cookie.
+        :class:`Forbidden` for an unknown participant."""
+        token = secrets.token_urlsafe(32)
+        if not self.storage.set_token(participant, token_hash(token)):
+            raise Forbidden("no such participant")
         return token
 
     def participant(self, token: str | None) -> dict | None:
         """The participant of a token (``None`` for a missing or unknown token)."""
-        if not token or len(token) > 100:
+        if not isinstance(token, str) or not token or len(token) > MAX_TOKEN:
             return None
-        return self.storage.participant(token_hash(token))
+        digest = token_hash(token)
+        p = self.storage.participant(digest)
+        if p is None or not hmac.compare_digest(p["token_sha256"].encode(), digest.encode()):
+            return None
+        return p
 
     def state(self, participant: dict, *, shown: bool = False, trials=None) -> dict:
         """What the participant's page shows next (see the module docstring).
