@@ -3,16 +3,19 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sqlite3
 from collections import Counter
+from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from starlette.testclient import TestClient
-from study_fixtures import write_dot_set
+from study_fixtures import ServerProcess, write_dot_set
 
 from slotv_jax import study
 from slotv_jax.webstudy import design, export, stimuli
@@ -21,6 +24,7 @@ from slotv_jax.webstudy.server import COOKIE, LOOPBACK_HOSTS, MAX_BODY, make_app
 from slotv_jax.webstudy.service import StudyService
 
 ADMIN = "admin-token-for-tests-0123456789"
+CHROMIUM = "/usr/bin/chromium"
 
 
 @pytest.fixture(scope="module")
@@ -563,3 +567,71 @@ def test_export_imports_unchanged(server, tmp_path):
     assert header == list(export.ANSWER_COLUMNS)
     people = (out / "participants.csv").read_text().splitlines()
     assert len(people) == 4 and "p-a" in people[1]
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not Path(CHROMIUM).exists():
+        msg = f"no browser at {CHROMIUM} (apt-get install chromium)"
+        if os.environ.get("SLOTV_JAX_REQUIRE_BROWSER") == "1":
+            pytest.fail(msg)
+        pytest.skip(msg)
+    from playwright.sync_api import sync_playwright  # optional heavy dependency
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox", "--disable-gpu"])
+        yield b
+        b.close()
+
+
+def test_page_resumes_a_lost_start_and_says_what_to_do(browser, stimdir, tmp_path):
+    """The participant page in Chromium: the same id opened in a second browser before any
+    answer resumes (the first one's answer then finds its token replaced and starts again,
+    resuming); after an answer the second browser is told to ask the researcher, whose
+    link continues the study there; a second tab goes on where the participant is."""
+    server = ServerProcess(stimdir, tmp_path / "study.db")
+    url = f"{server.url}/?PROLIFIC_PID=page1&STUDY_ID=s1"
+
+    def start(page):
+        page.click("#next")  # consent
+        page.click("#next")  # instructions: start
+
+    def trial(page) -> str:
+        page.wait_for_selector("#still")
+        return page.inner_text("h1")
+
+    def answer_on(page):
+        page.click(".choices button[data-goal=A]")
+        page.click("#submit")
+        page.wait_for_selector("#submit", state="detached")
+
+    try:
+        a, b = (browser.new_context().new_page() for _ in range(2))
+        for page in (a, b):
+            page.set_default_timeout(60_000)
+            page.goto(url)
+            start(page)
+            assert trial(page) == "Practice trial"
+        answer_on(a)  # b's start replaced a's token: a starts again and resumes
+        start(a)
+        assert trial(a) == "Practice trial"
+        answer_on(a)
+        assert trial(a) == "Video 1 of 5"
+        tab = a.context.new_page()
+        tab.goto(url)
+        assert trial(tab) == "Video 1 of 5"
+        b.reload()  # its token was replaced, and the participant has answered
+        start(b)
+        assert "ask the researcher" in b.inner_text("#message")
+        auth = {"Authorization": f"Bearer {server.admin_token}"}
+        link = httpx.post(f"{server.url}/api/admin/resume-link/1", headers=auth).json()["url"]
+        b.goto(link)
+        assert trial(b) == "Video 1 of 5" and "resume" not in b.url
+        answer_on(b)
+        assert trial(b) == "Video 2 of 5"
+    finally:
+        server.stop()
+    con = sqlite3.connect(tmp_path / "study.db")
+    assert con.execute("SELECT COUNT(*), SUM(starts) FROM participants").fetchone() == (1, 4)
+    assert con.execute("SELECT COUNT(*) FROM answers").fetchone() == (2,)
+    con.close()

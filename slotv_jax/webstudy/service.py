@@ -38,9 +38,9 @@ MAX_RESPONSE_MS = 3_600_000.0  # one hour: longer response times are rejected
 CONFIDENCE = (1, 5)  # the confidence scale (1: a guess, 5: sure)
 log = logging.getLogger("slotv_jax.study")
 MAX_TOKEN = 100  # characters of a participant token (they have 43)
-ALREADY_ANSWERED = (
-    "this participant id has already answered in another browser or session: go on in the "
-    "browser where you started, or ask the researcher for a link to continue"
+ALREADY_ANSWERED = (  # shown as it is on the participant's page
+    "This participant id has already answered in another browser or session. Please go on "
+    "in the browser where you started, or ask the researcher for a link to continue."
 )
 ID_PARAMS = {  # external ids taken from the study URL (Prolific, MTurk, plain names)
     "external_id": ("PROLIFIC_PID", "workerId", "participant"),

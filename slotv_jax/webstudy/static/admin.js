@@ -5,8 +5,8 @@
 const tokenInput = document.getElementById("token");
 tokenInput.value = sessionStorage.getItem("adminToken") || "";
 
-function get(path) {
-  return fetch(path, { headers: { Authorization: `Bearer ${tokenInput.value}` } });
+function get(path, method = "GET") {
+  return fetch(path, { method, headers: { Authorization: `Bearer ${tokenInput.value}` } });
 }
 
 function table(rows, columns) {
@@ -37,9 +37,10 @@ async function load() {
     table(p.stimuli, ["round", "id", "trajectory", "tau", "camera", "kind", "assigned", "answers"]),
     h("Per participant"),
     table(p.participants, ["participant", "external_id", "study_id", "session_id", "round",
-                           "trials", "answered", "attention_answered", "attention_passed",
-                           "finished"]));
+                           "starts", "trials", "answered", "attention_answered",
+                           "attention_passed", "finished"]));
   document.getElementById("export").hidden = false;
+  document.getElementById("relink").hidden = false;
 }
 
 document.getElementById("login").addEventListener("submit", (e) => { e.preventDefault(); load(); });
@@ -51,4 +52,13 @@ for (const b of document.querySelectorAll("[data-table]")) {
     URL.revokeObjectURL(url);
   });
 }
+document.getElementById("relink").addEventListener("submit", async (e) => {
+  e.preventDefault();
+  const n = document.getElementById("relink-participant").value;
+  const out = document.getElementById("relink-url");
+  const resp = await get(`/api/admin/resume-link/${encodeURIComponent(n)}`, "POST");
+  const doc = await resp.json().catch(() => ({ error: "bad response" }));
+  out.value = resp.status === 200 ? doc.url : `error: ${doc.error}`;
+  out.select();
+});
 if (tokenInput.value) load();

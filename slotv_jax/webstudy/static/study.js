@@ -3,6 +3,9 @@
 // the page shows it, and every answer is sent the moment it is given (POST /api/answer).
 // A refresh, the back button or a lost connection asks the server again and lands on the
 // same unanswered trial; a failed submission is retried with the same body (stored once).
+// A start whose reply was lost is sent again and resumes the same participant (the server
+// allows that until their first answer; then it says to ask the researcher, whose resume
+// link, /#resume=<token>, opens the study where the participant was, in any browser).
 "use strict";
 
 const app = document.getElementById("app");
@@ -80,7 +83,7 @@ async function welcome() {
 }
 
 function message(text) {
-  show(el("div", { class: "text" }, el("p", { text })));
+  show(el("div", { class: "text" }, el("p", { id: "message", text })));
 }
 
 function done(state) {
@@ -138,6 +141,7 @@ function trial(state) {
                    confidence: c ? Number(c.value) : null,
                    response_ms: Math.round(chosenAt - shownAt) };
     const { status, doc } = await api("/api/answer", body);
+    if (status === 401) return welcome(); // this browser's token was replaced: start again
     if (status !== 200) return message(doc.error || "The answer could not be stored.");
     render(doc.state);
   });
@@ -178,7 +182,21 @@ function render(state) {
   return trial(state);
 }
 
+// A resume link from the researcher: take its token (the server sets the cookie), then
+// drop it from the address bar so that it is not bookmarked or shared by mistake.
+async function resume(token) {
+  history.replaceState(null, "", window.location.pathname + window.location.search);
+  const { status, doc } = await api("/api/resume", { token });
+  if (status !== 200) {
+    return message("This link to continue the study does not work (it was replaced by a " +
+                   "newer one, or mistyped). Please ask the researcher for a new link.");
+  }
+  render(doc);
+}
+
 async function main() {
+  const link = window.location.hash.match(/^#resume=([A-Za-z0-9_-]{1,100})$/);
+  if (link) return resume(link[1]);
   const { status, doc } = await api("/api/state");
   if (status === 401) return welcome();
   if (status !== 200) return message(doc.error || "Something went wrong.");
