@@ -57,35 +57,43 @@ def prefix_scores(
     goals: Float[Array, "... G 3"],
     seen: Int[Array, "..."],
     *,
+    goal_mask: Bool[Array, "... G"] | None = None,
     backward: str = "autodiff",
 ) -> Float[Array, "... G"]:
-    """Unmasked scores of the first ``seen`` points of each trajectory.
+    """Unmasked scores of the first ``seen`` = L points of each trajectory, for every
+    observer family (padded slots: any finite value; mask them).
 
-    SLOT-V: s_k = (1/L) Σ_{i<L} V(p_i, g_k); T-REX: s_k = Σ_{i<L} r(p_i, g_k), with
-    L = ``seen``. A model with time weights u_i weights the seen points by them: SLOT-V's
-    s_k is then Σ_{i<L} u_i V(p_i, g_k) / Σ_{i<L} u_i, T-REX's Σ_{i<L} u_i r(p_i, g_k); a
-    model with the start term takes every value relative to f(p_0, g_k) (p_0 is always
-    seen).
-    Points i ≥ L are replaced by p_0 before the network and weighted 0, so their values
-    reach neither the scores nor any gradient. With L = T this is
+    SLOT-V: s_k = (1/L) Σ_{i<L} V(p_i, g_k); T-REX: s_k = Σ_{i<L} r(p_i, g_k)
+    (:meth:`slotv_jax.observers.models.SlotV.prefix_scores`: with time weights u_i the seen
+    points are weighted by them, with the start term every value is taken relative to
+    f(p_0, g_k)). An archetype (``goal_mask`` required): its formula applied to
+    ``xyz[:L]`` at the prefix's own times t_i = i/(L − 1)
+    (:meth:`slotv_jax.observers.parametric.LearnableDragan.prefix_scores`).
+    Points i ≥ L reach neither the scores nor any gradient. With L = T this is
     ``model.scores`` (up to summation order).
 
     >>> m = models.SlotV((8, 4), rngs=nnx.Rngs(0))  # doctest: +SKIP
     >>> prefix_scores(m, xyz[None], goals[None], jnp.array([40]))  # doctest: +SKIP
     """
-    t = xyz.shape[-2]
-    vis = jnp.arange(t) < seen[..., None]  # (..., T)
-    x = jnp.where(vis[..., None], xyz, xyz[..., :1, :])
-    v = model.network.grid(x, goals, backward=backward)  # (..., T, G)
-    if model.start_term:  # values relative to the start's (point 0 is always seen)
-        v = v - v[..., :1, :]
-    w = vis.astype(v.dtype)
-    u = model.point_weights(t)  # time weights of mean 1 over the whole trajectory, or None
-    if u is not None:
-        w = w * u.astype(v.dtype)
-    if model.method == "slotv":
-        w = w / w.sum(-1, keepdims=True)
-    return jnp.einsum("...tg,...t->...g", v, w, precision=jax.lax.Precision.HIGHEST)
+    if goal_mask is None and not isinstance(model, models.SlotV | models.TRex):
+        raise ValueError(f"goal_mask: the {model.name!r} archetype needs the goal mask")
+    return model.prefix_scores(xyz, goals, goal_mask, seen, backward=backward)
+
+
+def prefix_logits(
+    model: models.Model,
+    xyz: Float[Array, "... T 3"],
+    goals: Float[Array, "... G 3"],
+    goal_mask: Bool[Array, "... G"],
+    seen: Int[Array, "..."],
+    *,
+    backward: str = "autodiff",
+) -> Float[Array, "... G"]:
+    """The logits of any observer model (network or archetype) for the motion seen up to
+    its first ``seen`` points: :func:`prefix_scores`, −∞ on padded slots. softmax of them
+    is the observer's P(goal | ξ_{0:τ}), what training on answers fits."""
+    s = prefix_scores(model, xyz, goals, seen, goal_mask=goal_mask, backward=backward)
+    return models.mask_logits(s, goal_mask)
 
 
 def count_nll(
@@ -114,7 +122,7 @@ def study_loss(
 
     With one answer per row (n̄ = 1) this is the mean cross-entropy against one-hot labels.
     """
-    s = prefix_scores(model, xyz, goals, seen, backward=backward)
+    s = prefix_scores(model, xyz, goals, seen, goal_mask=goal_mask, backward=backward)
     return count_nll(s, goal_mask, counts).sum() / (xyz.shape[0] * answers_per_row)
 
 
@@ -166,10 +174,11 @@ def _jit_scores(trainer: train_lib.Trainer):
         model = trainer.model(params)
 
         def one(traj, seen):
-            return prefix_scores(model, data.xyz[traj], data.goals[traj], seen)
+            return prefix_logits(
+                model, data.xyz[traj], data.goals[traj], data.goal_mask[traj], seen
+            )
 
-        s = jax.lax.map(lambda a: one(*a), (data.row_trajectory, data.row_seen), batch_size=256)
-        return models.mask_logits(s, data.goal_mask[data.row_trajectory])
+        return jax.lax.map(lambda a: one(*a), (data.row_trajectory, data.row_seen), batch_size=256)
 
     return jax.jit(scores)
 

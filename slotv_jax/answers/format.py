@@ -89,8 +89,10 @@ from jaxtyping import Bool, Float, Int
 
 from slotv_jax.core.validation import G_MAX
 
+# τ within this fraction of the motion's duration of t_i counts as t_i (one definition)
+from slotv_jax.observers.common import TAU_RTOL
+
 FORMAT = "slotv_jax.study/1"
-TAU_RTOL = 1e-9  # τ within this fraction of the motion's duration of t_i counts as t_i
 PROB_FLOOR = 1e-12  # labeler probabilities are floored here in log-likelihoods (float32)
 BETA_RANGE = 100.0  # β is fitted within [β₀ / BETA_RANGE, β₀ · BETA_RANGE]
 

@@ -108,8 +108,8 @@ from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
 from slotv_jax.answers import fitting
-from slotv_jax.answers import format as study
 from slotv_jax.observers import models
+from slotv_jax.observers.common import seen_points  # re-exported: the stimuli of a pool
 from slotv_jax.training import trainer as train_lib
 from slotv_jax.training.config import TrainConfig
 
@@ -155,19 +155,6 @@ class Ensemble(NamedTuple):
     params: nnx.State  # (E, ...) model parameters
     opt_state: Any  # (E, ...) optimiser states
     boot: Float[Array, "E M"]  # bootstrap weight of each answer slot (member 0: all 1)
-
-
-def seen_points(taus: Sequence[float], n_points: int) -> np.ndarray:
-    """Points shown up to normalised time τ: those with t_i = i / (T − 1) ≤ τ (as
-    :mod:`slotv_jax.study` counts them), at least 2. Returns (len(taus),) int32."""
-    taus = np.asarray(taus, np.float64)
-    if taus.ndim != 1 or taus.size == 0 or not np.all((taus > 0) & (taus <= 1)):
-        raise ValueError(f"taus: expected normalised stop times in (0, 1], got {taus.tolist()}")
-    if n_points < 2:
-        raise ValueError(f"n_points: expected T >= 2, got {n_points}")
-    t = np.arange(n_points) / (n_points - 1.0)
-    seen = (t[None, :] <= taus[:, None] + study.TAU_RTOL).sum(-1)
-    return np.maximum(seen, 2).astype(np.int32)
 
 
 def make_pool(

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from slotv_jax.observers import common
 from slotv_jax.observers.parametric import (
@@ -80,25 +80,40 @@ class DistanceApproachMixture(_Archetype):
         }
 
     def terms(
-        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"]
+        self,
+        xyz: Float[Array, "... T 3"],
+        goals: Float[Array, "... G 3"],
+        seen: Int[Array, "..."] | None = None,
     ) -> tuple[Float[Array, "... G"], Float[Array, "... G"]]:
-        """The two terms (E, F), in metres, before their temperatures."""
+        """The two terms (E, F), in metres, before their temperatures; with ``seen`` = L
+        (traced), those of ``xyz[..., :L, :]`` at its own times t_i = i/(L − 1)."""
         p = self._constrained()
-        d = common.pairwise_distances(xyz, goals)  # (..., T, G)
+        hp = jax.lax.Precision.HIGHEST
+        if seen is None:
+            d = common.pairwise_distances(xyz, goals)  # (..., T, G)
+            T = d.shape[-2]
+            u = time_weights(p["alpha_effdist"], T, d.dtype)
+            v = common.time_weights(common.uniform_times(T)[1:], p["alpha_fastapp"], dtype=d.dtype)
+            e = -jnp.einsum("...tg,t->...g", d, u, precision=hp)
+            approach = d[..., :-1, :] - d[..., 1:, :]  # (..., T−1, G)
+            f = jnp.einsum("...tg,t->...g", approach, v, precision=hp)
+            return e, f * (T - 1)
+        L = jnp.asarray(seen)
+        d = common.pairwise_distances(common.seen_only(xyz, L), goals)  # (..., T, G)
         T = d.shape[-2]
-        u = time_weights(p["alpha_effdist"], T, d.dtype)
-        v = common.time_weights(common.uniform_times(T)[1:], p["alpha_fastapp"], dtype=d.dtype)
-        e = -jnp.einsum("...tg,t->...g", d, u, precision=jax.lax.Precision.HIGHEST)
+        u = common.prefix_time_weights(T, L, p["alpha_effdist"], dtype=d.dtype)  # (..., T)
+        tau = common.prefix_times(T, L, d.dtype)[..., 1:]  # t_1..t_{L−1}, then 1s
+        valid = jnp.arange(1, T) < L[..., None]
+        v = common.masked_time_weights(tau, valid, p["alpha_fastapp"], dtype=d.dtype)
+        e = -jnp.einsum("...tg,...t->...g", d, u, precision=hp)
         approach = d[..., :-1, :] - d[..., 1:, :]  # (..., T−1, G)
-        f = jnp.einsum("...tg,t->...g", approach, v, precision=jax.lax.Precision.HIGHEST)
-        return e, f * (T - 1)
+        f = jnp.einsum("...tg,...t->...g", approach, v, precision=hp)
+        return e, f * (L[..., None] - 1).astype(f.dtype)
 
-    def scores(
-        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], goal_mask, **_
-    ) -> Float[Array, "... G"]:
+    def _scores(self, xyz, goals, goal_mask, seen) -> Float[Array, "... G"]:
         """s_k = β_E E_k + β_F F_k on real goals, 0 on padded slots."""
         p = self._constrained()
-        e, f = self.terms(xyz, goals)
+        e, f = self.terms(xyz, goals, seen)
         return jnp.where(goal_mask, p["beta_effdist"] * e + p["beta_fastapp"] * f, 0.0)
 
     def parameters(self) -> dict[str, float]:

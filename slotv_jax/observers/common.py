@@ -8,6 +8,10 @@ SLOT-V / T-REX networks and the planner use these, and no copy of them.
   :func:`time_weights` / :func:`log_time_weights`, ``u_i ∝ [trap_i] · (1 − τ_i)^α``: at
   α = 1 with the trapezoid rule these are SPEC §4.1's integration weights (Dragan &
   Srinivasa's f(t) = T − t); α = 0 gives the plain mean.
+- What a participant who stopped the motion at normalised time τ saw: :func:`seen_points`
+  (its first L points), and the prefix's own times and weights for a traced L,
+  :func:`prefix_times` and :func:`prefix_time_weights` (every observer family scores a
+  motion seen up to a stop time: :mod:`slotv_jax.observers.prefix`).
 - Dragan's legibility, :func:`dragan_kernel` (SPEC §4.1, with a start weight, in linear
   form for the labelers or in log space for the archetypes), on :func:`distances` and the
   fused time integrals :func:`integrals`; :func:`pairwise_distances` for arrays of points.
@@ -36,9 +40,10 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 __all__ = [
+    "TAU_RTOL",
     "distances",
     "dragan_kernel",
     "dragan_log_labels",
@@ -47,7 +52,12 @@ __all__ = [
     "mask_logits",
     "masked_log",
     "masked_softmax",
+    "masked_time_weights",
     "pairwise_distances",
+    "prefix_time_weights",
+    "prefix_times",
+    "seen_only",
+    "seen_points",
     "sums",
     "time_weights",
     "trapezoid",
@@ -135,6 +145,96 @@ def log_time_weights(tau, alpha=1.0, *, trapezoid_rule: bool = False, dtype=None
     """``log u_i`` of :func:`time_weights` in log space (any ``alpha``; ε-floored)."""
     log_w = _log_weights(tau, alpha, trapezoid_rule, dtype)
     return log_w - jax.nn.logsumexp(log_w, axis=-1, keepdims=True)
+
+
+# -------------------------------------------------------------------- stop times
+
+#: A stop time τ within this fraction of the motion's duration of a point's time t_i counts
+#: as reaching t_i (the study format's rule, :meth:`slotv_jax.answers.format.Study.seen`):
+#: τ = 0.3 on 11 points shows t_3 although 3/10 rounds to just above 0.3.
+TAU_RTOL = 1e-9
+
+
+def seen_points(taus: Sequence[float], n_points: int) -> Int[np.ndarray, " K"]:
+    """Points a participant saw who watched ``n_points`` uniformly timed points,
+    t_i = i/(n − 1), up to each stop time τ of ``taus`` (normalised, 0 < τ ≤ 1)::
+
+        L(τ) = max(2, #{i : t_i ≤ τ + TAU_RTOL})
+
+    as :meth:`slotv_jax.answers.format.Study.seen` counts them (τ = 1: the whole motion).
+    Returns ``(len(taus),)`` int32. Raises ValueError for τ outside (0, 1] or n < 2.
+
+    >>> seen_points([0.3, 0.45, 1.0], 11).tolist()
+    [4, 5, 11]
+    """
+    taus = np.asarray(taus, np.float64)
+    if taus.ndim != 1 or taus.size == 0 or not np.all((taus > 0) & (taus <= 1)):
+        raise ValueError(f"taus: expected normalised stop times in (0, 1], got {taus.tolist()}")
+    if isinstance(n_points, bool) or not isinstance(n_points, int | np.integer) or n_points < 2:
+        raise ValueError(f"n_points: expected an integer T >= 2, got {n_points!r}")
+    t = np.arange(n_points, dtype=np.float64) / (n_points - 1.0)
+    seen = (t[None, :] <= taus[:, None] + TAU_RTOL).sum(-1)
+    return np.maximum(seen, 2).astype(np.int32)
+
+
+def seen_only(xyz: Float[Array, "... T D"], seen: Int[Array, "..."]) -> Float[Array, "... T D"]:
+    """The points of a motion seen up to its first ``seen`` (traced), the others replaced by
+    the first point (always seen): fixed shapes, finite values, and, weighted 0 by the
+    prefix weights, no gradient for the unseen points."""
+    vis = jnp.arange(xyz.shape[-2]) < jnp.asarray(seen)[..., None]
+    return jnp.where(vis[..., None], xyz, xyz[..., :1, :])
+
+
+def prefix_times(n_points: int, seen, dtype=jnp.float32) -> Float[Array, "... T"]:
+    """The prefix's own normalised times for its first ``seen`` = L points (L traced, any
+    batch shape ``...``; the times are ``(..., T)``):
+    τ_i = i/(L − 1) for i < L, and 1 for the points after it (which the prefix weights
+    exclude), so that an observer of ``xyz[:L]`` at τ_i = i/(L − 1) can be computed on the
+    fixed shape ``(T,)``.
+
+    >>> prefix_times(5, 3).tolist()
+    [0.0, 0.5, 1.0, 1.0, 1.0]
+    """
+    i = jnp.arange(n_points, dtype=dtype)
+    return jnp.minimum(i / (jnp.asarray(seen, dtype)[..., None] - 1), 1.0)
+
+
+def masked_time_weights(
+    tau: Float[Array, "... T"],
+    valid: Bool[Array, "... T"],
+    alpha=1.0,
+    *,
+    trapezoid_rule: bool = False,
+    log: bool = False,
+    dtype=None,
+) -> Float[Array, "... T"]:
+    """:func:`time_weights` of the ``valid`` samples only, ``u_i ∝ [trap_i] · max(1 − τ_i,
+    ε)^α`` normalised over them, 0 on the others (``log``: :func:`log_time_weights`, −∞ on
+    the others). A Python ``alpha`` takes the linear form, a traced one the log form."""
+    if log or not isinstance(alpha, int | float):
+        lw = jnp.where(valid, _log_weights(tau, alpha, trapezoid_rule, dtype), -jnp.inf)
+        return jax.nn.log_softmax(lw, axis=-1) if log else jax.nn.softmax(lw, axis=-1)
+    w = jnp.where(valid, time_weights(tau, alpha, trapezoid_rule=trapezoid_rule, dtype=dtype), 0)
+    return w / jnp.sum(w, axis=-1, keepdims=True)
+
+
+def prefix_time_weights(
+    n_points: int, seen, alpha=1.0, *, trapezoid_rule: bool = False, log: bool = False,
+    dtype=jnp.float32,
+) -> Float[Array, "... T"]:  # fmt: skip
+    """The time weights ``(..., T)`` of the first ``seen`` = L points (L traced, shape
+    ``...``) at their own times
+    τ_i = i/(L − 1) (:func:`prefix_times`), 0 (``log``: −∞) for the points after them: on
+    i < L exactly ``time_weights(uniform_times(L), alpha, ...)``, up to rounding.
+
+    >>> [round(float(u), 3) for u in prefix_time_weights(5, 3, 1.0)]
+    [0.667, 0.333, 0.0, 0.0, 0.0]
+    """
+    valid = jnp.arange(n_points) < jnp.asarray(seen)[..., None]
+    tau = prefix_times(n_points, seen, dtype)
+    return masked_time_weights(
+        tau, valid, alpha, trapezoid_rule=trapezoid_rule, log=log, dtype=dtype
+    )
 
 
 # ------------------------------------------------------------------- Dragan kernel
@@ -268,6 +368,7 @@ def dragan_log_labels(
     alpha=1.0,
     start_weight=None,
     metric=None,
+    seen: Int[Array, "..."] | None = None,
 ) -> Float[Array, "... G"]:
     """log y_k of :func:`dragan_kernel` for arrays of trajectories, generalised as the
     learnable archetypes need::
@@ -279,14 +380,27 @@ def dragan_log_labels(
     None: Euclidean), computed as the kernel's Euclidean distance of ``√m ⊙ x``; the
     batch axes ``...`` broadcast (``jnp.vectorize``). With α = 1, w₀ = 1 and no metric
     this is ``log labelers.dragan`` at the same β (tested against one float64 reference).
+
+    ``seen`` (``...``, traced; None: every point): score only each trajectory's first L
+    points, at their own times t_i = i/(L − 1) (:func:`prefix_time_weights`): the value for
+    ``pts[..., :L, :]``, with no gradient for the points after them.
     """
     if metric is not None:
         root = jnp.sqrt(jnp.asarray(metric))
         pts, goals = pts * root, goals * root
-    log_c = log_time_weights(uniform_times(pts.shape[-2]), alpha, trapezoid_rule=True,
-                             dtype=jnp.result_type(pts.dtype, goals.dtype))  # fmt: skip
+    T, dtype = pts.shape[-2], jnp.result_type(pts.dtype, goals.dtype)
+    if seen is None:
+        log_c = log_time_weights(uniform_times(T), alpha, trapezoid_rule=True, dtype=dtype)
 
-    def one(p, g, m):
+        def one(p, g, m):
+            return dragan_kernel(tuple(p.T), g, m, beta, log_c, start_weight=start_weight,
+                                 log=True)  # fmt: skip
+
+        return jnp.vectorize(one, signature="(t,d),(g,d),(g)->(g)")(pts, goals, mask)
+
+    def one_prefix(p, g, m, L):
+        log_c = prefix_time_weights(T, L, alpha, trapezoid_rule=True, log=True, dtype=dtype)
+        p = seen_only(p, L)
         return dragan_kernel(tuple(p.T), g, m, beta, log_c, start_weight=start_weight, log=True)
 
-    return jnp.vectorize(one, signature="(t,d),(g,d),(g)->(g)")(pts, goals, mask)
+    return jnp.vectorize(one_prefix, signature="(t,d),(g,d),(g),()->(g)")(pts, goals, mask, seen)

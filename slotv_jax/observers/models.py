@@ -49,11 +49,11 @@ from collections.abc import Callable, Sequence
 import jax
 import jax.numpy as jnp
 from flax import nnx
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
-from slotv_jax.observers import archetypes, parametric
+from slotv_jax.observers import archetypes, common, parametric
 from slotv_jax.observers.common import mask_logits as mask_logits
 
 _DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
@@ -422,6 +422,51 @@ class _ScoreNetwork(nnx.Module):
         trajectory); T-REX: the evaluation logits of SPEC §6)."""
         return mask_logits(self.scores(xyz, goals), goal_mask)
 
+    def prefix_scores(
+        self,
+        xyz: Float[Array, "... T 3"],
+        goals: Float[Array, "... G 3"],
+        goal_mask: Bool[Array, "... G"] | None,
+        seen: Int[Array, "..."],
+        *,
+        backward: str = "autodiff",
+    ) -> Float[Array, "... G"]:
+        """Unmasked scores of the first ``seen`` = L points of each trajectory (L traced;
+        ``goal_mask`` is not needed), what training on answers optimises::
+
+            SLOT-V: s_k = (1/L) Σ_{i<L} V(p_i, g_k);   T-REX: s_k = Σ_{i<L} r(p_i, g_k)
+
+        With time weights u_i the seen points are weighted by them (SLOT-V's s_k is then
+        Σ_{i<L} u_i V(p_i, g_k) / Σ_{i<L} u_i, T-REX's Σ_{i<L} u_i r(p_i, g_k); u at the
+        whole motion's times); with the start term every value is taken relative to
+        f(p_0, g_k) (p_0 is always seen). Points i ≥ L are replaced by p_0 before the
+        network and weighted 0, so their values reach neither the scores nor any gradient.
+        With L = T this is :meth:`scores` (up to summation order).
+        """
+        t = xyz.shape[-2]
+        vis = jnp.arange(t) < jnp.asarray(seen)[..., None]  # (..., T)
+        v = self.network.grid(common.seen_only(xyz, seen), goals, backward=backward)  # (.., T, G)
+        if self.start_term:  # values relative to the start's (point 0 is always seen)
+            v = v - v[..., :1, :]
+        w = vis.astype(v.dtype)
+        u = self.point_weights(t)  # time weights of mean 1 over the whole trajectory, or None
+        if u is not None:
+            w = w * u.astype(v.dtype)
+        if self.method == "slotv":
+            w = w / w.sum(-1, keepdims=True)
+        return jnp.einsum("...tg,...t->...g", v, w, precision=jax.lax.Precision.HIGHEST)
+
+    def prefix(
+        self,
+        xyz: Float[Array, "... T 3"],
+        goals: Float[Array, "... G 3"],
+        goal_mask: Bool[Array, "... G"],
+        seen: Int[Array, "..."],
+    ) -> Float[Array, "... G"]:
+        """The logits of the motion seen up to its first ``seen`` points: masked
+        :meth:`prefix_scores`."""
+        return mask_logits(self.prefix_scores(xyz, goals, goal_mask, seen), goal_mask)
+
 
 class SlotV(_ScoreNetwork):
     """SLOT-V observer: logits s_k = (1/T) Σ_i V(p_i, g_k) (SPEC §5), padded goals at −∞;
@@ -494,6 +539,22 @@ def check_observer_inputs(xyz, goals, goal_mask, *, batch_shape: tuple[int, ...]
         raise ValueError(f"xyz: expected at least 2 trajectory points, got shape {jnp.shape(xyz)}")
     validation.check_array("goals", goals, (*batch_shape, G_MAX, 3))
     validation.check_goal_mask("goal_mask", goal_mask, batch_shape=batch_shape)
+
+
+def check_seen(seen, n_points: int, *, batch_shape: tuple[int, ...] = ()) -> None:
+    """Boundary check of a prefix length: ``seen`` is an integer of shape ``batch_shape``
+    with 2 ≤ seen ≤ ``n_points`` (values checked only when concrete)."""
+    if jnp.shape(seen) != tuple(batch_shape):
+        raise ValueError(f"seen: expected shape {tuple(batch_shape)}, got {jnp.shape(seen)}")
+    if not jnp.issubdtype(jnp.result_type(seen), jnp.integer) or isinstance(seen, bool):
+        raise ValueError(f"seen: expected an integer count of points, got {seen!r}")
+    if validation.is_concrete(seen):
+        v = jnp.asarray(seen)
+        if not bool(jnp.all((v >= 2) & (v <= n_points))):
+            raise ValueError(
+                f"seen: expected 2 <= seen <= {n_points} (the trajectory's points), got "
+                f"{jnp.asarray(seen).tolist()}"
+            )
 
 
 def sample_trex_pairs(

@@ -60,7 +60,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from slotv_jax.observers import common
 from slotv_jax.observers.labelers import DEPTH_EPS
@@ -133,8 +133,10 @@ def time_weights(alpha: Float[Array, ""] | float, T: int, dtype=jnp.float32) -> 
 
 
 class _Archetype(nnx.Module):
-    """Shared interface: ``scores`` (finite, 0 on padded slots), masked ``__call__``,
-    ``parameters`` and ``describe``."""
+    """Shared interface: ``scores`` (finite, 0 on padded slots), masked ``__call__``, the
+    same of a motion seen up to a stop time (``prefix_scores``, ``prefix``),
+    ``parameters`` and ``describe``. A subclass defines ``_scores(xyz, goals, goal_mask,
+    seen)`` (``seen`` None: the whole motion)."""
 
     name = ""
 
@@ -146,6 +148,35 @@ class _Archetype(nnx.Module):
     ) -> Float[Array, "... G"]:
         """Masked logits: softmax over the real goals is the observer's P(goal | trajectory)."""
         return common.mask_logits(self.scores(xyz, goals, goal_mask), goal_mask)
+
+    def scores(
+        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], goal_mask, **_
+    ) -> Float[Array, "... G"]:
+        """The scores of the whole motion on real goals, 0 on padded slots (finite)."""
+        return self._scores(xyz, goals, goal_mask, None)
+
+    def prefix_scores(
+        self,
+        xyz: Float[Array, "... T 3"],
+        goals: Float[Array, "... G 3"],
+        goal_mask: Bool[Array, "... G"],
+        seen: Int[Array, "..."],
+        **_,
+    ) -> Float[Array, "... G"]:
+        """The scores of the motion seen up to its first ``seen`` = L points (L traced):
+        the archetype's formula applied to ``xyz[..., :L, :]`` at the prefix's own times
+        t_i = i/(L − 1), on the fixed shape of ``xyz`` (points ≥ L get no gradient)."""
+        return self._scores(xyz, goals, goal_mask, jnp.asarray(seen))
+
+    def prefix(
+        self,
+        xyz: Float[Array, "... T 3"],
+        goals: Float[Array, "... G 3"],
+        goal_mask: Bool[Array, "... G"],
+        seen: Int[Array, "..."],
+    ) -> Float[Array, "... G"]:
+        """Masked logits of the motion seen up to its first ``seen`` points."""
+        return common.mask_logits(self.prefix_scores(xyz, goals, goal_mask, seen), goal_mask)
 
     def _scalar_parameters(self) -> dict[str, float]:
         out = {}
@@ -222,9 +253,7 @@ class LearnableDragan(_Archetype):
             "metric": 3.0 * jax.nn.softmax(_value(self.log_metric), axis=-1),
         }
 
-    def scores(
-        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], goal_mask, **_
-    ) -> Float[Array, "... G"]:
+    def _scores(self, xyz, goals, goal_mask, seen) -> Float[Array, "... G"]:
         """s_k = log y_k on real goals, 0 on padded slots (finite everywhere)."""
         p = self._constrained()
         s = common.dragan_log_labels(
@@ -235,6 +264,7 @@ class LearnableDragan(_Archetype):
             alpha=p["alpha"],
             start_weight=p["start_weight"],
             metric=p["metric"],
+            seen=seen,
         )
         return jnp.where(goal_mask, s, 0.0)
 
@@ -386,16 +416,17 @@ class LearnableViewpoint(_Archetype):
         p = self._constrained()
         return camera_frame(p["yaw"], p["pitch"], p["distance"])
 
-    def scores(
-        self, xyz: Float[Array, "... T 3"], goals: Float[Array, "... G 3"], goal_mask, **_
-    ) -> Float[Array, "... G"]:
-        """s_k = log y_k on real goals (0 for all if a depth is invalid), 0 on padding."""
+    def _scores(self, xyz, goals, goal_mask, seen) -> Float[Array, "... G"]:
+        """s_k = log y_k on real goals (0 for all if a seen point's or a real goal's depth is
+        invalid), 0 on padding."""
         p = self._constrained()
         pos, rot = camera_frame(p["yaw"], p["pitch"], p["distance"])
         pos, rot = pos.astype(xyz.dtype), rot.astype(xyz.dtype)
         uv, ok_p = _image_points(xyz, pos, rot)
         uv_g, ok_g = _image_points(goals, pos, rot)
-        s = common.dragan_log_labels(uv, uv_g, goal_mask, p["beta"])
+        s = common.dragan_log_labels(uv, uv_g, goal_mask, p["beta"], seen=seen)
+        if seen is not None:  # the points after the seen ones do not count
+            ok_p = ok_p | (jnp.arange(xyz.shape[-2]) >= seen[..., None])
         ok = jnp.all(ok_p, axis=-1) & jnp.all(ok_g | ~goal_mask, axis=-1)
         return jnp.where(goal_mask & ok[..., None], s, 0.0)
 

@@ -3,7 +3,20 @@
 The planner maximises the legibility of a target goal, log P(target | ξ), under an
 observer: any callable ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
 The four hand-crafted labelers qualify through log y (:func:`labeler_observer`), and
-so do the learned observers of :func:`slotv_jax.load_observer` (SLOT-V and T-REX).
+so do the learned observers of :func:`slotv_jax.load_observer` (SLOT-V, T-REX and the
+archetypes).
+
+What people read early. An evaluation study stops the motion at times τ and asks for the
+goal; legibility is for being read before the end. With ``PlannerConfig.taus`` the
+objective is the *prefix legibility*, the mean over the stop times of the log-probability
+of the target given the motion seen so far,
+
+    L(ξ) = (1/|taus|) Σ_{τ ∈ taus} log softmax(observer.prefix(ξ, goals, mask, L_τ))[target],
+    L_τ = seen_points(τ, T)    (the first L_τ of the T waypoints, t_i = i/(T − 1) ≤ τ),
+
+for any observer with a ``prefix(xyz, goals, goal_mask, seen) -> logits (8,)`` attribute
+(every observer the library hands out: labelers, networks, archetypes). ``taus=None``
+(the default) keeps the whole-motion objective log P(target | ξ).
 It bounds the loss of efficiency as Dragan & Srinivasa do ("Generating Legible
 Motion", RSS 2013): a trust region on the predictability cost,
 
@@ -68,8 +81,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable, Mapping
-from typing import NamedTuple
+from collections.abc import Callable, Mapping, Sequence
+from numbers import Real
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -79,8 +93,9 @@ from jaxtyping import Array, Bool, Float, Int
 from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers import labelers
-from slotv_jax.observers.common import mask_logits, masked_log
-from slotv_jax.observers.models import Observer
+from slotv_jax.observers.common import mask_logits, masked_log, seen_points
+from slotv_jax.observers.models import Observer, check_observer_inputs, check_seen
+from slotv_jax.observers.prefix import prefix_labels
 from slotv_jax.robot import kinematics
 from slotv_jax.world.scene import camera as scene_camera
 from slotv_jax.world.trajectories import resample_polyline
@@ -92,6 +107,7 @@ __all__ = [
     "Problem",
     "check_observer",
     "labeler_observer",
+    "make_family_planner",
     "make_planner",
     "metric_inverse",
     "objective",
@@ -121,6 +137,8 @@ class PlannerConfig:
     ik: kinematics.IKConfig = dataclasses.field(  # the datasets' per-point IK (SPEC §3)
         default_factory=lambda: kinematics.IKConfig(iters=2, refine_iters=1)
     )
+    # stop times τ ∈ (0, 1] of the prefix objective (module docstring); None: the whole motion
+    taus: tuple[float, ...] | None = None
 
     def __post_init__(self):
         for f in ("n_points", "iters"):
@@ -138,6 +156,25 @@ class PlannerConfig:
             v = getattr(self, f)
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"PlannerConfig.{f}: expected a finite number >= 0, got {v!r}")
+        if self.taus is not None:
+            bad = isinstance(self.taus, str | bytes) or not isinstance(self.taus, Sequence)
+            if bad or any(isinstance(t, bool) or not isinstance(t, Real) for t in self.taus):
+                raise ValueError(
+                    f"PlannerConfig.taus: expected a tuple of stop times in (0, 1] or None, "
+                    f"got {self.taus!r}"
+                )
+            object.__setattr__(self, "taus", tuple(float(t) for t in self.taus))
+            try:
+                seen_points(self.taus, int(self.n_points))
+            except ValueError as e:
+                raise ValueError(f"PlannerConfig.{e}") from None
+
+    def seen(self) -> tuple[int, ...] | None:
+        """L_τ = :func:`slotv_jax.observers.common.seen_points` of each stop time (None
+        without ``taus``): the waypoints an observer stopped at τ has seen."""
+        if self.taus is None:
+            return None
+        return tuple(int(n) for n in seen_points(self.taus, self.n_points))
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -159,9 +196,11 @@ class Problem(NamedTuple):
 class Diagnostics(NamedTuple):
     """How a plan was found and how well it keeps the constraints."""
 
-    objective: Float[Array, " K"]  # log P(target | ξ) under the observer, per iterate (K = iters+1)
+    objective: Float[
+        Array, " K"
+    ]  # log P(target | ξ) (taus: its prefix mean) per iterate (K = iters+1)
     cost_history: Float[Array, " K"]  # predictability cost C per iterate (m²)
-    objective_straight: Float[Array, ""]  # log P(target | ξ_straight) under the observer
+    objective_straight: Float[Array, ""]  # the objective of the straight line
     cost: Float[Array, ""]  # C of the returned plan (m²)
     cost_straight: Float[Array, ""]  # C of the straight line (m²)
     cost_limit: Float[Array, ""]  # κ = C(ξ_straight) + budget (m²)
@@ -193,8 +232,14 @@ def labeler_observer(name: str, *, beta: float | None = None, camera: str = "obs
 
     softmax(log y) = y over the real goals, so the planner's objective
     log softmax(logits)[target] is log y_target. ``name`` is one of dragan, nikolaidis,
-    effdist, fastapp (SPEC §4); ``beta`` defaults to the SPEC's; ``camera`` is the
-    Nikolaidis viewpoint.
+    effdist, fastapp (SPEC §4); ``beta`` defaults to the SPEC's (it may be traced: build
+    the observer inside a jitted function of β to plan for many β with one compilation);
+    ``camera`` is the Nikolaidis viewpoint.
+
+    The observer's ``prefix(xyz, goals, goal_mask, seen) -> logits (8,)`` is the labeler
+    of the motion seen up to its first ``seen`` points, ``log labeler(xyz[:seen])`` at the
+    prefix's own times t_i = i/(seen − 1) (:func:`slotv_jax.observers.prefix.prefix_labels`;
+    ``seen`` may be traced).
 
     >>> obs = labeler_observer("dragan")
     >>> obs.name
@@ -207,19 +252,33 @@ def labeler_observer(name: str, *, beta: float | None = None, camera: str = "obs
     fn = labelers.LABELERS[name]
     kw = {"beta": beta}
     if name == "nikolaidis":
-        cam = scene_camera(camera)
-        fn = functools.partial(fn, camera=cam)
+        fn = functools.partial(fn, camera=scene_camera(camera))
 
     def observer(xyz, goals, goal_mask):
         return masked_log(fn(xyz, goals, goal_mask, **kw), goal_mask)
 
+    def prefix(xyz, goals, goal_mask, seen):
+        check_observer_inputs(xyz, goals, goal_mask)
+        check_seen(seen, jnp.shape(xyz)[0])
+        y = prefix_labels(name, xyz, goals, goal_mask, seen, beta=beta, camera=cam)
+        return masked_log(y, goal_mask)
+
+    cam = scene_camera(camera) if name == "nikolaidis" else None
     observer.name = name  # type: ignore[attr-defined]
+    observer.prefix = prefix  # type: ignore[attr-defined]
     return observer
 
 
-def check_observer(observer: Observer, n_points: int = 100) -> None:
+def _observer_name(observer) -> str:
+    name = getattr(observer, "name", None) or getattr(observer, "__name__", None)
+    return repr(name) if name else type(observer).__name__
+
+
+def check_observer(observer: Observer, n_points: int = 100, *, prefix: bool = False) -> None:
     """Raise ValueError unless ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,))``
-    returns one float logit per goal slot, shape (8,) (checked abstractly, no compute)."""
+    returns one float logit per goal slot, shape (8,) (checked abstractly, no compute).
+    With ``prefix``, ``observer.prefix(xyz, goals, goal_mask, seen)`` (``seen`` an int32
+    scalar) must exist and do the same."""
     if not callable(observer):
         raise ValueError(f"observer: expected a callable, got {type(observer).__name__}")
     args = (
@@ -233,6 +292,26 @@ def check_observer(observer: Observer, n_points: int = 100) -> None:
         raise ValueError(
             f"observer: calling it on xyz ({n_points}, 3), goals (8, 3), goal_mask (8,) failed: {e}"
         ) from e
+    _check_logits(out)
+    if not prefix:
+        return
+    if not callable(getattr(observer, "prefix", None)):
+        raise ValueError(
+            "observer: PlannerConfig.taus needs an observer that scores a motion seen up to a "
+            "stop time (a .prefix(xyz, goals, goal_mask, seen) attribute, as labeler_observer "
+            f"and load_observer give); {_observer_name(observer)} has none"
+        )
+    try:
+        out = jax.eval_shape(observer.prefix, *args, jax.ShapeDtypeStruct((), jnp.int32))
+    except Exception as e:
+        raise ValueError(
+            f"observer {_observer_name(observer)}: calling its prefix on xyz ({n_points}, 3), "
+            f"goals (8, 3), goal_mask (8,), seen () int32 failed: {e}"
+        ) from e
+    _check_logits(out)
+
+
+def _check_logits(out) -> None:
     shape = getattr(out, "shape", None)
     if shape != (G_MAX,) or not jnp.issubdtype(getattr(out, "dtype", np.int32), jnp.floating):
         raise ValueError(
@@ -292,11 +371,25 @@ def _initial_z(q: Float[Array, "T 7"]) -> Float[Array, "n 7"]:
     return jnp.arctanh(jnp.clip((q[1:-1] - mid) / half, -_RATIO_CLIP, _RATIO_CLIP))
 
 
-def _legibility(observer: Observer, xyz, problem: Problem) -> Float[Array, ""]:
-    """log P(target | ξ) = log softmax(observer logits)[target] over the real goals."""
-    logits = observer(xyz, problem.goals, problem.goal_mask)
-    logits = mask_logits(logits, problem.goal_mask)
-    return jax.nn.log_softmax(logits)[problem.target]
+def _legibility(observer: Observer, xyz, problem: Problem, cfg: PlannerConfig) -> Array:
+    """log P(target | ξ) = log softmax(observer logits)[target] over the real goals; with
+    ``cfg.taus`` its mean over the stop times of the prefixes (module docstring)."""
+    seen = cfg.seen()
+    if seen is None:
+        logits = observer(xyz, problem.goals, problem.goal_mask)
+        logits = mask_logits(logits, problem.goal_mask)
+        return jax.nn.log_softmax(logits)[problem.target]
+    if not callable(getattr(observer, "prefix", None)):
+        raise ValueError(
+            f"observer {_observer_name(observer)}: PlannerConfig.taus needs an observer with "
+            "a .prefix(xyz, goals, goal_mask, seen) attribute; this one has none"
+        )
+    total = 0.0
+    for n in seen:  # static: one prefix per stop time
+        logits = observer.prefix(xyz, problem.goals, problem.goal_mask, jnp.int32(n))
+        logits = mask_logits(logits, problem.goal_mask)
+        total = total + jax.nn.log_softmax(logits)[problem.target]
+    return total / len(seen)
 
 
 def _exempt(xyz, problem: Problem, cfg: PlannerConfig) -> Bool[Array, " T"]:
@@ -318,13 +411,14 @@ def _clearance(xyz, problem: Problem, cfg: PlannerConfig) -> Float[Array, ""]:
 def objective(
     observer: Observer, problem: Problem, z: Float[Array, "n 7"], cfg: PlannerConfig
 ) -> Float[Array, ""]:
-    """The function the planner ascends: log P(target | ξ(z)) minus the clearance penalty.
+    """The function the planner ascends: log P(target | ξ(z)) (with ``cfg.taus``: its mean
+    over the prefixes) minus the clearance penalty.
 
     ``ξ(z) = FK(q(z))`` with ``q(z) = [q_start, q_mid + q_half tanh(z), q_end]`` (the
     endpoints from ``problem.q``). Exposed for checking its gradient.
     """
     xyz = _fk(_joints(z, problem.q[0], problem.q[-1]))
-    return _legibility(observer, xyz, problem) - _table_penalty(xyz, problem, cfg)
+    return _legibility(observer, xyz, problem, cfg) - _table_penalty(xyz, problem, cfg)
 
 
 # ------------------------------------------------------------------ problems
@@ -379,10 +473,13 @@ def plan(observer: Observer, problem: Problem, cfg: PlannerConfig = PlannerConfi
 
     Ascends :func:`objective` from the straight line with ``cfg.iters`` covariant
     trust-region steps (module docstring) and returns the best feasible iterate:
-    highest log P(target | ξ) among iterates with C(ξ) ≤ C(ξ_straight) + budget and
-    TCP z ≥ clearance outside the exempt radius. ``feasible`` also requires the start
-    and the target within 2 mm, the joints within their limits and finite values.
-    Batch it with ``jax.vmap(plan, in_axes=(None, 0, None))`` over problems.
+    highest log P(target | ξ) (or its prefix mean, ``cfg.taus``) among iterates with
+    C(ξ) ≤ C(ξ_straight) + budget and TCP z ≥ clearance outside the exempt radius.
+    ``feasible`` also requires the start and the target within 2 mm, the joints within
+    their limits and finite values. Batch it with ``jax.vmap(plan, in_axes=(None, 0,
+    None))`` over problems; the observer may be built from traced parameters inside the
+    compiled function (one compilation for many fitted observers of one family:
+    :func:`make_family_planner`).
     """
     q_start, q_end = problem.q[0], problem.q[-1]
     z0 = _initial_z(problem.q)
@@ -394,7 +491,7 @@ def plan(observer: Observer, problem: Problem, cfg: PlannerConfig = PlannerConfi
         return _fk(_joints(z, q_start, q_end))
 
     def penalised(xyz):
-        return _legibility(observer, xyz, problem) - _table_penalty(xyz, problem, cfg)
+        return _legibility(observer, xyz, problem, cfg) - _table_penalty(xyz, problem, cfg)
 
     # C of the straight line, from the problem's FK: the only FK outside the loop below.
     cost0 = predictability_cost(problem.xyz)
@@ -411,7 +508,7 @@ def plan(observer: Observer, problem: Problem, cfg: PlannerConfig = PlannerConfi
         xyz, pull = jax.vjp(path, z)
         g_xyz = jax.grad(penalised)(xyz)
         cost, h_xyz = jax.value_and_grad(predictability_cost)(xyz)
-        val = _legibility(observer, xyz, problem)
+        val = _legibility(observer, xyz, problem, cfg)
         # Keep the best feasible iterate (z, its path, log P, iteration).
         better = ok(xyz, cost) & (val > best[2])
         best = jax.tree.map(lambda new, old: jnp.where(better, new, old), (z, xyz, val, k), best)
@@ -496,6 +593,22 @@ def _check_targets(goals, goal_mask, target) -> np.ndarray:
     return t
 
 
+def _straight_problems(straight, goals, goal_mask, target, start) -> Problem:
+    """Validated straight-line problems from the compiled ``straight`` (vmapped
+    :func:`straight_line`)."""
+    validation.check_goals("goals", goals, goal_mask, batch_shape=(None,))
+    n = int(np.shape(goals)[0])
+    t = jnp.asarray(_check_targets(goals, goal_mask, target), jnp.int32)
+    goals32 = jnp.asarray(goals, jnp.float32)
+    mask = jnp.asarray(goal_mask).astype(bool)
+    if start is None:
+        start = np.broadcast_to(kinematics.home_tcp(), (n, 3))
+    validation.check_array("start", start, (n, 3))
+    problems = straight(goals32, mask, t, jnp.asarray(start, jnp.float32))
+    check_problems(problems)
+    return problems
+
+
 def make_planner(
     observer: Observer | Mapping[str, Observer], cfg: PlannerConfig = PlannerConfig()
 ) -> Callable[..., PlanResult]:
@@ -510,9 +623,10 @@ def make_planner(
     compiled functions in all (the straight lines, the planner) per batch size.
 
     Raises ValueError naming the argument for: an observer that does not return (8,)
-    logits; NaN/inf or badly shaped goals, masks or starts; a target slot that is not a
-    real goal; a start or target that IK cannot reach within 2 mm; an unknown observer
-    name. (The budget is checked by :class:`PlannerConfig`.)
+    logits; with ``cfg.taus``, an observer without ``.prefix``; NaN/inf or badly shaped
+    goals, masks or starts; a target slot that is not a real goal; a start or target that
+    IK cannot reach within 2 mm; an unknown observer name. (The budget and the stop times
+    are checked by :class:`PlannerConfig`.)
 
     ``planner.straight_line(goals, goal_mask, target, start=None)`` gives the straight-line
     problems (batched; one compiled function for every start) and
@@ -525,7 +639,7 @@ def make_planner(
         raise ValueError("observer: expected at least one observer")
     for name, obs in observers.items():
         try:
-            check_observer(obs, cfg.n_points)
+            check_observer(obs, cfg.n_points, prefix=cfg.taus is not None)
         except ValueError as e:
             raise ValueError(f"observer {name!r}: {e}") from None
     names = tuple(observers)
@@ -534,7 +648,14 @@ def make_planner(
     def switched(index):
         if len(branches) == 1:
             return branches[0]
-        return lambda xyz, g, m: jax.lax.switch(index, branches, xyz, g, m)
+
+        def obs(xyz, g, m):
+            return jax.lax.switch(index, branches, xyz, g, m)
+
+        if cfg.taus is not None:
+            prefixes = tuple(b.prefix for b in branches)
+            obs.prefix = lambda xyz, g, m, n: jax.lax.switch(index, prefixes, xyz, g, m, n)
+        return obs
 
     straight = jax.jit(jax.vmap(functools.partial(straight_line, cfg=cfg)))
     run = jax.jit(
@@ -552,17 +673,7 @@ def make_planner(
         return run(problems, jnp.asarray(index_of(observer), jnp.int32))
 
     def straight_lines(goals, goal_mask, target, start=None) -> Problem:
-        validation.check_goals("goals", goals, goal_mask, batch_shape=(None,))
-        n = int(np.shape(goals)[0])
-        t = jnp.asarray(_check_targets(goals, goal_mask, target), jnp.int32)
-        goals32 = jnp.asarray(goals, jnp.float32)
-        mask = jnp.asarray(goal_mask).astype(bool)
-        if start is None:
-            start = np.broadcast_to(kinematics.home_tcp(), (n, 3))
-        validation.check_array("start", start, (n, 3))
-        problems = straight(goals32, mask, t, jnp.asarray(start, jnp.float32))
-        check_problems(problems)
-        return problems
+        return _straight_problems(straight, goals, goal_mask, target, start)
 
     def planner(goals, goal_mask, target, start=None, observer=None) -> PlanResult:
         index = index_of(observer)
@@ -572,6 +683,78 @@ def make_planner(
     planner.plan_problems = plan_problems  # type: ignore[attr-defined]
     planner.straight_line = straight_lines  # type: ignore[attr-defined]
     planner.observers = names  # type: ignore[attr-defined]
+    planner.config = cfg  # type: ignore[attr-defined]
+    return planner
+
+
+def make_family_planner(
+    build: Callable[[Any], Observer], example: Any, cfg: PlannerConfig = PlannerConfig()
+) -> Callable[..., PlanResult]:
+    """A validated planner for many observers of one family in one compiled program.
+
+    ``build(params) -> observer`` makes the observer of one parameter set (any pytree of
+    arrays: a labeler's β, a checkpoint's ``params`` with
+    :func:`slotv_jax.training.checkpoint.make_observer`); it must accept traced
+    parameters. ``example`` is one parameter set, for the checks of :func:`make_planner`.
+    Returns ``planner(params, goals (B, 8, 3), goal_mask (B, 8), target (B,), start=None)
+    -> PlanResult`` whose fields have leading axes (F, B): every problem planned with
+    every one of the F parameter sets stacked along the leading axis of ``params``. It
+    compiles once per (F, B) and parameter structure, whatever the values: the planner
+    for the dozens of observers a study fits. ``planner.plan_problems(params, problems)``
+    plans problems of ``planner.straight_line(goals, goal_mask, target, start=None)``.
+
+    The pattern it packages, which :func:`plan`'s purity allows (the observer is built
+    from traced parameters inside the compiled function):
+
+    >>> import jax, jax.numpy as jnp
+    >>> from slotv_jax import planning, scene
+    >>> cfg = planning.PlannerConfig(iters=5, taus=(0.4, 0.7, 1.0))
+    >>> s = scene.sample_scene(jax.random.key(0), 3)
+    >>> problems = jax.vmap(lambda t: planning.straight_line(s.goals, s.goal_mask, t, cfg=cfg))(
+    ...     jnp.array([0, 1]))                                              # doctest: +SKIP
+    >>> def plan_all(beta):  # one β: every problem
+    ...     obs = planning.labeler_observer("dragan", beta=beta)
+    ...     return jax.vmap(lambda p: planning.plan(obs, p, cfg))(problems)
+    >>> res = jax.jit(jax.vmap(plan_all))(jnp.array([5.0, 10.0, 20.0]))   # doctest: +SKIP
+    >>> res.xyz.shape                                                       # doctest: +SKIP
+    (3, 2, 100, 3)
+    """
+    if not isinstance(cfg, PlannerConfig):
+        raise ValueError(f"cfg: expected a PlannerConfig, got {type(cfg).__name__}")
+    if not callable(build):
+        raise ValueError(f"build: expected a function of parameters, got {type(build).__name__}")
+    try:
+        abstract = jax.eval_shape(lambda p: p, example)
+        obs = build(example)
+        check_observer(obs, cfg.n_points, prefix=cfg.taus is not None)
+        spec = (jax.ShapeDtypeStruct((cfg.n_points, 3), jnp.float32),
+                jax.ShapeDtypeStruct((G_MAX, 3), jnp.float32),
+                jax.ShapeDtypeStruct((G_MAX,), jnp.bool_))  # fmt: skip
+        jax.eval_shape(lambda p, *a: build(p)(*a), abstract, *spec)
+    except ValueError as e:
+        raise ValueError(f"build: {e}") from None
+    except Exception as e:  # build(traced parameters) failed
+        raise ValueError(f"build: it does not accept traced parameters ({e})") from e
+
+    straight = jax.jit(jax.vmap(functools.partial(straight_line, cfg=cfg)))
+
+    def plan_grid(params, problems: Problem) -> PlanResult:
+        def one_set(p):
+            obs = build(p)
+            return jax.vmap(lambda prob: plan(obs, prob, cfg))(problems)
+
+        return jax.vmap(one_set)(params)
+
+    run = jax.jit(plan_grid)
+
+    def straight_lines(goals, goal_mask, target, start=None) -> Problem:
+        return _straight_problems(straight, goals, goal_mask, target, start)
+
+    def planner(params, goals, goal_mask, target, start=None) -> PlanResult:
+        return run(params, straight_lines(goals, goal_mask, target, start))
+
+    planner.plan_problems = run  # type: ignore[attr-defined]
+    planner.straight_line = straight_lines  # type: ignore[attr-defined]
     planner.config = cfg  # type: ignore[attr-defined]
     return planner
 

@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 from flax import nnx
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from slotv_jax.core import fileio
 from slotv_jax.observers import models
@@ -236,7 +236,14 @@ def make_observer(cfg: TrainConfig, params) -> models.Observer:
     SLOT-V: s_k = (1/T) Σ_i V(p_i, g_k); T-REX: R_k = Σ_i r(p_i, g_k) (with the config's options,
     :class:`slotv_jax.observers.models.SlotV`); padded slots −∞. Shapes are checked on every call;
     values (NaN, an empty mask) on concrete inputs. Works under ``jit``, ``vmap`` and ``grad``
-    (w.r.t. ``xyz`` or ``goals``). The function carries its ``config`` and ``params``.
+    (w.r.t. ``xyz`` or ``goals``). The function carries its ``config`` and ``params``, and
+    ``prefix(xyz, goals, goal_mask, seen) -> logits (8,)``: the logits of the motion seen up
+    to its first ``seen`` points (2 ≤ seen ≤ T, may be traced), what training on answers
+    fits (:func:`slotv_jax.answers.fitting.prefix_logits`).
+
+    ``params`` may be traced: build the observer inside a jitted function of the parameters
+    to plan or score with many fitted observers of one config in one compiled program
+    (:func:`slotv_jax.planning.make_family_planner`).
     """
     abstract = nnx.eval_shape(lambda: models.make_model(cfg, nnx.Rngs(0)))
     graphdef, _ = nnx.split(abstract)
@@ -248,6 +255,20 @@ def make_observer(cfg: TrainConfig, params) -> models.Observer:
         model = nnx.merge(graphdef, params)
         return model(jnp.asarray(xyz), jnp.asarray(goals), jnp.asarray(goal_mask, bool))
 
+    def prefix(
+        xyz: Float[Array, "T 3"],
+        goals: Float[Array, "8 3"],
+        goal_mask: Bool[Array, "8"],
+        seen: Int[Array, ""],
+    ) -> Float[Array, "8"]:
+        models.check_observer_inputs(xyz, goals, goal_mask)
+        models.check_seen(seen, jnp.shape(xyz)[0])
+        model = nnx.merge(graphdef, params)
+        return model.prefix(
+            jnp.asarray(xyz), jnp.asarray(goals), jnp.asarray(goal_mask, bool), jnp.asarray(seen)
+        )
+
+    observer.prefix = prefix  # type: ignore[attr-defined]
     observer.config = cfg  # type: ignore[attr-defined]
     observer.params = params  # type: ignore[attr-defined]
     if cfg.model != "mlp":  # an archetype explains itself: its fitted parameters
