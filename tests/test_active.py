@@ -4,6 +4,8 @@ over members, and the experiment's bookkeeping."""
 
 import json
 import math
+import shutil
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -12,8 +14,9 @@ import optax
 import pytest
 from flax import nnx
 
-from slotv_jax.asking import selection
+from slotv_jax.asking import replay, selection
 from slotv_jax.experiments import active, active_report, active_stream
+from slotv_jax.runs import summary
 from slotv_jax.training import config as train_config
 
 EPS = 1e-6  # "certain" members give the other goal this probability
@@ -183,13 +186,13 @@ def test_oracles_read_the_labels():
     labels = jnp.array([[0.6, 0.4, 0.0], [0.1, 0.1, 0.8]])  # the second motion: 3 goals
     with np.errstate(divide="ignore"):
         logp0 = jnp.asarray(np.log([[0.5, 0.5, 0.0], [0.2, 0.2, 0.6]]), jnp.float32)
-    loss = np.asarray(active.oracle_score("oracle_loss", logp0, labels))
+    loss = np.asarray(replay.oracle_score("oracle_loss", logp0, labels))
     np.testing.assert_allclose(loss, [math.log(2), -(0.2 * math.log(0.2) + 0.8 * math.log(0.6))],
                                rtol=1e-6)  # fmt: skip
-    gap = np.asarray(active.oracle_score("oracle_margin", logp0, labels))
+    gap = np.asarray(replay.oracle_score("oracle_margin", logp0, labels))
     np.testing.assert_allclose(gap, [1 - 0.2, 1 - 0.7], atol=1e-6)
     with pytest.raises(ValueError, match="strategy"):
-        active.oracle_score("oracle_entropy", logp0, labels)
+        replay.oracle_score("oracle_entropy", logp0, labels)
 
 
 def test_selection_is_deterministic_and_prefix_consistent():
@@ -297,9 +300,9 @@ def test_fit_is_deterministic(trained):
 
 
 def test_answers_to_target_and_comparisons():
-    assert active_report.answers_to([10, 100], [0.6, 0.9], 0.75) == pytest.approx(math.sqrt(1000))
-    assert active_report.answers_to([10, 100], [0.85, 0.9], 0.8) == 10.0
-    assert active_report.answers_to([10, 100], [0.5, 0.7], 0.8) is None
+    assert summary.crossing([10, 100], [0.6, 0.9], 0.75) == pytest.approx(math.sqrt(1000))
+    assert summary.crossing([10, 100], [0.85, 0.9], 0.8) == 10.0
+    assert summary.crossing([10, 100], [0.5, 0.7], 0.8) is None
     cfg = {"labels_target": 0.8, "study_targets": [["mlp", 0.8]], "strategies": ["random", "bald"]}
     runs = [
         {"strategy": "random", "seed": 0, "accuracy": [0.5, 0.7, 0.8]},
@@ -367,6 +370,31 @@ def test_a_finished_document_is_summarised_again_without_work(tmp_path):
     assert [c["strategy"] for c in got["comparisons"]] == ["random", "random"]
     assert [c["strategy"] for c in got["oracles"]] == ["oracle_loss", "oracle_loss"]
     assert json.loads((tmp_path / "active_results.json").read_text()) == got
+
+
+@pytest.mark.parametrize(
+    "module, stem",
+    [(active, "active"), (active, "active_paper"), (active_stream, "active_stream"),
+     (active_stream, "active_stream_paper")],
+)  # fmt: skip
+def test_recorded_reports_render_again_from_their_results(tmp_path, module, stem):
+    """``--report`` renders a recorded document again from its results alone, the report
+    byte for byte (every number) and the figure, keeping the command the report names; a
+    folder without a results document of the experiment is refused."""
+    plt = pytest.importorskip("matplotlib.pyplot")
+    folder = Path(__file__).resolve().parent.parent / "experiments"
+    for suffix in ("_results.json", ".md"):
+        shutil.copy(folder / f"{stem}{suffix}", tmp_path / f"{stem}{suffix}")
+    preset = "quick" if stem in ("active", "active_stream") else "paper"
+    assert module.main(["--report", "--preset", preset, "--out", str(tmp_path)]) == 0
+    assert (tmp_path / f"{stem}.md").read_bytes() == (folder / f"{stem}.md").read_bytes()
+    # the figure: the same pixels here; other matplotlib or FreeType versions draw text a
+    # little differently, so the size must match and the pixels nearly
+    got, want = (plt.imread(d / f"{stem}.png") for d in (tmp_path, folder))
+    assert got.shape == want.shape and np.abs(got - want).mean() < 0.01
+    with pytest.raises(SystemExit) as e:
+        module.main(["--report", "--preset", preset, "--out", str(tmp_path / "empty")])
+    assert e.value.code == 2
 
 
 # ---------------------------------------------------------- the one-pass protocol

@@ -6,28 +6,16 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from slotv_jax.core.fileio import save_figure, write_text
+from slotv_jax.asking.replay import ORACLES
+from slotv_jax.core.fileio import write_text
+from slotv_jax.runs import figures
+from slotv_jax.runs.summary import against_random, ratio_se
 
-ORACLES = ("oracle_loss", "oracle_margin")  # read the labels: bounds, not strategies
 MODEL_TITLES = {"mlp": "SLOT-V (paper MLP)", "slotv_plus": "SLOT-V+", "dragan": "Dragan archetype"}
-STRATEGY_COLORS = {
-    "random": "black",
-    "uncertainty": "tab:orange",
-    "margin": "tab:red",
-    "margin_cluster": "tab:brown",
-    "error": "tab:cyan",
-    "bald": "tab:blue",
-    "bald_fantasy": "tab:green",
-    "bald_cluster": "tab:purple",
-    "epig": "tab:olive",
-    "oracle_loss": "tab:gray",
-    "oracle_margin": "tab:pink",
-}
 
 
 def target_of(doc_cfg: dict, setting: str, model: str) -> float:
@@ -39,67 +27,15 @@ def target_of(doc_cfg: dict, setting: str, model: str) -> float:
 # ------------------------------------------------------------------ the summary
 
 
-def answers_to(answers: Sequence[float], acc: Sequence[float], target: float) -> float | None:
-    """Answers at which ``acc`` first reaches ``target``: linear in log answers between the
-    round before and the first round at or above it (the first round's answers if it
-    already is); None if never.
-
-    >>> answers_to([10, 100], [0.6, 0.9], 0.75)  # halfway in log: sqrt(10 · 100)
-    31.62...
-    """
-    a, x = np.asarray(answers, float), np.asarray(acc, float)
-    hit = np.flatnonzero(x >= target)
-    if hit.size == 0:
-        return None
-    j = int(hit[0])
-    if j == 0:
-        return float(a[0])
-    f = (target - x[j - 1]) / (x[j] - x[j - 1])
-    return float(np.exp(np.log(a[j - 1]) + f * (np.log(a[j]) - np.log(a[j - 1]))))
-
-
 def comparisons(doc: dict) -> list[dict]:
-    """One entry per (setting, labeler, model, strategy), the oracles' too (SPEC §11's list
+    """One entry per (setting, labeler, model, strategy), the oracles' too
+    (:func:`slotv_jax.runs.summary.against_random` of each group; SPEC §11's list
     ``comparisons`` is that of the strategies: :func:`summarise`)."""
     out = []
     for grp in doc["groups"]:
         target = target_of(doc["config"], grp["setting"], grp["model"])
-        for s in doc["config"]["strategies"]:
-            runs = [r for r in grp["runs"] if r["strategy"] == s]
-            per = [answers_to(grp["answers"], r["accuracy"], target) for r in runs]
-            reached = [p for p in per if p is not None]
-            final = [r["accuracy"][-1] for r in runs]
-            out.append(
-                {
-                    "setting": grp["setting"],
-                    "model": grp["model"],
-                    "labeler": grp["labeler"],
-                    "strategy": s,
-                    "answers_to_target": float(np.mean(per)) if len(reached) == len(per) else None,
-                    "seeds": len(runs),
-                    "target": target,
-                    "per_seed": per,
-                    "seeds_reached": len(reached),
-                    "final_accuracy": float(np.mean(final)),
-                    "answers_max": grp["answers"][-1],
-                }
-            )
-    for c in out:  # random's answers over this strategy's (same group): > 1 is a saving
-        rnd = next(
-            d
-            for d in out
-            if (d["setting"], d["labeler"], d["model"], d["strategy"])
-            == (c["setting"], c["labeler"], c["model"], "random")
-        )
-        a, b = rnd["answers_to_target"], c["answers_to_target"]
-        c["ratio_random_over_this"] = None if a is None or b is None else a / b
-        # random's seeds that never reached it needed more than the largest size: a bound
-        low = [c["answers_max"] if p is None else p for p in rnd["per_seed"]]
-        c["ratio_at_least"] = (
-            float(np.mean(low)) / b
-            if a is None and b is not None and rnd["seeds_reached"]
-            else None
-        )
+        for c in against_random(grp["answers"], grp["runs"], doc["config"]["strategies"], target):
+            out.append({k: grp[k] for k in ("setting", "model", "labeler")} | c)
     return out
 
 
@@ -242,7 +178,12 @@ def report(doc: dict, stem: str, command: str) -> str:
         lines.append(
             f"- {name}: best {best['strategy']} {fmt_answers(best['answers_to_target'])} answers, "
             f"random {fmt_answers(rnd['answers_to_target'])}"
-            + ("" if r is None else f": random / best = **{r:.2f}** ± {_ratio_se(rnd, best):.2f}")
+            + (
+                ""
+                if r is None
+                else f": random / best = **{r:.2f}** ± "
+                f"{ratio_se(rnd['per_seed'], best['per_seed']):.2f}"
+            )
             + "."
         )
     lines += ["", "## Accuracy per round (mean over seeds)", ""]
@@ -262,16 +203,6 @@ def report(doc: dict, stem: str, command: str) -> str:
         lines.append("")
     lines += notes(doc)
     return "\n".join(lines) + "\n"
-
-
-def _ratio_se(rnd: dict, best: dict) -> float:
-    """Standard error of mean(random) / mean(best) over seeds (delta method, the two
-    means taken as independent: conservative, since a seed's runs share its first draw)."""
-    a, b = np.asarray(rnd["per_seed"], float), np.asarray(best["per_seed"], float)
-    if a.size < 2 or b.size < 2:
-        return float("nan")
-    rel = a.var(ddof=1) / (a.size * a.mean() ** 2) + b.var(ddof=1) / (b.size * b.mean() ** 2)
-    return float(a.mean() / b.mean() * math.sqrt(rel))
 
 
 def _spread(doc: dict) -> str:
@@ -488,11 +419,8 @@ def _three_fold(doc: dict) -> list[str]:
 
 def plot(doc: dict, path: Path) -> None:
     """Accuracy against answers, one panel per group, mean ± SD over seeds per strategy."""
-    import matplotlib
+    plt = figures.pyplot()
     import matplotlib.ticker
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     groups = doc["groups"]
     cols = min(3, len(groups))
@@ -503,11 +431,9 @@ def plot(doc: dict, path: Path) -> None:
         target = target_of(doc["config"], grp["setting"], grp["model"])
         for s in doc["config"]["strategies"]:
             acc = np.array([r["accuracy"] for r in grp["runs"] if r["strategy"] == s])
-            m, sd = acc.mean(0), acc.std(0)
-            col = STRATEGY_COLORS.get(s)
             style = "--" if s in ORACLES else "-"  # an oracle reads the labels: dashed
-            ax.plot(x, m, marker="o", ms=3, color=col, label=s, linestyle=style)
-            ax.fill_between(x, m - sd, m + sd, color=col, alpha=0.15, linewidth=0)
+            figures.band(ax, x, *figures.mean_sd(acc), marker="o", ms=3, label=s,
+                         color=figures.STRATEGY_COLORS.get(s), linestyle=style)  # fmt: skip
         ax.axhline(target, color="grey", linestyle="--", linewidth=0.8)
         ax.set_xscale("log")
         ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
@@ -527,10 +453,7 @@ def plot(doc: dict, path: Path) -> None:
         fontsize=10,
     )
     fig.tight_layout()
-    try:
-        save_figure(fig, path)
-    finally:
-        plt.close(fig)
+    figures.save(fig, path)
 
 
 def stem_of(preset: str) -> str:

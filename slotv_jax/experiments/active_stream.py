@@ -26,38 +26,31 @@ active experiment, which read the candidates' labels (bounds, not strategies).
     python -m slotv_jax.experiments.active_stream --preset paper   # the paper's network (GPU)
 
 Writes ``OUT/active_stream{,_paper}_results.json``, ``.md`` and ``.png`` (a rerun with
-the same config only renders the report again).
+the same config only renders the report again; so does ``--report``, from the results
+document alone).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import platform
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
 import numpy as np
-import optax
-from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
-from slotv_jax.asking import selection
+from slotv_jax.asking import replay
+from slotv_jax.asking.replay import ORACLES
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
-from slotv_jax.core.fileio import save_figure, write_text
+from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments import active
-from slotv_jax.experiments.active import motion_arrays, oracle_score
-from slotv_jax.experiments.active_report import ORACLES, STRATEGY_COLORS
-from slotv_jax.runs.curves import examples_to_reach
+from slotv_jax.runs import command, figures, record
+from slotv_jax.runs.summary import examples_to_reach
 from slotv_jax.training import config as train_config
-from slotv_jax.training import evaluate
 
 STRATEGIES = ("random", "uncertainty", "margin")  # criteria of a single observer
 
@@ -136,112 +129,23 @@ def paper(**overrides) -> StreamConfig:
 
 
 PRESETS = {"quick": quick, "paper": paper}
+PROG = "python -m slotv_jax.experiments.active_stream"
 
 
 # ------------------------------------------------------------------- running
 
 
 def run_seeds(cfg: StreamConfig, train, held_out, *, progress: bool = True) -> dict:
-    """Every strategy × seed of the protocol. ``train`` and ``held_out`` are (xyz (N, T, 3),
-    goals (N, G, 3), goal_mask (N, G), labels (N, G)) arrays: the pool and the motions the
-    accuracy is measured on. Returns the curves (examples, per-run accuracy), the motions
-    each run labelled (in order) and the observers at the end (leading axis: runs)."""
-    tc = cfg.train_config()
-    bs = tc.batch_size
-    xyz, goals, mask, probs = train
-    pool = selection.make_pool(xyz, goals, mask)
-    n_pool = pool.traj.shape[0]
-    if (cfg.steps - 1) * bs + cfg.subset > n_pool:
-        raise ValueError(
-            f"train: {cfg.steps} updates of {bs} new motions, each from {cfg.subset} "
-            f"unlabelled ones, need {(cfg.steps - 1) * bs + cfg.subset} motions, got {n_pool}"
-        )
-    evpool = selection.make_pool(*held_out[:3])
-    etarget = np.asarray(evaluate.target(jnp.asarray(held_out[3]), jnp.asarray(held_out[2])))
+    """Every strategy × seed of the protocol (:func:`slotv_jax.asking.replay.run_one_pass`).
+    ``train`` and ``held_out`` are (xyz (N, T, 3), goals (N, G, 3), goal_mask (N, G), labels
+    (N, G)) arrays: the pool and the motions the accuracy is measured on. Returns the
+    curves (examples, per-run accuracy), the motions each run labelled (in order) and the
+    observers at the end (leading axis: runs)."""
     seeds = range(cfg.first_seed, cfg.first_seed + cfg.seeds)
-    runs = [(s, seed) for s in cfg.strategies for seed in seeds]
-    sel = selection.make_selector(tc, 1, bs)  # one member: the observer itself
-    ens = jax.jit(jax.vmap(sel.init))(jnp.stack([jax.random.key(1000 + sd) for _, sd in runs]))
-    rows = jnp.arange(bs)
-
-    def update(e: selection.Ensemble, ans: selection.Answers) -> selection.Ensemble:
-        """One optimiser step on the batch's rows, each once (Fig. 3's epoch)."""
-
-        def member(params, opt_state, boot):
-            grads = jax.grad(sel.loss)(params, pool, ans, rows, boot)
-            upd, opt_state = sel.base.tx.update(grads, opt_state, params)
-            return optax.apply_updates(params, upd), opt_state
-
-        params, opt_state = jax.vmap(member)(e.params, e.opt_state, e.boot)
-        return selection.Ensemble(params, opt_state, e.boot)
-
-    step = jax.jit(jax.vmap(update))
-    score = jax.jit(jax.vmap(lambda p, c: sel.log_probs(p, pool, c, chunk=cfg.chunk)))
-    evc = jnp.arange(evpool.traj.shape[0])
-    predict = jax.jit(
-        jax.vmap(lambda p: jnp.argmax(sel.log_probs(p, evpool, evc, chunk=cfg.chunk)[0], -1))
-    )
-
-    def picker(s):  # (key, log p (1, C, G), labels (C, G)) -> bs picks
-        avail = jnp.ones((cfg.subset,), bool)
-        if s in ORACLES:
-            return lambda k, lp, y: selection.masked_top_k(oracle_score(s, lp[0], y), avail, bs)
-        return lambda k, lp, y: selection.select(s, k, lp, avail, bs)
-
-    pickers = {s: jax.jit(jax.vmap(picker(s))) for s in cfg.strategies}
-    members = {s: np.asarray([i for i, r in enumerate(runs) if r[0] == s]) for s in pickers}
-    asked = np.zeros((len(runs), n_pool), bool)
-    labelled = np.zeros((len(runs), cfg.steps * bs), np.int32)
-    acc, xs = [], []
-    times = {"score_s": 0.0, "select_s": 0.0, "update_s": 0.0, "eval_s": 0.0}
-    for u in tqdm(range(cfg.steps + 1), desc="updates", disable=not progress, leave=False):
-        if u % cfg.every == 0 or u == cfg.steps:
-            t0 = time.perf_counter()
-            acc.append((np.asarray(predict(ens.params)) == etarget[None]).mean(-1))
-            xs.append(u * bs)
-            times["eval_s"] += time.perf_counter() - t0
-        if u == cfg.steps:
-            break
-        sub = np.zeros((len(runs), cfg.subset), np.int32)
-        for i, (_, sd) in enumerate(runs):
-            free = np.flatnonzero(~asked[i])
-            sub[i] = np.random.default_rng([sd, 2, u]).choice(free, cfg.subset, replace=False)
-        t0 = time.perf_counter()
-        logp = score(ens.params, jnp.asarray(sub))
-        jax.block_until_ready(logp)
-        t1 = time.perf_counter()
-        keys = jnp.stack([jax.random.fold_in(jax.random.key(1000 + sd), u) for _, sd in runs])
-        pick = np.zeros((len(runs), bs), np.int32)
-        for s, fn in pickers.items():
-            idx = members[s]
-            y = jnp.asarray(probs[sub[idx]]) if s in ORACLES else jnp.zeros((idx.size,))
-            pick[idx] = np.asarray(fn(keys[idx], logp[idx], y))
-        new = np.take_along_axis(sub, pick, 1)  # (runs, bs) motions labelled now
-        t2 = time.perf_counter()
-        for i in range(len(runs)):
-            asked[i, new[i]] = True
-        labelled[:, u * bs : (u + 1) * bs] = new
-        ans = selection.Answers(
-            jnp.asarray(new),
-            jnp.asarray(probs[new], jnp.float32),
-            jnp.full((len(runs),), bs, jnp.int32),
-        )
-        ens = step(ens, ans)
-        jax.block_until_ready(ens.params)
-        times["score_s"] += t1 - t0
-        times["select_s"] += t2 - t1
-        times["update_s"] += time.perf_counter() - t2
-    curves = np.stack(acc, 1)  # (runs, evaluations)
-    return {
-        "examples": xs,
-        "runs": [
-            {"strategy": s, "seed": sd, "accuracy": curves[i].round(6).tolist()}
-            for i, (s, sd) in enumerate(runs)
-        ],
-        "labelled": labelled,
-        "params": ens.params,
-        "timing": {k: round(v, 2) for k, v in times.items()},
-    }
+    return replay.run_one_pass(
+        cfg.train_config(), train, held_out, strategies=cfg.strategies, seeds=seeds,
+        steps=cfg.steps, subset=cfg.subset, every=cfg.every, chunk=cfg.chunk, progress=progress,
+    )  # fmt: skip
 
 
 def summarise(doc: dict) -> dict:
@@ -274,22 +178,16 @@ def run(cfg: StreamConfig, out: Path, *, cache: Path = Path("data"), progress: b
         if doc.get("config") == cfg.to_json() and doc.get("runs"):
             return summarise(doc)  # finished: summarised again where it ran, as it was
     t0 = time.perf_counter()
-    load = {"cpus": os.cpu_count(), "start": os.getloadavg()[0]}
-    dev = jax.devices()[0]
+    load = record.load_start()
     ddir = data_lib.dataset_dir(cache, cfg.data)
     splits = data_lib.generate_dataset(
         cfg.data, ddir, progress=progress, splits=("train", "trajectory_val")
     )
-    train = motion_arrays(splits["train"], cfg.labeler, cfg.stride)
-    held = motion_arrays(
-        splits["trajectory_val"], cfg.labeler, cfg.stride, cfg.eval_offset + cfg.eval_size
-    )
-    held = tuple(a[cfg.eval_offset :] for a in held)
-    if held[0].shape[0] != cfg.eval_size:
-        raise ValueError(
-            f"eval_offset, eval_size: trajectory_val holds {cfg.eval_offset + held[0].shape[0]} "
-            f"motions, asked for {cfg.eval_offset} + {cfg.eval_size}"
-        )
+    train = replay.motion_arrays(splits["train"], cfg.labeler, cfg.stride)
+    held = replay.held_out_motions(
+        splits["trajectory_val"], "trajectory_val", cfg.labeler, cfg.stride, cfg.eval_offset,
+        cfg.eval_size,
+    )  # fmt: skip
     res = run_seeds(cfg, train, held, progress=progress)
     doc = {
         "preset": cfg.preset,
@@ -298,12 +196,11 @@ def run(cfg: StreamConfig, out: Path, *, cache: Path = Path("data"), progress: b
         "runs": res["runs"],
         "timing": {**res["timing"], "total_s": round(time.perf_counter() - t0, 2)},
         "environment": environment(),
-        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, "
-        f"{dev.platform}: {dev.device_kind}",
+        "machine": record.machine(),
         "xla": slotv_jax.XLA_CONFIG.summary(),
         "dataset": str(ddir),
-        "load": {**load, "end": os.getloadavg()[0]},
-        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "load": record.load_end(load),
+        "date": record.utc_now(),
     }
     summarise(doc)
     write_text(path, json.dumps(doc, indent=1))
@@ -324,9 +221,7 @@ def _fmt(x: float | None) -> str:
 def report(doc: dict, command: str) -> str:
     cfg, env = doc["config"], doc["environment"]
     tc = cfg["train"]
-    versions = ", ".join(
-        f"{k} {env[k]}" for k in ("python", "jax", "flax", "optax", "numpy") if k in env
-    )
+    versions = record.versions(env)
     lines = [
         f"# Active selection under the paper's Fig. 3 protocol ({doc['preset']} preset)",
         "",
@@ -384,19 +279,14 @@ def report(doc: dict, command: str) -> str:
 
 
 def plot(doc: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = figures.pyplot()
     xs = np.asarray(doc["examples"])
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for s in doc["config"]["strategies"]:
         a = np.asarray([r["accuracy"] for r in doc["runs"] if r["strategy"] == s])
-        m, sd = a.mean(0), a.std(0)
         style = "--" if s in ORACLES else "-"
-        ax.plot(xs, m, style, color=STRATEGY_COLORS[s], label=s)
-        ax.fill_between(xs, m - sd, m + sd, color=STRATEGY_COLORS[s], alpha=0.12)
+        figures.band(ax, xs, *figures.mean_sd(a), style, color=figures.STRATEGY_COLORS[s],
+                     label=s, alpha=0.12, outline=True)  # fmt: skip
     ax.axhline(doc["config"]["target"], color="0.5", lw=0.8, ls=":")
     ax.set_xlabel("labelled examples (each used for one update)")
     ax.set_ylabel(f"accuracy on trajectory_val ({doc['config']['labeler']})")
@@ -404,8 +294,7 @@ def plot(doc: dict, path: Path) -> None:
     ax.legend(loc="lower right")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    save_figure(fig, path, dpi=120)
-    plt.close(fig)
+    figures.save(fig, path, dpi=120)
 
 
 def render(doc: dict, out: Path, command: str) -> None:
@@ -422,23 +311,33 @@ def is_results(path: Path) -> bool:
     return fileio.is_json_object_with(path, ("preset", "config", "runs"))
 
 
+def report_again(out: Path, preset: str) -> int:
+    """Render ``OUT/STEM.md`` and ``.png`` again from ``OUT/STEM_results.json`` alone,
+    keeping the command the existing report names."""
+    stem = stem_of(preset)
+    path = out / f"{stem}_results.json"
+    if not is_results(path):
+        raise cli.InputError(f"--report: {path} is not a results document of this experiment")
+    fileio.check_output_files(out, [f"{stem}.md", f"{stem}.png"])
+    doc = summarise(json.loads(path.read_text()))
+    render(doc, out, record.recorded_command(out / f"{stem}.md") or f"{PROG} --preset {preset}")
+    print(f"wrote {out / stem}.md and .png from {path.name}")
+    return 0
+
+
 @cli.command
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = active.parser(
-        "python -m slotv_jax.experiments.active_stream", __doc__.split("\n\n")[0], PRESETS
-    )
+    ap = command.seeded_parser(PROG, __doc__.split("\n\n")[0], PRESETS)
     ap.add_argument("--steps", type=int, default=None, help="updates (each on a new batch)")
     args = ap.parse_args(argv)
-    kw = active.config_overrides(args, ("steps",))
-    cfg = PRESETS[args.preset](**kw)
     out = Path(args.out)
-    active.prepare_out(out, stem_of(cfg.preset), is_results)
+    if args.report:
+        return report_again(out, args.preset)
+    cfg = PRESETS[args.preset](**command.seeded_overrides(args, ("steps",)))
+    command.prepare_out(out, stem_of(cfg.preset), is_results)
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)
     doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress)
-    command = " ".join(
-        ["python -m slotv_jax.experiments.active_stream", *(sys.argv[1:] if argv is None else argv)]
-    )
-    render(doc, out, command)
+    render(doc, out, record.command_line(PROG, argv))
     for c in doc["summary"]:
         r = c["ratio_random_over_this"]
         print(

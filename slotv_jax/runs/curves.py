@@ -22,16 +22,11 @@ from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.data.generate import cached_dataset
 from slotv_jax.runs import presets
 from slotv_jax.runs.presets import METHOD_TITLES, METHODS
+from slotv_jax.runs.summary import examples_to_reach
 from slotv_jax.training import evaluate, parallel, schedule, types
 from slotv_jax.training import trainer as train
 
 LABELER = "dragan"
-
-
-def examples_to_reach(examples: np.ndarray, acc: np.ndarray, threshold: float) -> float | None:
-    """First x at which ``acc`` reaches ``threshold`` (None if it never does)."""
-    hit = np.flatnonzero(acc >= threshold)
-    return float(examples[hit[0]]) if hit.size else None
 
 
 def run(

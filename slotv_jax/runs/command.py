@@ -1,0 +1,62 @@
+"""The command-line pieces the experiments share: the flags of a run over presets and seeds,
+the checks of their values, and the output files checked before any work starts (SPEC §11:
+an input error is one line ``error: ...`` and exit code 2, :mod:`slotv_jax.core.cli`).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from slotv_jax.core import fileio
+
+
+def seeded_parser(prog: str, description: str, presets: Sequence[str]) -> argparse.ArgumentParser:
+    """The command line of an experiment run over seeds and selection strategies (the two
+    active-selection experiments): preset, output and cache folders, seeds, held-out
+    motions, strategies; :func:`seeded_overrides` reads it back."""
+    ap = argparse.ArgumentParser(prog=prog, description=description)
+    ap.add_argument("--preset", default="quick", choices=tuple(presets))
+    ap.add_argument("--out", default="experiments", help="output folder (default: experiments)")
+    ap.add_argument("--cache", default="data", help="dataset cache folder")
+    ap.add_argument("--seeds", type=int, default=None)
+    ap.add_argument("--first-seed", type=int, default=None, help="seeds from this one (tuning)")
+    ap.add_argument(
+        "--eval-offset", type=int, default=None, help="held-out motions from this one (tuning)"
+    )
+    ap.add_argument("--strategies", default=None, help="comma-separated, random among them")
+    ap.add_argument(
+        "--report",
+        action="store_true",
+        help="only render the report and figure again from the results document in --out",
+    )
+    ap.add_argument("--no-progress", action="store_true")
+    return ap
+
+
+def seeded_overrides(args: argparse.Namespace, names: Sequence[str] = ()) -> dict:
+    """The preset's fields that a :func:`seeded_parser` command line sets: seeds,
+    first_seed, eval_offset, the strategies, and the flags ``names``."""
+    kw = {n: getattr(args, n) for n in ("seeds", "first_seed", "eval_offset", *names)}
+    kw = {n: v for n, v in kw.items() if v is not None}
+    if args.strategies:
+        kw["strategies"] = tuple(s.strip() for s in args.strategies.split(","))
+    return kw
+
+
+def prepare_out(out: Path, stem: str, is_ours: Callable[[Path], bool]) -> None:
+    """Before any work: ``OUT/STEM_results.json``, ``.md`` and ``.png`` can be written, and
+    the results document, if there, is ours (``is_ours``; it is resumed and the report and
+    figure rewritten from it); then make ``out``."""
+    names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png")]
+    fileio.check_output_files(out, names, ours={names[0]: is_ours})
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def at_least_one(parser: argparse.ArgumentParser, **values: int | None) -> None:
+    """``parser.error`` (one line, exit code 2) naming the first flag whose value is below 1
+    (``values``: flag name with underscores -> value; None: not given)."""
+    for name, v in values.items():
+        if v is not None and v < 1:
+            parser.error(f"--{name.replace('_', '-')}: expected an integer >= 1")
