@@ -5,7 +5,9 @@ fails before JAX does any work, so a run costs about its import time."""
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -155,3 +157,105 @@ def test_study_table_messages(tmp_path):
         study.make_study(xyz, goals, np.arange(8) < 2, [0], [[1, 0, 0, 0, 0, 0, 0, 0]],
                          answer_tau=[5.0])  # fmt: skip
     assert "np.float64" not in str(e.value)
+
+
+# --------------------------------------------------------------------- Ctrl-C
+
+
+def _commands() -> list[str]:
+    """Every module of slotv_jax that defines a command's ``main``."""
+    pkg = ROOT / "slotv_jax"
+    return sorted(
+        ".".join(p.relative_to(ROOT).with_suffix("").parts)
+        for p in pkg.rglob("*.py")
+        if "\ndef main(" in p.read_text()
+    )
+
+
+# the commands that keep their finished work and go on from it when rerun (README, Files)
+RESUMES = {
+    "slotv_jax.data.cli",
+    *(f"slotv_jax.experiments.{m}" for m in ("table1", "fidelity", "explainable", "planning",
+                                              "sample_efficiency", "hparam_search", "active",
+                                              "active_stream")),
+}  # fmt: skip
+
+
+def test_every_command_answers_ctrl_c_in_one_line(capsys, monkeypatch):
+    """Every command's main goes through cli.command: Ctrl-C in it (here: while it parses
+    its arguments) prints one line, saying so where rerunning resumes, and exits with 130."""
+    import argparse
+    import importlib
+
+    from slotv_jax.core import cli
+
+    def ctrl_c(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", ctrl_c)
+    monkeypatch.delenv("SLOTV_JAX_TRACEBACK", raising=False)
+    names = _commands()
+    assert len(names) >= 20 and "slotv_jax.experiments.study_size.__main__" in names
+    for name in names:
+        main = importlib.import_module(name).main
+        assert hasattr(main, "resumes"), f"{name}.main is not wrapped by cli.command"
+        assert main.resumes is True or name not in RESUMES, name
+        with pytest.raises(SystemExit) as e:
+            main([])
+        err = capsys.readouterr().err
+        line = cli.INTERRUPTED_RESUMES if main.resumes is True else "interrupted"
+        assert e.value.code == 130 and err == line + "\n", (name, err)
+
+    @cli.command(resumes="rerun with --resume to continue")
+    def main(argv=None):
+        raise KeyboardInterrupt
+
+    with pytest.raises(SystemExit) as e:
+        main([])
+    assert capsys.readouterr().err == "interrupted; rerun with --resume to continue\n"
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_table1_is_one_line_leaves_no_half_file_and_resumes(tmp_path):
+    """SIGINT to the main job while it generates its dataset: exit 130, one line on stderr,
+    no traceback, no temporary or half-written file; the same command then finishes."""
+    import signal
+
+    argv = [sys.executable, "-m", "slotv_jax.experiments.table1", "--preset", "tiny",
+            "--labelers", "dragan", "--methods", "slotv", "--trials", "1",
+            "--out", "t1"]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu"}
+    env.pop("SLOTV_JAX_TRACEBACK", None)
+    proc = subprocess.Popen(argv, cwd=tmp_path, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 300
+        while not list(tmp_path.glob("data/tiny-*/*.json")):  # working: a split is written
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "no split written in 300 s"
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, (proc.returncode, err[-3000:])
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+    text = re.sub(r"\x1b\[[0-9;]*[A-Za-z]", "", err)  # the progress bars' cursor moves
+    lines = [ln for ln in re.split(r"[\r\n]", text) if ln.strip()]
+    assert lines[-1] == "interrupted; rerun the same command to resume", err[-3000:]
+    assert sum("interrupted" in ln for ln in lines) == 1, err[-3000:]
+    files = [p for p in tmp_path.rglob("*") if p.is_file()]
+    assert not [p for p in files if p.name.endswith(".tmp")], files  # no half-written file
+    from slotv_jax import data
+
+    ddir = next(tmp_path.glob("data/tiny-*"))
+    done = [p.stem for p in ddir.glob("*.json")]
+    assert done and all((ddir / f"{n}.npz").is_file() for n in done)
+    for n in done:  # what is there is whole: every checksum holds
+        data.load_split(ddir, n)
+    r = subprocess.run(argv, cwd=tmp_path, env=env, text=True, capture_output=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "dataset in data/tiny-" in r.stdout
+    doc = json.loads((tmp_path / "t1" / "results.json").read_text())
+    assert len(doc["cells"]) == 4  # dragan × slotv × 1 trial × the four test splits

@@ -24,6 +24,13 @@ gave (file not found, is a directory, permission denied, ...) — prints one lin
 does for a bad flag. Anything else is a bug and keeps its traceback. Set
 ``SLOTV_JAX_TRACEBACK=1`` to see the traceback of an input error too.
 
+Ctrl-C (``KeyboardInterrupt``) prints one line, ``interrupted``, and exits with code 130
+(128 + SIGINT, as a shell reports it), with no traceback; a command that resumes
+(``@command(resumes=True)``: rerunning it keeps what it finished) says so: ``interrupted;
+rerun the same command to resume``. Nothing is left half-written: every file goes to a
+temporary name that is removed on the way out (:func:`slotv_jax.core.fileio.atomic_write`).
+A second Ctrl-C while the process exits ends it at once.
+
 >>> @command
 ... def main(argv=None):
 ...     raise InputError("--in x.npz: no such file")
@@ -34,11 +41,16 @@ error: --in x.npz: no such file            (on stderr; SystemExit(2))
 from __future__ import annotations
 
 import functools
+import gc
 import os
+import signal
 import sys
 from collections.abc import Callable, Sequence
 
 EXIT_INPUT_ERROR = 2
+EXIT_INTERRUPTED = 130  # 128 + SIGINT: what a shell reports for a command ended by Ctrl-C
+INTERRUPTED = "interrupted"
+INTERRUPTED_RESUMES = "interrupted; rerun the same command to resume"
 
 
 class InputError(ValueError):
@@ -74,17 +86,51 @@ def fail(exc: BaseException) -> None:
     raise SystemExit(EXIT_INPUT_ERROR) from None
 
 
-def command(main: Callable[..., int]) -> Callable[..., int]:
-    """Decorate a command's ``main(argv)``: input errors become ``error: ...`` and exit 2."""
+def interrupted(*, resumes: bool | str = False) -> None:
+    """Print the one line of a Ctrl-C on stderr and exit with code 130.
+
+    A second Ctrl-C from here on ends the process at once (the default handler), so that
+    a slow exit (threads, flushes) can still be cut short.
+    """
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+    if isinstance(resumes, str):
+        line = f"{INTERRUPTED}; {resumes}"
+    else:
+        line = INTERRUPTED_RESUMES if resumes else INTERRUPTED
+    # at a terminal the cursor stands after the echoed ^C or on a progress bar: a new line
+    lead = "\n" if sys.stderr.isatty() else ""
+    print(lead + line, file=sys.stderr, flush=True)
+    raise SystemExit(EXIT_INTERRUPTED) from None
+
+
+def command(
+    main: Callable[..., int] | None = None, *, resumes: bool | str = False
+) -> Callable[..., int]:
+    """Decorate a command's ``main(argv)``: input errors become ``error: ...`` and exit 2;
+    Ctrl-C becomes ``interrupted`` and exit 130 (``resumes=True``: the command resumes
+    when rerun, and the line says so; a string says how, ``"rerun with --resume to
+    continue"``). Use as ``@command`` or ``@command(resumes=True)``."""
+    if main is None:
+        return functools.partial(command, resumes=resumes)
 
     @functools.wraps(main)
     def wrapped(argv: Sequence[str] | None = None, *args, **kwargs) -> int:
         try:
             return main(argv, *args, **kwargs)
+        except KeyboardInterrupt:
+            if os.environ.get("SLOTV_JAX_TRACEBACK"):
+                raise
         except Exception as e:
             if not is_input_error(e) or os.environ.get("SLOTV_JAX_TRACEBACK"):
                 raise
             fail(e)
             raise  # unreachable: fail() exits
+        # Ctrl-C, outside the except clause: the interrupt's frames are gone, so what they
+        # held (progress bars, open files) is closed before the one line is printed
+        gc.collect()
+        interrupted(resumes=resumes)
+        raise AssertionError("unreachable: interrupted() exits")
 
+    wrapped.resumes = resumes
     return wrapped

@@ -19,7 +19,7 @@ from slotv_jax.data.storage import is_dataset_dir, load_split, save_split
 # -------------------------------------------------------------------------- CLI
 
 
-@cli.command
+@cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.data", description="Generate the seven SLOT-V dataset splits."

@@ -344,7 +344,7 @@ def report_again(out: Path, preset: str) -> int:
     return 0
 
 
-@cli.command
+@cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
     out = Path(args.out)

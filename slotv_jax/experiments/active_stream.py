@@ -325,7 +325,7 @@ def report_again(out: Path, preset: str) -> int:
     return 0
 
 
-@cli.command
+@cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     ap = command.seeded_parser(PROG, __doc__.split("\n\n")[0], PRESETS)
     ap.add_argument("--steps", type=int, default=None, help="updates (each on a new batch)")

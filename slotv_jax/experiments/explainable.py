@@ -400,7 +400,7 @@ def plot(doc: dict, out: Path, path: Path) -> None:
         plt.close(fig)
 
 
-@cli.command
+@cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.explainable",

@@ -489,7 +489,7 @@ def write_report(doc: dict, doc_path: Path, *, command: str = "", wall_s: float 
 # ----------------------------------------------------------------------- CLI
 
 
-@cli.command
+@cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.fidelity",

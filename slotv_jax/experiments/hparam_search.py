@@ -416,7 +416,7 @@ def summarise(doc: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-@cli.command
+@cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.hparam_search",

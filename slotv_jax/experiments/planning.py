@@ -516,7 +516,7 @@ def saved_plans(cfg: PlanningConfig, problems: dict, straight, plans: dict, labe
     }
 
 
-@cli.command
+@cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.planning",

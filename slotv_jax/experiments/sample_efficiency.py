@@ -32,7 +32,7 @@ from slotv_jax.runs.presets import METHOD_TITLES, METHODS, PRESETS
 from slotv_jax.training.config import MODELS
 
 
-@cli.command
+@cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.sample_efficiency",

@@ -119,7 +119,7 @@ def report(doc: dict) -> str:
     )
 
 
-@cli.command
+@cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.table1",

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import slotv_jax
 from slotv_jax import data as data_lib
+from slotv_jax.core import cli
 from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments.study_size import PRESETS, p_name, run
 from slotv_jax.experiments.study_size.report import plot, report
@@ -45,6 +46,7 @@ def _parse_args(argv):
     return ap.parse_args(argv)
 
 
+@cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)
