@@ -172,15 +172,29 @@ def test_resume_skips_finished_splits_and_refuses_other_configs(tiny_data, tiny_
         data.generate_dataset(dataclasses.replace(tiny_cfg, seed=9), tmp_path, progress=False)
 
 
-def test_cli_generate_and_relabel(tmp_path, tiny_data):
-    args = ["--out", str(tmp_path), "--splits", "goal_count_test", "--n-eval", "100"]
-    args += ["--n-train", "300", "--chunk-size", "512"]
-    assert data_cli.main(args) == 0
-    split = data.load_split(tmp_path, "goal_count_test")
+def test_cli_generate_into_the_cache_and_relabel(tmp_path, monkeypatch, capsys):
+    """Without --out the command writes the cache folder (as the main job does), a rerun
+    regenerates nothing, the cache is never relabelled in place, and --relabel --data SRC
+    --out DST writes new labels on the same trajectories elsewhere."""
+    monkeypatch.chdir(tmp_path)
+    opts = ["--splits", "goal_count_test", "--n-eval", "100", "--n-train", "300"]
+    opts += ["--chunk-size", "512"]
+    assert data_cli.main(opts) == 0
+    cfg = data.config_for("quick", n_eval=100, n_train=300, chunk_size=512)
+    cache = data.dataset_dir("data", cfg)
+    out = capsys.readouterr().out
+    assert f"wrote {cache} in" in out and "--data quick" not in out  # not the preset's own
+    split = data.load_split(cache, "goal_count_test")
     assert len(split) == 100 and split.meta["config"]["preset"] == "quick"
-    assert data_cli.main(["--out", str(tmp_path), "--splits", "goal_count_test", "--relabel",
-                      "--beta-dragan", "1.0"]) == 0  # fmt: skip
-    relabelled = data.load_split(tmp_path, "goal_count_test")
+    stamp = os.stat(cache / "goal_count_test.npz").st_mtime_ns
+    assert data_cli.main(opts) == 0  # the same command again: reused, not regenerated
+    assert os.stat(cache / "goal_count_test.npz").st_mtime_ns == stamp
+    relabel = ["--relabel", "--splits", "goal_count_test", "--beta-dragan", "1.0"]
+    with pytest.raises(SystemExit) as e:  # in place, the cache would lie about its config
+        data_cli.main([*relabel, "--out", str(cache)])
+    assert e.value.code == 2 and "another folder" in capsys.readouterr().err
+    assert data_cli.main([*relabel, "--data", str(cache), "--out", "soft"]) == 0
+    relabelled = data.load_split("soft", "goal_count_test")
     assert relabelled.meta["label_config"]["beta_dragan"] == 1.0
     np.testing.assert_array_equal(relabelled.xyz, split.xyz)
     np.testing.assert_array_equal(relabelled.labels["effdist"], split.labels["effdist"])
@@ -188,6 +202,93 @@ def test_cli_generate_and_relabel(tmp_path, tiny_data):
     # Softer labels: lower β gives higher entropy.
     ent = lambda y: -(y * np.log(np.where(y > 0, y, 1))).sum(-1).mean()  # noqa: E731
     assert ent(relabelled.labels["dragan"]) > ent(split.labels["dragan"])
+    again = data.load_split(cache, "goal_count_test")  # the source is untouched
+    np.testing.assert_array_equal(again.labels["dragan"], split.labels["dragan"])
+    # an ordinary folder is relabelled in place, as before
+    assert data_cli.main([*relabel[:-1], "30", "--out", "soft"]) == 0
+    sharp = data.load_split("soft", "goal_count_test")
+    assert ent(sharp.labels["dragan"]) < ent(relabelled.labels["dragan"])
+
+
+# ------------------------------------------------------- one place for the data
+
+
+def test_the_main_job_caches_where_a_preset_name_looks():
+    """Table 1's dataset (its run preset's data config in its default cache) is the folder
+    that the preset's name finds, and the data command's default config is the same."""
+    from slotv_jax.runs.presets import PRESETS as RUNS
+
+    for p in ("quick", "paper"):
+        assert data.dataset_dir(data.DEFAULT_CACHE, RUNS[p]().data) == data.preset_dir(p)
+        assert data.config_for(p).digest() == RUNS[p]().data.digest()
+        assert data.data_command(RUNS[p]().data) == f"python -m slotv_jax.data --preset {p}"
+
+
+def test_a_preset_name_reads_the_cached_dataset(tiny_data, tmp_path, monkeypatch, capsys):
+    """`--data quick` / load_split("quick", ...) read data/quick-<digest>; the data command
+    on it reuses what is there and says how other commands find it."""
+    monkeypatch.chdir(tmp_path)
+    home = data.preset_dir("quick")
+    assert home == data.DEFAULT_CACHE / f"quick-{data.quick().digest()}"
+    split = tiny_data["position_test"]
+    home.mkdir(parents=True)
+    data.save_split(home, split, data.quick())  # stands in for the main job's split
+    back = data.load_split("quick", "position_test")
+    np.testing.assert_array_equal(back.xyz, split.xyz)
+    assert data.find_dataset("quick") == home
+    stamp = os.stat(home / "position_test.npz").st_mtime_ns
+    assert data_cli.main(["--preset", "quick", "--splits", "position_test"]) == 0
+    out = capsys.readouterr().out
+    assert f"wrote {home} in" in out and "other commands find it as --data quick" in out
+    assert os.stat(home / "position_test.npz").st_mtime_ns == stamp  # not regenerated
+    (tmp_path / "quick").mkdir()  # a folder of that name is what it names
+    assert data.find_dataset("quick") == tmp_path.joinpath("quick").relative_to(tmp_path)
+
+
+def test_a_missing_dataset_names_the_command_that_makes_it(tiny_data, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(FileNotFoundError) as e:
+        data.load_split("quick", "position_test")
+    assert f"not made yet (it goes to {data.preset_dir('quick')})" in str(e.value)
+    assert "run: python -m slotv_jax.data --preset quick " in str(e.value)
+    with pytest.raises(FileNotFoundError) as e:
+        data.load_split("data/quick", "position_test")
+    msg = str(e.value)
+    assert "data/quick: no such dataset folder" in msg
+    assert "run: python -m slotv_jax.data --preset quick --out data/quick" in msg
+    assert "preset name alone (quick)" in msg
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(FileNotFoundError) as e:
+        data.load_split("empty", "train")
+    assert "empty holds no dataset; run: python -m slotv_jax.data --preset quick --out empty" in (
+        str(e.value)
+    )
+    # a folder with other splits: the exact command that adds the missing one
+    some = tmp_path / "some"
+    some.mkdir()
+    data.save_split(some, tiny_data["position_test"], data.quick(n_eval=100, seed=2))
+    with pytest.raises(FileNotFoundError) as e:
+        data.load_split(some, "train")
+    want = f"run: python -m slotv_jax.data --preset quick --seed 2 --n-eval 100 --out {some}"
+    assert "holds position_test but not train" in str(e.value)
+    assert f"{want} --splits train" in str(e.value)
+
+
+def test_readme_reads_the_dataset_the_main_job_makes():
+    """Every dataset the README reads is a preset's cached one (made by the main job) or
+    the --out of an earlier README command; no README command generates it a second time."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    reads = [(m.start(), m.group(1)) for m in re.finditer(r"--data ([^\s`]+)", text)]
+    reads += [(m.start(), m.group(1)) for m in re.finditer(r'load_split\("([^"]+)"', text)]
+    assert len(reads) >= 6
+    for at, where in reads:
+        made = re.search(rf"--out {re.escape(where)}\b", text[:at])
+        assert where in data.PRESETS or made, f"README reads {where!r}, which nothing made"
+    for line in re.findall(r"python -m slotv_jax\.data [^\n`]*", text):
+        assert "--relabel" in line or "--out" not in line, line  # the cache, not a copy
 
 
 @pytest.mark.parametrize(

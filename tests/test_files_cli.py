@@ -259,3 +259,17 @@ def test_ctrl_c_in_table1_is_one_line_leaves_no_half_file_and_resumes(tmp_path):
     assert "dataset in data/tiny-" in r.stdout
     doc = json.loads((tmp_path / "t1" / "results.json").read_text())
     assert len(doc["cells"]) == 4  # dragan × slotv × 1 trial × the four test splits
+
+
+def test_readme_commands_write_distinct_outputs():
+    """Followed in order, no two README commands write the same --out (the second would be
+    refused, or would replace the first's output with other settings)."""
+    text = (ROOT / "README.md").read_text()
+    outs: dict[str, str] = {}
+    for block in re.findall(r"```bash\n(.*?)```", text, re.S):
+        for line in block.replace("\\\n", " ").splitlines():
+            m = re.search(r"python -m (\S+).*?--out (\S+)", line)
+            if m:
+                assert m.group(2) not in outs, (line, outs.get(m.group(2)))
+                outs[m.group(2)] = line
+    assert len(outs) >= 15 and "ckpt/dragan" in outs and "ckpt/dragan_plus" in outs

@@ -77,6 +77,19 @@ def test_several_trajectories_into_a_folder(dataset, tmp_path):
         np.testing.assert_array_equal(got, render.still(q, GOALS, MASK, tau=0.5, size=SIZE))
 
 
+def test_a_preset_name_renders_the_main_jobs_dataset(dataset, tmp_path, monkeypatch):
+    """``--data quick`` reads the dataset the main job cached, data/quick-<digest>."""
+    monkeypatch.chdir(tmp_path)
+    home = data.preset_dir("quick")
+    home.mkdir(parents=True)
+    for f in ("position_test.npz", "position_test.json"):
+        (home / f).write_bytes((dataset / f).read_bytes())
+    args = ["--data", "quick", "--split", "position_test", "--index", "1", "--out", "b.png"]
+    assert cli.main([*args, *FAST]) == 0
+    got = render.read_video(tmp_path / "b.png")[0]
+    np.testing.assert_array_equal(got, render.still(Q2, GOALS, MASK, size=SIZE))
+
+
 def test_plans_side_by_side_and_one_planner(tmp_path):
     plans = tmp_path / "plans.npz"
     np.savez(
@@ -129,7 +142,17 @@ def test_a_study_file_through_ik_with_goal_names(tmp_path):
         (["--split", "nope"], "--split: expected one of"),
         (["--out", "/proc/a.mp4"], "--out /proc/a.mp4: cannot write in /proc"),
         (["--out", "a.avi"], "expected a file ending in .mp4 or .gif or .png"),
-        (["--labels", "names"], "--labels names: position_test_0000 has no goal names"),
+        (
+            ["--labels", "names"],
+            "position_test_0000 has no goal names (only a --study file "
+            "has them); use --labels letters",
+        ),
+        (
+            ["--data", "data/quick"],
+            "data/quick: no such dataset folder; run: python -m "
+            "slotv_jax.data --preset quick --out data/quick",
+        ),
+        (["--data", "quick"], "the quick preset's dataset is not made yet (it goes to data/quick-"),
         (["--index", "0:2", "--out", "x.mp4"], "2 items need a folder"),
     ],
 )

@@ -92,8 +92,10 @@ def test_readme_study_walk_with_people_in_chromium(browser, tiny_data, tiny_cfg,
     assert block.count(SIMULATE) == 1
     # the people take part before the simulated ones (a test-only wait before that line)
     script = block.replace(SIMULATE, "while [ ! -e people.done ]; do sleep 0.2; done\n" + SIMULATE)
-    (tmp_path / "data" / "quick").mkdir(parents=True)
-    data.save_split(tmp_path / "data" / "quick", tiny_data["trajectory_test"], tiny_cfg)
+    # the tiny split stands where the main job caches the quick preset's (--data quick)
+    home = data.dataset_dir(tmp_path / data.DEFAULT_CACHE, data.quick())
+    home.mkdir(parents=True)
+    data.save_split(home, tiny_data["trajectory_test"], tiny_cfg)
     env = {**os.environ, "PYTHONPATH": str(ROOT),
            "PATH": str(Path(sys.executable).parent) + ":/usr/bin:/bin"}  # fmt: skip
     proc = subprocess.Popen(["bash", "-e", "-c", script], cwd=tmp_path, env=env, text=True,

@@ -108,6 +108,28 @@ def paper(**overrides) -> DataConfig:
 PRESETS = {"quick": quick, "paper": paper}
 
 
+def config_for(
+    preset: str,
+    *,
+    distribution: str = "default",
+    labels: dict | None = None,
+    **overrides,
+) -> DataConfig:
+    """The config that ``python -m slotv_jax.data`` builds from its options: a preset, a
+    named distribution (trajectories and label temperatures), label overrides
+    (``{"beta_dragan": 3.0, "camera": ...}``) and other fields (``seed``, ``n_train``, ...)."""
+    if preset not in PRESETS:
+        raise ValueError(f"preset: expected one of {sorted(PRESETS)}, got {preset!r}")
+    if distribution not in DATA_DISTRIBUTIONS:
+        raise ValueError(
+            f"distribution: expected one of {sorted(DATA_DISTRIBUTIONS)}, got {distribution!r}"
+        )
+    traj, label_cfg = DATA_DISTRIBUTIONS[distribution]
+    if labels:
+        label_cfg = dataclasses.replace(label_cfg, **labels)
+    return PRESETS[preset](**{"trajectory": traj, "labels": label_cfg, **overrides})
+
+
 def _config_from_json(d: dict) -> DataConfig:
     """Rebuild a DataConfig from its JSON form."""
     d = dict(d)

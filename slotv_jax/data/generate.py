@@ -25,10 +25,11 @@ reachability statistics, timings). Both are written to a temporary name and
 renamed; the JSON is written last, so a split counts as done only once both
 exist, and an interrupted run restarts at the first unfinished split.
 
-Command line::
+Command line (without ``--out``: the cache folder ``data/<preset>-<digest>`` that the main job
+uses, which other commands read by the preset's name, ``--data quick``)::
 
-    python -m slotv_jax.data --preset quick --out data/quick
-    python -m slotv_jax.data --relabel --out data/quick --beta-dragan 3.0
+    python -m slotv_jax.data --preset quick
+    python -m slotv_jax.data --relabel --data quick --out data/quick_dragan3 --beta-dragan 3.0
 """
 
 from __future__ import annotations

@@ -16,9 +16,20 @@ from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import atomic_write
 from slotv_jax.core.validation import G_MAX
-from slotv_jax.data.config import DataConfig
+from slotv_jax.data.config import (
+    DATA_DISTRIBUTIONS,
+    PRESETS,
+    DataConfig,
+    _config_from_json,
+    config_for,
+)
 
 FORMAT_VERSION = 1
+#: Where datasets are cached, relative to the working directory: ``DATA/<preset>-<digest>``
+#: (:func:`dataset_dir`). The main job (``python -m slotv_jax.experiments.table1``) and
+#: ``python -m slotv_jax.data`` without ``--out`` write there; a preset name given where a
+#: dataset is read (``--data quick``, ``load_split("quick", ...)``) finds it there.
+DEFAULT_CACHE = Path("data")
 
 
 # Arrays stored per split: name -> (dtype, shape with "N", "S", "T" symbols).
@@ -102,6 +113,86 @@ def dataset_dir(cache: str | Path, cfg: DataConfig) -> Path:
     return Path(cache) / f"{cfg.preset}-{cfg.digest()}"
 
 
+def preset_dir(preset: str, cache: str | Path = DEFAULT_CACHE) -> Path:
+    """Where the dataset of a preset's default config is cached: ``CACHE/<preset>-<digest>``,
+    the folder that ``python -m slotv_jax.experiments.table1 --preset PRESET`` and
+    ``python -m slotv_jax.data --preset PRESET`` write."""
+    if preset not in PRESETS:
+        raise ValueError(f"preset: expected one of {sorted(PRESETS)}, got {preset!r}")
+    return dataset_dir(cache, PRESETS[preset]())
+
+
+def data_command(cfg: DataConfig, out: str | Path | None = None) -> str | None:
+    """The ``python -m slotv_jax.data`` command line that generates ``cfg`` into ``out``
+    (``None``: the cache folder, :func:`dataset_dir`), or ``None`` if its options cannot
+    express ``cfg`` (a config made in Python). The command is checked: the config it builds
+    has ``cfg``'s digest.
+
+    >>> data_command(quick())
+    'python -m slotv_jax.data --preset quick'
+    """
+    if cfg.preset not in PRESETS:
+        return None
+    dist = next((d for d, (t, _) in DATA_DISTRIBUTIONS.items() if t == cfg.trajectory), None)
+    if dist is None:
+        return None
+    base = PRESETS[cfg.preset]()
+    opts = {"seed": cfg.seed, "n_train": cfg.n_train, "n_eval": cfg.n_eval}
+    opts = {k: v for k, v in {**opts, "chunk_size": cfg.chunk_size}.items()
+            if v != getattr(base, k)}  # fmt: skip
+    labels = DATA_DISTRIBUTIONS[dist][1]
+    betas = {k: v for k, v in dataclasses.asdict(cfg.labels).items()
+             if v != getattr(labels, k)}  # fmt: skip
+    try:
+        again = config_for(cfg.preset, distribution=dist, **opts, labels=betas)
+    except (TypeError, ValueError):
+        return None
+    if again.digest() != cfg.digest():
+        return None
+    words = ["python -m slotv_jax.data", f"--preset {cfg.preset}"]
+    words += [f"--{k.replace('_', '-')} {v}" for k, v in opts.items()]
+    if dist != "default":
+        words.append(f"--distribution {dist}")
+    words += [f"--{k.replace('_', '-')} {v}" for k, v in betas.items()]
+    if out is not None and Path(out) != dataset_dir(DEFAULT_CACHE, cfg):
+        words.append(f"--out {out}")
+    return " ".join(words)
+
+
+def find_dataset(where: str | Path, cache: str | Path = DEFAULT_CACHE) -> Path:
+    """The dataset folder that ``where`` names, for every command that reads one.
+
+    An existing folder is itself. Otherwise a preset name (``quick``, ``paper``) names the
+    dataset of that preset's default config in the cache, :func:`preset_dir`
+    (``data/quick-<digest>``): the one the main job made. Anything else is an error that
+    names the command that makes it.
+
+    >>> find_dataset("quick")  # after python -m slotv_jax.experiments.table1  # doctest: +SKIP
+    PosixPath('data/quick-251c48741b67b804')
+    """
+    path = Path(where)
+    if path.is_dir():
+        return path
+    if path.exists():
+        raise ValueError(f"{where}: expected a dataset folder, got a file")
+    if str(where) in PRESETS:
+        made = preset_dir(str(where), cache)
+        if is_dataset_dir(made):
+            return made
+        raise FileNotFoundError(
+            f"dataset {where!r}: the {where} preset's dataset is not made yet (it goes to "
+            f"{made}); run: python -m slotv_jax.data --preset {where}  (the main job, "
+            f"python -m slotv_jax.experiments.table1 --preset {where}, makes it too)"
+        )
+    hint = ""
+    if path.name in PRESETS:
+        hint = f"; or give the preset name alone ({path.name}) for the dataset the main job made"
+    raise FileNotFoundError(
+        f"{where}: no such dataset folder; run: python -m slotv_jax.data --preset quick "
+        f"--out {where}{hint}"
+    )
+
+
 def is_dataset_dir(path: str | Path) -> bool:
     """True if ``path`` holds a split written by :func:`save_split` (its marker: a split's
     ``.json`` sidecar, or its ``.npz`` alone if a run stopped between the two)."""
@@ -159,11 +250,39 @@ def _read_json(path: Path) -> dict:
         raise ValueError(f"{path}: corrupt JSON sidecar ({e})") from e
 
 
+def _missing_split(directory: Path, name: str) -> FileNotFoundError:
+    """The error for a split that ``directory`` lacks, naming the command that makes it."""
+    held = [n for n in SPLITS if (directory / f"{n}.json").is_file()]
+    where = f"{directory / f'{name}.json'}: split sidecar not found"
+    if not held:
+        return FileNotFoundError(
+            f"{where}: {directory} holds no dataset; run: python -m slotv_jax.data "
+            f"--preset quick --out {directory}"
+        )
+    try:
+        cfg = _config_from_json(json.loads((directory / f"{held[0]}.json").read_text())["config"])
+        command = data_command(cfg, directory)
+    except (OSError, ValueError, KeyError, TypeError):
+        command = None
+    run = (
+        f"run: {command} --splits {name}"
+        if command
+        else f"generate it with the options that made the others and --out {directory}"
+    )
+    return FileNotFoundError(f"{where}: {directory} holds {', '.join(held)} but not {name}; {run}")
+
+
 def load_split(directory: str | Path, name: str) -> Split:
-    """Read one split and verify its arrays against the sidecar's shapes and SHA-256."""
+    """Read one split and verify its arrays against the sidecar's shapes and SHA-256.
+
+    ``directory`` is a dataset folder or a preset name (``"quick"``: the dataset the main
+    job made, :func:`find_dataset`).
+    """
     if name not in SPLITS:
         raise ValueError(f"name: expected one of {SPLITS}, got {name!r}")
-    directory = Path(directory)
+    directory = find_dataset(directory)
+    if not (directory / f"{name}.json").exists():
+        raise _missing_split(directory, name)
     meta = _read_json(directory / f"{name}.json")
     path = directory / f"{name}.npz"
     if not path.is_file():

@@ -130,7 +130,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     p.add_argument("--trials", type=int, help="trials per cell (default: the preset's)")
     p.add_argument("--out", type=Path, help="results directory (default: runs/table1_<preset>)")
-    p.add_argument("--cache", type=Path, default=Path("data"), help="dataset cache directory")
+    p.add_argument(
+        "--cache",
+        type=Path,
+        default=data_lib.DEFAULT_CACHE,
+        help="dataset cache directory (default: data; other commands find the default "
+        "dataset there by the preset's name, --data quick)",
+    )
     p.add_argument(
         "--distribution",
         choices=sorted(data_lib.DATA_DISTRIBUTIONS),
@@ -221,6 +227,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"\n{len(doc['cells'])} cell results in {out / 'results.json'}; table in "
         f"{out / 'table1.md'}; this run took {time.perf_counter() - t0:.0f} s"
     )
+    ddir = data_lib.dataset_dir(args.cache, cfg.data)
+    found = args.preset in data_lib.PRESETS and ddir == data_lib.preset_dir(args.preset)
+    print(f"dataset in {ddir}" + (f" (other commands: --data {args.preset})" if found else ""))
     return 0
 
 

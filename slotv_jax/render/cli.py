@@ -2,7 +2,8 @@
 
 Sources (one of):
 
-- ``--data DIR --split NAME --index I``: a dataset split (``slotv_jax.data``);
+- ``--data DIR --split NAME --index I``: a dataset split (``slotv_jax.data``); ``DIR`` a
+  folder or a preset name (``quick``: the dataset the main job made, in ``data/quick-<digest>``);
 - ``--npz FILE --index I``: the labelers CLI's input format (``xyz (N, T, 3)``,
   ``goals``, ``goal_mask``, optional ``t`` and ``q (N, T, 7)``);
 - ``--study FILE --index I``: a study file (:func:`slotv_jax.study.load_study`), its
@@ -22,7 +23,7 @@ with a progress bar. One item goes to ``--out FILE``, whose suffix picks the for
 grid). Everything is checked before any rendering: an input error prints one line
 ``error: ...`` and exits with 2.
 
-    python -m slotv_jax.render --data data/quick --split position_test --index 0 --out a.mp4
+    python -m slotv_jax.render --data quick --split position_test --index 0 --out a.mp4
     python -m slotv_jax.render --plans plans.npz --problem 3 --tau 0.5 --out compare.png
 """
 
@@ -227,7 +228,11 @@ def _parser() -> argparse.ArgumentParser:
         "(needs OpenGL: MUJOCO_GL=egl on a headless machine).",
     )
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--data", type=Path, help="dataset directory (with --split)")
+    src.add_argument(
+        "--data",
+        type=Path,
+        help="dataset folder, or a preset name (quick, paper) for the main job's (with --split)",
+    )
     src.add_argument("--npz", type=Path, help="a .npz in the labelers CLI's input format")
     src.add_argument("--study", type=Path, help="a study file (slotv_jax.study)")
     src.add_argument("--plans", type=Path, help="a planning run's plans.npz")
@@ -273,7 +278,10 @@ def _camera(args):
 def _labels(args, item: Item):
     if args.labels == "names":
         if not item.goal_names:
-            raise cli.InputError(f"--labels names: {item.key} has no goal names; use letters")
+            raise cli.InputError(
+                f"--labels names: {item.key} has no goal names (only a --study file has them); "
+                "use --labels letters"
+            )
         return list(item.goal_names)
     return None
 
