@@ -67,6 +67,44 @@ def test_report_files_resume_only_from_our_results(tmp_path):
     fileio.check_output_files(tmp_path, names, ours=ours)
 
 
+def test_an_output_is_never_one_of_the_inputs(tmp_path):
+    """``check_not_input``: the same file by any name (relative, through '..', a symbolic
+    or hard link) is refused, ``--overwrite`` or not; a directory replaced whole may not
+    hold an input. The input is left as it was."""
+    a = tmp_path / "a.csv"
+    a.write_text("trajectory,guess\n")
+    inputs = {"--answers": a, "--goals": None}
+    for out in (a, tmp_path / "sub" / ".." / "a.csv", os.path.relpath(a)):
+        with pytest.raises(fileio.OutputError, match=r"is the input --answers .*a\.csv"):
+            fileio.check_not_input(out, inputs)
+    (tmp_path / "link.csv").symlink_to(a)
+    os.link(a, tmp_path / "hard.csv")
+    for name in ("link.csv", "hard.csv"):
+        with pytest.raises(fileio.OutputError, match=r"--out .*: is the input --answers"):
+            fileio.check_not_input(tmp_path / name, inputs)
+    fileio.check_not_input(tmp_path / "b.npz", inputs)  # another file: fine
+    fileio.check_not_input(tmp_path, inputs)  # a folder the files go into: fine
+    with pytest.raises(fileio.OutputError, match=r"--out .*: holds the input --answers"):
+        fileio.check_not_input(tmp_path, inputs, replaces_dir=True)
+    with pytest.raises(fileio.OutputError, match=r"--ckpt .*: is the input --answers"):
+        fileio.check_not_input(a, inputs, what="--ckpt", replaces_dir=True)
+    assert a.read_text() == "trajectory,guess\n"
+
+
+def test_output_suffix_must_match_the_format_written(tmp_path):
+    assert fileio.check_output_file(tmp_path / "s.npz", suffix=".npz") == "new"
+    assert fileio.check_output_file(tmp_path / "S.NPZ", suffix=".npz") == "new"
+    for name, got in (("s.csv", "ending in '.csv'"), ("s", "without a suffix"),
+                      ("s.npz.bak", "ending in '.bak'")):  # fmt: skip
+        with pytest.raises(fileio.OutputError) as e:
+            fileio.check_output_file(tmp_path / name, overwrite=True, suffix=".npz")
+        assert str(e.value) == (
+            f"--out {tmp_path / name}: expected a name ending in .npz (the format written), "
+            f"got one {got}"
+        )
+    assert os.listdir(tmp_path) == []
+
+
 def test_unwritable_places_are_caught_even_for_root(tmp_path):
     # chmod does not stop root; /proc and a read-only mount do, and so does a file parent
     with pytest.raises(fileio.OutputError, match="cannot write in /proc"):
@@ -123,6 +161,10 @@ def test_read_json_and_text(tmp_path):
     p.write_text('{"a": [1, 2')
     with pytest.raises(ValueError, match=r"c\.json, line 1, column \d+: .*truncated"):
         fileio.read_json(p)
+    p.write_text('[{"a": 1, "a": 2}]')
+    assert fileio.read_json(p) == [{"a": 2}]  # json's own rule: the last key wins
+    pairs = fileio.read_json(p, object_pairs_hook=list)  # a hook sees every pair
+    assert pairs == [[("a", 1), ("a", 2)]]
     p.write_bytes(b"\xef\xbb\xbftrajectory,x\n1,2\n")
     assert fileio.read_text(p).startswith("trajectory,x")
     p.write_bytes(b"a,b\n1,2\n3,\xe9\n")

@@ -15,11 +15,17 @@
    only with ``--overwrite``.
 4. Writes are atomic: a temporary name beside the target, then a rename; a directory is
    swapped in whole (:func:`replace_dir`). No hidden leftovers.
+5. No command writes over one of its own inputs, ``--overwrite`` or not
+   (:func:`check_not_input`), and a file of a fixed format has that format's suffix
+   (``check_output_file(..., suffix=".npz")``): an ``.npz`` is never written under a
+   ``.csv`` name.
 
 >>> check_output_dir("runs/ckpt", ours=checkpoint.exists, resume=args.resume,
 ...                  overwrite=args.overwrite)                       # doctest: +SKIP
 'new'
->>> check_output_file("labels.npz", overwrite=False)                 # doctest: +SKIP
+>>> check_output_file("labels.npz", overwrite=False, suffix=".npz")   # doctest: +SKIP
+'new'
+>>> check_not_input("labels.npz", {"--in": "trajs.npz"})             # doctest: +SKIP
 
 A violation raises :class:`OutputError` (a ``ValueError``), which
 :func:`slotv_jax.core.cli.command` prints as one line ``error: ...`` with exit code 2.
@@ -76,15 +82,25 @@ def _probe_dir(path: Path, what: str, target: Path) -> Path:
 
 
 def check_output_file(
-    path: str | os.PathLike, *, overwrite: bool = False, what: str = "--out"
+    path: str | os.PathLike,
+    *,
+    overwrite: bool = False,
+    what: str = "--out",
+    suffix: str | None = None,
 ) -> Action:
     """Check, before any work, that the file ``path`` may be written.
 
     Returns "new" (nothing there) or "overwrite" (a file there and ``overwrite``). Raises
-    :class:`OutputError` if a directory is in the way, the file exists without
+    :class:`OutputError` if ``suffix`` (e.g. ``".npz"``, the format the command writes) is
+    given and the name ends otherwise, a directory is in the way, the file exists without
     ``overwrite``, or its directory cannot be written.
     """
     path = Path(path)
+    if suffix is not None and path.suffix.lower() != suffix:
+        got = f"one ending in {path.suffix!r}" if path.suffix else "one without a suffix"
+        raise OutputError(
+            f"{what} {path}: expected a name ending in {suffix} (the format written), got {got}"
+        )
     if path.is_dir():
         raise OutputError(f"{what} {path}: is a directory; give a file name")
     _probe_dir(path.parent, what, path)
@@ -96,6 +112,52 @@ def check_output_file(
             )
         return "overwrite"
     return "new"
+
+
+def _same_path(a: Path, b: Path) -> bool:
+    """Whether ``a`` and ``b`` name one file: equal once resolved (links, ``..``), or the
+    same existing file (a hard link, a case-insensitive file system)."""
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_not_input(
+    out: str | os.PathLike,
+    inputs: Mapping[str, str | os.PathLike | None],
+    *,
+    what: str = "--out",
+    replaces_dir: bool = False,
+) -> None:
+    """Check, before any work, that writing ``out`` cannot touch one of the command's inputs.
+
+    ``inputs`` maps each input's argument (``"--answers"``) to its path (``None``: not
+    given). Raises :class:`OutputError` if ``out`` is an input (compared once resolved:
+    symbolic links, ``..``, a hard link), even with ``--overwrite``; with ``replaces_dir``
+    (``out`` is a directory the command writes or replaces whole) also if an input lies
+    inside it.
+
+    >>> check_not_input("a.csv", {"--answers": "a.csv"})  # doctest: +SKIP
+    OutputError: --out a.csv: is the input --answers a.csv; ...
+    """
+    out = Path(out)
+    for arg, inp in inputs.items():
+        if inp is None:
+            continue
+        inp = Path(inp)
+        if _same_path(out, inp):
+            raise OutputError(
+                f"{what} {out}: is the input {arg} {inp}; a command never writes over its "
+                f"own input (--overwrite or not): choose another {what}"
+            )
+        if replaces_dir and out.resolve() in inp.resolve().parents:
+            raise OutputError(
+                f"{what} {out}: holds the input {arg} {inp}, which writing {what} would "
+                f"replace; choose another {what}, or move the input out of it"
+            )
 
 
 def check_output_dir(
@@ -266,13 +328,18 @@ def read_text(path: str | os.PathLike) -> str:
         ) from None
 
 
-def read_json(path: str | os.PathLike) -> Any:
+def read_json(
+    path: str | os.PathLike,
+    *,
+    object_pairs_hook: Callable[[list[tuple[str, Any]]], Any] | None = None,
+) -> Any:
     """Parse a JSON file; ValueError names the file, line and column of a broken or
-    truncated document; FileNotFoundError if it is missing."""
+    truncated document; FileNotFoundError if it is missing. ``object_pairs_hook`` (as in
+    :func:`json.loads`) builds each object from its key-value pairs, duplicates included."""
     path = Path(path)
     text = read_text(path)
     try:
-        return json.loads(text)
+        return json.loads(text, object_pairs_hook=object_pairs_hook)
     except json.JSONDecodeError as e:
         truncated = " (the file ends early: truncated?)" if e.pos >= len(text.rstrip()) else ""
         raise ValueError(
