@@ -14,6 +14,7 @@ from slotv_jax import data
 from slotv_jax.core.defaults import BETAS_V1, DEFAULT_BETAS
 from slotv_jax.experiments import planning as exp
 from slotv_jax.observers import labelers
+from slotv_jax.planning import evaluation
 from slotv_jax.world import scene
 
 
@@ -43,7 +44,7 @@ def test_oracles_and_scoring_use_the_datasets_temperatures(labels):
         assert np.abs(want - other).max() > 1e-3  # the temperature matters here
         got = np.asarray(jax.nn.softmax(oracles[f](xyz, goals, mask)))
         np.testing.assert_allclose(got, want, rtol=0, atol=2e-6, err_msg=f)
-        y = exp.true_labels(f, xyz[None], goals[None], mask[None], beta=betas[f])
+        y = evaluation.true_labels(f, xyz[None], goals[None], mask[None], beta=betas[f])
         np.testing.assert_allclose(y[0], want, rtol=0, atol=2e-6, err_msg=f)
 
 

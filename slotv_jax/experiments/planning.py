@@ -81,7 +81,8 @@ from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import atomic_write, write_text
 from slotv_jax.experiments.planning_report import FIGURES, render, report, write_doc
-from slotv_jax.observers import labelers, labelling, models
+from slotv_jax.observers import models
+from slotv_jax.planning import evaluation
 from slotv_jax.training import checkpoint, evaluate
 from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
@@ -231,24 +232,9 @@ def held_out_scenes(cfg: PlanningConfig, dataset: dict) -> dict[str, tuple[np.nd
 
 
 def make_problems(scenes: dict) -> dict[str, np.ndarray]:
-    """Every (scene, real goal slot) pair: goals, goal_mask, target, split index, scene index."""
-    rows = {"goals": [], "goal_mask": [], "target": [], "split": [], "scene": []}
-    for si, s in enumerate(SPLITS):
-        goals, mask = scenes[s]
-        for e in range(goals.shape[0]):
-            for k in np.flatnonzero(mask[e]):
-                rows["goals"].append(goals[e])
-                rows["goal_mask"].append(mask[e])
-                rows["target"].append(k)
-                rows["split"].append(si)
-                rows["scene"].append(e)
-    return {
-        "goals": np.asarray(rows["goals"], np.float32),
-        "goal_mask": np.asarray(rows["goal_mask"], bool),
-        "target": np.asarray(rows["target"], np.int32),
-        "split": np.asarray(rows["split"], np.int32),
-        "scene": np.asarray(rows["scene"], np.int32),
-    }
+    """Every (scene, real goal) pair of the held-out :data:`SPLITS`
+    (:func:`slotv_jax.planning.evaluation.scene_problems`)."""
+    return evaluation.scene_problems(scenes, SPLITS)
 
 
 # ------------------------------------------------------------------ observers
@@ -300,64 +286,6 @@ def oracles(cfg: PlanningConfig) -> dict[str, planning.Observer]:
 def observer_key(name: str, family: str) -> str:
     """Key of an observer in the planner: the labelers by name, learned ones by method/family."""
     return name if name in FAMILIES else f"{name}/{family}"
-
-
-# --------------------------------------------------------------------- scores
-
-
-def true_labels(
-    labeler: str, xyz, goals, goal_mask, *, beta: float | None = None, camera: str = "observer"
-) -> np.ndarray:
-    """The labels ``(N, 8)`` of planned paths ``xyz (N, T, 3)`` under the hand-crafted
-    ``labeler`` at ``beta`` (default: :data:`slotv_jax.labelers.DEFAULT_BETAS`, the
-    datasets'), float32, compiled and batched (:func:`slotv_jax.labelers.label_all`)."""
-    beta = labelers.DEFAULT_BETAS[labeler] if beta is None else beta
-    kw = {f"beta_{labeler}": beta, "camera": camera, "labelers": (labeler,), "progress": False}
-    return labelling.label_all(xyz, goals, goal_mask, **kw)[labeler]
-
-
-def path_length(xyz: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(np.diff(np.asarray(xyz, np.float64), axis=-2), axis=-1).sum(-1)
-
-
-def summarise(observer: str, labeler: str, y, y_straight, argmax_ok, length_ratio, feasible):
-    """One ``planners`` row of results.json (SPEC §10) plus the comparison to the straight line."""
-    y = np.asarray(y, np.float64)
-    n = y.size
-    return {
-        "observer": observer,
-        "labeler": labeler,
-        "n": int(n),
-        "mean_y_target": float(y.mean()),
-        "sd_y_target": float(y.std(ddof=1)) if n > 1 else 0.0,
-        "argmax_rate": float(np.mean(argmax_ok)),
-        "length_ratio": float(np.mean(length_ratio)),
-        "feasible_rate": float(np.mean(feasible)),
-        "mean_gain": float(np.mean(y - y_straight)),
-        "lowered_rate": float(np.mean(y < y_straight)),
-        "raised_rate": float(np.mean(y > y_straight)),
-    }
-
-
-def plan_row(name: str, family: str, res, y_all, y_straight, len_straight, problems) -> dict:
-    """:func:`summarise` of one planner's plans ``res`` (a :class:`planning.PlanResult`
-    batch) with their true labels ``y_all (N, 8)``, plus what the planner itself saw and
-    the constraints of its worst plan."""
-    target = problems["target"]
-    rows = np.arange(len(target))
-    y = y_all[rows, target]
-    d = res.diagnostics
-    row = summarise(name, family, y, y_straight, y_all.argmax(-1) == target,
-                    path_length(res.xyz) / len_straight, d.feasible)  # fmt: skip
-    obj = np.asarray(d.objective)
-    row["observer_p_target_straight"] = float(np.exp(obj[:, 0]).mean())
-    row["observer_p_target_plan"] = float(np.exp(obj[rows, np.asarray(d.best_iter)]).mean())
-    row["max_target_residual_m"] = float(np.max(d.target_residual))
-    row["min_joint_margin_rad"] = float(np.min(d.joint_margin))
-    row["min_table_clearance_m"] = float(np.min(d.table_clearance))
-    row["max_cost_over_limit_m2"] = float(np.max(d.cost - d.cost_limit))
-    row["by_split"] = {s: float(y[problems["split"] == i].mean()) for i, s in enumerate(SPLITS)}
-    return row
 
 
 # ------------------------------------------------------------------------ run
@@ -423,23 +351,29 @@ def run(
 
     # Scores under the labeler of each family at the dataset's temperature.
     goals, mask, target = problems["goals"], problems["goal_mask"], problems["target"]
-    len_straight = path_length(straight.xyz)
+    len_straight = evaluation.path_length(straight.xyz)
     rows: dict[str, list[dict]] = {"planners": [], "plus_planners": [], "archetype_planners": []}
     labels: dict[tuple[str, str], np.ndarray] = {}
     gains: dict[str, float | None] = {}
     for family in FAMILIES:
-        y_s_all = true_labels(family, straight.xyz, goals, mask, beta=betas[family], camera=camera)
+        y_s_all = evaluation.true_labels(
+            family, straight.xyz, goals, mask, beta=betas[family], camera=camera
+        )
         y_s = y_s_all[np.arange(len(target)), target]
         labels[family, "straight"] = y_s_all
         ok_s = np.asarray(straight.target_residual) <= planning.MAX_RESIDUAL
         ones = np.ones_like(len_straight)
         argmax = y_s_all.argmax(-1) == target
-        rows["planners"].append(summarise("straight", family, y_s, y_s, argmax, ones, ok_s))
+        rows["planners"].append(
+            evaluation.summarise("straight", family, y_s, y_s, argmax, ones, ok_s)
+        )
         for name in (family, *cfg.methods(family)):
             res = plans[observer_key(name, family)]
-            y_all = true_labels(family, res.xyz, goals, mask, beta=betas[family], camera=camera)
+            y_all = evaluation.true_labels(
+                family, res.xyz, goals, mask, beta=betas[family], camera=camera
+            )
             labels[family, name] = y_all
-            row = plan_row(name, family, res, y_all, y_s, len_straight, problems)
+            row = evaluation.plan_row(name, family, res, y_all, y_s, len_straight, problems, SPLITS)
             if name == "archetype":
                 row["model"] = cfg.observer_config(name, family).model
             group = "archetype_planners" if name == "archetype" else "planners"
@@ -447,7 +381,7 @@ def run(
         oracle_gain = next(r for r in rows["planners"] if r["observer"] == family)["mean_gain"]
         for r in (r for group in rows.values() for r in group):
             if r["labeler"] == family and r["observer"] in LEARNED:
-                r["oracle_gain_kept"] = r["mean_gain"] / oracle_gain if oracle_gain > 0 else None
+                r["oracle_gain_kept"] = evaluation.gain_kept(r["mean_gain"], oracle_gain)
                 gains[f"{r['observer']}/{family}"] = r["oracle_gain_kept"]
 
     timing["total_s"] = time.perf_counter() - t_start
