@@ -137,8 +137,13 @@ def test_readme_study_walk_with_people_in_chromium(browser, tiny_data, tiny_cfg,
         assert len(mine) == 5  # practice, 3 motions, 1 attention check
     assert len(rows) == 23 * 5  # and the 20 simulated participants
     # what the README's commands made of them
-    assert "20 of 20 simulated participants finished" in out
-    assert "wrote answers: 69 answers to 3 trajectories from 23 participants" in out
+    # each participant: a practice trial, 3 stimuli and an attention check
+    assert (
+        "20 of 20 simulated participants finished, 100 answers (60 on the stimuli, "
+        "20 attention checks, 20 practice trials; export keeps those on the stimuli)"
+    ) in out
+    assert ("wrote answers: 69 answers to 3 trajectories from 23 participants (the stimuli's "
+            "answers; left out: 23 attention checks, 23 practice trials)") in out  # fmt: skip
     s = study.load_study(tmp_path / "people.npz")
     assert s.n_answers == 69 and s.conditions == ("observer",)
     probs = re.search(r"P\(goal \| motion\): \[([0-9., ]+)\]", out).group(1).split(",")

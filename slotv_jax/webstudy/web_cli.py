@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import collections
+import hashlib
 import secrets
 import sys
 import time
@@ -89,10 +91,16 @@ def export_main(args: argparse.Namespace) -> int:
     there = [n for n in export_lib.TABLES if (out / f"{n}.csv").exists()]
     if there and not args.overwrite:
         raise ValueError(f"--out {out}: {there[0]}.csv exists (add --overwrite to replace it)")
-    n = export_lib.export_tables(connect(db), out, drop_failed_attention=args.drop_failed_attention)
+    storage = connect(db)
+    n = export_lib.export_tables(storage, out, drop_failed_attention=args.drop_failed_attention)
+    kinds = collections.Counter(a["kind"] for a in storage.answers())
+    dropped = kinds["trial"] - n["answers"]  # --drop-failed-attention
     print(
         f"wrote {out}: {n['answers']} answers to {n['trajectories']} trajectories "
-        f"from {n['participants']} participants",
+        f"from {n['participants']} participants (the stimuli's answers; left out: "
+        f"{kinds['attention']} attention checks, {kinds['practice']} practice trials"
+        + (f", {dropped} answers of participants who failed a check" if dropped else "")
+        + ")",
         file=sys.stdout,
     )
     return 0
@@ -114,10 +122,19 @@ def simulate_main(args: argparse.Namespace) -> int:
             if time.monotonic() > deadline:
                 raise ValueError(f"--url {args.url}: no study server there ({e})") from None
             time.sleep(0.25)
-    res = asyncio.run(client.run_crowd(args.url, args.participants, guess, timeout=600))
+    kinds: collections.Counter = collections.Counter()
+
+    def answer(state: dict, still: bytes) -> str:  # the guesser, counting each trial's kind
+        kinds[guess.by_still[hashlib.sha256(still).hexdigest()][0]["kind"]] += 1
+        return guess(state, still)
+
+    res = asyncio.run(client.run_crowd(args.url, args.participants, answer, timeout=600))
     done = sum(r.code is not None for r in res)
+    # every guess was acknowledged: a post that fails raises out of run_crowd
     print(f"{done} of {len(res)} simulated participants finished, "
-          f"{sum(len(r.answers) for r in res)} answers")  # fmt: skip
+          f"{sum(len(r.answers) for r in res)} answers ({kinds['trial']} on the stimuli, "
+          f"{kinds['attention']} attention checks, {kinds['practice']} practice trials; "
+          "export keeps those on the stimuli)")  # fmt: skip
     return 0
 
 
