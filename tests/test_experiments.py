@@ -316,3 +316,23 @@ def test_two_processes_split_a_group_and_one_writes(cache, tmp_path):
     assert got.keys() == ref.keys()
     for k in ref:
         assert abs(got[k] - ref[k]) <= 2 / 100, (k, got[k], ref[k])
+
+
+def test_study_size_report_renders_again(tmp_path):
+    """``study_size --report`` renders the recorded report again from its results alone:
+    every table row (the numbers) of the recorded report, in order, and the figure."""
+    plt = pytest.importorskip("matplotlib.pyplot")
+    folder = REPO / "experiments"
+    for name in ("study_size.json", "study_size.md"):
+        (tmp_path / name).write_bytes((folder / name).read_bytes())
+    from slotv_jax.experiments.study_size.__main__ import main
+
+    assert main(["--report", "--out", str(tmp_path)]) == 0
+    rows = [x for x in (tmp_path / "study_size.md").read_text().splitlines() if x.startswith("|")]
+    recorded = [x for x in (folder / "study_size.md").read_text().splitlines() if x.startswith("|")]
+    assert len(rows) > 20 and rows == recorded[: len(rows)]
+    got, want = (plt.imread(d / "study_size.png") for d in (tmp_path, folder))
+    assert got.shape == want.shape and np.abs(got - want).mean() < 0.01
+    with pytest.raises(SystemExit) as e:
+        main(["--report", "--out", str(tmp_path / "empty")])
+    assert e.value.code == 2

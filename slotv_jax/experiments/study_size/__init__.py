@@ -49,7 +49,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import time
 from pathlib import Path
 
@@ -62,7 +61,9 @@ from slotv_jax import data as data_lib
 from slotv_jax import study
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
+from slotv_jax.runs import record
 from slotv_jax.runs.presets import METHODS
+from slotv_jax.runs.summary import crossing, pooled
 from slotv_jax.training import config as train_config
 from slotv_jax.training import evaluate, types
 
@@ -139,6 +140,11 @@ def paper(**overrides) -> StudySizeConfig:
 PRESETS = {"quick": quick, "paper": paper}
 
 
+def stem_of(preset: str) -> str:
+    """The file stem of a preset's outputs: ``study_size``, ``study_size_paper``."""
+    return "study_size" if preset == "quick" else f"study_size_{preset}"
+
+
 def p_name(p: int) -> str:
     return "∞ (labels)" if p == INF else str(p)
 
@@ -203,7 +209,7 @@ def run(
     ``references``: the folder of the recorded results the report compares with
     (:func:`recorded_references`)."""
 
-    stem = "study_size" if cfg.preset == "quick" else f"study_size_{cfg.preset}"
+    stem = stem_of(cfg.preset)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{stem}.json"
     conf = json.loads(json.dumps(cfg.to_json()))
@@ -214,7 +220,7 @@ def run(
     doc["references"] = recorded_references(references)
     doc["xla"] = slotv_jax.XLA_CONFIG.summary()
     t_start = t0 = time.perf_counter()
-    load = {"cpus": os.cpu_count(), "start": os.getloadavg()[0]}
+    load = record.load_start()
     splits = data_lib.cached_dataset(
         cfg.data, cache, splits=("train", cfg.eval_split), progress=progress
     )
@@ -286,7 +292,7 @@ def run(
         doc["measure"] = measure(splits["train"], cfg, progress=progress)
     doc["timing"]["total_s"] = doc["timing"].get("total_s", 0.0) + time.perf_counter() - t_start
     if todo or "load" not in doc:  # the load while the cells ran, not while a resume reports
-        doc["load"] = {**load, "end": os.getloadavg()[0]}
+        doc["load"] = record.load_end(load)
     _write(doc, cfg, out, stem)
     return doc
 
@@ -362,28 +368,13 @@ def measure(tr, cfg: StudySizeConfig, *, n: int = 2000, participants: int = 20, 
 
 def summarise(doc: dict) -> list[dict]:
     """Mean and SD of accuracy over trials per (method, P, N)."""
-    groups: dict[tuple, list[float]] = {}
-    for c in doc["cells"]:
-        groups.setdefault((c["method"], c["participants"], c["n"]), []).append(c["accuracy"])
-    rows = []
-    for (m, p, n), acc in sorted(groups.items()):
-        a = np.asarray(acc)
-        rows.append(
-            {
-                "method": m,
-                "participants": p,
-                "n": n,
-                "mean": float(a.mean()),
-                "sd": float(a.std(ddof=1)) if a.size > 1 else 0.0,
-                "trials": int(a.size),
-            }
-        )
-    return rows
+    return pooled(doc["cells"], ("method", "participants", "n"), count="trials")
 
 
 def needed(summary: list[dict], threshold: float) -> list[dict]:
     """Per (method, P): the smallest N whose mean accuracy reaches ``threshold``,
-    interpolated linearly in log N between the grid points around the crossing."""
+    interpolated linearly in log N between the grid points around the crossing
+    (:func:`slotv_jax.runs.summary.crossing`)."""
     out = []
     for m in sorted({r["method"] for r in summary}):
         for p in sorted({r["participants"] for r in summary if r["method"] == m}):
@@ -397,18 +388,10 @@ def needed(summary: list[dict], threshold: float) -> list[dict]:
                 "participants": p,
                 "best": float(acc.max()),
                 "best_n": int(ns[acc.argmax()]),
+                "n": crossing(ns, acc, threshold),
             }
-            if hit.size == 0:
-                rec["n"] = None
-            elif hit[0] == 0:
-                rec["n"] = float(ns[0])
+            if hit.size and hit[0] == 0:
                 rec["at_most"] = True
-            else:
-                i = hit[0]
-                f = (threshold - acc[i - 1]) / (acc[i] - acc[i - 1])
-                rec["n"] = float(
-                    np.exp(np.log(ns[i - 1]) + f * (np.log(ns[i]) - np.log(ns[i - 1])))
-                )
             if rec["n"] is not None and p != 0:
                 rec["answers"] = rec["n"] * p
             if hit.size:  # a later grid point below the threshold again: a noisy crossing

@@ -4,21 +4,24 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
+import json
 from collections.abc import Sequence
 from pathlib import Path
 
 import slotv_jax
 from slotv_jax import data as data_lib
-from slotv_jax.core import cli
+from slotv_jax.core import cli, fileio
 from slotv_jax.core.fileio import write_text
-from slotv_jax.experiments.study_size import PRESETS, p_name, run
+from slotv_jax.experiments.study_size import PRESETS, p_name, run, stem_of
 from slotv_jax.experiments.study_size.report import plot, report
+from slotv_jax.runs import record
+
+PROG = "python -m slotv_jax.experiments.study_size"
 
 
 def _parse_args(argv):
     ap = argparse.ArgumentParser(
-        prog="python -m slotv_jax.experiments.study_size",
+        prog=PROG,
         description="Simulated studies: trajectories × participants for a learned observer.",
     )
     ap.add_argument("--preset", default="quick", choices=tuple(PRESETS))
@@ -42,13 +45,36 @@ def _parse_args(argv):
         help="TrainConfig override (both methods, after the preset's), e.g. "
         "--set compute_dtype=bfloat16",
     )
+    ap.add_argument(
+        "--report",
+        action="store_true",
+        help="only render OUT/STEM.md and .png again from the results document OUT/STEM.json",
+    )
     ap.add_argument("--no-progress", action="store_true")
     return ap.parse_args(argv)
+
+
+def report_again(out: Path, preset: str) -> int:
+    """Render ``OUT/STEM.md`` and ``.png`` again from ``OUT/STEM.json`` alone (the report's
+    date is today's), keeping the command the existing report names."""
+    stem = stem_of(preset)
+    path = out / f"{stem}.json"
+    if not fileio.is_json_object_with(path, ("preset", "config", "cells", "summary", "needed")):
+        raise cli.InputError(f"--report: {path} is not a results document of this experiment")
+    fileio.check_output_files(out, [f"{stem}.md", f"{stem}.png"])
+    doc = json.loads(path.read_text())
+    plot(doc, out / f"{stem}.png")
+    command = record.recorded_command(out / f"{stem}.md") or f"{PROG} --preset {preset}"
+    write_text(out / f"{stem}.md", report(doc, stem, command))
+    print(f"wrote {out / stem}.md and .png from {path.name}")
+    return 0
 
 
 @cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
+    if args.report:
+        return report_again(Path(args.out), args.preset)
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)
     kw: dict = {}
     if args.n_grid:
@@ -69,12 +95,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = dataclasses.replace(cfg, overrides=cfg.overrides + tuple(args.set))
     out = Path(args.out)
     doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress)
-    stem = "study_size" if cfg.preset == "quick" else f"study_size_{cfg.preset}"
+    stem = stem_of(cfg.preset)
     plot(doc, out / f"{stem}.png")
-    command = "python -m slotv_jax.experiments.study_size " + " ".join(
-        sys.argv[1:] if argv is None else list(argv)
-    )
-    write_text(out / f"{stem}.md", report(doc, stem, command.strip()))
+    write_text(out / f"{stem}.md", report(doc, stem, record.command_line(PROG, argv).strip()))
     for r in doc["needed"]:
         got = "not reached" if r["n"] is None else f"N ≈ {r['n']:,.0f}"
         print(f"{r['method']} P={p_name(r['participants'])}: {got} (best {r['best']:.3f})")

@@ -10,17 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from slotv_jax.core.fileio import save_figure
 from slotv_jax.experiments.study_size import BUDGET_FRACTIONS, INF, p_name
+from slotv_jax.runs import figures
 from slotv_jax.runs.presets import METHOD_TITLES, METHODS
 
 
 def plot(doc: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = figures.pyplot()
     cfg = doc["config"]
     methods = [m for m in METHODS if any(r["method"] == m for r in doc["summary"])]
     fig, axes = plt.subplots(
@@ -37,8 +33,7 @@ def plot(doc: dict, path: Path) -> None:
             n = np.array([r["n"] for r in rows])
             mu, sd = np.array([r["mean"] for r in rows]), np.array([r["sd"] for r in rows])
             style = {"ls": "--", "color": "k"} if p == INF else {"marker": "o"}
-            (line,) = ax.plot(n, mu, label=f"P = {p_name(p)}", **style)
-            ax.fill_between(n, mu - sd, mu + sd, alpha=0.15, color=line.get_color())
+            figures.band(ax, n, mu, sd, label=f"P = {p_name(p)}", outline=True, **style)
         ax.axhline(cfg["threshold"], color="grey", lw=0.8, ls=":")
         ax.set_xscale("log")
         ax.set_xlabel("training trajectories N")
@@ -54,8 +49,7 @@ def plot(doc: dict, path: Path) -> None:
         fontsize=10,
     )
     fig.tight_layout()
-    save_figure(fig, path, dpi=120)
-    plt.close(fig)
+    figures.save(fig, path, dpi=120)
 
 
 def report(doc: dict, stem: str, command: str) -> str:
