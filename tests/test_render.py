@@ -13,7 +13,7 @@ import sys
 import mujoco
 import numpy as np
 import pytest
-from PIL import Image
+from PIL import Image, ImageDraw
 
 from slotv_jax import render
 from slotv_jax.rendering import compare, overlay, writers
@@ -294,3 +294,67 @@ def test_compare_layouts(renderer):
     np.testing.assert_array_equal(over[:, -h:], own)
     with pytest.raises(ValueError, match=r"^layout:"):
         render.compare_frames([q1], GOALS, MASK, layout="grid", **kw)
+
+
+def _text_mask(img: np.ndarray) -> np.ndarray:
+    """Text pixels of a label (RGB) or of a reference (grey), cropped to their bounding box:
+    darker than half-way between the ink (the darkest pixel) and the paper (the median; a
+    label's box lets a little of the scene through)."""
+    g = (img if img.ndim == 2 else img.max(-1)).astype(float)
+    dark = g < (g.min() + np.median(g)) / 2
+    ys, xs = np.nonzero(dark)
+    return dark[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1]
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two masks aligned at their top-left corners."""
+    h, w = max(a.shape[0], b.shape[0]), max(a.shape[1], b.shape[1])
+    pa, pb = np.zeros((h, w), bool), np.zeros((h, w), bool)
+    pa[: a.shape[0], : a.shape[1]], pb[: b.shape[0], : b.shape[1]] = a, b
+    return float((pa & pb).sum() / (pa | pb).sum())
+
+
+def test_each_label_is_drawn_over_its_own_goal(mjx_ref):
+    """Goal by goal, with names unlike each other: the label box standing over goal k's
+    projected anchor (MJX camera) and over cube k as MuJoCo draws it holds the text of name
+    k (Pillow's own drawing of each name is the reference), and no other name matches it as
+    well. Names drawn in another order (e.g. reversed) put the wrong text over a cube."""
+    from scipy import ndimage
+
+    size = (640, 360)
+    names = ["i", "WWW", "Mm"]  # widths and shapes unlike each other
+    q = np.stack([kinematics.Q_HOME] * 4)  # the arm stays home, clear of the cubes
+    with render.MotionRenderer(size) as r:
+        kw = {"size": size, "renderer": r}
+        labelled = render.still(q, GOALS, MASK, labels=names, **kw).astype(int)
+        bare = render.still(q, GOALS, MASK, show_labels=False, **kw).astype(int)
+        r.set_goals(GOALS, MASK)
+        seg = r.frame(kinematics.Q_HOME, "observer", segmentation=True)
+        cube_geom = {
+            int(r.model.body_mocapid[r.model.geom_bodyid[g]]): g
+            for g in range(r.model.ngeom)
+            if r.model.body_mocapid[r.model.geom_bodyid[g]] >= 0
+        }
+    boxes, n = ndimage.label(np.abs(labelled - bare).sum(-1) > 0)
+    assert n == 3, n  # one box per goal, apart from each other
+    fnt = overlay.font(overlay.font_size(size[1]))
+    cam = mjx_ref[1]["observer"]
+    for k, name in enumerate(names):
+        x, y = _mjx_pixel(GOALS[k] + [0, 0, overlay.LABEL_LIFT], cam, size)
+        assert boxes[int(y), int(x)] > 0, f"goal {k}: no label over its anchor"
+        ys, xs = np.nonzero(boxes == boxes[int(y), int(x)])
+        cube = (seg[..., 1] == mujoco.mjtObj.mjOBJ_GEOM) & (seg[..., 0] == cube_geom[k])
+        cy, cx = np.nonzero(cube)
+        assert cube.sum() > 20, f"cube {k} is not in sight"
+        assert xs.min() <= cx.mean() <= xs.max() and ys.mean() < cy.mean(), f"goal {k}"
+        refs = []  # each name alone, drawn by Pillow on white at the anchor's sub-pixel offset
+        for other in names:
+            img = Image.new("L", (200, 60), 255)
+            at = (100 + x % 1, 30 + y % 1)
+            ImageDraw.Draw(img).text(at, other, font=fnt, fill=0, anchor="mm")
+            refs.append(_text_mask(np.asarray(img)))
+        crop = labelled[ys.min() : ys.max() + 1, xs.min() : xs.max() + 1].astype(np.uint8)
+        inner = crop[3:-3, 3:-3]  # inside the coloured border
+        score = [_overlap(_text_mask(inner), ref) for ref in refs]
+        assert score[k] > 0.8, (k, name, score)
+        assert max(np.delete(score, k)) < 0.5, (k, name, score)
