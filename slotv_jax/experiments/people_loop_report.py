@@ -1,0 +1,320 @@
+"""The people loop's report, from its results document alone
+(``python -m slotv_jax.experiments.people_loop``): tables of the gain kept, the answers to
+50 % and 80 %, the whole-motion against the prefix objective, the evaluation studies, the
+figure of gain kept against answers and a rendered comparison of one problem."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from slotv_jax import rendering
+from slotv_jax.core.fileio import save_figure, write_text
+
+FAMILY_TITLES = {
+    "mlp": "SLOT-V (paper MLP)",
+    "slotv_plus": "SLOT-V+",
+    "dragan_archetype": "Dragan archetype",
+    "viewpoint_archetype": "viewpoint archetype",
+    "dragan_fitted": "Dragan, β fitted",
+    "nikolaidis_fitted": "Nikolaidis, β fitted",
+}
+FAMILY_COLORS = {
+    "mlp": "tab:blue",
+    "slotv_plus": "tab:red",
+    "dragan_archetype": "tab:green",
+    "viewpoint_archetype": "tab:purple",
+    "dragan_fitted": "tab:gray",
+    "nikolaidis_fitted": "tab:brown",
+}
+STRATEGY_STYLES = {"random": "--", "margin": "-", "error": ":"}
+BASELINES = ("dragan_fitted", "nikolaidis_fitted")
+RENDER_TAU = 0.5
+
+
+def answers_to(answers: Sequence[float], gain: Sequence[float], level: float) -> float | None:
+    """Answers at which ``gain`` first reaches ``level``: linear in log answers between the
+    size before and the first size at or above it; None if never.
+
+    >>> answers_to([250, 1000], [0.4, 0.9], 0.65)  # halfway in log: sqrt(250 · 1000)
+    500.0
+    """
+    a, x = np.asarray(answers, float), np.asarray(gain, float)
+    hit = np.flatnonzero(x >= level)
+    if hit.size == 0:
+        return None
+    j = int(hit[0])
+    if j == 0:
+        return float(a[0])
+    f = (level - x[j - 1]) / (x[j] - x[j - 1])
+    return float(np.exp(np.log(a[j - 1]) + f * (np.log(a[j]) - np.log(a[j - 1]))))
+
+
+def curves(doc: dict, population: str) -> dict[tuple[str, str], tuple[list, list]]:
+    """(family, strategy) -> (answers, mean gain kept) from the summary."""
+    out: dict[tuple[str, str], tuple[list, list]] = {}
+    rows = sorted(
+        (r for r in doc["summary"] if r["population"] == population), key=lambda r: r["answers"]
+    )
+    for r in rows:
+        a, g = out.setdefault((r["family"], r["strategy"]), ([], []))
+        a.append(r["answers"])
+        g.append(r["gain_kept"])
+    return out
+
+
+def _fmt(x: float | None) -> str:
+    return "—" if x is None else f"{x:,.0f}"
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.0f} %"
+
+
+def population_section(doc: dict, pop: dict) -> list[str]:
+    name, cfg = pop["population"], doc["config"]
+    c = curves(doc, name)
+    sizes = sorted({a for (a_list, _) in c.values() for a in a_list})
+    strategies = [s for s in cfg["strategies"] if any(k[1] == s for k in c)]
+    families = [f for f in cfg["families"] if any(k[0] == f for k in c)]
+    lines = [f"## Population `{name}`", ""]
+    lines += [
+        "Gain kept, (plan − straight) / (oracle − straight), each scored by the population's "
+        "mean P_pop(target | ξ_{0:τ}) over the study's stop times; the mean over "
+        f"{cfg['seeds']} seed(s).",
+        "",
+    ]
+    for s in strategies:
+        lines += [
+            f"**{s}**",
+            "",
+            "| family | " + " | ".join(f"{a:,}" for a in sizes) + " |",
+            "|---|" + "---|" * len(sizes),
+        ]
+        for f in families:
+            a, g = c.get((f, s), ([], []))
+            vals = dict(zip(a, g, strict=True))
+            cells = [_pct(vals[x]) if x in vals else "—" for x in sizes]
+            lines.append(f"| {FAMILY_TITLES.get(f, f)} | " + " | ".join(cells) + " |")
+        lines.append("")
+    lines += [
+        "Answers to keep 50 % and 80 % of the oracle's gain (interpolated in log answers; "
+        "— : not within the sizes run):",
+        "",
+        "| family | " + " | ".join(f"{s}: 50 % / 80 %" for s in strategies) + " |",
+        "|---|" + "---|" * len(strategies),
+    ]
+    for f in families:
+        cells = []
+        for s in strategies:
+            a, g = c.get((f, s), ([], []))
+            cells.append(f"{_fmt(answers_to(a, g, 0.5))} / {_fmt(answers_to(a, g, 0.8))}")
+        lines.append(f"| {FAMILY_TITLES.get(f, f)} | " + " | ".join(cells) + " |")
+    lines.append("")
+    lines += verdict(doc, name, families, strategies, c)
+    cmp_ = pop["comparison"]
+    taus = cfg["taus"]
+    lines += [
+        "### What people read early: the prefix objective against the whole motion",
+        "",
+        "The population's P_pop(target | ξ_{0:τ}) of the oracle's plans (mean over the "
+        "held-out problems) at each stop time, planned with the prefix objective (the mean "
+        "over τ of log P_pop(target | ξ_{0:τ})) and with the whole-motion objective "
+        "(log P_pop(target | ξ)); the evaluation study's accuracy pools every τ.",
+        "",
+        "| plan | " + " | ".join(f"τ = {t:g}" for t in taus) + " | mean | evaluation accuracy |",
+        "|---|" + "---|" * (len(taus) + 2),
+    ]
+    for key, title in (
+        ("straight", "straight line"),
+        ("oracle_whole", "whole-motion objective"),
+        ("oracle", "prefix objective"),
+    ):
+        v = cmp_[key]
+        lines.append(
+            f"| {title} | "
+            + " | ".join(f"{p:.3f}" for p in v["per_tau"])
+            + f" | {v['score']:.3f} | {_pct(v['accuracy'])} |"
+        )
+    lines.append("")
+    lines += evaluation(doc, pop, families, strategies)
+    t = pop["timing"]
+    lines += [
+        f"Time: {t['total_s'] / 60:.1f} min (fits {t['fit_s']:.0f} s, β fits "
+        f"{t['beta_s']:.0f} s, selection {t['select_s']:.0f} s, planning {t['plan_s']:.0f} s, "
+        f"evaluation {t['eval_s']:.0f} s, answers {t['answers_s']:.0f} s).",
+        "",
+    ]
+    return lines
+
+
+def verdict(doc: dict, name: str, families, strategies, c) -> list[str]:
+    """The issue's question in numbers: the best family within 2,000 answers against the
+    fitted baselines."""
+    out = []
+    for s in strategies:
+        best, best_g = None, -math.inf
+        for f in families:
+            a, g = c.get((f, s), ([], []))
+            vals = [gi for ai, gi in zip(a, g, strict=True) if ai <= 2000]
+            if vals and vals[-1] > best_g:
+                best, best_g = f, vals[-1]
+        if best is None:
+            continue
+        base = {f: dict(zip(*c[(f, s)], strict=True)) for f in BASELINES if (f, s) in c}
+        at = max(a for a in c[(best, s)][0] if a <= 2000)
+        beats = [f for f, v in base.items() if best_g > v.get(at, math.inf)]
+        out.append(
+            f"- {s}: from {at:,} answers the best family is {FAMILY_TITLES.get(best, best)}, "
+            f"keeping {_pct(best_g)} of the oracle's gain"
+            + (f"; it beats {' and '.join(FAMILY_TITLES[f] for f in beats)} there" if beats else "")
+            + "."
+        )
+    return [*out, ""] if out else []
+
+
+def evaluation(doc: dict, pop: dict, families, strategies) -> list[str]:
+    """The evaluation study at the largest size: accuracy of fresh participants with its
+    95 % interval (the first seed)."""
+    cfg = doc["config"]
+    last = max(r["answers"] for r in pop["rows"])
+    seed = min(r["seed"] for r in pop["rows"])
+    n = cfg["problems"] * len(cfg["taus"]) * cfg["eval_participants"]
+    lines = [
+        f"### Evaluation studies at {last:,} answers (seed {seed}, {n} guesses each)",
+        "",
+        "| family | " + " | ".join(strategies) + " |",
+        "|---|" + "---|" * len(strategies),
+    ]
+    for f in families:
+        cells = []
+        for s in strategies:
+            r = next(
+                (
+                    r
+                    for r in pop["rows"]
+                    if (r["family"], r["strategy"], r["answers"], r["seed"]) == (f, s, last, seed)
+                ),
+                None,
+            )
+            cells.append(
+                "—"
+                if r is None
+                else f"{_pct(r['accuracy'])} "
+                f"[{100 * r['accuracy_95'][0]:.0f}, {100 * r['accuracy_95'][1]:.0f}]"
+            )
+        lines.append(f"| {FAMILY_TITLES.get(f, f)} | " + " | ".join(cells) + " |")
+    c = pop["comparison"]
+    lines += [
+        "",
+        f"Straight line {_pct(c['straight']['accuracy'])}, oracle "
+        f"{_pct(c['oracle']['accuracy'])} (chance ≈ 1 / goals).",
+        "",
+    ]
+    return lines
+
+
+def report(doc: dict, stem: str) -> str:
+    cfg, env = doc["config"], doc.get("environment", {})
+    head = [
+        f"# From people's answers to motion people read ({doc['preset']} preset)",
+        "",
+        "Every number here comes from **simulated people** (`slotv_jax.observers.population`), "
+        "not from a study with humans: the population named in each section.",
+        "",
+        f"Rendered from `{stem}_results.json` (`python -m slotv_jax.experiments.people_loop "
+        f"--preset {doc['preset']}`). Stop times τ = {', '.join(f'{t:g}' for t in cfg['taus'])}; "
+        f"{cfg['per_stimulus']} answers per asked stimulus; pool {cfg['pool']:,} training motions; "
+        f"{cfg['problems']} held-out problems; seeds {cfg['first_seed']}–"
+        f"{cfg['first_seed'] + cfg['seeds'] - 1}; active selection asks an ensemble of "
+        f"{cfg['members']} {FAMILY_TITLES.get(cfg['select_family'])} observers.",
+        "",
+        f"Machine: {', '.join(env.get('devices', []))}; Python {env.get('python')}, jax "
+        f"{env.get('jax')}, flax {env.get('flax')}, optax {env.get('optax')}, mujoco "
+        f"{env.get('mujoco')}, numpy {env.get('numpy')}; {doc.get('date', '')}.",
+        "",
+        f"![gain kept against answers]({stem}.png)",
+        "",
+        f"![straight line, oracle and the best learned plan at τ = {RENDER_TAU}]"
+        f"({stem}_render.png)",
+        "",
+    ]
+    body = [line for p in doc["populations"] for line in population_section(doc, p)]
+    return "\n".join(head + body)
+
+
+def plot(doc: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pops = [p["population"] for p in doc["populations"]]
+    fig, axes = plt.subplots(1, len(pops), figsize=(6.5 * len(pops), 4.2), squeeze=False)
+    for ax, name in zip(axes[0], pops, strict=True):
+        for (f, s), (a, g) in curves(doc, name).items():
+            ax.plot(
+                a,
+                g,
+                STRATEGY_STYLES.get(s, "-."),
+                color=FAMILY_COLORS.get(f, "k"),
+                marker="o",
+                ms=3,
+                label=f"{FAMILY_TITLES.get(f, f)}, {s}",
+            )
+        ax.axhline(0.8, color="k", lw=0.5)
+        ax.set_xscale("log")
+        ax.set_xlabel("answers")
+        ax.set_ylabel("gain kept (plan − straight) / (oracle − straight)")
+        ax.set_title(f"population: {name} (simulated people)")
+        ax.legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    save_figure(fig, path, dpi=120)
+    plt.close(fig)
+
+
+def best_family(doc: dict, pop: dict) -> str | None:
+    """The learned family with the highest gain kept at the largest size (any strategy)."""
+    last = max(r["answers"] for r in pop["rows"])
+    rows = [
+        r
+        for r in doc["summary"]
+        if r["population"] == pop["population"]
+        and r["answers"] == last
+        and r["family"] not in BASELINES
+    ]
+    return max(rows, key=lambda r: r["gain_kept"])["family"] if rows else None
+
+
+def render_example(doc: dict, path: Path) -> None:
+    """Straight line, oracle and the best learned plan of the first population's example
+    problem, side by side at τ = :data:`RENDER_TAU`."""
+    pop = doc["populations"][0]
+    ex = pop["example"]
+    best = best_family(doc, pop)
+    names = ["straight", "oracle"] + ([best] if best in ex["q"] else [])
+    qs = [np.asarray(ex["q"][n], np.float32) for n in names]
+    prob = ex["problem"]
+    frames = rendering.compare_frames(
+        qs,
+        np.asarray(prob["goals"], np.float32),
+        np.asarray(prob["goal_mask"], bool),
+        names=[FAMILY_TITLES.get(n, n) for n in names],
+        tau=RENDER_TAU,
+        size=(480, 270),
+        target=int(prob["target"]),
+        fps=10,
+        duration=1.0,
+        hold=0.0,
+    )
+    rendering.write_png(path, frames[-1])
+
+
+def render(doc: dict, out: Path, stem: str) -> None:
+    """Write ``STEM.md``, ``STEM.png`` and ``STEM_render.png`` from the document."""
+    plot(doc, out / f"{stem}.png")
+    render_example(doc, out / f"{stem}_render.png")
+    write_text(out / f"{stem}.md", report(doc, stem))
