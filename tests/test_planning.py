@@ -25,7 +25,7 @@ import ref_labelers
 
 from slotv_jax import planning
 from slotv_jax.core.defaults import BETAS_V1
-from slotv_jax.observers import labelers
+from slotv_jax.observers import common, labelers
 from slotv_jax.planning import planner as planning_planner
 from slotv_jax.robot import kinematics
 from slotv_jax.world import scene
@@ -388,3 +388,99 @@ def test_experiment_observers():
     assert bare.learned() == [(m, f) for f in exp.FAMILIES for m in exp.METHODS]
     assert exp.observer_key("archetype", "nikolaidis") == "archetype/nikolaidis"
     assert exp.observer_key("slotv_plus", "dragan") == "slotv_plus/dragan"
+
+
+# ------------------------------------------------------- planning for what people read early
+
+
+def test_prefix_objective_by_hand():
+    """A 5-point path between two goals: the prefix legibility is the mean over the stop
+    times of log y_target of the float64 NumPy Dragan labeler on the points seen so far."""
+    goals = np.zeros((8, 3))
+    goals[:2] = [[0.5, 0.2, 0.025], [0.5, -0.2, 0.025]]
+    mask = np.arange(8) < 2
+    xyz = np.array([[0.31, 0.0, 0.49], [0.38, 0.02, 0.4], [0.43, 0.1, 0.3],
+                    [0.47, 0.16, 0.15], [0.5, 0.2, 0.025]])  # fmt: skip
+    taus = (0.3, 0.6, 1.0)  # t_i = 0, 1/4, 1/2, 3/4, 1: L = 2, 3, 5 points seen
+    assert common.seen_points(taus, 5).tolist() == [2, 3, 5]
+    obs = planning.labeler_observer("dragan", beta=10.0)
+    for target in (0, 1):
+        logs = [np.log(ref_labelers.dragan(xyz[:n], goals, mask, beta=10.0)[target])
+                for n in (2, 3, 5)]  # fmt: skip
+        cfg = planning.PlannerConfig(n_points=5, taus=taus)
+        got = planning.legibility(obs, jnp.asarray(xyz, jnp.float32), goals, mask, target, cfg)
+        assert float(got) == pytest.approx(np.mean(logs), abs=1e-6)
+        # L = 2: the first point alone is exactly uniform (log 1/2), whatever the path
+        assert logs[0] == pytest.approx(np.log(0.5), abs=1e-12)
+        whole = planning.legibility(obs, xyz, goals, mask, target, planning.PlannerConfig(5))
+        assert float(whole) == pytest.approx(logs[-1], abs=1e-6)
+
+
+def test_whole_motion_objective_unchanged(straight):
+    """taus=None (the default) is log softmax(observer(ξ))[target], bit for bit; taus=(1,)
+    scores the whole motion through the prefix (the same value up to rounding)."""
+    assert planning.PlannerConfig().taus is None
+    p = jax.tree.map(lambda a: a[3], straight)
+    obs = planning.labeler_observer("dragan", beta=BETA)
+    z = planning_planner._initial_z(p.q)
+    xyz = planning_planner._fk(planning_planner._joints(z, p.q[0], p.q[-1]))
+    cfg = planning.PlannerConfig()
+    got = planning.objective(obs, p, z, cfg) + planning_planner._table_penalty(xyz, p, cfg)
+    want = jax.nn.log_softmax(obs(xyz, p.goals, p.goal_mask))[p.target]
+    np.testing.assert_array_equal(
+        planning.legibility(obs, xyz, p.goals, p.goal_mask, p.target, cfg), want
+    )
+    assert float(got) == pytest.approx(float(want), abs=1e-6)
+    one = planning.PlannerConfig(taus=(1.0,))
+    full = planning.legibility(obs, xyz, p.goals, p.goal_mask, p.target, one)
+    assert float(full) == pytest.approx(float(want), abs=1e-5)
+
+
+def test_prefix_objective_bad_input():
+    obs = planning.labeler_observer("dragan")
+    for bad in ((), (0.0,), (1.5,), "0.5", (True,), (np.nan,)):
+        with pytest.raises(ValueError, match=r"PlannerConfig\.taus"):
+            planning.PlannerConfig(taus=bad)
+    assert planning.PlannerConfig(taus=[0.5, 1]).taus == (0.5, 1.0)  # a list becomes a tuple
+    cfg = planning.PlannerConfig(iters=1, taus=(0.5, 1.0))
+
+    def plain(xyz, goals, goal_mask):  # an observer that scores whole motions only
+        return obs(xyz, goals, goal_mask)
+
+    with pytest.raises(ValueError, match=r"observer 'plain'.*\.prefix.*'plain' has none"):
+        planning.make_planner({"plain": plain}, cfg)
+    with pytest.raises(ValueError, match="prefix"):
+        planning.make_family_planner(lambda b: plain, 1.0, cfg)
+    planning.make_planner({"plain": plain}, dataclasses.replace(cfg, taus=None))  # fine
+
+
+@pytest.mark.slow
+def test_family_planner_compiles_once_and_plans_each_parameter_set(straight):
+    """Observers built from traced parameters inside one compiled program: the plans equal
+    those of each observer planned alone, and new values do not recompile."""
+    cfg = planning.PlannerConfig(iters=3, taus=(0.4, 0.7, 1.0))
+    traces = []
+
+    def build(beta):
+        traces.append(1)
+        return planning.labeler_observer("dragan", beta=beta)
+
+    fam = planning.make_family_planner(build, jnp.float32(5.0), cfg)
+    few = jax.tree.map(lambda a: a[:2], straight)
+    betas = jnp.array([5.0, 20.0], jnp.float32)
+    res = jax.device_get(fam.plan_problems(betas, few))
+    assert res.xyz.shape == (2, 2, cfg.n_points, 3)
+    n = len(traces)
+    fam.plan_problems(betas * 1.5, few)
+    assert len(traces) == n  # other values: the same compiled program
+    for f, beta in enumerate([5.0, 20.0]):
+        obs = planning.labeler_observer("dragan", beta=beta)
+        one = jax.jit(jax.vmap(lambda p, obs=obs: planning.plan(obs, p, cfg)))(few)
+        np.testing.assert_allclose(res.xyz[f], one.xyz, atol=1e-5)
+        np.testing.assert_allclose(res.diagnostics.objective[f], one.diagnostics.objective,
+                                   atol=1e-5)  # fmt: skip
+        # the prefix objective of the plan, recomputed: at least the straight line's
+        for b in range(2):
+            p = jax.tree.map(lambda a, b=b: a[b], few)
+            val = planning.legibility(obs, res.xyz[f, b], p.goals, p.goal_mask, p.target, cfg)
+            assert float(val) >= float(res.diagnostics.objective_straight[f, b]) - 1e-6

@@ -13,8 +13,8 @@ A candidate stimulus is a trajectory shown up to a stop time τ: its first ``see
 points (:class:`Pool`; τ = 1 is the whole motion). An answer row is a candidate with the
 guesses it got, counts c_k per goal (:class:`Answers`; the labels of a hand-crafted
 observer are one answer's fractional counts). The observer's probability of goal k is
-p_k = softmax_k(s), with s the scores of the seen points (:func:`slotv_jax.study.prefix_scores`;
-archetypes score whole motions only).
+p_k = softmax_k(s), with s the scores of the seen points, for every family
+(:func:`slotv_jax.answers.fitting.prefix_scores`).
 
 The posterior: a deep ensemble
 ------------------------------
@@ -452,12 +452,10 @@ def candidate_scores(
     *,
     backward: str = "autodiff",
 ) -> Float[Array, "... G"]:
-    """Unmasked scores of the first ``seen`` points (the MLP family,
-    :func:`slotv_jax.study.prefix_scores`) or of the whole motion (archetypes, which the
-    callers give only whole-motion candidates: :meth:`Selector.check_pool`)."""
-    if isinstance(model, models.SlotV | models.TRex):
-        return fitting.prefix_scores(model, xyz, goals, seen, backward=backward)
-    return model.scores(xyz, goals, goal_mask)
+    """Unmasked scores of the first ``seen`` points, for every observer family
+    (:func:`slotv_jax.answers.fitting.prefix_scores`: the networks' mean or sum over the
+    seen points; an archetype's formula on the prefix at its own times)."""
+    return fitting.prefix_scores(model, xyz, goals, seen, goal_mask=goal_mask, backward=backward)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -475,11 +473,12 @@ class Selector:
         return self.cfg.model == "mlp"
 
     def check_pool(self, pool: Pool) -> None:
-        """Archetypes score whole motions only: a clear error for a prefix candidate."""
-        if not self.is_mlp and bool(jnp.any(pool.seen != pool.xyz.shape[1])):
+        """Every candidate shows 2 ≤ seen ≤ T points (every family scores prefixes)."""
+        seen = np.asarray(pool.seen)
+        if seen.size and not (seen.min() >= 2 and seen.max() <= pool.xyz.shape[1]):
             raise ValueError(
-                f"pool: the {self.cfg.model!r} archetype scores whole motions only; "
-                "build the pool with taus=(1.0,)"
+                f"pool.seen: expected 2 <= seen <= {pool.xyz.shape[1]} points per candidate, "
+                f"got {int(seen.min())}..{int(seen.max())}"
             )
 
     def init(self, key: jax.Array) -> Ensemble:

@@ -107,6 +107,7 @@ __all__ = [
     "Problem",
     "check_observer",
     "labeler_observer",
+    "legibility",
     "make_family_planner",
     "make_planner",
     "metric_inverse",
@@ -371,25 +372,51 @@ def _initial_z(q: Float[Array, "T 7"]) -> Float[Array, "n 7"]:
     return jnp.arctanh(jnp.clip((q[1:-1] - mid) / half, -_RATIO_CLIP, _RATIO_CLIP))
 
 
-def _legibility(observer: Observer, xyz, problem: Problem, cfg: PlannerConfig) -> Array:
-    """log P(target | ξ) = log softmax(observer logits)[target] over the real goals; with
-    ``cfg.taus`` its mean over the stop times of the prefixes (module docstring)."""
-    seen = cfg.seen()
-    if seen is None:
-        logits = observer(xyz, problem.goals, problem.goal_mask)
-        logits = mask_logits(logits, problem.goal_mask)
-        return jax.nn.log_softmax(logits)[problem.target]
+def legibility(
+    observer: Observer,
+    xyz: Float[Array, "T 3"],
+    goals: Float[Array, "8 3"],
+    goal_mask: Bool[Array, " 8"],
+    target: Int[Array, ""],
+    cfg: PlannerConfig = PlannerConfig(),
+) -> Float[Array, ""]:
+    """The legibility the planner maximises, for one path (pure; no checks):
+    log P(target | ξ) = log softmax(observer(xyz, goals, goal_mask))[target] over the real
+    goals; with ``cfg.taus`` the prefix legibility (module docstring)
+
+        (1/|taus|) Σ_τ log softmax(observer.prefix(xyz, goals, goal_mask, L_τ))[target],
+
+    L_τ = ``seen_points(taus, T)`` for the path's T points (static).
+
+    >>> import jax.numpy as jnp
+    >>> g = jnp.zeros((8, 3)).at[0].set([0.5, 0.2, 0.0]).at[1].set([0.5, -0.2, 0.0])
+    >>> xyz = jnp.linspace(jnp.array([0.3, 0.0, 0.4]), g[0], 11)
+    >>> obs, m = labeler_observer("dragan"), jnp.arange(8) < 2
+    >>> cfg = PlannerConfig(n_points=11, taus=(0.3, 1.0))
+    >>> early = obs.prefix(xyz, g, m, jnp.int32(4))  # t_0..t_3 (≤ 0.3)
+    >>> ref = (jax.nn.log_softmax(early)[0] + jax.nn.log_softmax(obs(xyz, g, m))[0]) / 2
+    >>> bool(jnp.isclose(legibility(obs, xyz, g, m, 0, cfg), ref))
+    True
+    """
+    mask = jnp.asarray(goal_mask).astype(bool)
+    if cfg.taus is None:
+        logits = mask_logits(observer(xyz, goals, mask), mask)
+        return jax.nn.log_softmax(logits)[target]
     if not callable(getattr(observer, "prefix", None)):
         raise ValueError(
-            f"observer {_observer_name(observer)}: PlannerConfig.taus needs an observer with "
-            "a .prefix(xyz, goals, goal_mask, seen) attribute; this one has none"
+            "observer: PlannerConfig.taus needs an observer with a .prefix(xyz, goals, "
+            f"goal_mask, seen) attribute; {_observer_name(observer)} has none"
         )
     total = 0.0
+    seen = seen_points(cfg.taus, xyz.shape[0])
     for n in seen:  # static: one prefix per stop time
-        logits = observer.prefix(xyz, problem.goals, problem.goal_mask, jnp.int32(n))
-        logits = mask_logits(logits, problem.goal_mask)
-        total = total + jax.nn.log_softmax(logits)[problem.target]
+        logits = mask_logits(observer.prefix(xyz, goals, mask, jnp.int32(n)), mask)
+        total = total + jax.nn.log_softmax(logits)[target]
     return total / len(seen)
+
+
+def _legibility(observer: Observer, xyz, problem: Problem, cfg: PlannerConfig) -> Array:
+    return legibility(observer, xyz, problem.goals, problem.goal_mask, problem.target, cfg)
 
 
 def _exempt(xyz, problem: Problem, cfg: PlannerConfig) -> Bool[Array, " T"]:
