@@ -26,7 +26,6 @@ efficiency summaries), ``OUT/explainable.md`` (the tables) and ``OUT/explainable
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import json
 import sys
@@ -43,9 +42,10 @@ from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.core.environment import environment
-from slotv_jax.core.fileio import save_figure, write_text
-from slotv_jax.runs import curves, presets
+from slotv_jax.core.fileio import write_text
+from slotv_jax.runs import command, curves, figures, presets
 from slotv_jax.runs.presets import LABELER_TITLES, SPLIT_TITLES
+from slotv_jax.runs.summary import mean_sd, pooled
 from slotv_jax.training import config as train_config
 from slotv_jax.training import evaluate
 from slotv_jax.training import trainer as train
@@ -64,11 +64,6 @@ FEW = (10, 100)  # train on 1/10 and 1/100 of the MLP's training trajectories
 def model_config(t1: presets.RunConfig, model: str) -> train_config.TrainConfig:
     """The training config of ``model`` in the Table 1 preset ``t1``."""
     return presets.with_model(t1, model).train["slotv"]
-
-
-def _mean_sd(a) -> tuple[float, float]:
-    a = np.asarray(a, np.float64)
-    return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
 
 
 def run(
@@ -155,7 +150,7 @@ def run(
         tc = dataclasses.replace(base, train_size=n, epochs=epochs)
         accs, fitted, _ = fit_and_score(lab, model, tc, list(range(trials)))
         for split in TEST_SPLITS:
-            m_, s_ = _mean_sd(accs[split])
+            m_, s_ = mean_sd(accs[split])
             doc["few_labels"].append(
                 {"labeler": lab, "model": model, "fraction": f"1/{k}", "train_size": n,
                  "epochs": epochs, "split": split, "mean": m_, "sd": s_, "n": trials}
@@ -174,7 +169,7 @@ def run(
                 preset, sub, repeats=repeats, every=ev, methods=["slotv"], cache=cache,
                 progress=progress, model=model, labeler=lab,
             )  # fmt: skip
-            x, acc = _read_curve(sub)
+            x, acc = curves.curve(curves.read_rows(sub), "slotv")
             runs[model] = {
                 "dir": sub.name,
                 "every": ev,
@@ -192,31 +187,9 @@ def run(
     return doc
 
 
-def _read_curve(sub: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Examples (V,) and accuracy (repeats, V) of the SLOT-V-loss curve a
-    sample-efficiency run wrote to ``sub``."""
-
-    with open(sub / "sample_efficiency.csv", newline="") as f:
-        rows = [row for row in csv.DictReader(f) if row["method"] == "slotv"]
-    reps = sorted({int(row["repeat"]) for row in rows})
-    x = np.array(sorted({int(row["examples"]) for row in rows}))
-    acc = np.array(
-        [[float(row["accuracy"]) for row in rows if int(row["repeat"]) == k] for k in reps]
-    )
-    return x, acc
-
-
 def summarise(cells: list[dict]) -> list[dict]:
     """Mean and SD over trials per (labeler, model, split)."""
-    groups: dict[tuple, list[float]] = {}
-    for c in cells:
-        groups.setdefault((c["labeler"], c["model"], c["split"]), []).append(c["accuracy"])
-    out = []
-    for (lab, model, split), a in sorted(groups.items()):
-        m, s = _mean_sd(a)
-        out.append({"labeler": lab, "model": model, "split": split, "mean": m, "sd": s,
-                    "n": len(a)})  # fmt: skip
-    return out
+    return pooled(cells, ("labeler", "model", "split"))
 
 
 def best_archetype(summary: list[dict], labeler: str, archetypes: Sequence[str]) -> str | None:
@@ -349,11 +322,7 @@ def plot(doc: dict, out: Path, path: Path) -> None:
     """Left: trajectory_test accuracy per labeler and model. Right: sample-efficiency
     curves (mean ± SD over repeats) of the MLP and the best archetype on each of the
     sample-efficiency labelers."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = figures.pyplot()
     se = doc["sample_efficiency"]
     fig, axes = plt.subplots(1, 1 + len(se), figsize=(5.2 * (1 + len(se)), 4.0), dpi=150)
     axes = np.atleast_1d(axes)
@@ -376,11 +345,9 @@ def plot(doc: dict, out: Path, path: Path) -> None:
     ax.grid(axis="y", alpha=0.3)
     for ax, (lab, runs) in zip(axes[1:], se.items(), strict=True):
         for m, r in runs.items():
-            x, acc = _read_curve(out / r["dir"])
-            mean = acc.mean(0)
-            sd = acc.std(0, ddof=1) if len(acc) > 1 else np.zeros_like(mean)
-            ax.plot(x, mean, color=colors[m], label=f"{MODEL_TITLES[m]} (n={len(acc)})")
-            ax.fill_between(x, mean - sd, mean + sd, color=colors[m], alpha=0.25, linewidth=0)
+            x, acc = curves.curve(curves.read_rows(out / r["dir"]), "slotv")
+            figures.band(ax, x, *figures.mean_sd(acc, ddof=1), color=colors[m], alpha=0.25,
+                         label=f"{MODEL_TITLES[m]} (n={len(acc)})")  # fmt: skip
             hit = r["examples_to_threshold_mean_curve"]
             if hit is not None:
                 ax.axvline(hit, color=colors[m], linestyle=":", linewidth=1)
@@ -394,10 +361,23 @@ def plot(doc: dict, out: Path, path: Path) -> None:
         ax.grid(alpha=0.3)
         ax.legend(loc="lower right", fontsize=7)
     fig.tight_layout()
-    try:
-        save_figure(fig, path)
-    finally:
-        plt.close(fig)
+    figures.save(fig, path)
+
+
+def report_again(out: Path) -> int:
+    """Write ``OUT/explainable.md`` again from ``OUT/results.json`` alone, and the figure
+    where the sample-efficiency curves it draws are in ``OUT``."""
+    path = out / "results.json"
+    if not fileio.is_json_object_with(path, ("preset", "cells", "summary", "sample_efficiency")):
+        raise cli.InputError(f"--report: {path} is not a results document of this experiment")
+    fileio.check_output_files(out, ["explainable.md", "explainable.png"])
+    doc = json.loads(path.read_text())
+    write_text(out / "explainable.md", report(doc))
+    dirs = [out / r["dir"] for runs in doc["sample_efficiency"].values() for r in runs.values()]
+    if all((d / "sample_efficiency.csv").is_file() for d in dirs):
+        plot(doc, out, out / "explainable.png")
+    print(f"wrote {out}/explainable.md")
+    return 0
 
 
 @cli.command(resumes=True)
@@ -414,15 +394,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--every", type=int, default=2, help="archetype validation interval (updates)")
     p.add_argument("--out", type=Path, help="default: runs/explainable_<preset>")
     p.add_argument("--cache", type=Path, default=Path("data"))
+    p.add_argument("--report", action="store_true",
+                   help="only render explainable.md (and the figure, where the curves are in "
+                   "OUT) again from OUT/results.json")  # fmt: skip
     args = p.parse_args(argv)
+    out = args.out or Path("runs") / f"explainable_{args.preset}"
+    if args.report:
+        return report_again(out)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     trials = args.trials or presets.PRESETS[args.preset]().trials
-    for name, v in (("trials", trials), ("repeats", args.repeats), ("every", args.every)):
-        if v < 1:
-            p.error(f"--{name}: expected an integer >= 1")
-    out = args.out or Path("runs") / f"explainable_{args.preset}"
+    command.at_least_one(p, trials=trials, repeats=args.repeats, every=args.every)
     fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
-    print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     doc = run(
         args.preset, out, trials=trials, models=args.models, labelers=args.labelers,
         repeats=args.repeats, every=args.every, cache=args.cache,

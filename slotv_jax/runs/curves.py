@@ -18,9 +18,9 @@ import numpy as np
 
 from slotv_jax.core import distributed
 from slotv_jax.core.environment import environment
-from slotv_jax.core.fileio import save_figure, write_text
+from slotv_jax.core.fileio import write_text
 from slotv_jax.data.generate import cached_dataset
-from slotv_jax.runs import presets
+from slotv_jax.runs import figures, presets
 from slotv_jax.runs.presets import METHOD_TITLES, METHODS
 from slotv_jax.runs.summary import examples_to_reach
 from slotv_jax.training import evaluate, parallel, schedule, types
@@ -154,29 +154,42 @@ def _csv(rows: list[dict]) -> str:
     return buf.getvalue()
 
 
+def curve(rows: list[dict], method: str) -> tuple[np.ndarray, np.ndarray]:
+    """Examples (V,) and accuracy (repeats, V) of ``method``'s curves in the rows of a run
+    (:func:`read_rows`)."""
+    r = [row for row in rows if row["method"] == method]
+    x = np.array(sorted({row["examples"] for row in r}))
+    acc = np.array(
+        [
+            [row["accuracy"] for row in r if row["repeat"] == k]
+            for k in sorted({row["repeat"] for row in r})
+        ]
+    )
+    return x, acc
+
+
+def read_rows(out: Path) -> list[dict]:
+    """The rows of ``OUT/sample_efficiency.csv`` (method, repeat, updates, examples,
+    accuracy), typed."""
+    with open(Path(out) / "sample_efficiency.csv", newline="") as f:
+        return [
+            {**r, "repeat": int(r["repeat"]), "updates": int(r["updates"]),
+             "examples": int(r["examples"]), "accuracy": float(r["accuracy"])}
+            for r in csv.DictReader(f)
+        ]  # fmt: skip
+
+
 def plot(rows: list[dict], summary: dict, doc: dict, path: Path) -> None:
     """Mean ± SD validation accuracy against examples seen, both methods on one axis."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = figures.pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.2), dpi=150)
     for method, color in zip(summary, ("tab:blue", "tab:orange"), strict=False):
-        r = [row for row in rows if row["method"] == method]
-        x = np.array(sorted({row["examples"] for row in r}))
-        acc = np.array(
-            [
-                [row["accuracy"] for row in r if row["repeat"] == k]
-                for k in sorted({row["repeat"] for row in r})
-            ]
-        )
-        m, s = acc.mean(0), acc.std(0, ddof=1) if len(acc) > 1 else np.zeros(acc.shape[1])
+        x, acc = curve(rows, method)
         title = METHOD_TITLES[method]
         if method == "slotv" and doc.get("model", "mlp") != "mlp":
             title = f"{doc['model']} archetype"
-        ax.plot(x, m, color=color, label=f"{title} (n={len(acc)})")
-        ax.fill_between(x, m - s, m + s, color=color, alpha=0.25, linewidth=0)
+        figures.band(ax, x, *figures.mean_sd(acc, ddof=1), color=color, alpha=0.25,
+                     label=f"{title} (n={len(acc)})")  # fmt: skip
         hit = summary[method]["examples_to_threshold_mean_curve"]
         if hit is not None:
             ax.axvline(hit, color=color, linestyle=":", linewidth=1)
@@ -193,19 +206,10 @@ def plot(rows: list[dict], summary: dict, doc: dict, path: Path) -> None:
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right")
     fig.tight_layout()
-    try:
-        save_figure(fig, path)
-    finally:
-        plt.close(fig)
+    figures.save(fig, path)
 
 
 def replot(out: Path) -> None:
     """Render ``OUT/sample_efficiency.png`` again from the saved CSV and JSON."""
     doc = json.loads((out / "sample_efficiency.json").read_text())
-    with open(out / "sample_efficiency.csv", newline="") as f:
-        rows = [
-            {**r, "repeat": int(r["repeat"]), "updates": int(r["updates"]),
-             "examples": int(r["examples"]), "accuracy": float(r["accuracy"])}
-            for r in csv.DictReader(f)
-        ]  # fmt: skip
-    plot(rows, doc["summary"], doc, out / "sample_efficiency.png")
+    plot(read_rows(out), doc["summary"], doc, out / "sample_efficiency.png")

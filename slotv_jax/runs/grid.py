@@ -22,6 +22,7 @@ from slotv_jax.core.fileio import write_text
 from slotv_jax.data.generate import cached_dataset
 from slotv_jax.data.storage import dataset_dir
 from slotv_jax.runs.presets import METHODS, RunConfig, _train_key
+from slotv_jax.runs.summary import pooled
 from slotv_jax.training import evaluate, parallel, schedule, types
 from slotv_jax.training import trainer as train
 
@@ -55,25 +56,9 @@ def load_results(out: Path, cfg: RunConfig) -> dict:
 
 
 def summarise(cells: list[dict]) -> list[dict]:
-    """Mean and SD (ddof=1 when n > 1) of accuracy over trials, per (labeler, method, split)."""
-    groups: dict[tuple, list[float]] = {}
-    for c in cells:
-        groups.setdefault((c["labeler"], c["method"], c["split"]), []).append(c["accuracy"])
-    out = []
-    for (lab, meth, split), accs in sorted(groups.items()):
-        a = np.asarray(accs, np.float64)
-        sd = float(a.std(ddof=1)) if a.size > 1 else 0.0
-        out.append(
-            {
-                "labeler": lab,
-                "method": meth,
-                "split": split,
-                "mean": float(a.mean()),
-                "sd": sd,
-                "n": int(a.size),
-            }
-        )
-    return out
+    """Mean and SD (ddof=1 when n > 1) of accuracy over trials, per (labeler, method, split)
+    (:func:`slotv_jax.runs.summary.pooled`)."""
+    return pooled(cells, ("labeler", "method", "split"))
 
 
 def run(
