@@ -8,6 +8,7 @@ import json
 import re
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import jax
@@ -192,6 +193,209 @@ def test_table_errors(tmp_path, table, old, new, pieces):
     with pytest.raises(ValueError) as e:
         study.read_tables(*paths)
     for p in pieces:
+        assert p in str(e.value), (p, str(e.value))
+
+
+# --------------------------------------- strict import: what it reads is what was written
+
+STRICT_ERRORS = [
+    # a misspelt optional column was left out unseen: 900 answers became 1
+    ("answers", "participant,condition,count", "participant,condition,cuont",
+     ["answers.csv", "line 1", "'cuont'", "unknown column", "did you mean 'count'",
+      "trajectory, guess", "--ignore-columns cuont"]),
+    ("traj", "trajectory,t,x,y,z", "trajectory,T,x,y,z",
+     ["traj.csv", "line 1", "'T'", "did you mean 't'"]),
+    # a header naming a column twice: the second one silently won
+    ("goals", "goal,x,y,z\nleft,0.50,0.25,0.025\nright,0.55,-0.20,0.025\n",
+     "goal,x,y,z,x\nleft,0.50,0.25,0.025,0.9\nright,0.55,-0.20,0.025,0.1\n",
+     ["goals.csv", "line 1", "'x'", "twice", "columns 2 and 5"]),
+    # a column without a name may be empty (a spreadsheet's trailing comma), not hold values
+    ("goals", "goal,x,y,z\nleft,0.50,0.25,0.025\n", "goal,x,y,z,\nleft,0.50,0.25,0.025,1\n",
+     ["goals.csv", "line 2", "column 5", "without a name"]),
+    # values float32 cannot hold: inf "at index [0, 1, 0]", two RuntimeWarnings, no line
+    ("traj", "a,0.5,0.40,0.12,0.30", "a,0.5,1e300,0.12,0.30",
+     ["traj.csv", "line 3", "'x'", "1e300", "at most 3.403e+38"]),
+    ("goals", "right,0.55,-0.20,0.025", "right,0.55,-0.20,-4e38",
+     ["goals.csv", "line 3", "'z'", "-4e38"]),
+    ("traj", "a,0.5,0.40,0.12,0.30", "a,1e39,0.40,0.12,0.30", ["traj.csv", "line 3", "'t'"]),
+    ("answers", "a,0.5,right,p2", "a,inf,right,p2", ["answers.csv", "line 3", "'tau'", "finite"]),
+    ("answers", "a,,left,p1,front,2", "a,,left,p1,front,1e300",
+     ["answers.csv", "line 5", "'count'", "16777216"]),
+    # text float() takes but nobody means as a number
+    ("traj", "a,0.5,0.40,0.12,0.30", "a,0.5,0.40,1_2,0.30",
+     ["traj.csv", "line 3", "'y'", "expected a number, got '1_2'"]),
+    ("traj", "a,0.5,0.40,0.12,0.30", "a,0.5,0.40,0.12,\u0663",
+     ["traj.csv", "line 3", "'z'", "expected a number"]),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("table, old, new, pieces", STRICT_ERRORS)
+def test_strict_import_errors(tmp_path, table, old, new, pieces):
+    """Each of these was read without a word (or with a warning and no file line) before."""
+    texts = {"traj": TRAJ_CSV, "goals": GOALS_CSV, "answers": ANSWERS_CSV}
+    assert old in texts[table]
+    texts[table] = texts[table].replace(old, new)
+    paths = _write_tables(tmp_path, texts["traj"], texts["goals"], texts["answers"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing printed: no NumPy RuntimeWarning
+        with pytest.raises(ValueError) as e:
+            study.read_tables(*paths)
+    for p in pieces:
+        assert p in str(e.value), (p, str(e.value))
+
+
+def test_ignore_columns_keeps_extra_columns_on_purpose(tmp_path):
+    answers = ANSWERS_CSV.replace("condition,count", "condition,count,notes").replace(
+        "front,2", "front,2,slow"
+    )
+    paths = _write_tables(tmp_path, answers=answers)
+    with pytest.raises(ValueError, match=r"line 1, field 'notes': unknown column"):
+        study.read_tables(*paths)
+    s, _ = study.read_tables(*paths, ignore_columns=["notes"])
+    np.testing.assert_array_equal(s.counts[:, :2], [[2, 1], [2, 0], [0, 1]])  # as without
+    # an optional column left out on purpose: every answer counts 1
+    s, _ = study.read_tables(*paths, ignore_columns=["notes", "count"])
+    np.testing.assert_array_equal(s.counts[:, :2], [[2, 1], [1, 0], [0, 1]])
+    with pytest.raises(ValueError, match=r"ignore_columns.*'guess' is a column the import needs"):
+        study.read_tables(*paths, ignore_columns=["guess"])
+    out = tmp_path / "s.npz"
+    argv = ["import", "--trajectories", str(paths[0]), "--goals", str(paths[1]),
+            "--answers", str(paths[2]), "--out", str(out), "--ignore-columns", "notes"]  # fmt: skip
+    assert study_cli.main(argv) == 0
+    np.testing.assert_array_equal(study.load_study(out).counts[:, :2], [[2, 1], [2, 0], [0, 1]])
+
+
+def _json_tables(tmp_path, edit=None):
+    tables = []
+    for name, text in (("traj", TRAJ_CSV), ("goals", GOALS_CSV), ("answers", ANSWERS_CSV)):
+        lines = text.strip().splitlines()
+        keys = lines[0].split(",")
+        rows = [dict(zip(keys, ln.split(","), strict=True)) for ln in lines[1:]]
+        body = json.dumps(rows)
+        tables.append(tmp_path / f"{name}.json")
+        tables[-1].write_text(edit(name, body) if edit else body)
+    return tables
+
+
+@pytest.mark.parametrize(
+    "table, old, new, pieces",
+    [
+        # JSON true was read as the number 1
+        ("traj", '"x": "0.40"', '"x": true', ["traj.json", "item 1", "'x'", "got true"]),
+        ("answers", '"count": "2"', '"count": true', ["answers.json", "item 3", "'count'"]),
+        ("answers", '"tau": "0.5"', '"tau": false',
+         ["answers.json", "item 0", "'tau'", "got false"]),
+        ("goals", '"goal": "left"', '"goal": true', ["goals.json", "item 0", "'goal'"]),
+        ("goals", '"goal": "left"', '"goal": ["left"]', ["goals.json", "item 0", "'goal'"]),
+        ("traj", '"x": "0.40"', '"x": 1e400', ["traj.json", "item 1", "'x'", "finite"]),
+        ("traj", '"x": "0.40"', '"x": ' + "9" * 400, ["traj.json", "item 1", "'x'"]),
+        ("traj", '"x": "0.40"', '"x": NaN', ["traj.json", "item 1", "'x'", "finite"]),
+        # a key given twice: the last one silently won
+        ("goals", '"goal": "left"', '"goal": "left", "goal": "right"',
+         ["goals.json", "item 0", "'goal'", "twice"]),
+        ("answers", '"participant": "p1"', '"particpant": "p1"',
+         ["answers.json", "item 0", "'particpant'", "did you mean 'participant'"]),
+    ],
+)  # fmt: skip
+def test_strict_json_import(tmp_path, table, old, new, pieces):
+    def edit(name, body):
+        return body.replace(old, new, 1) if name == table else body
+
+    assert old in json.dumps(_json_rows(table))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError) as e:
+            study.read_tables(*_json_tables(tmp_path, edit))
+    for p in pieces:
+        assert p in str(e.value), (p, str(e.value))
+
+
+def _json_rows(table):
+    text = {"traj": TRAJ_CSV, "goals": GOALS_CSV, "answers": ANSWERS_CSV}[table]
+    lines = text.strip().splitlines()
+    return [dict(zip(lines[0].split(","), ln.split(","), strict=True)) for ln in lines[1:]]
+
+
+def test_oversized_field_is_named_by_file_and_line(tmp_path):
+    """A field beyond the csv module's limit (an unclosed quote, a binary file) was a raw
+    ``_csv.Error`` traceback."""
+    big = ANSWERS_CSV.replace("a,0.5,right,p2", 'a,0.5,"right' + "x" * 200_000)
+    paths = _write_tables(tmp_path, answers=big)
+    with pytest.raises(ValueError, match=r"answers\.csv, line 3: a field longer than 131072"):
+        study.read_tables(*paths)
+
+
+def _import_argv(paths, out):
+    return ["import", "--trajectories", str(paths[0]), "--goals", str(paths[1]),
+            "--answers", str(paths[2]), "--out", str(out)]  # fmt: skip
+
+
+def _one_line_exit_2(argv, capsys, *pieces):
+    with pytest.raises(SystemExit) as e:
+        study_cli.main(argv)
+    err = capsys.readouterr().err
+    assert e.value.code == 2, err
+    assert err.count("\n") == 1 and err.startswith("error: "), err  # nothing else printed
+    for p in pieces:
+        assert p in err, (p, err)
+
+
+def test_import_command_errors_are_one_line(tmp_path, capsys):
+    paths = _write_tables(tmp_path, traj=TRAJ_CSV.replace("a,0.5,0.40", "a,0.5,1e300"))
+    _one_line_exit_2(_import_argv(paths, tmp_path / "s.npz"), capsys,
+                     "traj.csv, line 3, field 'x'")  # fmt: skip
+    paths = _write_tables(tmp_path, answers=ANSWERS_CSV.replace(",count", ",cuont"))
+    _one_line_exit_2(_import_argv(paths, tmp_path / "s.npz"), capsys,
+                     "answers.csv, line 1, field 'cuont'")  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["answers.csv", "goals.csv", "traj.csv"]
+
+
+def test_import_never_writes_over_its_input(tmp_path, capsys):
+    """``--answers a.csv --out a.csv --overwrite`` replaced the user's table with an .npz."""
+    paths = _write_tables(tmp_path)
+    before = {p: p.read_bytes() for p in paths}
+    for k, p in enumerate(paths):
+        flag = ("--trajectories", "--goals", "--answers")[k]
+        _one_line_exit_2([*_import_argv(paths, p), "--overwrite"], capsys,
+                         f"--out {p}: is the input {flag} {p}")  # fmt: skip
+        # the same file by another name (a relative path through '..')
+        other = tmp_path / "sub" / ".." / p.name
+        _one_line_exit_2([*_import_argv(paths, other), "--overwrite"], capsys, "is the input")
+    # an input named like a study file is still an input
+    npz_named = tmp_path / "answers.npz"
+    npz_named.write_bytes(paths[2].read_bytes())
+    argv = [*_import_argv([*paths[:2], npz_named], npz_named), "--overwrite"]
+    _one_line_exit_2(argv, capsys, "is the input --answers")
+    assert {p: p.read_bytes() for p in paths} == before
+    assert npz_named.read_bytes() == before[paths[2]]
+
+
+def test_import_and_cv_refuse_an_out_of_another_format(tmp_path, capsys):
+    """``--out out.csv`` wrote an .npz under a .csv name without a word."""
+    paths = _write_tables(tmp_path)
+    for name in ("out.csv", "out", "out.npz.json"):
+        _one_line_exit_2(_import_argv(paths, tmp_path / name), capsys,
+                         f"--out {tmp_path / name}: expected a name ending in .npz")  # fmt: skip
+        assert not (tmp_path / name).exists()
+    assert study_cli.main(_import_argv(paths, tmp_path / "out.NPZ")) == 0
+    capsys.readouterr()
+    s = tmp_path / "out.NPZ"
+    _one_line_exit_2(["cv", str(s), "--out", str(tmp_path / "cv.npz")], capsys,
+                     "expected a name ending in .json")  # fmt: skip
+    _one_line_exit_2(["cv", str(s), "--out", str(s), "--overwrite"], capsys,
+                     f"--out {s}: is the input study {s}")  # fmt: skip
+
+
+def test_npz_value_beyond_float32_is_named(small, tmp_path):
+    a = _arrays(small)
+    a["xyz"] = a["xyz"].astype(np.float64)
+    a["xyz"][2, 3, 1] = 1e300
+    np.savez(tmp_path / "big.npz", **a)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError) as e:
+            study.load_study(tmp_path / "big.npz")
+    for p in ("big.npz", "row 2", "'xyz'", "1e+300", "[2, 3, 1]"):
         assert p in str(e.value), (p, str(e.value))
 
 

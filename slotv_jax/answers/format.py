@@ -50,8 +50,10 @@ mark is fine) or a JSON list of objects with the same keys (one object per row):
   motion), ``participant``, ``condition`` and ``count`` (how many participants gave this
   answer; default 1). One row per answer.
 
-Every error is a ``ValueError`` naming the file, the line (CSV) or item (JSON) or array
-row, and the field.
+Any other column is refused (a misspelt ``cuont`` would otherwise be left out unseen;
+``--ignore-columns`` leaves extra columns out on purpose), as is a column named twice, a
+JSON ``true`` where a number goes, or a number beyond float32. Every error is a
+``ValueError`` naming the file, the line (CSV) or item (JSON) or array row, and the field.
 
 Training
 --------
@@ -465,13 +467,21 @@ def _float_array(x, name, w, dtype) -> np.ndarray:
         raise ValueError(f"{w(name)}: expected a rectangular array of numbers ({e})") from e
     if a.dtype.kind not in "biuf":
         raise ValueError(f"{w(name)}: expected numbers, got dtype {a.dtype}")
+    big = float(np.finfo(dtype).max)  # a finite value beyond it would become inf, with a warning
+    over = np.argwhere(np.isfinite(a) & (np.abs(a) > big)) if a.dtype.kind == "f" else []
+    if len(over):
+        idx = tuple(int(v) for v in over[0])
+        raise ValueError(
+            f"{w(name, idx[0] if idx else None)}: expected magnitudes at most {big:.4g} "
+            f"({np.dtype(dtype).name}), found {float(a[idx])!r} at index {list(idx)}"
+        )
     return a.astype(dtype)
 
 
 def _int_array(x, name, w) -> np.ndarray:
     a = np.asarray(x)
     if a.dtype.kind == "f":
-        bad = np.flatnonzero(~np.isfinite(a) | (a != np.round(a)))
+        bad = np.flatnonzero(~(np.abs(a) < 2.0**62) | (a != np.round(a)))  # int64, no warning
         if bad.size:
             raise ValueError(f"{w(name, int(bad[0]))}: expected an integer, got {a.flat[bad[0]]}")
     elif a.dtype.kind not in "biu":

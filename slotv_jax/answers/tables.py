@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import difflib
 import io
+import json
 import math
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -18,6 +21,21 @@ from slotv_jax.core import fileio
 from slotv_jax.core.validation import G_MAX
 
 # ------------------------------------------------------------ table import
+
+# The columns of each table: (required, optional). Any other column is refused (a misspelt
+# optional column would otherwise be silently left out), unless named in ``ignore_columns``.
+COLUMNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "trajectories": (("trajectory", "x", "y", "z"), ("t",)),
+    "goals": (("goal", "x", "y", "z"), ("trajectory",)),
+    "answers": (("trajectory", "guess"), ("tau", "participant", "condition", "count")),
+}
+# Coordinates, time stamps and τ must be finite in float32 (the study's and the networks'
+# precision; their differences then stay finite in float64). Counts must be whole numbers
+# that float32 holds exactly (training holds counts in float32): at most 2**24.
+NUMBER_MAX = float(np.finfo(np.float32).max)
+COUNT_MAX = 2**24
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
+_NON_FINITE = re.compile(r"[+-]?(?:nan|inf|infinity)", re.ASCII | re.IGNORECASE)
 
 
 @dataclasses.dataclass
@@ -31,62 +49,196 @@ class _Table:
         return f"{self.path.name}, {self.where[i]}, field {field!r}"
 
 
-def _read_table(path: str | os.PathLike, required: Sequence[str]) -> _Table:
-    path = Path(path)
-    if path.suffix.lower() == ".json":
-        doc = fileio.read_json(path)  # names the file, line and column of bad JSON
-        if not isinstance(doc, list) or not all(isinstance(r, dict) for r in doc):
-            raise ValueError(f"{path.name}: expected a JSON list of objects (one per row)")
-        rows = [{str(k): v for k, v in r.items()} for r in doc]
-        where = [f"item {i}" for i in range(len(rows))]
-        columns = sorted({k for r in rows for k in r})
-    else:
-        # UTF-8 (a spreadsheet's byte-order mark dropped); a bad byte is named by line
-        with io.StringIO(fileio.read_text(path), newline="") as f:
-            reader = csv.DictReader(f)
-            columns = [c.strip() for c in (reader.fieldnames or [])]
-            rows, where = [], []
-            for r in reader:
-                if None in r:
+class _JsonObject(dict):
+    """A JSON object that remembers its first duplicated key (``json`` keeps the last)."""
+
+    duplicate: str | None = None
+
+
+def _json_object(pairs: list[tuple[str, Any]]) -> _JsonObject:
+    obj = _JsonObject()
+    for k, v in pairs:
+        if k in obj and obj.duplicate is None:
+            obj.duplicate = k
+        obj[k] = v
+    return obj
+
+
+def _unknown_column(path: Path, where: str, name: str, role: str) -> ValueError:
+    required, optional = COLUMNS[role]
+    known = (*required, *optional)
+    close = [c for c in known if c.lower() == name.lower()] or difflib.get_close_matches(
+        name, known, n=1, cutoff=0.6
+    )
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return ValueError(
+        f"{path.name}, {where}, field {name!r}: unknown column{hint}; the {role} table's "
+        f"columns are {', '.join(required)} and optionally {', '.join(optional)} (to keep "
+        f"other columns on purpose, pass --ignore-columns {name})"
+    )
+
+
+def _read_csv(path: Path, role: str, ignore: frozenset[str]) -> _Table:
+    # UTF-8 (a spreadsheet's byte-order mark dropped); a bad byte is named by line
+    with io.StringIO(fileio.read_text(path), newline="") as f:
+        reader = csv.reader(f)
+        header: list[str] | None = None
+        head_line = 0
+        rows, where = [], []
+        line = 1  # the line on which the next record starts
+        try:
+            for record in reader:
+                start, line = line, reader.line_num + 1
+                if header is None:
+                    if not record:
+                        continue  # blank lines before the header
+                    header, head_line = [c.strip() for c in record], start
+                    for j, name in enumerate(header):
+                        if name == "":
+                            continue  # no name: it must hold no value (checked per row)
+                        if name in header[:j]:
+                            raise ValueError(
+                                f"{path.name}, line {start}, field {name!r}: the header names "
+                                f"this column twice (columns {header.index(name) + 1} and "
+                                f"{j + 1}); expected each column once"
+                            )
+                        if name not in (*COLUMNS[role][0], *COLUMNS[role][1], *ignore):
+                            raise _unknown_column(path, f"line {start}", name, role)
+                    continue
+                if len(record) > len(header):
                     raise ValueError(
-                        f"{path.name}, line {reader.line_num}: more values than header columns"
+                        f"{path.name}, line {start}, column {len(header) + 1}: more values "
+                        f"({len(record)}) than header columns ({len(header)})"
                     )
-                if not any((v or "").strip() for v in r.values()):
+                if not any(v.strip() for v in record):
                     continue  # blank line
-                rows.append({k.strip(): (v or "").strip() for k, v in r.items()})
-                where.append(f"line {reader.line_num}")
-    missing = [c for c in required if c not in columns]
+                record = record + [""] * (len(header) - len(record))
+                for j, v in enumerate(record):
+                    if header[j] == "" and v.strip():
+                        raise ValueError(
+                            f"{path.name}, line {start}, column {j + 1}: a value ({v.strip()!r}) "
+                            "in a column without a name in the header; name the column"
+                        )
+                rows.append({k: v.strip() for k, v in zip(header, record, strict=True)})
+                where.append(f"line {start}")
+        except csv.Error as e:
+            limit = csv.field_size_limit()
+            if "field limit" in str(e):
+                raise ValueError(
+                    f"{path.name}, line {line}: a field longer than {limit} characters (the "
+                    f"csv module's limit), running to line {reader.line_num}; expected short "
+                    'values (an unclosed quote (") makes the rest of the file one field)'
+                ) from None
+            raise ValueError(f"{path.name}, line {line}: not a valid CSV record ({e})") from None
+    columns = [c for c in (header or []) if c not in ignore and c != ""]
+    rows = [{k: v for k, v in r.items() if k not in ignore and k != ""} for r in rows]
+    _check_required(path, f"line {head_line or 1}", columns, role)
+    return _Table(path, rows, where, columns)
+
+
+def _read_json(path: Path, role: str, ignore: frozenset[str]) -> _Table:
+    doc = fileio.read_json(path, object_pairs_hook=_json_object)  # names a broken line
+    if not isinstance(doc, list) or not all(isinstance(r, dict) for r in doc):
+        raise ValueError(f"{path.name}: expected a JSON list of objects (one per row)")
+    columns: list[str] = []
+    for i, r in enumerate(doc):
+        if r.duplicate is not None:
+            raise ValueError(
+                f"{path.name}, item {i}, field {r.duplicate!r}: the object gives this key "
+                "twice; expected each key once"
+            )
+        for k in r:
+            if k not in (*COLUMNS[role][0], *COLUMNS[role][1], *ignore):
+                raise _unknown_column(path, f"item {i}", k, role)
+            if k not in columns and k not in ignore:
+                columns.append(k)
+    rows = [{k: v for k, v in r.items() if k not in ignore} for r in doc]
+    _check_required(path, "item 0", columns, role)
+    return _Table(path, rows, [f"item {i}" for i in range(len(rows))], columns)
+
+
+def _check_required(path: Path, where: str, columns: list[str], role: str) -> None:
+    missing = [c for c in COLUMNS[role][0] if c not in columns]
     if missing:
         raise ValueError(
-            f"{path.name}, field {missing[0]!r}: missing column (found columns {columns})"
+            f"{path.name}, {where}, field {missing[0]!r}: missing column; the {role} table "
+            f"needs {', '.join(COLUMNS[role][0])} (found columns {columns})"
         )
-    if not rows:
+
+
+def _read_table(path: str | os.PathLike, role: str, ignore: frozenset[str]) -> _Table:
+    """One table, every column checked against :data:`COLUMNS` (``ignore``: dropped)."""
+    path = Path(path)
+    if path.suffix.lower() == ".json":
+        tab = _read_json(path, role, ignore)
+    else:
+        tab = _read_csv(path, role, ignore)
+    if not tab.rows:
         raise ValueError(f"{path.name}: no rows")
-    return _Table(path, rows, where, columns)
+    return tab
 
 
 def _blank(v) -> bool:
     return v is None or (isinstance(v, str) and v.strip() == "")
 
 
-def _number(tab: _Table, i: int, field: str, *, finite: bool = True) -> float:
+def _show(v) -> str:
+    """A value as the user wrote it (JSON's true/false/null as such)."""
+    if isinstance(v, bool) or v is None:
+        return json.dumps(v)
+    return repr(v)
+
+
+def _number(tab: _Table, i: int, field: str, *, limit: float = NUMBER_MAX) -> float:
+    """A finite number with ``|x| <= limit``: a JSON number or a decimal text (``1.5``,
+    ``-2e-3``; not ``true``, ``1_000`` or another script's digits, which ``float`` takes)."""
     v = tab.rows[i].get(field)
-    try:
+    x = None
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        try:
+            x = float(v)
+        except OverflowError:  # a JSON integer beyond float64
+            x = math.inf
+    elif isinstance(v, str) and _NUMBER.fullmatch(v.strip()):
         x = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"{tab.at(i, field)}: expected a number, got {v!r}") from None
-    if finite and not math.isfinite(x):
-        raise ValueError(f"{tab.at(i, field)}: expected a finite number, got {v!r}")
+    elif isinstance(v, str) and _NON_FINITE.fullmatch(v.strip()):
+        x = math.nan
+    if x is None:
+        kind = " (a JSON boolean)" if isinstance(v, bool) else ""
+        raise ValueError(f"{tab.at(i, field)}: expected a number, got {_show(v)}{kind}")
+    if not math.isfinite(x) or abs(x) > limit:
+        raise ValueError(
+            f"{tab.at(i, field)}: expected a finite number of magnitude at most {limit:.4g}, "
+            f"got {_show(v)}"
+        )
     return x
 
 
 def _text(tab: _Table, i: int, field: str) -> str:
+    """A name: a text, or a JSON number (``3`` and ``3.0`` read as ``"3"``)."""
     v = tab.rows[i].get(field)
     if _blank(v):
         raise ValueError(f"{tab.at(i, field)}: expected a value, got an empty one")
+    ok = isinstance(v, str) or (
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    )
+    if not ok:
+        raise ValueError(f"{tab.at(i, field)}: expected a name (text or a number), got {_show(v)}")
     if isinstance(v, float) and v.is_integer():
         v = int(v)
     return str(v).strip()
+
+
+def _ignored(ignore_columns: Sequence[str]) -> frozenset[str]:
+    ignore = frozenset(c.strip() for c in ignore_columns if c.strip())
+    for c in sorted(ignore):
+        roles = [role for role, (req, _) in COLUMNS.items() if c in req]
+        if roles:
+            raise ValueError(
+                f"ignore_columns (--ignore-columns): {c!r} is a column the import needs (in "
+                f"the {' and '.join(roles)} table); expected only columns to leave out"
+            )
+    return ignore
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,6 +269,8 @@ def read_tables(
     trajectories: str | os.PathLike,
     goals: str | os.PathLike,
     answers: str | os.PathLike,
+    *,
+    ignore_columns: Sequence[str] = (),
 ) -> tuple[Study, ImportReport]:
     """Import a study from three tables (CSV with a header, or a JSON list of objects).
 
@@ -127,15 +281,23 @@ def read_tables(
     - ``answers``: ``trajectory, guess[, tau, participant, condition, count]``.
 
     Answers with the same (trajectory, τ, condition) become one answer row of counts.
-    Returns the validated :class:`Study` and an :class:`ImportReport`. Errors name the
-    file, the line (CSV) or item (JSON), and the field.
+    Returns the validated :class:`Study` and an :class:`ImportReport`.
+
+    The import is strict, so that what it reads is what was written: a column not in
+    :data:`COLUMNS` (a misspelt ``cuont``) is refused unless named in ``ignore_columns``
+    (then left out; the required columns cannot be); a header or JSON object naming a
+    column twice is refused; a number is a JSON number or a decimal text (not ``true``),
+    finite, of magnitude at most :data:`NUMBER_MAX` (float32; a count at most
+    :data:`COUNT_MAX`), so no value overflows when stored. Every error is a ValueError
+    naming the file, the line (CSV) or item (JSON), and the field; nothing is printed.
 
     >>> study, report = read_tables("traj.csv", "goals.csv", "answers.csv")  # doctest: +SKIP
     >>> print(report.describe(study))  # doctest: +SKIP
     """
-    tt = _read_table(trajectories, ("trajectory", "x", "y", "z"))
-    gt = _read_table(goals, ("goal", "x", "y", "z"))
-    at = _read_table(answers, ("trajectory", "guess"))
+    ignore = _ignored(ignore_columns)
+    tt = _read_table(trajectories, "trajectories", ignore)
+    gt = _read_table(goals, "goals", ignore)
+    at = _read_table(answers, "answers", ignore)
 
     # ---- trajectories
     has_t = "t" in tt.columns
@@ -202,8 +364,8 @@ def read_tables(
             raise ValueError(f"{gt.path.name}, field 'trajectory': no goals for trajectory {tid!r}")
         for s, (name, (pos, _)) in enumerate(g.items()):
             goal_arr[k, s], mask[k, s], names[k, s] = pos, True, name
-    for g in gsets.values():
-        pos = np.array([p for p, _ in g.values()], np.float64)
+    for g in gsets.values():  # distinct as stored (float32)
+        pos = np.array([p for p, _ in g.values()], np.float32).astype(np.float64)
         d = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(len(pos))
         if (d < 1e-9).any():
             j = int(np.argwhere(d < 1e-9)[0].max())
@@ -250,11 +412,11 @@ def read_tables(
             tau = float(full[k])
         count = 1.0
         if has["count"] and not _blank(at.rows[i].get("count")):
-            count = _number(at, i, "count")
-            if count < 0 or count != round(count):
+            count = _number(at, i, "count", limit=math.inf)  # its own bound, below
+            if count < 0 or count != round(count) or count > COUNT_MAX:
                 raise ValueError(
-                    f"{at.at(i, 'count')}: expected a whole number of answers >= 0, "
-                    f"got {at.rows[i]['count']!r}"
+                    f"{at.at(i, 'count')}: expected a whole number of answers >= 0 (at most "
+                    f"{COUNT_MAX}, exact in float32), got {_show(at.rows[i]['count'])}"
                 )
         cond = ""
         if has["condition"] and not _blank(at.rows[i].get("condition")):

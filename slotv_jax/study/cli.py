@@ -91,6 +91,9 @@ def _parse_args(argv):
     imp.add_argument("--answers", required=True, help="trajectory,guess[,tau,participant,...]")
     imp.add_argument("--out", required=True, help="study file to write (.npz)")
     imp.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    imp.add_argument("--ignore-columns", default="", metavar="A,B",
+                     help="extra columns to leave out on purpose (any other unknown column "
+                     "is refused)")  # fmt: skip
     show = sub.add_parser("show", help="validate a study file and summarise it")
     show.add_argument("study")
     cv = sub.add_parser("cv", help="k-fold cross-validation of SLOT-V/T-REX and baselines")
@@ -117,10 +120,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         return web_cli.COMMANDS[args.command](args)
     if args.command == "next":
         return rounds.next_main(args)
-    if getattr(args, "out", None) is not None:  # before any work
-        fileio.check_output_file(args.out, overwrite=args.overwrite)
+    if getattr(args, "out", None) is not None:  # before any work: never over an input
+        if args.command == "import":
+            inputs = {f"--{k}": getattr(args, k) for k in ("trajectories", "goals", "answers")}
+        else:
+            inputs = {"study": args.study}
+        fileio.check_not_input(args.out, inputs)
+        suffix = {"import": ".npz", "cv": ".json"}[args.command]
+        fileio.check_output_file(args.out, overwrite=args.overwrite, suffix=suffix)
     if args.command == "import":
-        study, report = read_tables(args.trajectories, args.goals, args.answers)
+        ignore = args.ignore_columns.split(",")
+        study, report = read_tables(
+            args.trajectories, args.goals, args.answers, ignore_columns=ignore
+        )
         save_study(args.out, study)
         print(report.describe(study))
         print(f"wrote {args.out}")
