@@ -560,3 +560,84 @@ def test_prepare_rejects_bad_inputs(tiny):
     with pytest.raises(ValueError, match="no full batch"):
         cfg = small_cfg("slotv", batch_size=64, train_size=32)
         train.train_trials(cfg, types.prepare(tr, "effdist"), 1, progress=False)
+
+
+# ------------------------------------------------------------- training on answers (CLI)
+
+STUDY_COMBOS = [("mlp", "slotv"), ("mlp", "trex"), ("dragan", "slotv"), ("viewpoint", "slotv"),
+                ("mixture", "slotv")]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def study_file(tmp_path_factory):
+    """A tiny simulated Dragan study (β = 20) with answers at τ = 0.3, 0.6 and 1."""
+    from slotv_jax.answers import simulate, storage
+
+    s = synthetic_split(7, 40, name="study")
+    study = simulate.simulate_study(jax.random.key(0), s.xyz, s.goals, s.goal_mask, 4,
+                                    beta=20.0, taus=(0.3, 0.6, 1.0))  # fmt: skip
+    assert np.any(study.seen() < T) and np.any(study.seen() == T)
+    path = tmp_path_factory.mktemp("study") / "study.npz"
+    storage.save_study(path, study)
+    return path, study
+
+
+@pytest.mark.parametrize(("model", "method"), STUDY_COMBOS)
+def test_cli_trains_every_model_on_a_study(study_file, tmp_path, capsys, model, method):
+    """python -m slotv_jax.train --study FILE --model M --method X, for every combination the
+    command offers; the checkpoint's training metrics are those of the loaded observer's
+    prefix logits on every answer row (each row scored on the points its people saw)."""
+    from slotv_jax.answers import crossval
+
+    path, study = study_file
+    out = tmp_path / "ck"
+    argv = ["--study", str(path), "--model", model, "--method", method, "--out", str(out),
+            "--epochs", "2", "--no-progress"]  # fmt: skip
+    if model == "mlp":
+        argv += ["--set", "hidden=8,4"]
+    assert train_cli.main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "epoch 2/2" in printed and "NLL per answer" in printed
+    meta = json.loads((out / "config.json").read_text())["meta"]
+    obs = slotv_jax.load_observer(out, model=model)
+    tr = study.answer_trajectory
+    logits = jax.jit(jax.vmap(obs.prefix))(study.xyz[tr], study.goals[tr], study.goal_mask[tr],
+                                           jnp.asarray(study.seen()))  # fmt: skip
+    got = crossval.row_metrics(np.asarray(logits), study.goal_mask[tr], study.counts)
+    want = meta["train_metrics"]
+    assert got["nll_per_answer"] == pytest.approx(want["nll_per_answer"], rel=1e-5)
+    assert got["accuracy"] == pytest.approx(want["accuracy"])
+    if model != "mlp":  # an archetype: its fitted parameters, stored and in words
+        assert meta["parameters"] == pytest.approx(obs.parameters())
+        assert obs.describe().splitlines()[0] in printed
+
+
+def test_cli_refuses_an_archetype_with_trex(study_file, tmp_path, capsys):
+    path, _ = study_file
+    with pytest.raises(SystemExit) as e:
+        train_cli.main(["--study", str(path), "--model", "dragan", "--method", "trex",
+                        "--out", str(tmp_path / "ck")])  # fmt: skip
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: method:") and "'slotv'" in err[0]
+    assert not (tmp_path / "ck").exists()
+
+
+def test_cli_checks_every_split_before_training(tiny_data, tiny_cfg, tmp_path, capsys):
+    """A dataset folder without the test splits: the error comes before the first epoch,
+    names the missing split, and nothing is written."""
+    from slotv_jax import data as data_lib
+
+    (tmp_path / "data").mkdir()
+    for name in ("train", "trajectory_test"):
+        data_lib.save_split(tmp_path / "data", tiny_data[name], tiny_cfg)
+    ck = tmp_path / "ck"
+    with pytest.raises(SystemExit) as e:
+        train_cli.main(["--data", str(tmp_path / "data"), "--labeler", "effdist", "--method",
+                        "slotv", "--out", str(ck), "--set", "hidden=8,4", "--epochs", "1",
+                        "--no-progress"])  # fmt: skip
+    assert e.value.code == 2
+    cap = capsys.readouterr()
+    err = cap.err.strip().splitlines()
+    assert len(err) == 1 and "position_test" in err[0] and err[0].startswith("error:"), err
+    assert "epoch" not in cap.out and not ck.exists()

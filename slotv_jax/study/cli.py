@@ -14,7 +14,7 @@ from typing import Any
 import jax
 
 from slotv_jax.answers.crossval import cross_validate, cv_table, model_metrics
-from slotv_jax.answers.fitting import train_study
+from slotv_jax.answers.fitting import study_trainer, train_study
 from slotv_jax.answers.storage import load_study, save_study
 from slotv_jax.answers.tables import read_tables
 from slotv_jax.core import cli, fileio
@@ -29,10 +29,13 @@ from slotv_jax.webstudy import web_cli
 
 
 def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
-    """``python -m slotv_jax.train --study FILE ...``: train on a study, checkpoint every
-    epoch, optionally cross-validate (``--cv K``), and print the metrics. A study with
-    fewer answer rows than the preset's batch trains with the largest power of two that
-    fits (and says so), unless ``--set batch_size=N`` is given."""
+    """``python -m slotv_jax.train --study FILE ...``: train any observer (``--model`` mlp or
+    an archetype; SLOT-V or T-REX) on a study's answers, each row scored on the points its
+    participants saw (:func:`slotv_jax.answers.fitting.prefix_scores`), checkpoint every
+    epoch, optionally cross-validate (``--cv K``), and print the metrics (an archetype's
+    fitted parameters too). A study with fewer answer rows than the preset's batch trains
+    with the largest power of two that fits (and says so), unless ``--set batch_size=N``
+    is given."""
     study = load_study(args.study)
     if args.condition is not None:
         study = study.select_condition(args.condition)
@@ -67,6 +70,10 @@ def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
     meta["train_metrics"] = model_metrics(cfg, state.params, study)
     print(f"training rows: accuracy {meta['train_metrics']['accuracy']:.4f}, NLL per answer "
           f"{meta['train_metrics']['nll_per_answer']:.4f}", flush=True)  # fmt: skip
+    if cfg.model != "mlp":  # an archetype: its fitted parameters, in the checkpoint and in words
+        fitted = study_trainer(cfg).model(state.params)
+        meta["parameters"] = fitted.parameters()
+        print(fitted.describe(), flush=True)
     if args.cv:
         cv = cross_validate(cfg, study, folds=args.cv, seed=args.seed,
                             progress=not args.no_progress)  # fmt: skip

@@ -106,8 +106,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return study_cli.train_main(cfg, args)
     out = Path(args.out)
 
-    train_split = data_lib.load_split(args.data, "train")
-    data = trim_goals(prepare(train_split, args.labeler, size=cfg.train_size))
+    # Every split this run reads (and its labels), before any training: a missing or
+    # corrupt one is an error now, not after the last epoch.
+    splits = {name: data_lib.load_split(args.data, name) for name in TEST_SPLITS}
+    evals = {
+        name: prepare(split, args.labeler, size=cfg.train_size if name == "train" else None)
+        for name, split in splits.items()
+    }
+    data = trim_goals(evals["train"])
     trainer = make_train(cfg, progress=not args.no_progress)
     if args.resume and checkpoint.exists(out):
         _, state, meta = checkpoint.restore(out, cfg)
@@ -132,11 +138,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     acc = {}
     for name in TEST_SPLITS:
-        split = train_split if name == "train" else data_lib.load_split(args.data, name)
-        size = cfg.train_size if name == "train" else None
-        acc[name] = float(
-            evaluate.accuracy(cfg, state.params, prepare(split, args.labeler, size=size))
-        )
+        acc[name] = float(evaluate.accuracy(cfg, state.params, evals[name]))
         print(f"accuracy {name}: {acc[name]:.4f}", flush=True)
     meta = {**meta, "accuracy": acc, "train_seconds": round(train_s, 2)}
     if cfg.model != "mlp":  # the fitted parameters, in the checkpoint and in words
