@@ -194,3 +194,95 @@ def test_cli_command_reports_input_errors_in_one_line(capsys):
     assert capsys.readouterr().err == "error: /nonexistent/slotv.npz: no such file or directory\n"
     with pytest.raises(TypeError, match="a real bug"):
         bug([])
+
+
+# ------------------------------------ no command writes over one of its own inputs
+
+
+def _refused(main, argv, capsys, *pieces):
+    """``main(argv)`` exits with code 2 and prints one line ``error: ...`` with ``pieces``."""
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    err = capsys.readouterr().err
+    assert e.value.code == 2, err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err, err
+    for piece in pieces:
+        assert piece in err, (piece, err)
+
+
+def _motions(path):
+    """A labelers/render input .npz: 2 motions of 5 points (joint angles too), 2 goals."""
+    from slotv_jax.robot import kinematics
+
+    xyz = np.linspace([0.3, 0.0, 0.5], [0.5, 0.2, 0.03], 5)[None].repeat(2, 0)
+    goals = np.zeros((8, 3))
+    goals[:2] = [[0.5, 0.2, 0.025], [0.5, -0.2, 0.025]]
+    q = np.broadcast_to(np.asarray(kinematics.Q_HOME), (2, 5, 7))
+    with open(path, "wb") as f:  # any name: np.savez(path) would add .npz
+        np.savez(f, xyz=xyz, goals=goals, goal_mask=np.arange(8) < 2, q=q)
+    return path.read_bytes()
+
+
+def test_labelers_never_write_over_their_input(tmp_path, capsys):
+    """``--in x.npz --out x.npz --overwrite`` replaced the input with the labels, and
+    ``--out labels.csv`` wrote an .npz under a .csv name."""
+    from slotv_jax.labelers import cli as labelers_cli
+
+    raw = _motions(tmp_path / "x.npz")
+    for out in ("x.npz", "./sub/../x.npz"):
+        _refused(labelers_cli.main, ["--in", str(tmp_path / "x.npz"), "--out",
+                 str(tmp_path / out), "--overwrite", "--quiet"], capsys,
+                 "is the input --in")  # fmt: skip
+    _refused(labelers_cli.main, ["--in", str(tmp_path / "x.npz"), "--out",
+             str(tmp_path / "labels.csv"), "--quiet"], capsys,
+             "labels.csv: expected a name ending in .npz")  # fmt: skip
+    assert (tmp_path / "x.npz").read_bytes() == raw
+    assert sorted(os.listdir(tmp_path)) == ["x.npz"]
+
+
+def test_render_never_writes_over_its_input(tmp_path, capsys):
+    """The output's suffix picks the format, so an input named ``clip.png`` was replaced by
+    its own picture."""
+    from slotv_jax.render import cli as render_cli
+
+    raw = _motions(tmp_path / "clip.png")
+    _refused(render_cli.main, ["--npz", str(tmp_path / "clip.png"), "--out",
+             str(tmp_path / "clip.png"), "--overwrite", "--quiet"], capsys,
+             f"--out {tmp_path / 'clip.png'}: is the input --npz")  # fmt: skip
+    assert (tmp_path / "clip.png").read_bytes() == raw
+
+
+def test_train_never_replaces_a_checkpoint_that_holds_its_study(tmp_path, capsys):
+    """``--study ckpt/s.npz --out ckpt --overwrite`` swapped the checkpoint folder, study
+    file and all, for the new checkpoint."""
+    from slotv_jax.train import cli as train_cli
+
+    ckpt = tmp_path / "ckpt"
+    (ckpt / "state").mkdir(parents=True)  # a checkpoint of ours (its marker files)
+    (ckpt / "config.json").write_text("{}")
+    (ckpt / "s.npz").write_bytes(b"the study")
+    base = ["--method", "slotv", "--epochs", "1", "--overwrite"]
+    _refused(train_cli.main, ["--study", str(ckpt / "s.npz"), "--out", str(ckpt), *base],
+             capsys, f"--out {ckpt}: holds the input --study")  # fmt: skip
+    _refused(train_cli.main, ["--study", str(ckpt / "s.npz"), "--out", str(ckpt / "s.npz"),
+             *base], capsys, "is the input --study")  # fmt: skip
+    assert (ckpt / "s.npz").read_bytes() == b"the study"
+
+
+def test_study_export_and_stimuli_never_write_over_their_inputs(tmp_path, capsys):
+    from slotv_jax.study import cli as study_cli
+    from slotv_jax.webstudy.stimuli import MANIFEST
+
+    out = tmp_path / "tables"
+    out.mkdir()
+    (out / "answers.csv").write_bytes(b"the database")  # a --db that export would replace
+    _refused(study_cli.main, ["export", "--db", str(out / "answers.csv"), "--out", str(out),
+             "--overwrite"], capsys, "is the input --db")  # fmt: skip
+    assert (out / "answers.csv").read_bytes() == b"the database"
+    stim = tmp_path / "stimuli"
+    stim.mkdir()
+    (stim / MANIFEST).write_text("{}")  # an earlier set of ours, replaced with --overwrite
+    (stim / "s.npz").write_bytes(b"the study")
+    _refused(study_cli.main, ["stimuli", "--study", str(stim / "s.npz"), "--out", str(stim),
+             "--overwrite"], capsys, f"--out {stim}: holds the input --study")  # fmt: skip
+    assert (stim / "s.npz").read_bytes() == b"the study"

@@ -49,7 +49,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
-    fileio.check_output_file(args.out, overwrite=args.overwrite)
+    fileio.check_not_input(args.out, {"--in": args.inp})
+    fileio.check_output_file(args.out, overwrite=args.overwrite, suffix=".npz")
     print(XLA_CONFIG.summary(), file=sys.stderr)
 
     names = tuple(s.strip() for s in args.labelers.split(",") if s.strip())

@@ -297,7 +297,9 @@ def _outputs(args, items: list[Item]) -> list[Path]:
                 f"--out {args.out}: {len(items)} items need a folder (and --format), not a file"
             )
         paths = [args.out / f"{it.key}.{args.format}" for it in items]
+    inputs = {f"--{k}": getattr(args, k) for k in ("data", "npz", "study", "plans")}
     for path in paths:
+        fileio.check_not_input(path, inputs)
         check_output(path, overwrite=args.overwrite)
     if args.sheet is not None and (args.sheet < 1 or any(p.suffix != ".png" for p in paths)):
         raise cli.InputError("--sheet: expected N >= 1 with a .png output")

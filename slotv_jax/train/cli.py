@@ -95,6 +95,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.compute_dtype is not None:
         cfg = dataclasses.replace(cfg, compute_dtype=args.compute_dtype)
     cfg = train_config.apply_overrides(cfg, args.set)
+    fileio.check_not_input(args.out, {"--data": args.data, "--study": args.study},
+                           replaces_dir=True)  # fmt: skip
     fileio.check_output_dir(
         args.out, ours=checkpoint.exists, resume=args.resume, overwrite=args.overwrite,
         resume_hint="pass --resume to continue training it",

@@ -39,7 +39,7 @@ from tqdm.auto import tqdm
 
 from slotv_jax import rendering  # first: it picks MUJOCO_GL=egl before MuJoCo loads
 from slotv_jax.answers.storage import load_study
-from slotv_jax.core.fileio import check_output_dir, load_npz
+from slotv_jax.core.fileio import check_not_input, check_output_dir, load_npz
 from slotv_jax.data import SPLITS, Split, load_split
 from slotv_jax.rendering.overlay import LABEL_LIFT
 from slotv_jax.webstudy.stimuli import (
@@ -292,6 +292,8 @@ def stimuli_main(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name} {getattr(args, name)}: expected a number > 0")
     if not args.hold >= 0:
         raise ValueError(f"--hold {args.hold}: expected seconds >= 0")
+    inputs = {f"--{k}": getattr(args, k) for k in ("data", "npz", "plans", "study")}
+    check_not_input(args.out, inputs, replaces_dir=True)
     check_output_dir(args.out, ours=lambda p: (p / MANIFEST).is_file(), overwrite=args.overwrite)
     if args.data is not None:
         motions, source = motions_from_split(load_split(args.data, args.split)), {

@@ -14,6 +14,7 @@ from pathlib import Path
 import httpx
 import uvicorn
 
+from slotv_jax.core.fileio import check_not_input
 from slotv_jax.webstudy import client, make_stimuli
 from slotv_jax.webstudy import export as export_lib
 from slotv_jax.webstudy.database import SYNC, connect
@@ -88,6 +89,8 @@ def export_main(args: argparse.Namespace) -> int:
         raise ValueError(f"--out {out}: expected a folder")
     if not out.parent.is_dir():
         raise ValueError(f"--out {out}: the folder {out.parent} does not exist")
+    for n in export_lib.TABLES:
+        check_not_input(out / f"{n}.csv", {"--db": db})
     there = [n for n in export_lib.TABLES if (out / f"{n}.csv").exists()]
     if there and not args.overwrite:
         raise ValueError(f"--out {out}: {there[0]}.csv exists (add --overwrite to replace it)")
