@@ -244,6 +244,17 @@ def test_strict_import_errors(tmp_path, table, old, new, pieces):
         assert p in str(e.value), (p, str(e.value))
 
 
+def test_an_empty_column_without_a_name_is_no_column(tmp_path):
+    """A spreadsheet's trailing commas: a column with no name and no values is left out."""
+    goals = GOALS_CSV.replace("\n", ",\n")
+    assert goals.startswith("goal,x,y,z,\nleft,0.50,0.25,0.025,\n")
+    s, _ = study.read_tables(*_write_tables(tmp_path, goals=goals))
+    (tmp_path / "ref").mkdir()
+    ref, _ = study.read_tables(*_write_tables(tmp_path / "ref"))
+    np.testing.assert_array_equal(s.goals, ref.goals)
+    np.testing.assert_array_equal(s.counts, ref.counts)
+
+
 def test_ignore_columns_keeps_extra_columns_on_purpose(tmp_path):
     answers = ANSWERS_CSV.replace("condition,count", "condition,count,notes").replace(
         "front,2", "front,2,slow"
@@ -293,6 +304,8 @@ def _json_tables(tmp_path, edit=None):
         # a key given twice: the last one silently won
         ("goals", '"goal": "left"', '"goal": "left", "goal": "right"',
          ["goals.json", "item 0", "'goal'", "twice"]),
+        ("traj", '{"trajectory": "a", "t": "0.0", "x": "0.31", "y": "0.00", "z": "0.49"}',
+         '[1, 2]', ["traj.json", "item 0", "expected an object"]),
         ("answers", '"participant": "p1"', '"particpant": "p1"',
          ["answers.json", "item 0", "'particpant'", "did you mean 'participant'"]),
     ],

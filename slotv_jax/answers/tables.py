@@ -1,4 +1,6 @@
-"""Importing a study from CSV tables (trajectories, goals, answers) into the study format."""
+"""Importing a study from tables (trajectories, goals, answers; CSV or JSON) into the study
+format (:mod:`slotv_jax.answers.format`), strictly: what is read is what was written, or a
+ValueError names the file, the line (CSV) or item (JSON) and the field (:func:`read_tables`)."""
 
 from __future__ import annotations
 
@@ -138,8 +140,14 @@ def _read_csv(path: Path, role: str, ignore: frozenset[str]) -> _Table:
 
 def _read_json(path: Path, role: str, ignore: frozenset[str]) -> _Table:
     doc = fileio.read_json(path, object_pairs_hook=_json_object)  # names a broken line
-    if not isinstance(doc, list) or not all(isinstance(r, dict) for r in doc):
+    if not isinstance(doc, list):
         raise ValueError(f"{path.name}: expected a JSON list of objects (one per row)")
+    for i, r in enumerate(doc):
+        if not isinstance(r, dict):
+            raise ValueError(
+                f"{path.name}, item {i}: expected an object (one row: column -> value), got "
+                f"{json.dumps(r)[:40]}"
+            )
     columns: list[str] = []
     for i, r in enumerate(doc):
         if r.duplicate is not None:
