@@ -10,6 +10,11 @@ body (the server stores it once). A *guesser* chooses the goal:
   manifest), takes the points of the motion up to τ, and draws the goal from the
   labeler's probabilities (SPEC §4): a stand-in for people, to try the study pipeline
   end to end before anyone takes part.
+- :class:`PopulationGuesser`: participants of a population of simulated people
+  (:mod:`slotv_jax.observers.population`): each participant draws their own parameters
+  (viewpoint, inference rule, temperature, memory) once, then answers every trial from
+  their own guess distribution on the points up to τ, lapses included. A guesser with a
+  ``participant(i)`` method gives participant i their own guesser in :func:`run_crowd`.
 
 >>> import asyncio
 >>> asyncio.run(run_crowd("http://127.0.0.1:8000", 20, uniform_guesser(0)))  # doctest: +SKIP
@@ -26,9 +31,10 @@ from pathlib import Path
 from typing import NamedTuple
 
 import httpx
+import jax
 import numpy as np
 
-from slotv_jax.observers import labelers
+from slotv_jax.observers import labelers, population
 from slotv_jax.webstudy import stimuli
 
 Guesser = Callable[[dict, bytes], str]  # (trial state, still bytes) -> goal label
@@ -49,6 +55,38 @@ def uniform_guesser(seed: int) -> Guesser:
     return lambda state, still: rng.choice(state["goals"])
 
 
+class _Motion(NamedTuple):
+    """A stimulus's motion as a participant saw it."""
+
+    labels: list[str]  # the goals' labels, in slot order
+    xyz: np.ndarray  # (T, 3) float32, the whole motion
+    seen: int  # points up to τ (at least 2)
+    goals: np.ndarray  # (8, 3) float32
+    goal_mask: np.ndarray  # (8,) bool
+
+
+class _Stimuli:
+    """Every stimulus of a study folder, found by the SHA-256 of its still."""
+
+    def __init__(self, stimdir: str | Path):
+        self.by_still: dict[str, tuple[dict, stimuli.StimulusSet]] = {}
+        for r in stimuli.find_rounds(stimdir):
+            st = stimuli.load_stimulus_set(stimuli.round_dir(stimdir, r), verify=False)
+            for s in st.manifest["stimuli"]:
+                self.by_still[s["still_sha256"]] = (s, st)
+
+    def motion(self, still: bytes) -> _Motion:
+        s, st = self.by_still[hashlib.sha256(still).hexdigest()]
+        pts = np.array(st.trajectories[s["trajectory"]], np.float64)
+        seen = max(2, int(np.sum(pts[:, 0] <= s["tau"] + 1e-9)))
+        goals = np.zeros((8, 3), np.float32)
+        mask = np.zeros(8, bool)
+        g = st.goals[s["trajectory"]]
+        goals[: len(g)] = [row[1:] for row in g]
+        mask[: len(g)] = True
+        return _Motion([row[0] for row in g], pts[:, 1:].astype(np.float32), seen, goals, mask)
+
+
 class LabelerGuesser:
     """Answers like a labeler (``dragan``, ``effdist``, ``fastapp``; see the module doc)."""
 
@@ -57,24 +95,77 @@ class LabelerGuesser:
             raise ValueError(f"labeler: expected dragan, effdist or fastapp, got {labeler!r}")
         self.fn = getattr(labelers, labeler)
         self.rng = np.random.default_rng(seed)
-        self.by_still: dict[str, tuple[dict, stimuli.StimulusSet]] = {}
-        for r in stimuli.find_rounds(stimdir):
-            st = stimuli.load_stimulus_set(stimuli.round_dir(stimdir, r), verify=False)
-            for s in st.manifest["stimuli"]:
-                self.by_still[s["still_sha256"]] = (s, st)
+        self.stimuli = _Stimuli(stimdir)
+        self.by_still = self.stimuli.by_still
 
     def probs(self, still: bytes) -> tuple[list[str], np.ndarray]:
         """The labeler's goal probabilities for the stimulus whose still this is."""
-        s, st = self.by_still[hashlib.sha256(still).hexdigest()]
-        pts = np.array(st.trajectories[s["trajectory"]], np.float64)
-        seen = pts[: max(2, int(np.sum(pts[:, 0] <= s["tau"] + 1e-9))), 1:]
-        goals = np.zeros((8, 3), np.float32)
-        mask = np.zeros(8, bool)
-        g = st.goals[s["trajectory"]]
-        goals[: len(g)] = [row[1:] for row in g]
-        mask[: len(g)] = True
-        p = np.asarray(self.fn(np.asarray(seen, np.float32), goals, mask), np.float64)[: len(g)]
-        return [row[0] for row in g], p / p.sum()
+        m = self.stimuli.motion(still)
+        n = len(m.labels)
+        p = np.asarray(self.fn(m.xyz[: m.seen], m.goals, m.goal_mask), np.float64)[:n]
+        return m.labels, p / p.sum()
+
+    def __call__(self, state: dict, still: bytes) -> str:
+        names, p = self.probs(still)
+        return str(self.rng.choice(names, p=p))
+
+
+_participant_probs = jax.jit(population.participant_probs)
+
+
+class Crowd(NamedTuple):
+    """Participants who each have their own guesser, ``participant(i)``, in :func:`run_crowd`."""
+
+    participant: Callable[[int], Guesser]
+
+
+class PopulationGuesser:
+    """Participants of a population (see the module doc): participant i draws their
+    parameters from ``fold_in(key(seed), i)`` (:func:`population.draw_participants`) and
+    their guesses from ``numpy.random.default_rng([seed, i])``.
+
+    ``population``: a :class:`population.Population`, ``default``, ``homogeneous`` or the
+    path of a population JSON file (checked here, before any participant starts).
+    """
+
+    def __init__(self, stimdir: str | Path, pop: population.Population | str = "default",
+                 seed: int = 0):  # fmt: skip
+        self.population = pop if isinstance(pop, population.Population) else (
+            population.get_population(pop))  # fmt: skip
+        self.seed = seed
+        self.stimuli = _Stimuli(stimdir)
+        self.by_still = self.stimuli.by_still
+
+    def participant(self, i: int) -> PopulationParticipant:
+        """Participant ``i``, with their own parameters."""
+        key = jax.random.fold_in(jax.random.key(self.seed), i)
+        people = population.draw_participants(self.population, key, 1)
+        return PopulationParticipant(self, people, np.random.default_rng([self.seed, i]))
+
+
+class PopulationParticipant:
+    """One participant of a :class:`PopulationGuesser`: a :data:`Guesser`."""
+
+    def __init__(self, crowd: PopulationGuesser, people: population.Participants, rng):
+        self.crowd, self.people, self.rng = crowd, people, rng
+
+    def parameters(self) -> dict:
+        """The participant's draw: viewpoint, rule, beta, alpha."""
+        p = self.people
+        return {
+            "viewpoint": self.crowd.population.viewpoints[int(p.viewpoint[0])][0],
+            "rule": population.RULES[int(p.rule[0])],
+            "beta": float(p.beta[0]),
+            "alpha": float(p.alpha[0]),
+        }
+
+    def probs(self, still: bytes) -> tuple[list[str], np.ndarray]:
+        """This participant's guess distribution (lapses included) for the stimulus whose
+        still this is."""
+        m = self.crowd.stimuli.motion(still)
+        y = _participant_probs(self.people, m.xyz, m.goals, m.goal_mask, np.int32(m.seen))
+        p = np.asarray(y[0], np.float64)[: len(m.labels)]
+        return m.labels, p / p.sum()
 
     def __call__(self, state: dict, still: bytes) -> str:
         names, p = self.probs(still)
@@ -161,11 +252,16 @@ async def run_crowd(
     timeout: float = 120.0,
     media: bool = True,
 ) -> list[Result]:
-    """``n`` participants taking the study concurrently (ids ``sim-0``, ``sim-1``, ...)."""
+    """``n`` participants taking the study concurrently (ids ``sim-0``, ``sim-1``, ...).
+
+    A ``guess`` with a ``participant(i)`` method (:class:`PopulationGuesser`) gives
+    participant i the guesser ``guess.participant(i)``; any other is shared by all.
+    """
+    per_person = hasattr(guess, "participant")
     runs = [
         run_participant(
             base_url,
-            guess,
+            guess.participant(i) if per_person else guess,
             ids={"PROLIFIC_PID": f"sim-{i}"},
             think=think,
             timeout=timeout,

@@ -44,8 +44,12 @@ def _add_web_commands(sub) -> None:
     sim.add_argument("--url", default="http://127.0.0.1:8000", help="the study server")
     sim.add_argument("--stimuli", required=True, help="the study folder the server serves")
     sim.add_argument("--participants", type=int, default=20)
-    sim.add_argument("--labeler", default="dragan", choices=("dragan", "effdist", "fastapp"),
-                     help="the simulated participants answer like this observer")  # fmt: skip
+    sim.add_argument("--labeler", default=None, choices=("dragan", "effdist", "fastapp"),
+                     help="the simulated participants answer like this observer (default: "
+                     "dragan)")  # fmt: skip
+    sim.add_argument("--population", default=None,
+                     help="or: they are people of this population (default, homogeneous or a "
+                     "population JSON file; see README), each with their own draw")  # fmt: skip
     sim.add_argument("--seed", type=int, default=0)
     sim.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the server")
 
@@ -115,7 +119,12 @@ def simulate_main(args: argparse.Namespace) -> int:
         raise ValueError(f"--participants {args.participants}: expected 1..10000")
     if not args.url.startswith(("http://", "https://")):
         raise ValueError(f"--url {args.url}: expected http://HOST:PORT")
-    guess = client.LabelerGuesser(args.stimuli, args.labeler, seed=args.seed)
+    if args.population is not None and args.labeler is not None:
+        raise ValueError("--labeler, --population: expected one of them, got both")
+    if args.population is not None:
+        guess = client.PopulationGuesser(args.stimuli, args.population, seed=args.seed)
+    else:
+        guess = client.LabelerGuesser(args.stimuli, args.labeler or "dragan", seed=args.seed)
     deadline = time.monotonic() + args.wait
     while True:  # the server may still be starting
         try:
@@ -127,11 +136,16 @@ def simulate_main(args: argparse.Namespace) -> int:
             time.sleep(0.25)
     kinds: collections.Counter = collections.Counter()
 
-    def answer(state: dict, still: bytes) -> str:  # the guesser, counting each trial's kind
-        kinds[guess.by_still[hashlib.sha256(still).hexdigest()][0]["kind"]] += 1
-        return guess(state, still)
+    def counted(g: client.Guesser) -> client.Guesser:  # the guesser, counting trial kinds
+        def answer(state: dict, still: bytes) -> str:
+            kinds[guess.by_still[hashlib.sha256(still).hexdigest()][0]["kind"]] += 1
+            return g(state, still)
 
-    res = asyncio.run(client.run_crowd(args.url, args.participants, answer, timeout=600))
+        return answer
+
+    crowd = (client.Crowd(lambda i: counted(guess.participant(i)))
+             if hasattr(guess, "participant") else counted(guess))  # fmt: skip
+    res = asyncio.run(client.run_crowd(args.url, args.participants, crowd, timeout=600))
     done = sum(r.code is not None for r in res)
     # every guess was acknowledged: a post that fails raises out of run_crowd
     print(f"{done} of {len(res)} simulated participants finished, "
