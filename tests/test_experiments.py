@@ -15,7 +15,7 @@ import pytest
 from slotv_jax import data
 from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.experiments import hparam_search, table1
-from slotv_jax.runs import curves, grid, presets
+from slotv_jax.runs import curves, grid, presets, summary
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -178,9 +178,11 @@ def test_hparam_search_is_resumable_and_reproducible(cache, tmp_path):
 
 def test_spearman_hand_cases():
     x = np.array([1.0, 2, 3, 4])
-    assert hparam_search.spearman(x, x**3) == pytest.approx(1.0)
-    assert hparam_search.spearman(x, -x) == pytest.approx(-1.0)
-    assert np.isnan(hparam_search.spearman(x, np.ones(4)))
+    assert summary.spearman(x, x**3) == pytest.approx(1.0)
+    assert summary.spearman(x, -x) == pytest.approx(-1.0)
+    assert np.isnan(summary.spearman(x, np.ones(4)))
+    # ties share their average rank: ranks (0.5, 0.5, 2, 3) against (0, 1, 2, 3)
+    assert summary.spearman(np.array([1.0, 1, 2, 3]), x) == pytest.approx(np.sqrt(0.9))
 
 
 def test_vmapped_trials_match_one_by_one(cache, tmp_path):
@@ -335,4 +337,22 @@ def test_study_size_report_renders_again(tmp_path):
     assert got.shape == want.shape and np.abs(got - want).mean() < 0.01
     with pytest.raises(SystemExit) as e:
         main(["--report", "--out", str(tmp_path / "empty")])
+    assert e.value.code == 2
+
+
+def test_hparam_summary_renders_again(tmp_path, capsys):
+    """``hparam_search --report-only`` renders the summary again from the recorded rollouts
+    alone: every table row of the recorded summary (the scores and rank correlations), in
+    order; a folder without a rollouts document is refused."""
+    folder = REPO / "experiments"
+    (tmp_path / "rollouts.json").write_bytes(
+        (folder / "hparam_search_quick_rollouts.json").read_bytes()
+    )
+    assert hparam_search.main(["--report-only", "--out", str(tmp_path)]) == 0
+    rows = [x for x in (tmp_path / "summary.md").read_text().splitlines() if x.startswith("|")]
+    recorded = [x for x in (folder / "hparam_search_quick.md").read_text().splitlines()
+                if x.startswith("|")]  # fmt: skip
+    assert len(recorded) > 40 and rows[: len(recorded)] == recorded
+    with pytest.raises(SystemExit) as e:
+        hparam_search.main(["--report-only", "--out", str(tmp_path / "empty")])
     assert e.value.code == 2

@@ -24,6 +24,10 @@ which hyperparameters mattered (Spearman rank correlation with the score).
 
     python -m slotv_jax.experiments.hparam_search                    # quick, CPU
     python -m slotv_jax.experiments.hparam_search --preset paper --rollouts 25
+    python -m slotv_jax.experiments.hparam_search --report-only --out DIR   # re-render
+
+The summary is rendered from ``rollouts.json`` alone
+(:mod:`slotv_jax.experiments.hparam_search_report`).
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ from slotv_jax.core import cli, distributed, fileio
 from slotv_jax.core.defaults import LABELER_NAMES
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
+from slotv_jax.experiments.hparam_search_report import summarise
 from slotv_jax.runs import presets
 from slotv_jax.training import config as train_config
 from slotv_jax.training import evaluate, parallel
@@ -120,23 +125,6 @@ def sample_hparams(phase: str, i: int, cfg: SearchConfig) -> dict:
         hp["b2"] = float(rng.uniform(0.7, 1.0))
         hp["epochs"] = cfg.trex_epochs
     return hp
-
-
-def spearman(x: np.ndarray, y: np.ndarray) -> float:
-    """Spearman rank correlation (average ranks for ties); NaN if either is constant."""
-
-    def rank(a):
-        order = np.argsort(a, kind="stable")
-        r = np.empty(len(a))
-        r[order] = np.arange(len(a))
-        for v in np.unique(a):  # average ties
-            r[a == v] = r[a == v].mean()
-        return r
-
-    rx, ry = rank(np.asarray(x, float)), rank(np.asarray(y, float))
-    if rx.std() == 0 or ry.std() == 0:
-        return float("nan")
-    return float(np.corrcoef(rx, ry)[0, 1])
 
 
 def rollout_config(cfg: SearchConfig, phase: str, i: int) -> train_config.TrainConfig:
@@ -286,134 +274,19 @@ def run(
     return doc
 
 
-def _header(doc: dict) -> list[str]:
-    """How the results were made: commands, machine, versions, dates, wall time."""
-    env = doc.get("environment", {})
-    runs = doc.get("invocations", [])
-    lines = []
-    if runs:
-        wall = sum(r["wall_s"] for r in runs)
-        lines += [
-            f"- Commands ({len(runs)} invocation(s), each resuming the last; "
-            f"**wall time {wall:.0f} s** in all, dataset generation or loading included):",
-            "",
-            *[
-                f"  - `{r['command'] or '(library call)'}`: {r['date']}, {r['wall_s']:.0f} s "
-                f"({r['rollouts_run']} rollouts run, {r['rollouts_left']} left), "
-                f"{r['processes']} process(es), devices {', '.join(r['devices'])} "
-                f"({r.get('device_kind', '?')})"
-                for r in runs
-            ],
-            "",
-        ]
-    lines += [
-        f"- Versions: slotv_jax {env.get('slotv_jax')}, jax {env.get('jax')}, "
-        f"flax {env.get('flax')}, optax {env.get('optax')}, mujoco {env.get('mujoco')}, "
-        f"numpy {env.get('numpy')}, Python {env.get('python')}.",
-        f"- Search: {json.dumps(doc['search'])}.",
-    ]
-    return lines
-
-
-def _against_paper(doc: dict) -> list[str]:
-    """The best rollouts set against the hyperparameters the paper settled on (SPEC §5–§8)."""
-    lines = ["", "## Against the paper's account", ""]
-    lines += [
-        "The paper searched SLOT-V first with batches of 64–512, then ran 25 more rollouts "
-        "with batches of 8–64, and settled on RMSprop lr 0.005, ρ 0.9, momentum 0, batch 32, "
-        "hidden 1536/768; for T-REX on Adam lr 0.005, β1 0.9, β2 0.999, batch 128, hidden "
-        "1792/768 (SPEC §5, §6, §8). Its T-REX lr of 0.005 lies outside its own T-REX "
-        "search range, U[1e-5, 1e-3].",
-        "",
-        "| phase | n | best | median | paper's choice | best rollout here |",
-        "|---|---|---|---|---|---|",
-    ]
-    paper = {
-        "slotv": train_config.paper("slotv"),
-        "trex": train_config.paper("trex"),
-    }
-    best = {}
-    for phase, (method, _) in PHASES.items():
-        rs = [r for r in doc["rollouts"] if r["phase"] == phase]
-        if not rs:
-            continue
-        score = np.array([r["val_accuracy"] for r in rs])
-        b = rs[int(np.argmax(score))]
-        best[phase] = (score.max(), np.median(score))
-        pc = paper[method]
-        keys = (
-            ("learning_rate", "rho", "momentum")
-            if method == "slotv"
-            else ("learning_rate", "b1", "b2")
-        )
-        mine = ", ".join(f"{k} {b['hparams'][k]:.3g}" for k in keys)
-        ours = f"{mine}, batch {b['hparams']['batch_size']}, hidden {b['hparams']['hidden']}"
-        theirs = ", ".join(f"{k} {getattr(pc, k):g}" for k in keys)
-        theirs += f", batch {pc.batch_size}, hidden {list(pc.hidden)}"
-        lines.append(
-            f"| {phase} | {len(rs)} | {score.max():.3f} | {np.median(score):.3f} | {theirs} "
-            f"| {ours} |"
-        )
-    if "slotv_large_batch" in best and "slotv_small_batch" in best:
-        (bl, ml), (bs, ms) = best["slotv_large_batch"], best["slotv_small_batch"]
-        better = "higher" if bs > bl else "not higher"
-        lines += [
-            "",
-            f"The small-batch phase scored {better} than the large-batch phase here (best "
-            f"{bs:.3f} vs {bl:.3f}, median {ms:.3f} vs {ml:.3f}); the paper's move to small "
-            "batches, and its final batch of 32, suggest it found the same direction."
-            if bs > bl
-            else f"The small-batch phase did not score higher than the large-batch phase here "
-            f"(best {bs:.3f} vs {bl:.3f}, median {ms:.3f} vs {ml:.3f}), unlike what the "
-            "paper's move to small batches suggests.",
-        ]
-    return lines
-
-
-def summarise(doc: dict) -> str:
-    """Markdown: how it was run, best rollouts per phase, the rank correlation of each
-    hyperparameter with the score, which of them mattered, and the paper's choices beside
-    the best rollouts."""
-    lines = [
-        f"# Hyperparameter search ({doc['search']['preset']} preset, labeler {doc['labeler']})",
-        "",
-        *_header(doc),
-        "",
-        "Score: accuracy on trajectory_val. ρ: Spearman rank correlation of the "
-        "hyperparameter with the score over the phase's rollouts (|ρ| near 1: it mattered; "
-        "|ρ| ≥ 1.96/√(n−1), 0.40 for n = 25, is significant at about p < 0.05).",
-    ]
-    for phase in PHASES:
-        rs = [r for r in doc["rollouts"] if r["phase"] == phase]
-        if not rs:
-            continue
-        score = np.array([r["val_accuracy"] for r in rs])
-        lines += ["", f"## {phase} ({len(rs)} rollouts)", ""]
-        lines += [f"Score: best {score.max():.3f}, median {np.median(score):.3f}, "
-                  f"worst {score.min():.3f}.", ""]  # fmt: skip
-        feats = {
-            "learning_rate": [r["hparams"]["learning_rate"] for r in rs],
-            "batch_size": [r["hparams"]["batch_size"] for r in rs],
-            "hidden_1": [r["hparams"]["hidden"][0] for r in rs],
-            "hidden_2": [r["hparams"]["hidden"][1] for r in rs],
-            "extra_layer": [len(r["hparams"]["hidden"]) > 2 for r in rs],
-        }
-        for k in ("rho", "momentum", "b1", "b2"):
-            if k in rs[0]["hparams"]:
-                feats[k] = [r["hparams"][k] for r in rs]
-        lines += ["| hyperparameter | ρ with score |", "|---|---|"]
-        corr = {k: spearman(np.asarray(v, float), score) for k, v in feats.items()}
-        ranked = sorted(corr.items(), key=lambda kv: -abs(np.nan_to_num(kv[1])))
-        for k, c in ranked:
-            lines.append(f"| {k} | {c:+.2f} |")
-        crit = 1.96 / np.sqrt(max(len(rs) - 1, 1))
-        mattered = [f"{k} ({c:+.2f})" for k, c in ranked if abs(np.nan_to_num(c)) >= crit]
-        lines += ["", f"Mattered (|ρ| ≥ {crit:.2f}): {', '.join(mattered) or 'none'}."]
-        lines += ["", "| rank | score | hyperparameters |", "|---|---|---|"]
-        for n, j in enumerate(np.argsort(-score)[:5]):
-            lines.append(f"| {n + 1} | {score[j]:.3f} | `{json.dumps(rs[j]['hparams'])}` |")
-    lines += _against_paper(doc)
-    return "\n".join(lines) + "\n"
+def report_again(out: Path, also: Path | None) -> int:
+    """Render ``OUT/summary.md`` (and ``also``) again from ``OUT/rollouts.json`` alone."""
+    path = out / "rollouts.json"
+    if not fileio.is_json_object_with(path, ("search", "labeler", "rollouts")):
+        raise cli.InputError(f"--report-only: {path} is not the rollouts document of a search")
+    if also is not None:
+        fileio.check_output_files(also.parent, [also.name], what="--report")
+    summary = summarise(json.loads(path.read_text()))
+    for target in (out / "summary.md", also):
+        if target is not None:
+            write_text(target, summary)
+    print(summary)
+    return 0
 
 
 @cli.command(resumes=True)
@@ -437,8 +310,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--report", type=Path,
                    help="also write the Markdown summary here (e.g. "
                    "experiments/hparam_search_paper.md)")  # fmt: skip
+    p.add_argument("--report-only", action="store_true",
+                   help="only render OUT/summary.md (and --report) again from "
+                   "OUT/rollouts.json")  # fmt: skip
     distributed.add_cli_args(p)
     args = p.parse_args(argv)
+    if args.report_only:
+        return report_again(args.out or Path("runs") / f"hparam_search_{args.preset}", args.report)
     distributed.init_from_args(args)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
     if args.time_limit is not None and not args.time_limit >= 0:

@@ -131,3 +131,21 @@ def ratio_se(baseline: Sequence[float], this: Sequence[float]) -> float:
         return float("nan")
     rel = a.var(ddof=1) / (a.size * a.mean() ** 2) + b.var(ddof=1) / (b.size * b.mean() ** 2)
     return float(a.mean() / b.mean() * np.sqrt(rel))
+
+
+def spearman(x: np.ndarray, y: np.ndarray) -> float:
+    """Spearman's rank correlation of ``x`` and ``y``: Pearson's correlation of their ranks
+    (tied values share their average rank); NaN if either is constant."""
+
+    def rank(a):
+        order = np.argsort(a, kind="stable")
+        r = np.empty(len(a))
+        r[order] = np.arange(len(a))
+        for v in np.unique(a):  # average ties
+            r[a == v] = r[a == v].mean()
+        return r
+
+    rx, ry = rank(np.asarray(x, float)), rank(np.asarray(y, float))
+    if rx.std() == 0 or ry.std() == 0:
+        return float("nan")
+    return float(np.corrcoef(rx, ry)[0, 1])
