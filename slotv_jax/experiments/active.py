@@ -65,7 +65,7 @@ from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments.active_report import fmt_answers, render, stem_of, summarise
-from slotv_jax.runs import command, record
+from slotv_jax.runs import command, presets, record
 from slotv_jax.training import config as train_config
 
 
@@ -125,7 +125,7 @@ class ActiveConfig:
             return train_config.archetype(self.train_preset, "dragan", train_size=None)
         cfg = train_config.preset(self.train_preset, "slotv", train_size=None)
         if model == "slotv_plus":
-            cfg = dataclasses.replace(cfg, start_term=True, time_weight=True)
+            cfg = presets.plus(cfg)
         elif model != "mlp":
             raise ValueError(f"model: expected mlp, slotv_plus or dragan, got {model!r}")
         return train_config.apply_overrides(cfg, self.overrides)
@@ -330,18 +330,12 @@ def _parse_args(argv):
 
 
 def report_again(out: Path, preset: str) -> int:
-    """Render ``OUT/STEM.md`` and ``.png`` again from ``OUT/STEM_results.json`` alone (no
-    dataset, no training), keeping the command the existing report names."""
+    """Render ``OUT/STEM.md`` and ``.png`` again from ``OUT/STEM_results.json`` alone."""
     stem = stem_of(preset)
-    path = out / f"{stem}_results.json"
-    if not is_results(path):
-        raise cli.InputError(f"--report: {path} is not a results document of this experiment")
-    fileio.check_output_files(out, [f"{stem}.md", f"{stem}.png"])
-    doc = summarise(json.loads(path.read_text()))
-    again = record.recorded_command(out / f"{stem}.md")
-    render(doc, out, again or f"{PROG} --preset {preset}")
-    print(f"wrote {out / stem}.md and .png from {path.name}")
-    return 0
+    return command.render_again(
+        out / f"{stem}_results.json", is_results, [f"{stem}.md", f"{stem}.png"],
+        lambda doc, cmd: render(summarise(doc), out, cmd), f"{PROG} --preset {preset}",
+    )  # fmt: skip
 
 
 @cli.command(resumes=True)

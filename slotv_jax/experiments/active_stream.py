@@ -312,17 +312,12 @@ def is_results(path: Path) -> bool:
 
 
 def report_again(out: Path, preset: str) -> int:
-    """Render ``OUT/STEM.md`` and ``.png`` again from ``OUT/STEM_results.json`` alone,
-    keeping the command the existing report names."""
+    """Render ``OUT/STEM.md`` and ``.png`` again from ``OUT/STEM_results.json`` alone."""
     stem = stem_of(preset)
-    path = out / f"{stem}_results.json"
-    if not is_results(path):
-        raise cli.InputError(f"--report: {path} is not a results document of this experiment")
-    fileio.check_output_files(out, [f"{stem}.md", f"{stem}.png"])
-    doc = summarise(json.loads(path.read_text()))
-    render(doc, out, record.recorded_command(out / f"{stem}.md") or f"{PROG} --preset {preset}")
-    print(f"wrote {out / stem}.md and .png from {path.name}")
-    return 0
+    return command.render_again(
+        out / f"{stem}_results.json", is_results, [f"{stem}.md", f"{stem}.png"],
+        lambda doc, cmd: render(summarise(doc), out, cmd), f"{PROG} --preset {preset}",
+    )  # fmt: skip
 
 
 @cli.command(resumes=True)

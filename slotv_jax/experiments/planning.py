@@ -83,6 +83,7 @@ from slotv_jax.core.fileio import atomic_write, write_text
 from slotv_jax.experiments.planning_report import FIGURES, render, report, write_doc
 from slotv_jax.observers import models
 from slotv_jax.planning import evaluation
+from slotv_jax.runs import presets
 from slotv_jax.training import checkpoint, evaluate
 from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
@@ -126,7 +127,7 @@ class PlanningConfig:
         if method in PLUS:
             base = self.train[PLUS[method]]
             epochs = self.plus_epochs.get(method, base.epochs)
-            return dataclasses.replace(base, start_term=True, time_weight=True, epochs=epochs)
+            return dataclasses.replace(presets.plus(base), epochs=epochs)
         return self.train[method]
 
     def methods(self, family: str) -> tuple[str, ...]:

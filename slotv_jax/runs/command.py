@@ -6,10 +6,12 @@ an input error is one line ``error: ...`` and exit code 2, :mod:`slotv_jax.core.
 from __future__ import annotations
 
 import argparse
+import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from slotv_jax.core import fileio
+from slotv_jax.core import cli, fileio
+from slotv_jax.runs import record
 
 
 def seeded_parser(prog: str, description: str, presets: Sequence[str]) -> argparse.ArgumentParser:
@@ -60,3 +62,23 @@ def at_least_one(parser: argparse.ArgumentParser, **values: int | None) -> None:
     for name, v in values.items():
         if v is not None and v < 1:
             parser.error(f"--{name.replace('_', '-')}: expected an integer >= 1")
+
+
+def render_again(
+    results: Path,
+    is_ours: Callable[[Path], bool],
+    outputs: Sequence[str],
+    render: Callable[[dict, str], None],
+    default_command: str,
+) -> int:
+    """A command's ``--report``: render its report (``outputs[0]``, beside the results) and
+    figures again from the results document alone, no dataset, no training. ``render(doc,
+    command)`` writes them; the command they name is the one the existing report names
+    (:func:`slotv_jax.runs.record.recorded_command`), else ``default_command``."""
+    if not is_ours(results):
+        raise cli.InputError(f"--report: {results} is not a results document of this experiment")
+    fileio.check_output_files(results.parent, outputs)
+    doc = json.loads(results.read_text(encoding="utf-8"))
+    render(doc, record.recorded_command(results.parent / outputs[0]) or default_command)
+    print(f"wrote {', '.join(outputs)} in {results.parent} from {results.name}")
+    return 0

@@ -83,6 +83,14 @@ def with_model(cfg: RunConfig, model: str) -> RunConfig:
     return dataclasses.replace(cfg, train={**cfg.train, "slotv": tc})
 
 
+def plus(cfg: train_config.TrainConfig) -> train_config.TrainConfig:
+    """SLOT-V+ (or T-REX+) of a network's config: the same network with values relative to
+    the start's and learned time weights (``start_term``, ``time_weight``:
+    :class:`slotv_jax.observers.models.SlotV`), the form a planner cannot exploit the way it
+    exploits the paper's score (``experiments/planning_paper.md``)."""
+    return dataclasses.replace(cfg, start_term=True, time_weight=True)
+
+
 def _train_key(config_doc: dict) -> dict:
     """The training configs of a results document, rebuilt through TrainConfig (so that
     documents written before a field existed compare equal to their defaults)."""

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -14,7 +13,7 @@ from slotv_jax.core import cli, fileio
 from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments.study_size import PRESETS, p_name, run, stem_of
 from slotv_jax.experiments.study_size.report import plot, report
-from slotv_jax.runs import record
+from slotv_jax.runs import command, record
 
 PROG = "python -m slotv_jax.experiments.study_size"
 
@@ -56,18 +55,23 @@ def _parse_args(argv):
 
 def report_again(out: Path, preset: str) -> int:
     """Render ``OUT/STEM.md`` and ``.png`` again from ``OUT/STEM.json`` alone (the report's
-    date is today's), keeping the command the existing report names."""
+    date is today's)."""
     stem = stem_of(preset)
-    path = out / f"{stem}.json"
-    if not fileio.is_json_object_with(path, ("preset", "config", "cells", "summary", "needed")):
-        raise cli.InputError(f"--report: {path} is not a results document of this experiment")
-    fileio.check_output_files(out, [f"{stem}.md", f"{stem}.png"])
-    doc = json.loads(path.read_text())
-    plot(doc, out / f"{stem}.png")
-    command = record.recorded_command(out / f"{stem}.md") or f"{PROG} --preset {preset}"
-    write_text(out / f"{stem}.md", report(doc, stem, command))
-    print(f"wrote {out / stem}.md and .png from {path.name}")
-    return 0
+
+    def ours(path: Path) -> bool:
+        return fileio.is_json_object_with(path, ("preset", "config", "cells", "summary", "needed"))
+
+    def render(doc: dict, cmd: str) -> None:
+        plot(doc, out / f"{stem}.png")
+        write_text(out / f"{stem}.md", report(doc, stem, cmd))
+
+    return command.render_again(
+        out / f"{stem}.json",
+        ours,
+        [f"{stem}.md", f"{stem}.png"],
+        render,
+        f"{PROG} --preset {preset}",
+    )
 
 
 @cli.command
