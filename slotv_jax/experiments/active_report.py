@@ -56,6 +56,12 @@ def _every(doc: dict) -> list[dict]:
     return doc["comparisons"] + doc.get("oracles", [])
 
 
+def _of(grp: dict, entries: list[dict]) -> list[dict]:
+    """The comparisons of ``entries`` that belong to the group ``grp``."""
+    key = ("setting", "labeler", "model")
+    return [c for c in entries if all(c[k] == grp[k] for k in key)]
+
+
 def fmt_answers(x: float | None) -> str:
     return "not reached" if x is None else f"{x:,.0f}"
 
@@ -150,12 +156,7 @@ def report(doc: dict, stem: str, command: str) -> str:
         "",
     ]
     for grp in doc["groups"]:
-        cs = [
-            c
-            for c in doc["comparisons"]
-            if (c["setting"], c["labeler"], c["model"])
-            == (grp["setting"], grp["labeler"], grp["model"])
-        ]
+        cs = _of(grp, doc["comparisons"])
         rnd = next(c for c in cs if c["strategy"] == "random")
         hit = [c for c in cs if c["strategy"] != "random" and c["answers_to_target"] is not None]
         name = f"{grp['setting']} / {grp['labeler']} / {MODEL_TITLES[grp['model']]}"
@@ -222,9 +223,7 @@ def _floor(doc: dict) -> list[str]:
     """Groups where a seed reaches the target at the first size with every strategy."""
     out = []
     for grp in doc["groups"]:
-        cs = [c for c in _every(doc)
-              if (c["setting"], c["labeler"], c["model"])
-              == (grp["setting"], grp["labeler"], grp["model"])]  # fmt: skip
+        cs = _of(grp, _every(doc))
         first = grp["answers"][0]
         seeds = [i for i in range(cs[0]["seeds"]) if all(c["per_seed"][i] == first for c in cs)]
         if seeds:
@@ -236,9 +235,7 @@ def _oracles(doc: dict) -> list[str]:
     """'group: oracle ratio, …' of every group that ran an oracle."""
     out = []
     for grp in doc["groups"]:
-        cs = [c for c in doc.get("oracles", [])
-              if (c["setting"], c["labeler"], c["model"])
-              == (grp["setting"], grp["labeler"], grp["model"])]  # fmt: skip
+        cs = _of(grp, doc.get("oracles", []))
         if cs:
             parts = []
             for c in cs:
