@@ -244,6 +244,25 @@ def test_strict_import_errors(tmp_path, table, old, new, pieces):
         assert p in str(e.value), (p, str(e.value))
 
 
+def test_the_columns_study_export_records_are_accepted_and_not_read(tmp_path):
+    """``study export`` writes more columns than the import reads (confidence, response
+    time, ...): its tables import unchanged, and the report names what was not read."""
+    from slotv_jax.webstudy.export import ANSWER_COLUMNS
+
+    extra = [c for c in ANSWER_COLUMNS if c not in ("trajectory", "tau", "guess",
+                                                     "participant", "condition")]  # fmt: skip
+    lines = ANSWERS_CSV.strip().splitlines()
+    answers = "\n".join(
+        [lines[0] + "," + ",".join(extra)] + [ln + ",7" * len(extra) for ln in lines[1:]]
+    )
+    s, rep = study.read_tables(*_write_tables(tmp_path, answers=answers + "\n"))
+    np.testing.assert_array_equal(s.counts[:, :2], [[2, 1], [2, 0], [0, 1]])  # as without
+    assert rep.left_out["answers"] == tuple(extra)
+    assert f"5 rows, 3 participants, 1 distinct prefix times; not read: {', '.join(extra)}" in (
+        rep.describe(s)
+    )
+
+
 def test_an_empty_column_without_a_name_is_no_column(tmp_path):
     """A spreadsheet's trailing commas: a column with no name and no values is left out."""
     goals = GOALS_CSV.replace("\n", ",\n")
@@ -262,8 +281,9 @@ def test_ignore_columns_keeps_extra_columns_on_purpose(tmp_path):
     paths = _write_tables(tmp_path, answers=answers)
     with pytest.raises(ValueError, match=r"line 1, field 'notes': unknown column"):
         study.read_tables(*paths)
-    s, _ = study.read_tables(*paths, ignore_columns=["notes"])
+    s, rep = study.read_tables(*paths, ignore_columns=["notes"])
     np.testing.assert_array_equal(s.counts[:, :2], [[2, 1], [2, 0], [0, 1]])  # as without
+    assert rep.left_out == {"trajectories": (), "goals": (), "answers": ("notes",)}
     # an optional column left out on purpose: every answer counts 1
     s, _ = study.read_tables(*paths, ignore_columns=["notes", "count"])
     np.testing.assert_array_equal(s.counts[:, :2], [[2, 1], [1, 0], [0, 1]])

@@ -31,11 +31,18 @@ COLUMNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "goals": (("goal", "x", "y", "z"), ("trajectory",)),
     "answers": (("trajectory", "guess"), ("tau", "participant", "condition", "count")),
 }
+# Columns accepted and not read: what ``study export`` records beside each answer for the
+# analysis (slotv_jax.webstudy.export.ANSWER_COLUMNS), so its tables import unchanged.
+RECORDED: dict[str, tuple[str, ...]] = {
+    "answers": ("confidence", "response_ms", "stimulus", "round", "position", "reloads",
+                "answered"),
+}  # fmt: skip
 # Coordinates, time stamps and τ must be finite in float32 (the study's and the networks'
 # precision; their differences then stay finite in float64). Counts must be whole numbers
 # that float32 holds exactly (training holds counts in float32): at most 2**24.
 NUMBER_MAX = float(np.finfo(np.float32).max)
 COUNT_MAX = 2**24
+ROLES = ("trajectories", "goals", "answers")
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)
 _NON_FINITE = re.compile(r"[+-]?(?:nan|inf|infinity)", re.ASCII | re.IGNORECASE)
 
@@ -45,7 +52,8 @@ class _Table:
     path: Path
     rows: list[dict[str, Any]]
     where: list[str]  # "line 5" (CSV) or "item 3" (JSON) per row
-    columns: list[str]
+    columns: list[str]  # the columns read
+    left_out: list[str]  # the columns there and not read (RECORDED, ignore_columns)
 
     def at(self, i: int, field: str) -> str:
         return f"{self.path.name}, {self.where[i]}, field {field!r}"
@@ -73,15 +81,31 @@ def _unknown_column(path: Path, where: str, name: str, role: str) -> ValueError:
         name, known, n=1, cutoff=0.6
     )
     hint = f" (did you mean {close[0]!r}?)" if close else ""
+    recorded = RECORDED.get(role, ())
+    also = f", and, not read, {', '.join(recorded)}" if recorded else ""
     return ValueError(
         f"{path.name}, {where}, field {name!r}: unknown column{hint}; the {role} table's "
-        f"columns are {', '.join(required)} and optionally {', '.join(optional)} (to keep "
-        f"other columns on purpose, pass --ignore-columns {name})"
+        f"columns are {', '.join(required)} and optionally {', '.join(optional)}{also} (to "
+        f"keep other columns on purpose, pass --ignore-columns {name})"
     )
+
+
+def _known(role: str, ignore: frozenset[str]) -> tuple[set[str], set[str]]:
+    """(the columns read, every column accepted) of a table."""
+    required, optional = COLUMNS[role]
+    read = {*required, *optional} - ignore
+    return read, {*read, *RECORDED.get(role, ()), *ignore}
+
+
+def _split_columns(names: Sequence[str], read: set[str]) -> tuple[list[str], list[str]]:
+    """The columns read and those left out, each once, in order of appearance."""
+    names = list(dict.fromkeys(c for c in names if c != ""))
+    return [c for c in names if c in read], [c for c in names if c not in read]
 
 
 def _read_csv(path: Path, role: str, ignore: frozenset[str]) -> _Table:
     # UTF-8 (a spreadsheet's byte-order mark dropped); a bad byte is named by line
+    read, known = _known(role, ignore)
     with io.StringIO(fileio.read_text(path), newline="") as f:
         reader = csv.reader(f)
         header: list[str] | None = None
@@ -104,7 +128,7 @@ def _read_csv(path: Path, role: str, ignore: frozenset[str]) -> _Table:
                                 f"this column twice (columns {header.index(name) + 1} and "
                                 f"{j + 1}); expected each column once"
                             )
-                        if name not in (*COLUMNS[role][0], *COLUMNS[role][1], *ignore):
+                        if name not in known:
                             raise _unknown_column(path, f"line {start}", name, role)
                     continue
                 if len(record) > len(header):
@@ -132,10 +156,10 @@ def _read_csv(path: Path, role: str, ignore: frozenset[str]) -> _Table:
                     'values (an unclosed quote (") makes the rest of the file one field)'
                 ) from None
             raise ValueError(f"{path.name}, line {line}: not a valid CSV record ({e})") from None
-    columns = [c for c in (header or []) if c not in ignore and c != ""]
-    rows = [{k: v for k, v in r.items() if k not in ignore and k != ""} for r in rows]
+    columns, left_out = _split_columns(header or [], read)
+    rows = [{k: v for k, v in r.items() if k in read} for r in rows]
     _check_required(path, f"line {head_line or 1}", columns, role)
-    return _Table(path, rows, where, columns)
+    return _Table(path, rows, where, columns, left_out)
 
 
 def _read_json(path: Path, role: str, ignore: frozenset[str]) -> _Table:
@@ -148,7 +172,7 @@ def _read_json(path: Path, role: str, ignore: frozenset[str]) -> _Table:
                 f"{path.name}, item {i}: expected an object (one row: column -> value), got "
                 f"{json.dumps(r)[:40]}"
             )
-    columns: list[str] = []
+    read, known = _known(role, ignore)
     for i, r in enumerate(doc):
         if r.duplicate is not None:
             raise ValueError(
@@ -156,13 +180,12 @@ def _read_json(path: Path, role: str, ignore: frozenset[str]) -> _Table:
                 "twice; expected each key once"
             )
         for k in r:
-            if k not in (*COLUMNS[role][0], *COLUMNS[role][1], *ignore):
+            if k not in known:
                 raise _unknown_column(path, f"item {i}", k, role)
-            if k not in columns and k not in ignore:
-                columns.append(k)
-    rows = [{k: v for k, v in r.items() if k not in ignore} for r in doc]
+    columns, left_out = _split_columns([k for r in doc for k in r], read)
+    rows = [{k: v for k, v in r.items() if k in read} for r in doc]
     _check_required(path, "item 0", columns, role)
-    return _Table(path, rows, [f"item {i}" for i in range(len(rows))], columns)
+    return _Table(path, rows, [f"item {i}" for i in range(len(rows))], columns, left_out)
 
 
 def _check_required(path: Path, where: str, columns: list[str], role: str) -> None:
@@ -259,15 +282,22 @@ class ImportReport:
     answer_rows: int
     participants: int  # distinct participant ids (0: column absent)
     taus: int  # distinct prefix times (whole motions not counted)
+    left_out: dict[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)  # not read
 
     def describe(self, study: Study) -> str:
+        def unread(role):
+            cols = self.left_out.get(role)
+            return f"; not read: {', '.join(cols)}" if cols else ""
+
         return "\n".join(
             [
-                f"read {self.files['trajectories']}: {self.point_rows} points",
-                f"read {self.files['goals']}: {self.goal_rows} goals",
+                f"read {self.files['trajectories']}: {self.point_rows} points"
+                + unread("trajectories"),
+                f"read {self.files['goals']}: {self.goal_rows} goals" + unread("goals"),
                 f"read {self.files['answers']}: {self.answer_rows} rows"
                 + (f", {self.participants} participants" if self.participants else "")
-                + (f", {self.taus} distinct prefix times" if self.taus else ""),
+                + (f", {self.taus} distinct prefix times" if self.taus else "")
+                + unread("answers"),
                 study.summary(),
             ]
         )
@@ -293,11 +323,13 @@ def read_tables(
 
     The import is strict, so that what it reads is what was written: a column not in
     :data:`COLUMNS` (a misspelt ``cuont``) is refused unless named in ``ignore_columns``
-    (then left out; the required columns cannot be); a header or JSON object naming a
-    column twice is refused; a number is a JSON number or a decimal text (not ``true``),
-    finite, of magnitude at most :data:`NUMBER_MAX` (float32; a count at most
-    :data:`COUNT_MAX`), so no value overflows when stored. Every error is a ValueError
-    naming the file, the line (CSV) or item (JSON), and the field; nothing is printed.
+    (then left out; the required columns cannot be) or in :data:`RECORDED` (what ``study
+    export`` records beside each answer, accepted and not read; the report names both); a
+    header or JSON object naming a column twice is refused; a number is a JSON number or a
+    decimal text (not ``true``), finite, of magnitude at most :data:`NUMBER_MAX` (float32;
+    a count at most :data:`COUNT_MAX`), so no value overflows when stored. Every error is a
+    ValueError naming the file, the line (CSV) or item (JSON), and the field; nothing is
+    printed.
 
     >>> study, report = read_tables("traj.csv", "goals.csv", "answers.csv")  # doctest: +SKIP
     >>> print(report.describe(study))  # doctest: +SKIP
@@ -475,5 +507,6 @@ def read_tables(
         answer_rows=len(at.rows),
         participants=len(participants),
         taus=len(taus),
+        left_out={role: tuple(tab.left_out) for role, tab in zip(ROLES, (tt, gt, at), strict=True)},
     )
     return study, report
