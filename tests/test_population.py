@@ -10,6 +10,7 @@ import asyncio
 import hashlib
 import json
 import sqlite3
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -540,3 +541,29 @@ def test_run_crowd_gives_each_participant_their_own_guesser():
 
     asyncio.run(run())
     assert made == [0, 1, 2]
+
+
+# ------------------------------------------------------------------ the README
+
+
+def _readme_block(start: str, end: str) -> str:
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    return text.split(start, 1)[1].split(end, 1)[0]
+
+
+def test_readme_population_file_is_the_default():
+    block = _readme_block(
+        "<!-- population-file:start -->\n```json\n", "```\n<!-- population-file:end"
+    )
+    assert P.Population.from_dict(json.loads(block), "README") == P.default()
+
+
+def test_readme_python_example_runs(tmp_path, monkeypatch):
+    block = _readme_block("from slotv_jax.observers import population\n", "```\n")
+    monkeypatch.chdir(tmp_path)
+    env: dict = {}
+    exec("import jax\nimport jax.numpy as jnp\nfrom slotv_jax.observers import population\n"
+         + block, env)  # fmt: skip
+    assert P.load_population(tmp_path / "my_people.json").lapse == 0.1
+    freq = np.bincount(np.asarray(env["guesses"]), minlength=8) / 100_000
+    np.testing.assert_allclose(freq, env["p"], atol=0.006)  # 4.6 standard errors
