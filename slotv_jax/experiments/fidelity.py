@@ -360,10 +360,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     command.at_least_one(p, trials=args.trials, key_trials=args.key_trials)
     kw |= {n: v for n, v in (("trials", args.trials), ("key_trials", args.key_trials)) if v}
     if args.compute_dtype:
-        kw["train"] = {
-            m: dataclasses.replace(c, compute_dtype=args.compute_dtype)
-            for m, c in cfg.train.items()
-        }
+        kw["train"] = command.retrained(cfg.train, args.compute_dtype)
     cfg = dataclasses.replace(cfg, **kw)
     if args.list:
         for s in settings(cfg):

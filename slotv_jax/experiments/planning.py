@@ -83,7 +83,7 @@ from slotv_jax.core.fileio import atomic_write, write_text
 from slotv_jax.experiments.planning_report import FIGURES, render, report, write_doc
 from slotv_jax.observers import models
 from slotv_jax.planning import evaluation
-from slotv_jax.runs import presets
+from slotv_jax.runs import command, presets
 from slotv_jax.training import checkpoint, evaluate
 from slotv_jax.training import config as train_config
 from slotv_jax.training import trainer as train
@@ -496,16 +496,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             cfg = dataclasses.replace(cfg, planner=dataclasses.replace(cfg.planner, **changes))
         except ValueError as e:
             raise cli.InputError(f"--iters/--budget: {e}") from None
-    if args.compute_dtype:
-        train = {m: dataclasses.replace(c, compute_dtype=args.compute_dtype)
-                 for m, c in cfg.train.items()}  # fmt: skip
-        cfg = dataclasses.replace(cfg, train=train)
-    if args.set:
-        try:
-            train = {m: train_config.apply_overrides(c, args.set) for m, c in cfg.train.items()}
-        except ValueError as e:
-            raise cli.InputError(f"--set: {e}") from None
-        cfg = dataclasses.replace(cfg, train=train)
+    cfg = dataclasses.replace(cfg, train=command.retrained(cfg.train, args.compute_dtype, args.set))
     if args.no_archetypes:
         cfg = dataclasses.replace(cfg, archetype={})
     if args.no_plus:

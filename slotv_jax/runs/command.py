@@ -6,12 +6,14 @@ an input error is one line ``error: ...`` and exit code 2, :mod:`slotv_jax.core.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from slotv_jax.core import cli, fileio
 from slotv_jax.runs import record
+from slotv_jax.training import config as train_config
 
 
 def seeded_parser(prog: str, description: str, presets: Sequence[str]) -> argparse.ArgumentParser:
@@ -82,3 +84,17 @@ def render_again(
     render(doc, record.recorded_command(results.parent / outputs[0]) or default_command)
     print(f"wrote {', '.join(outputs)} in {results.parent} from {results.name}")
     return 0
+
+
+def retrained(train: dict, compute_dtype: str | None = None, sets: Sequence[str] = ()) -> dict:
+    """The training configs ``train`` (method -> TrainConfig) with ``--compute-dtype`` (the
+    matmul dtype, when given) and then the ``--set KEY=VALUE`` overrides applied to each
+    (:func:`slotv_jax.training.config.apply_overrides`; a bad one is an input error)."""
+    if compute_dtype:
+        train = {m: dataclasses.replace(c, compute_dtype=compute_dtype) for m, c in train.items()}
+    try:
+        return (
+            {m: train_config.apply_overrides(c, sets) for m, c in train.items()} if sets else train
+        )
+    except ValueError as e:
+        raise cli.InputError(f"--set: {e}") from None
