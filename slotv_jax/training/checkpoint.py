@@ -24,9 +24,14 @@ raises FileNotFoundError, truncated files a ValueError that says so.
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import dataclasses
 import json
 import os
+import re
 import shutil
+import threading
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -41,11 +46,56 @@ from jaxtyping import Array, Bool, Float, Int
 from slotv_jax.core import fileio
 from slotv_jax.observers import models
 from slotv_jax.training import trainer as train_lib
-from slotv_jax.training.config import TrainConfig
+from slotv_jax.training.config import MODELS, TrainConfig
 
 FORMAT = "slotv_jax.checkpoint/1"
 CONFIG_FILE = "config.json"
 STATE_DIR = "state"
+
+
+# ------------------------------------------------------------ Orbax's event loops
+# Orbax runs each save and restore in a fresh asyncio event loop that it closes when the
+# call returns (orbax.checkpoint._src.asyncio_utils.run_sync). TensorStore reports each
+# finished read to its loop from its own threads (loop.call_soon_threadsafe). When a read
+# fails (a truncated or corrupt file), the restore raises at once, the loop is closed, and
+# every read still in flight then calls a closed loop: Python prints one "RuntimeError:
+# Event loop is closed" traceback per read, from TensorStore's threads, after our error
+# has been reported (tens of them for one bad checkpoint). Those callbacks belong to a
+# call that is over and has nobody left to tell; the loops below drop them silently.
+
+
+class _QuietAfterCloseLoop(asyncio.SelectorEventLoop):
+    """An event loop that ignores callbacks scheduled from other threads once closed."""
+
+    def call_soon_threadsafe(self, callback, *args, context=None):
+        if self.is_closed():
+            return None
+        try:
+            return super().call_soon_threadsafe(callback, *args, context=context)
+        except RuntimeError:
+            if self.is_closed():  # closed between the check and the call
+                return None
+            raise
+
+
+class _QuietAfterClosePolicy(asyncio.DefaultEventLoopPolicy):
+    def new_event_loop(self) -> asyncio.AbstractEventLoop:
+        return _QuietAfterCloseLoop()
+
+
+_POLICY_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _orbax_loops():
+    """Orbax's per-call event loops, made inside this block, drop late callbacks."""
+    with _POLICY_LOCK:
+        old = asyncio.get_event_loop_policy()
+        asyncio.set_event_loop_policy(_QuietAfterClosePolicy())
+        try:
+            yield
+        finally:
+            asyncio.set_event_loop_policy(old)
 
 
 def _leaf_name(path) -> str:
@@ -111,10 +161,9 @@ def save(
         )  # an empty directory is fine; a file or a user's directory is never replaced
     tmp = fileio.temp_dir_beside(path)
     try:
-        ckptr = ocp.StandardCheckpointer()
-        ckptr.save(tmp / STATE_DIR, flat)
-        ckptr.wait_until_finished()
-        ckptr.close()
+        with _orbax_loops(), ocp.StandardCheckpointer() as ckptr:
+            ckptr.save(tmp / STATE_DIR, flat)
+            ckptr.wait_until_finished()
         doc = {
             "format": FORMAT,
             "config": cfg.to_dict(),
@@ -168,9 +217,61 @@ def _mismatch(what: str, want: dict, got: dict, cfg: TrainConfig) -> str:
     )
 
 
+def _check_field(where: Path, name: str, value, kind: str) -> None:
+    """Raise unless a JSON ``value`` has the type a TrainConfig field's annotation names."""
+    parts = {p.strip() for p in kind.split("|")}
+    if value is None and "None" in parts:
+        return
+    if name == "hidden":
+        ok = isinstance(value, list | tuple) and len(value) > 0
+        ok = ok and all(isinstance(h, int) and not isinstance(h, bool) for h in value)
+        want = "a list of positive integers (hidden widths)"
+    elif "bool" in parts:
+        ok, want = isinstance(value, bool), "true or false"
+    elif "int" in parts:
+        ok, want = isinstance(value, int) and not isinstance(value, bool), "an integer"
+    elif "float" in parts:
+        ok, want = isinstance(value, int | float) and not isinstance(value, bool), "a number"
+    elif "str" in parts:
+        ok, want = isinstance(value, str), "a string"
+    else:
+        return
+    if not ok:
+        null = " or null" if "None" in parts else ""
+        raise ValueError(f"{where}: field 'config.{name}': expected {want}{null}, got {value!r}")
+
+
+def _config_of(path: Path, doc: dict) -> TrainConfig:
+    """The :class:`TrainConfig` of a checkpoint's ``config.json`` document; an error names
+    the file and the field (``config.hidden``, ``config.model``, ...)."""
+    where = path / CONFIG_FILE
+    d = doc.get("config")
+    if not isinstance(d, dict):
+        raise ValueError(
+            f"{where}: field 'config': expected an object (the training config), "
+            f"got {type(d).__name__ if d is not None else 'nothing'}"
+        )
+    known = {f.name: str(f.type) for f in dataclasses.fields(TrainConfig)}
+    unknown = sorted(set(d) - set(known))
+    if unknown:
+        raise ValueError(
+            f"{where}: field 'config.{unknown[0]}': not a training config field (known: "
+            f"{', '.join(sorted(known))})"
+        )
+    for name, value in d.items():
+        _check_field(where, name, value, known[name])
+    try:
+        return TrainConfig.from_dict(d)
+    except (ValueError, TypeError) as e:
+        m = re.match(r"TrainConfig\.(\w+): (.*)", str(e), re.S)
+        field, text = (f"config.{m.group(1)}", m.group(2)) if m else ("config", str(e))
+        raise ValueError(f"{where}: field {field!r}: {text}") from None
+
+
 def load_config(path: str | os.PathLike) -> TrainConfig:
     """The :class:`TrainConfig` stored with a checkpoint."""
-    return TrainConfig.from_dict(_read_doc(Path(path))["config"])
+    path = Path(path).absolute()
+    return _config_of(path, _read_doc(path))
 
 
 def restore(path: str | os.PathLike, cfg: TrainConfig | None = None):
@@ -182,7 +283,7 @@ def restore(path: str | os.PathLike, cfg: TrainConfig | None = None):
     """
     path = Path(path).absolute()
     doc = _read_doc(path)
-    saved = TrainConfig.from_dict(doc["config"])
+    saved = _config_of(path, doc)
     if cfg is not None and cfg.model != saved.model:
         raise ValueError(_wrong_model(path, saved.model, cfg.model))
     if cfg is not None:
@@ -205,17 +306,15 @@ def restore(path: str | os.PathLike, cfg: TrainConfig | None = None):
             f"checkpoint {path}: " + _mismatch("arrays", want, doc.get("arrays") or {}, use)
         )
     abstract = {k: jax.ShapeDtypeStruct(v.shape, v.dtype) for k, v in tflat.items()}
-    ckptr = ocp.StandardCheckpointer()
     try:
-        flat = ckptr.restore(path / STATE_DIR, abstract)
+        with _orbax_loops(), ocp.StandardCheckpointer() as ckptr:
+            flat = ckptr.restore(path / STATE_DIR, abstract)
     except Exception as e:  # the layout matched config.json, so the data itself is bad
         first = str(e).strip().splitlines()[0][:300] if str(e).strip() else type(e).__name__
         raise ValueError(
             f"checkpoint {path}: the stored arrays in {STATE_DIR}/ are truncated or corrupt "
             f"({first})"
         ) from e
-    finally:
-        ckptr.close()
     leaves_paths, treedef = jax.tree_util.tree_flatten_with_path(template)
     leaves = [jnp.asarray(flat[_leaf_name(p)]) for p, _ in leaves_paths]
     state = jax.tree_util.tree_unflatten(treedef, leaves)
@@ -289,6 +388,8 @@ def load_observer(path: str | os.PathLike, model: str | None = None) -> models.O
     caller expects; a checkpoint of another one raises ValueError. An archetype's
     observer also has ``describe()`` and ``parameters()`` (its fitted values, SPEC §10).
     """
+    if model is not None and model not in MODELS:
+        raise ValueError(f"model: expected one of {MODELS} or None, got {model!r}")
     cfg, state, _ = restore(path)
     if model is not None and model != cfg.model:
         raise ValueError(_wrong_model(Path(path), cfg.model, model))
