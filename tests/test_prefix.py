@@ -17,6 +17,7 @@ import ref_labelers
 from flax import nnx
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
+from slotv_jax import planning
 from slotv_jax.answers import crossval, fitting
 from slotv_jax.answers.format import make_study
 from slotv_jax.asking import selection
@@ -294,3 +295,46 @@ def test_selection_scores_archetype_prefixes(paths):
             n, L = int(pool.traj[c]), int(pool.seen[c])
             ref = np.asarray(jax.nn.log_softmax(model(xyz[n, :L], goals[n], mask[n])))
             np.testing.assert_allclose(logp[e, c][mask[n]], ref[mask[n]], atol=LOGIT_TOL)
+
+
+# ------------------------------------------------------------------- traced parameters
+
+
+def test_observers_built_from_traced_parameters(paths):
+    """One compiled function scores (and so plans with) many fitted observers of one family:
+    checkpoint.make_observer and labeler_observer accept traced parameters, and give what
+    each concrete observer gives."""
+    xyz, goals, mask = paths
+    cfg = train_config.archetype("quick", "dragan")
+    gd = nnx.split(archetypes.make_archetype("dragan"))[0]
+    fits = [nnx.split(archetypes.make_archetype("dragan", beta=b, alpha=a))[1]
+            for b, a in ((5.0, 1.0), (20.0, 0.4), (12.0, 2.0))]  # fmt: skip
+    stacked = jax.tree.map(lambda *v: jnp.stack(v), *fits)
+    pcfg = planning.PlannerConfig(n_points=T, taus=(0.3, 0.6, 1.0))
+
+    def score(params):
+        obs = checkpoint.make_observer(cfg, params)
+        return planning.legibility(obs, xyz[0], goals[0], mask[0], 1, pcfg)
+
+    traces = []
+    f = jax.jit(jax.vmap(lambda p: (traces.append(1), score(p))[1]))
+    got = np.asarray(f(stacked))
+    f(jax.tree.map(lambda v: v * 1.01, stacked))
+    assert len(traces) == 1  # new values, no new compilation
+    for i, p in enumerate(fits):
+        m = nnx.merge(gd, p)
+        want = np.mean([jax.nn.log_softmax(m(xyz[0, :L], goals[0], mask[0]))[1]
+                        for L in common.seen_points(pcfg.taus, T)])  # fmt: skip
+        assert got[i] == pytest.approx(want, abs=LOGIT_TOL)
+    betas = jnp.array([5.0, 20.0])
+    lab = jax.jit(
+        jax.vmap(
+            lambda b: planning.legibility(
+                labeler_observer("dragan", beta=b), xyz[0], goals[0], mask[0], 1, pcfg
+            )
+        )
+    )(betas)
+    for b, v in zip((5.0, 20.0), np.asarray(lab), strict=True):
+        want = np.mean([np.log(labelers.dragan(xyz[0, :L], goals[0], mask[0], beta=b)[1])
+                        for L in common.seen_points(pcfg.taus, T)])  # fmt: skip
+        assert v == pytest.approx(want, abs=LOGIT_TOL)

@@ -495,7 +495,9 @@ Model = SlotV | TRex
 #: (T, 3), goals (8, 3) and a goal mask (8,) to logits (8,) over the goals, padded slots
 #: −∞ (SPEC §9). :func:`slotv_jax.load_observer` returns one; a labeler with its β and
 #: camera bound is one; the planner takes one. :data:`Model` is the network behind a
-#: learned observer.
+#: learned observer. Every observer the library hands out also carries
+#: ``observer.prefix(xyz, goals, goal_mask, seen) -> logits (8,)``: its logits for the
+#: motion seen up to its first ``seen`` points (traced; :mod:`slotv_jax.observers.prefix`).
 Observer = Callable[[Array, Array, Array], Array]
 
 
