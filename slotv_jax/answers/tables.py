@@ -166,6 +166,8 @@ def _read_json(path: Path, role: str, ignore: frozenset[str]) -> _Table:
     doc = fileio.read_json(path, object_pairs_hook=_json_object)  # names a broken line
     if not isinstance(doc, list):
         raise ValueError(f"{path.name}: expected a JSON list of objects (one per row)")
+    if not doc:
+        raise ValueError(f"{path.name}: no rows (an empty JSON list)")
     for i, r in enumerate(doc):
         if not isinstance(r, dict):
             raise ValueError(
