@@ -359,7 +359,7 @@ def test_gradient_matches_finite_differences():
 def test_population_observer_contract():
     pop = P.default()
     obs = P.population_observer(pop)
-    check_observer(obs)
+    check_observer(obs, prefix=True)
     xyz, goals, mask = random_problem(51, 5)
     xyz, goals = xyz.astype(np.float32), goals.astype(np.float32)
     quad = P.quadrature(pop)
