@@ -329,21 +329,15 @@ def _parse_args(argv):
     return ap.parse_args(argv)
 
 
-def report_again(out: Path, preset: str) -> int:
-    """Render ``OUT/STEM.md`` and ``.png`` again from ``OUT/STEM_results.json`` alone."""
-    stem = stem_of(preset)
-    return command.render_again(
-        out / f"{stem}_results.json", is_results, [f"{stem}.md", f"{stem}.png"],
-        lambda doc, cmd: render(summarise(doc), out, cmd), f"{PROG} --preset {preset}",
-    )  # fmt: skip
-
-
 @cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
     out = Path(args.out)
     if args.report:
-        return report_again(out, args.preset)
+        again = lambda doc, cmd: render(summarise(doc), out, cmd)  # noqa: E731
+        return command.render_again(
+            out, stem_of(args.preset), is_results, again, f"{PROG} --preset {args.preset}"
+        )
     kw = command.seeded_overrides(args, ("updates", "study_updates", "members"))
     if args.study_max is not None:
         base = PRESETS[args.preset]().study_sizes

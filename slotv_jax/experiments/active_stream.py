@@ -311,15 +311,6 @@ def is_results(path: Path) -> bool:
     return fileio.is_json_object_with(path, ("preset", "config", "runs"))
 
 
-def report_again(out: Path, preset: str) -> int:
-    """Render ``OUT/STEM.md`` and ``.png`` again from ``OUT/STEM_results.json`` alone."""
-    stem = stem_of(preset)
-    return command.render_again(
-        out / f"{stem}_results.json", is_results, [f"{stem}.md", f"{stem}.png"],
-        lambda doc, cmd: render(summarise(doc), out, cmd), f"{PROG} --preset {preset}",
-    )  # fmt: skip
-
-
 @cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     ap = command.seeded_parser(PROG, __doc__.split("\n\n")[0], PRESETS)
@@ -327,7 +318,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     out = Path(args.out)
     if args.report:
-        return report_again(out, args.preset)
+        again = lambda doc, cmd: render(summarise(doc), out, cmd)  # noqa: E731
+        return command.render_again(
+            out, stem_of(args.preset), is_results, again, f"{PROG} --preset {args.preset}"
+        )
     cfg = PRESETS[args.preset](**command.seeded_overrides(args, ("steps",)))
     command.prepare_out(out, stem_of(cfg.preset), is_results)
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)

@@ -67,22 +67,26 @@ def at_least_one(parser: argparse.ArgumentParser, **values: int | None) -> None:
 
 
 def render_again(
-    results: Path,
+    out: Path,
+    stem: str,
     is_ours: Callable[[Path], bool],
-    outputs: Sequence[str],
     render: Callable[[dict, str], None],
     default_command: str,
+    results: str | None = None,
 ) -> int:
-    """A command's ``--report``: render its report (``outputs[0]``, beside the results) and
-    figures again from the results document alone, no dataset, no training. ``render(doc,
-    command)`` writes them; the command they name is the one the existing report names
-    (:func:`slotv_jax.runs.record.recorded_command`), else ``default_command``."""
-    if not is_ours(results):
-        raise cli.InputError(f"--report: {results} is not a results document of this experiment")
-    fileio.check_output_files(results.parent, outputs)
-    doc = json.loads(results.read_text(encoding="utf-8"))
-    render(doc, record.recorded_command(results.parent / outputs[0]) or default_command)
-    print(f"wrote {', '.join(outputs)} in {results.parent} from {results.name}")
+    """A command's ``--report``: render ``OUT/STEM.md`` and ``OUT/STEM.png`` again from the
+    results document ``OUT/STEM_results.json`` (or ``OUT/results``) alone, no dataset, no
+    training. ``render(doc, command)`` writes them; the command they name is the one the
+    existing report names (:func:`slotv_jax.runs.record.recorded_command`), else
+    ``default_command``."""
+    path = out / (results or f"{stem}_results.json")
+    if not is_ours(path):
+        raise cli.InputError(f"--report: {path} is not a results document of this experiment")
+    outputs = [f"{stem}.md", f"{stem}.png"]
+    fileio.check_output_files(out, outputs)
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    render(doc, record.recorded_command(out / outputs[0]) or default_command)
+    print(f"wrote {', '.join(outputs)} in {out} from {path.name}")
     return 0
 
 

@@ -66,11 +66,7 @@ def report_again(out: Path, preset: str) -> int:
         write_text(out / f"{stem}.md", report(doc, stem, cmd))
 
     return command.render_again(
-        out / f"{stem}.json",
-        ours,
-        [f"{stem}.md", f"{stem}.png"],
-        render,
-        f"{PROG} --preset {preset}",
+        out, stem, ours, render, f"{PROG} --preset {preset}", results=f"{stem}.json"
     )
 
 
