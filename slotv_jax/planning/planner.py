@@ -407,12 +407,12 @@ def legibility(
             "observer: PlannerConfig.taus needs an observer with a .prefix(xyz, goals, "
             f"goal_mask, seen) attribute; {_observer_name(observer)} has none"
         )
-    total = 0.0
-    seen = seen_points(cfg.taus, xyz.shape[0])
-    for n in seen:  # static: one prefix per stop time
-        logits = mask_logits(observer.prefix(xyz, goals, mask, jnp.int32(n)), mask)
-        total = total + jax.nn.log_softmax(logits)[target]
-    return total / len(seen)
+    seen = jnp.asarray(seen_points(cfg.taus, xyz.shape[0]), jnp.int32)
+
+    def one(n):  # one prefix, traced over the stop times: the observer is compiled once
+        return jax.nn.log_softmax(mask_logits(observer.prefix(xyz, goals, mask, n), mask))[target]
+
+    return jnp.mean(jax.vmap(one)(seen))
 
 
 def _legibility(observer: Observer, xyz, problem: Problem, cfg: PlannerConfig) -> Array:
