@@ -51,6 +51,7 @@ import dataclasses
 import itertools
 import json
 import math
+import subprocess
 import sys
 import time
 from collections.abc import Sequence
@@ -61,7 +62,6 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-import slotv_jax.rendering  # noqa: F401  first: it picks MUJOCO_GL=egl before MuJoCo loads
 from slotv_jax import data as data_lib
 from slotv_jax import planning
 from slotv_jax.answers import crossval
@@ -74,6 +74,7 @@ from slotv_jax.experiments import people_loop_report as report_lib
 from slotv_jax.observers import population as population_lib
 from slotv_jax.observers.common import mask_logits, masked_log, seen_points
 from slotv_jax.observers.prefix import prefix_labels
+from slotv_jax.planning import evaluation
 from slotv_jax.training import config as train_config
 
 LEARNED = ("mlp", "slotv_plus", "dragan_archetype", "viewpoint_archetype")
@@ -203,11 +204,13 @@ def quick() -> LoopConfig:
 
 
 def paper() -> LoopConfig:
-    """GPU preset: the paper dataset and networks, 3 seeds, 100 problems, the default planner."""
+    """GPU preset: the paper's networks and dataset distribution (12,000 training motions, of
+    which the pool takes 10,000, and the held-out scenes), 3 seeds, 100 problems, the
+    default planner (100 points, 50 steps)."""
     taus = (0.4, 0.7, 1.0)
     return LoopConfig(
         "paper",
-        data_lib.paper(),
+        dataclasses.replace(data_lib.paper(), n_train=12_000, n_eval=1_000, n_new_scenes=20),
         "paper",
         planning.PlannerConfig(taus=taus),
         taus=taus,
@@ -237,6 +240,8 @@ def tiny() -> LoopConfig:
         taus=taus,
         per_stimulus=2,
         strategies=("random", "margin"),
+        families=("mlp", "dragan_archetype", "dragan_fitted"),
+        select_family="mlp",
         members=2,
         pool=60,
         subset=40,
@@ -324,20 +329,16 @@ def pool_motions(cfg: LoopConfig, split) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def held_out_problems(cfg: LoopConfig, splits) -> dict[str, np.ndarray]:
-    """Every (scene, real goal) of the held-out scenes, cut evenly to ``cfg.problems``."""
-    goals, mask, target = [], [], []
-    for s in ("position_test", "goal_count_test"):
-        for g, m in zip(splits[s].scene_goals, splits[s].scene_mask, strict=True):
-            for k in np.flatnonzero(m):
-                goals.append(g), mask.append(m), target.append(k)
-    if len(target) < cfg.problems:
-        raise ValueError(f"problems: the held-out scenes have {len(target)}, asked {cfg.problems}")
-    pick = np.linspace(0, len(target) - 1, cfg.problems).round().astype(int)
-    return {
-        "goals": np.asarray(goals, np.float32)[pick],
-        "goal_mask": np.asarray(mask, bool)[pick],
-        "target": np.asarray(target, np.int32)[pick],
-    }
+    """Every (scene, real goal) of the held-out scenes (:func:`planning.evaluation.scene_problems`
+    on ``position_test`` and ``goal_count_test``), cut evenly to ``cfg.problems``."""
+    names = ("position_test", "goal_count_test")
+    scenes = {s: (splits[s].scene_goals, splits[s].scene_mask) for s in names}
+    every = evaluation.scene_problems(scenes, names)
+    n = every["target"].size
+    if n < cfg.problems:
+        raise ValueError(f"problems: the held-out scenes have {n}, asked for {cfg.problems}")
+    pick = np.linspace(0, n - 1, cfg.problems).round().astype(int)
+    return {k: every[k][pick] for k in ("goals", "goal_mask", "target")}
 
 
 def answers_of(pop, seed: int, pool: selection.Pool, cand: np.ndarray, per: int) -> np.ndarray:
@@ -422,7 +423,7 @@ def make_scorer(pop, taus: Sequence[float], n_points: int, n_eval: int):
     population's P_pop(target | ξ_{0:τ}) at each stop time τ, and the fraction of
     ``n_eval`` fresh participants per (plan, τ) who guessed the target."""
     seen = jnp.asarray(seen_points(taus, n_points))
-    fixed = population_lib.fixed_sample(pop)
+    fixed = population_lib.quadrature(pop)
     probs = population_lib.population_probs
     sample = population_lib.sample_guesses
 
@@ -737,7 +738,40 @@ def run(
         doc["summary"] = summarise([r for q in doc["populations"] for r in q["rows"]])
         write_text(path, json.dumps(doc, indent=1))
     report_lib.render(doc, out, stem)
+    draw_example(doc, out, stem)
     return doc
+
+
+def example_plans(doc: dict) -> dict[str, np.ndarray]:
+    """The first population's example problem as a plans file of the planning experiment's
+    format (``python -m slotv_jax.render --plans``): goals, goal_mask, target, names, q."""
+    ex = doc["populations"][0]["example"]
+    names = list(ex["q"])
+    return {
+        "goals": np.asarray(ex["problem"]["goals"], np.float32)[None],
+        "goal_mask": np.asarray(ex["problem"]["goal_mask"], bool)[None],
+        "target": np.asarray([ex["problem"]["target"]], np.int32),
+        "names": np.asarray(names),
+        "q": np.stack([np.asarray(ex["q"][n], np.float32) for n in names])[:, None],
+    }
+
+
+def draw_example(doc: dict, out: Path, stem: str) -> None:
+    """Write ``STEM_plans.npz`` and draw ``STEM_render.png`` from it with the render command
+    (in its own process: the loop itself needs no OpenGL); without OpenGL, say so in one
+    line and go on."""
+    plans = out / f"{stem}_plans.npz"
+    fileio.atomic_write(plans, lambda f: np.savez_compressed(f, **example_plans(doc)))
+    best = report_lib.best_family(doc, doc["populations"][0])
+    cmd = [sys.executable, *report_lib.render_command(stem, out, best)[1:]]
+    r = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if r.returncode != 0:
+        last = (r.stderr.strip().splitlines() or ["no output"])[-1]
+        print(
+            f"people loop: the example was not drawn ({last}); draw it with: "
+            f"{' '.join(report_lib.render_command(stem, out, best))}",
+            file=sys.stderr,
+        )
 
 
 def population_name(spec: str) -> str:
@@ -806,13 +840,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         population_lib.get_population(p)
     out = Path(args.out)
     stem = stem_of(cfg.preset)
-    names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png", "_render.png")]
+    names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png", "_plans.npz", "_render.png")]
     fileio.check_output_files(out, names, ours={names[0]: is_results})
     if args.report:
         path = out / names[0]
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no results document to render")
-        report_lib.render(json.loads(path.read_text()), out, stem)
+        doc = json.loads(path.read_text())
+        report_lib.render(doc, out, stem)
+        draw_example(doc, out, stem)
         return 0
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

@@ -6,13 +6,10 @@ figure of gain kept against answers and a rendered comparison of one problem."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
-
-from slotv_jax import rendering
 from slotv_jax.core.fileio import save_figure, write_text
+from slotv_jax.runs.summary import crossing
 
 FAMILY_TITLES = {
     "mlp": "SLOT-V (paper MLP)",
@@ -33,24 +30,6 @@ FAMILY_COLORS = {
 STRATEGY_STYLES = {"random": "--", "margin": "-", "error": ":"}
 BASELINES = ("dragan_fitted", "nikolaidis_fitted")
 RENDER_TAU = 0.5
-
-
-def answers_to(answers: Sequence[float], gain: Sequence[float], level: float) -> float | None:
-    """Answers at which ``gain`` first reaches ``level``: linear in log answers between the
-    size before and the first size at or above it; None if never.
-
-    >>> answers_to([250, 1000], [0.4, 0.9], 0.65)  # halfway in log: sqrt(250 · 1000)
-    500.0
-    """
-    a, x = np.asarray(answers, float), np.asarray(gain, float)
-    hit = np.flatnonzero(x >= level)
-    if hit.size == 0:
-        return None
-    j = int(hit[0])
-    if j == 0:
-        return float(a[0])
-    f = (level - x[j - 1]) / (x[j] - x[j - 1])
-    return float(np.exp(np.log(a[j - 1]) + f * (np.log(a[j]) - np.log(a[j - 1]))))
 
 
 def curves(doc: dict, population: str) -> dict[tuple[str, str], tuple[list, list]]:
@@ -111,7 +90,7 @@ def population_section(doc: dict, pop: dict) -> list[str]:
         cells = []
         for s in strategies:
             a, g = c.get((f, s), ([], []))
-            cells.append(f"{_fmt(answers_to(a, g, 0.5))} / {_fmt(answers_to(a, g, 0.8))}")
+            cells.append(f"{_fmt(crossing(a, g, 0.5))} / {_fmt(crossing(a, g, 0.8))}")
         lines.append(f"| {FAMILY_TITLES.get(f, f)} | " + " | ".join(cells) + " |")
     lines.append("")
     lines += verdict(doc, name, families, strategies, c)
@@ -219,6 +198,8 @@ def evaluation(doc: dict, pop: dict, families, strategies) -> list[str]:
 
 def report(doc: dict, stem: str) -> str:
     cfg, env = doc["config"], doc.get("environment", {})
+    best = best_family(doc, doc["populations"][0])
+    redraw = render_command(stem, Path("experiments"), best)[1:]
     head = [
         f"# From people's answers to motion people read ({doc['preset']} preset)",
         "",
@@ -240,6 +221,13 @@ def report(doc: dict, stem: str) -> str:
         "",
         f"![straight line, oracle and the best learned plan at τ = {RENDER_TAU}]"
         f"({stem}_render.png)",
+        "",
+        f"*The first held-out problem of population `{doc['populations'][0]['population']}`, "
+        f"seen from the `observer_angle` camera at τ = {RENDER_TAU}: the straight line, the "
+        f"oracle's plan (the population's own P_pop) and the plan of the family that keeps the "
+        f"most gain at the largest size "
+        f"({FAMILY_TITLES.get(best or '', '—')}); drawn by `{' '.join(redraw)}` from "
+        f"`{stem}_plans.npz`.*",
         "",
     ]
     body = [line for p in doc["populations"] for line in population_section(doc, p)]
@@ -276,6 +264,32 @@ def plot(doc: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def render_command(stem: str, out: Path, best: str | None) -> list[str]:
+    """The command that draws ``STEM_render.png``: the straight line, the oracle and the
+    best learned plan of the example problem, stopped at τ = :data:`RENDER_TAU`."""
+    planners = ",".join(["straight", "oracle"] + ([best] if best else []))
+    return [
+        "python",
+        "-m",
+        "slotv_jax.render",
+        "--plans",
+        str(out / f"{stem}_plans.npz"),
+        "--problem",
+        "0",
+        "--planner",
+        planners,
+        "--tau",
+        str(RENDER_TAU),
+        "--camera",
+        "observer_angle",
+        "--mark-target",
+        "--size",
+        "480x270",
+        "--out",
+        str(out / f"{stem}_render.png"),
+    ]
+
+
 def best_family(doc: dict, pop: dict) -> str | None:
     """The learned family with the highest gain kept at the largest size (any strategy)."""
     last = max(r["answers"] for r in pop["rows"])
@@ -289,32 +303,8 @@ def best_family(doc: dict, pop: dict) -> str | None:
     return max(rows, key=lambda r: r["gain_kept"])["family"] if rows else None
 
 
-def render_example(doc: dict, path: Path) -> None:
-    """Straight line, oracle and the best learned plan of the first population's example
-    problem, side by side at τ = :data:`RENDER_TAU`."""
-    pop = doc["populations"][0]
-    ex = pop["example"]
-    best = best_family(doc, pop)
-    names = ["straight", "oracle"] + ([best] if best in ex["q"] else [])
-    qs = [np.asarray(ex["q"][n], np.float32) for n in names]
-    prob = ex["problem"]
-    frames = rendering.compare_frames(
-        qs,
-        np.asarray(prob["goals"], np.float32),
-        np.asarray(prob["goal_mask"], bool),
-        names=[FAMILY_TITLES.get(n, n) for n in names],
-        tau=RENDER_TAU,
-        size=(480, 270),
-        target=int(prob["target"]),
-        fps=10,
-        duration=1.0,
-        hold=0.0,
-    )
-    rendering.write_png(path, frames[-1])
-
-
 def render(doc: dict, out: Path, stem: str) -> None:
-    """Write ``STEM.md``, ``STEM.png`` and ``STEM_render.png`` from the document."""
+    """Write ``STEM.md`` and ``STEM.png`` from the document (``STEM_render.png`` is drawn
+    from ``STEM_plans.npz`` by :func:`render_command`)."""
     plot(doc, out / f"{stem}.png")
-    render_example(doc, out / f"{stem}_render.png")
     write_text(out / f"{stem}.md", report(doc, stem))

@@ -1,0 +1,142 @@
+"""The people loop (slotv_jax.experiments.people_loop): the whole loop on a tiny config, its
+numbers re-derived from the document, the one compiled planner against the planner called
+directly, and every bad flag refused before any work."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from slotv_jax import planning
+from slotv_jax.experiments import people_loop as exp
+from slotv_jax.observers import population as population_lib
+
+pytestmark = pytest.mark.xdist_group("people_loop")
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("loop")
+    cache = tmp_path_factory.mktemp("data")
+    argv = ["--preset", "tiny", "--out", str(out), "--data-cache", str(cache)]
+    assert exp.main(argv) == 0
+    doc = json.loads((out / "people_loop_tiny_results.json").read_text())
+    return out, cache, argv, doc
+
+
+def test_the_document_holds_spec_rows_and_its_own_numbers(tiny_run):
+    out, _, _, doc = tiny_run
+    cfg = exp.tiny()
+    assert doc["preset"] == "tiny" and [p["population"] for p in doc["populations"]] == ["default"]
+    keys = {"population", "family", "strategy", "answers", "gain_kept", "seeds"}
+    assert all(keys <= set(r) for r in doc["summary"])
+    want = {(f, s, a) for f in cfg.families for s in cfg.strategies for a in cfg.sizes}
+    assert {(r["family"], r["strategy"], r["answers"]) for r in doc["summary"]} == want
+    pop = doc["populations"][0]
+    cmp_ = pop["comparison"]
+    lo, hi = cmp_["straight"]["score"], cmp_["oracle"]["score"]
+    assert hi > lo  # the population's own plan reads better than the straight line
+    for r in pop["rows"]:  # gain kept = (plan − straight) / (oracle − straight)
+        assert r["gain_kept"] == pytest.approx((r["score"] - lo) / (hi - lo), rel=1e-9, abs=1e-12)
+        assert r["score"] == pytest.approx(np.mean(r["score_per_tau"]), abs=1e-6)
+        a, (lo95, hi95) = r["accuracy"], r["accuracy_95"]
+        assert lo95 <= a + 1e-4 and a - 1e-4 <= hi95
+    for s in doc["summary"]:  # the summary is the mean over seeds of the rows
+        rows = [r for r in pop["rows"] if (r["family"], r["strategy"], r["answers"])
+                == (s["family"], s["strategy"], s["answers"])]  # fmt: skip
+        assert s["seeds"] == len(rows) == cfg.seeds
+        assert s["gain_kept"] == pytest.approx(np.mean([r["gain_kept"] for r in rows]), abs=1e-6)
+    # the fitted temperatures are what fit_beta finds: positive and finite
+    assert all(math.isfinite(r["beta"]) and r["beta"] > 0 for r in pop["rows"] if "beta" in r)
+    for name in ("people_loop_tiny.md", "people_loop_tiny.png", "people_loop_tiny_render.png"):
+        assert (out / name).stat().st_size > 0, name
+    text = (out / "people_loop_tiny.md").read_text()
+    assert "simulated people" in text and "Population `default`" in text
+
+
+def test_a_rerun_keeps_the_document(tiny_run):
+    out, _, argv, _ = tiny_run
+    before = (out / "people_loop_tiny_results.json").read_bytes()
+    assert exp.main(argv) == 0  # the population is there: nothing runs again
+    assert (out / "people_loop_tiny_results.json").read_bytes() == before
+
+
+def test_random_and_active_share_round_zero_and_its_answers(tiny_run):
+    """Round 0 is the same random draw for every strategy of a seed, so at the first size the
+    families fitted on it plan the same (the same answers, the same keys)."""
+    _, _, _, doc = tiny_run
+    first = doc["config"]["sizes"][0]
+    rows = [r for r in doc["populations"][0]["rows"] if r["answers"] == first]
+    for f in exp.tiny().families:
+        scores = {r["strategy"]: r["score"] for r in rows if r["family"] == f}
+        assert len(set(np.round(list(scores.values()), 6))) == 1, (f, scores)
+
+
+def test_one_compiled_planner_plans_as_the_planner_does():
+    """The experiment's switch over observers, at the oracle's index, gives the plan of
+    planning.plan with the population observer called directly."""
+    cfg = dataclasses.replace(exp.tiny(), families=("dragan_fitted",))
+    pop = population_lib.get_population("default")
+    goals = np.zeros((8, 3), np.float32)
+    goals[:3] = [[0.45, 0.3, 0.025], [0.6, 0.0, 0.025], [0.45, -0.3, 0.025]]
+    mask = np.arange(8) < 3
+    problem = planning.straight_line(jnp.asarray(goals), jnp.asarray(mask), jnp.int32(0),
+                                     cfg=cfg.planner)  # fmt: skip
+    names, fns = exp.branches(cfg, pop)
+    plan_all = exp.make_plan_all(cfg, fns)
+    batched = jax.tree.map(lambda a: a[None, None], problem)
+    params = {"beta": jnp.ones((1, 2), jnp.float32)}
+    got = plan_all(jnp.int32(names.index("oracle")), params, batched)
+    want = planning.plan(population_lib.population_observer(pop), problem, cfg.planner)
+    np.testing.assert_allclose(np.asarray(got.q[0, 0]), np.asarray(want.q), atol=2e-5)
+
+
+def test_wilson_interval_by_hand():
+    # k = 8 of n = 10: p = 0.8, z = 1.96 (Wilson 1927), computed by hand
+    z, n, p = 1.96, 10, 0.8
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    assert exp.wilson(8, 10) == pytest.approx((centre - half, centre + half))
+    assert exp.wilson(8, 10) == pytest.approx((0.4902, 0.9433), abs=1e-4)
+
+
+@pytest.mark.parametrize(
+    ("flags", "needle"),
+    [
+        (["--sizes", "20,x"], "--sizes"),
+        (["--sizes", "30,20"], "sizes"),
+        (["--sizes", "21,40"], "multiples of per_stimulus"),
+        (["--strategies", "margin"], "strategies"),
+        (["--strategies", "random,bogus"], "strategies"),
+        (["--families", "mlp,nope"], "families"),
+        (["--seeds", "0"], "seeds"),
+        (["--problems", "0"], "problems"),
+        (["--population", "no_such_population.json"], "population"),
+        (["--preset", "huge"], "--preset"),
+    ],
+)
+def test_bad_flags_are_one_line_errors_before_any_work(tmp_path, capsys, flags, needle):
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as e:
+        exp.main(["--preset", "tiny", "--out", str(out), *flags])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) >= 1 and needle in err[-1], err
+    assert not out.exists()  # nothing was written
+
+
+def test_a_bad_population_file_is_named(tmp_path, capsys):
+    bad = tmp_path / "people.json"
+    bad.write_text(json.dumps({**population_lib.default().to_dict(), "lapse": 2.0}))
+    with pytest.raises(SystemExit) as e:
+        exp.main(["--preset", "tiny", "--out", str(tmp_path / "o"), "--population", str(bad)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "people.json" in err and "lapse" in err, err
+    assert not (tmp_path / "o").exists()
