@@ -251,12 +251,18 @@ async def run_crowd(
     think: Callable[[], float] = lambda: 0.0,
     timeout: float = 120.0,
     media: bool = True,
+    first: int = 0,
 ) -> list[Result]:
-    """``n`` participants taking the study concurrently (ids ``sim-0``, ``sim-1``, ...).
+    """``n`` participants taking the study concurrently: participants ``first`` to
+    ``first + n - 1``, ids ``sim-FIRST``, ``sim-FIRST+1``, ... (a later crowd on the same
+    server starts after the earlier ones: the server refuses a new start under an id that
+    has answered).
 
     A ``guess`` with a ``participant(i)`` method (:class:`PopulationGuesser`) gives
     participant i the guesser ``guess.participant(i)``; any other is shared by all.
     """
+    if not (isinstance(first, int) and first >= 0):
+        raise ValueError(f"first: expected an integer >= 0, got {first!r}")
     per_person = hasattr(guess, "participant")
     runs = [
         run_participant(
@@ -267,6 +273,6 @@ async def run_crowd(
             timeout=timeout,
             media=media,
         )
-        for i in range(n)
+        for i in range(first, first + n)
     ]
     return [r for r, _ in await asyncio.gather(*runs)]

@@ -17,6 +17,17 @@ a whole motion) and ``--hold`` (seconds the last frame stays) shape the clips. S
   ``goal_mask``, optional ``t``, ``q`` and ``target``);
 - ``--study FILE``: a study file's trajectories (no targets: ``--attention 0``).
 
+``--next-round`` adds the set to the study folder ``--out`` as its next round
+(``STIMDIR/round-R``, as ``study next`` does) instead of writing round 0: with round 0's
+clip settings (``--size``, ``--fps``, ``--duration`` and ``--hold`` are then refused), and
+a trajectory id that an earlier round holds must be the same motion there (ids are global
+across rounds). A running server (``study serve``) gives the round to new participants
+without a restart: the plans of a planning run become an evaluation round of the study
+that taught their observer, e.g. ::
+
+    python -m slotv_jax.study stimuli --plans plans.npz --n 6 --taus 0.4,1.0 \
+        --out stim --next-round
+
 A TCP path without joints gets them by the project's IK from ``Q_HOME``
 (:func:`slotv_jax.rendering.joints_from_tcp`); a path it misses by more than 5 mm is refused.
 
@@ -46,7 +57,11 @@ from slotv_jax.webstudy.stimuli import (
     MANIFEST,
     Motion,
     cross_specs,
+    find_rounds,
     load_stimulus_set,
+    motion_tables,
+    next_round,
+    round_dir,
     write_stimulus_set,
 )
 
@@ -204,9 +219,11 @@ def make_set(
     overwrite: bool = False,
     progress: bool = True,
     source: dict | None = None,
+    round_: int = 0,
 ) -> dict:
     """A stimulus set of ``n`` motions drawn at random (``seed``): each at every τ from
-    every camera, ``attention`` more as attention checks, one more for practice."""
+    every camera, ``attention`` more as attention checks, one more for practice; round
+    ``round_`` of its study folder (``out`` is that round's folder)."""
     m = len(motions.ids)
     need = n + attention + int(practice)
     if not 1 <= n or need > m:
@@ -227,8 +244,24 @@ def make_set(
         render=renderer, scenes=[motions.scenes[i] for i in pick], targets=tg,
         length=motions.length[pick], t=None if motions.t is None else motions.t[pick],
         source={**(source or {}), "indices": pick.tolist(), "seed": seed},
-        overwrite=overwrite, progress=progress,
+        overwrite=overwrite, progress=progress, round_=round_,
     )  # fmt: skip
+
+
+def check_ids_across_rounds(stimdir: str | Path, motions: Motions, what: str) -> None:
+    """ValueError unless every id of ``motions`` that a round of ``stimdir`` holds is the
+    same motion there (points and goals as its tables write them): trajectory ids are
+    global across the rounds of a study (:mod:`slotv_jax.webstudy.stimuli`)."""
+    points, goals, _ = motion_tables(motions.xyz, motions.goals, motions.goal_mask,
+                                     motions.ids, length=motions.length, t=motions.t)  # fmt: skip
+    for r in find_rounds(stimdir):
+        st = load_stimulus_set(round_dir(stimdir, r), verify=False)
+        for tid in sorted(set(points) & set(st.trajectories)):
+            if st.trajectories[tid] != points[tid] or st.goals.get(tid) != goals[tid]:
+                raise ValueError(
+                    f"{what}: trajectory {tid!r} is another motion than the one of that id "
+                    f"in round {r} of {stimdir} (ids are global across a study's rounds)"
+                )
 
 
 def _floats(text: str, name: str) -> tuple[float, ...]:
@@ -265,22 +298,27 @@ def add_command(sub) -> None:
     p.add_argument("--cameras", default="observer", help=f"comma-separated: {rendering.CAMERAS}")
     p.add_argument("--attention", type=int, default=2, help="attention-check motions (tau 1)")
     p.add_argument("--no-practice", action="store_true", help="no practice trial")
-    p.add_argument("--size", default="480x270", help="WIDTHxHEIGHT of the clips")
-    p.add_argument("--fps", type=float, default=DEFAULTS["fps"])
-    p.add_argument("--duration", type=float, default=DEFAULTS["duration"],
-                   help="seconds of a whole motion (tau = 1)")  # fmt: skip
-    p.add_argument("--hold", type=float, default=DEFAULTS["hold"],
-                   help="seconds the last frame stays")  # fmt: skip
+    p.add_argument("--size", default=None, help="WIDTHxHEIGHT of the clips (480x270)")
+    p.add_argument("--fps", type=float, default=None, help="frames per second (25)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="seconds of a whole motion, tau = 1 (3)")  # fmt: skip
+    p.add_argument("--hold", type=float, default=None,
+                   help="seconds the last frame stays (0.5)")  # fmt: skip
     p.add_argument("--no-trace", action="store_true", help="do not draw the TCP's path")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="the study folder to write")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier set there")
+    p.add_argument("--next-round", action="store_true",
+                   help="add the set to the study folder --out as its next round, with "
+                   "round 0's clip settings (a running server picks it up)")  # fmt: skip
 
 
 def stimuli_main(args: argparse.Namespace) -> int:
-    """Check every input and the output folder, then render the set."""
+    """Check every input and the output folder, then render the set (round 0, or with
+    ``--next-round`` the study folder's next round)."""
     taus = _floats(args.taus, "--taus")
-    size = _size(args.size)
+    clip = {k: getattr(args, k) for k in ("size", "fps", "duration", "hold")}
+    size = _size(args.size or "x".join(map(str, DEFAULTS["size"])))
     cameras = tuple(c.strip() for c in args.cameras.split(","))
     for c in cameras:
         if c not in rendering.CAMERAS:
@@ -288,13 +326,27 @@ def stimuli_main(args: argparse.Namespace) -> int:
     if args.attention < 0:
         raise ValueError(f"--attention {args.attention}: expected an integer >= 0")
     for name in ("fps", "duration"):
-        if not getattr(args, name) > 0:
-            raise ValueError(f"--{name} {getattr(args, name)}: expected a number > 0")
-    if not args.hold >= 0:
+        if not (clip[name] is None or clip[name] > 0):
+            raise ValueError(f"--{name} {clip[name]}: expected a number > 0")
+    if not (args.hold is None or args.hold >= 0):
         raise ValueError(f"--hold {args.hold}: expected seconds >= 0")
     inputs = {f"--{k}": getattr(args, k) for k in ("data", "npz", "plans", "study")}
     check_not_input(args.out, inputs, replaces_dir=True)
-    check_output_dir(args.out, ours=lambda p: (p / MANIFEST).is_file(), overwrite=args.overwrite)
+    if args.next_round:  # into the next round's folder, with round 0's clip settings
+        given = [k for k, v in clip.items() if v is not None]
+        if given:
+            raise ValueError(f"--{given[0]}: --next-round keeps round 0's clip settings; "
+                             "leave it out")  # fmt: skip
+        if args.overwrite:
+            raise ValueError("--overwrite: --next-round writes a new round, never over one")
+        if not find_rounds(args.out):
+            raise ValueError(f"--out {args.out}: no study folder ({MANIFEST} of round 0 "
+                             "missing); --next-round adds a round to one")  # fmt: skip
+        r, folder = next_round(args.out)
+    else:
+        check_output_dir(args.out, ours=lambda p: (p / MANIFEST).is_file(),
+                         overwrite=args.overwrite)  # fmt: skip
+        r, folder = 0, Path(args.out)
     if args.data is not None:
         motions, source = motions_from_split(load_split(args.data, args.split)), {
             "kind": "split", "data": str(args.data), "split": args.split}  # fmt: skip
@@ -304,17 +356,27 @@ def stimuli_main(args: argparse.Namespace) -> int:
         motions, source = motions_from_plans(args.plans), {"kind": "plans", "file": args.plans}
     else:
         motions, source = motions_from_study(args.study), {"kind": "study", "file": args.study}
+    if r:
+        flag, path = next((k, v) for k, v in inputs.items() if v is not None)
+        check_ids_across_rounds(args.out, motions, f"{flag} {path}")
     try:
-        r = SceneRenderer(size, args.fps, args.duration, args.hold, trace=not args.no_trace)
+        if r:
+            renderer = SceneRenderer.like(args.out, trace=not args.no_trace)
+        else:
+            renderer = SceneRenderer(
+                size, clip["fps"] or DEFAULTS["fps"], clip["duration"] or DEFAULTS["duration"],
+                DEFAULTS["hold"] if args.hold is None else args.hold, trace=not args.no_trace,
+            )  # fmt: skip
     except rendering.RenderBackendError as e:
         raise ValueError(str(e)) from None  # one line: how to get OpenGL
     try:
         m = make_set(
-            motions, args.out, n=args.n, taus=taus, cameras=cameras, attention=args.attention,
-            practice=not args.no_practice, seed=args.seed, renderer=r,
-            overwrite=args.overwrite, source=source,
+            motions, folder, n=args.n, taus=taus, cameras=cameras, attention=args.attention,
+            practice=not args.no_practice, seed=args.seed, renderer=renderer,
+            overwrite=args.overwrite, source=source, round_=r,
         )  # fmt: skip
     finally:
-        r.close()
-    print(f"wrote {args.out}: {len(m['stimuli'])} stimuli ({args.out}/{MANIFEST})")
+        renderer.close()
+    what = f"round {r} of {args.out}" if r else args.out
+    print(f"wrote {what}: {len(m['stimuli'])} stimuli ({folder}/{MANIFEST})")
     return 0

@@ -51,6 +51,10 @@ def _add_web_commands(sub) -> None:
                      help="or: they are people of this population (default, homogeneous or a "
                      "population JSON file; see README), each with their own draw")  # fmt: skip
     sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--first", type=int, default=0,
+                     help="number of the first participant: ids sim-FIRST, ... and, with "
+                     "--population, their draws (a later crowd on the same server starts "
+                     "after the earlier one's)")  # fmt: skip
     sim.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the server")
 
 
@@ -117,6 +121,8 @@ def simulate_main(args: argparse.Namespace) -> int:
     """Run simulated participants against a running server and report what they did."""
     if not 1 <= args.participants <= 10_000:
         raise ValueError(f"--participants {args.participants}: expected 1..10000")
+    if args.first < 0:
+        raise ValueError(f"--first {args.first}: expected an integer >= 0")
     if not args.url.startswith(("http://", "https://")):
         raise ValueError(f"--url {args.url}: expected http://HOST:PORT")
     if args.population is not None and args.labeler is not None:
@@ -145,7 +151,9 @@ def simulate_main(args: argparse.Namespace) -> int:
 
     crowd = (client.Crowd(lambda i: counted(guess.participant(i)))
              if hasattr(guess, "participant") else counted(guess))  # fmt: skip
-    res = asyncio.run(client.run_crowd(args.url, args.participants, crowd, timeout=600))
+    res = asyncio.run(
+        client.run_crowd(args.url, args.participants, crowd, timeout=600, first=args.first)
+    )
     done = sum(r.code is not None for r in res)
     # every guess was acknowledged: a post that fails raises out of run_crowd
     print(f"{done} of {len(res)} simulated participants finished, "
