@@ -177,8 +177,8 @@ def test_ask_learn_plan_evaluate_through_the_real_study(tiny_data, tiny_cfg, tmp
 
         # ---- evaluate: the plans as the next round of the running study
         run(study_cli.main, "stimuli", "--plans", plans, "--n", 2, "--taus",
-            ",".join(map(str, TAUS)), "--attention", 0, "--no-practice", "--out", stim,
-            "--next-round")  # fmt: skip
+            ",".join(map(str, TAUS)), "--attention", 0, "--no-practice", "--next-round",
+            stim)  # fmt: skip
         assert stimuli.find_rounds(stim) == [0, 1]
         st1 = stimuli.load_stimulus_set(stim / "round-1")
         assert {s["trajectory"] for s in st1.manifest["stimuli"]} == set(stacked)
@@ -249,12 +249,12 @@ def test_next_round_and_later_crowd_refuse_bad_input(tmp_path, capsys):
                           progress=False)  # fmt: skip
     (tmp_path / "empty").mkdir()
     nxt = ["stimuli", "--plans", plans["new"], "--n", 1, "--taus", "0.5", "--attention", 0,
-           "--no-practice", "--next-round", "--out"]  # fmt: skip
+           "--no-practice", "--next-round"]  # fmt: skip
     cases = [
         ([*nxt, stim, "--size", "64x48"], "--size: --next-round keeps round 0's clip settings"),
         ([*nxt, stim, "--hold", "0"], "--hold: --next-round keeps round 0's clip settings"),
         ([*nxt, stim, "--overwrite"], "--overwrite: --next-round writes a new round"),
-        ([*nxt, tmp_path / "empty"], f"--out {tmp_path / 'empty'}: no study folder"),
+        ([*nxt, tmp_path / "empty"], f"--next-round {tmp_path / 'empty'}: no study folder"),
         ([*nxt, stim], f"--plans {plans['new']}: trajectory 'a-0' is another motion than the "
                        f"one of that id in round 0 of {stim}"),
         (["simulate", "--stimuli", stim, "--first", -1], "--first -1: expected an integer >= 0"),

@@ -17,16 +17,16 @@ a whole motion) and ``--hold`` (seconds the last frame stays) shape the clips. S
   ``goal_mask``, optional ``t``, ``q`` and ``target``);
 - ``--study FILE``: a study file's trajectories (no targets: ``--attention 0``).
 
-``--next-round`` adds the set to the study folder ``--out`` as its next round
-(``STIMDIR/round-R``, as ``study next`` does) instead of writing round 0: with round 0's
-clip settings (``--size``, ``--fps``, ``--duration`` and ``--hold`` are then refused), and
-a trajectory id that an earlier round holds must be the same motion there (ids are global
+``--next-round STIMDIR`` (instead of ``--out``) adds the set to an existing study folder
+as its next round (``STIMDIR/round-R``, as ``study next`` does): with round 0's clip
+settings (``--size``, ``--fps``, ``--duration`` and ``--hold`` are then refused), and a
+trajectory id that an earlier round holds must be the same motion there (ids are global
 across rounds). A running server (``study serve``) gives the round to new participants
 without a restart: the plans of a planning run become an evaluation round of the study
 that taught their observer, e.g. ::
 
     python -m slotv_jax.study stimuli --plans plans.npz --n 6 --taus 0.4,1.0 \
-        --out stim --next-round
+        --next-round stim
 
 A TCP path without joints gets them by the project's IK from ``Q_HOME``
 (:func:`slotv_jax.rendering.joints_from_tcp`); a path it misses by more than 5 mm is refused.
@@ -306,11 +306,12 @@ def add_command(sub) -> None:
                    help="seconds the last frame stays (0.5)")  # fmt: skip
     p.add_argument("--no-trace", action="store_true", help="do not draw the TCP's path")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", required=True, help="the study folder to write")
+    dest = p.add_mutually_exclusive_group(required=True)
+    dest.add_argument("--out", help="the study folder to write (its round 0)")
+    dest.add_argument("--next-round", metavar="STIMDIR",
+                      help="or: add the set to this study folder as its next round, with "
+                      "round 0's clip settings (a running server picks it up)")  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace an earlier set there")
-    p.add_argument("--next-round", action="store_true",
-                   help="add the set to the study folder --out as its next round, with "
-                   "round 0's clip settings (a running server picks it up)")  # fmt: skip
 
 
 def stimuli_main(args: argparse.Namespace) -> int:
@@ -331,22 +332,25 @@ def stimuli_main(args: argparse.Namespace) -> int:
     if not (args.hold is None or args.hold >= 0):
         raise ValueError(f"--hold {args.hold}: expected seconds >= 0")
     inputs = {f"--{k}": getattr(args, k) for k in ("data", "npz", "plans", "study")}
-    check_not_input(args.out, inputs, replaces_dir=True)
-    if args.next_round:  # into the next round's folder, with round 0's clip settings
+    if args.next_round is not None:  # the next round's folder, with round 0's clip settings
+        stimdir = Path(args.next_round)
         given = [k for k, v in clip.items() if v is not None]
         if given:
             raise ValueError(f"--{given[0]}: --next-round keeps round 0's clip settings; "
                              "leave it out")  # fmt: skip
         if args.overwrite:
             raise ValueError("--overwrite: --next-round writes a new round, never over one")
-        if not find_rounds(args.out):
-            raise ValueError(f"--out {args.out}: no study folder ({MANIFEST} of round 0 "
-                             "missing); --next-round adds a round to one")  # fmt: skip
-        r, folder = next_round(args.out)
+        if not find_rounds(stimdir):
+            raise ValueError(f"--next-round {stimdir}: no study folder ({MANIFEST} of "
+                             "round 0 missing; `study stimuli --out` writes one)")  # fmt: skip
+        r, folder = next_round(stimdir)
+        check_not_input(folder, inputs, what="--next-round", replaces_dir=True)
     else:
-        check_output_dir(args.out, ours=lambda p: (p / MANIFEST).is_file(),
+        stimdir = folder = Path(args.out)
+        check_not_input(folder, inputs, replaces_dir=True)
+        check_output_dir(folder, ours=lambda p: (p / MANIFEST).is_file(),
                          overwrite=args.overwrite)  # fmt: skip
-        r, folder = 0, Path(args.out)
+        r = 0
     if args.data is not None:
         motions, source = motions_from_split(load_split(args.data, args.split)), {
             "kind": "split", "data": str(args.data), "split": args.split}  # fmt: skip
@@ -358,10 +362,10 @@ def stimuli_main(args: argparse.Namespace) -> int:
         motions, source = motions_from_study(args.study), {"kind": "study", "file": args.study}
     if r:
         flag, path = next((k, v) for k, v in inputs.items() if v is not None)
-        check_ids_across_rounds(args.out, motions, f"{flag} {path}")
+        check_ids_across_rounds(stimdir, motions, f"{flag} {path}")
     try:
         if r:
-            renderer = SceneRenderer.like(args.out, trace=not args.no_trace)
+            renderer = SceneRenderer.like(stimdir, trace=not args.no_trace)
         else:
             renderer = SceneRenderer(
                 size, clip["fps"] or DEFAULTS["fps"], clip["duration"] or DEFAULTS["duration"],
@@ -377,6 +381,6 @@ def stimuli_main(args: argparse.Namespace) -> int:
         )  # fmt: skip
     finally:
         renderer.close()
-    what = f"round {r} of {args.out}" if r else args.out
+    what = f"round {r} of {stimdir}" if r else args.out
     print(f"wrote {what}: {len(m['stimuli'])} stimuli ({folder}/{MANIFEST})")
     return 0
