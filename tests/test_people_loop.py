@@ -4,7 +4,6 @@ directly, and every bad flag refused before any work."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 
@@ -30,6 +29,7 @@ def tiny_run(tmp_path_factory):
     return out, cache, argv, doc
 
 
+@pytest.mark.slow
 def test_the_document_holds_spec_rows_and_its_own_numbers(tiny_run):
     out, _, _, doc = tiny_run
     cfg = exp.tiny()
@@ -60,6 +60,7 @@ def test_the_document_holds_spec_rows_and_its_own_numbers(tiny_run):
     assert "simulated people" in text and "Population `default`" in text
 
 
+@pytest.mark.slow
 def test_a_rerun_keeps_the_document(tiny_run):
     out, _, argv, _ = tiny_run
     before = (out / "people_loop_tiny_results.json").read_bytes()
@@ -67,6 +68,7 @@ def test_a_rerun_keeps_the_document(tiny_run):
     assert (out / "people_loop_tiny_results.json").read_bytes() == before
 
 
+@pytest.mark.slow
 def test_random_and_active_share_round_zero_and_its_answers(tiny_run):
     """Round 0 is the same random draw for every strategy of a seed, so at the first size the
     families fitted on it plan the same (the same answers, the same keys)."""
@@ -78,23 +80,26 @@ def test_random_and_active_share_round_zero_and_its_answers(tiny_run):
         assert len(set(np.round(list(scores.values()), 6))) == 1, (f, scores)
 
 
-def test_one_compiled_planner_plans_as_the_planner_does():
-    """The experiment's switch over observers, at the oracle's index, gives the plan of
-    planning.plan with the population observer called directly."""
-    cfg = dataclasses.replace(exp.tiny(), families=("dragan_fitted",))
+@pytest.mark.slow
+def test_one_compiled_planner_plans_as_the_planner_does(tiny_run):
+    """The experiment's switch over observers (the program the tiny run compiled), at the
+    oracle's index, gives the plan of planning.plan with the population observer."""
+    cfg = exp.tiny()
     pop = population_lib.get_population("default")
     goals = np.zeros((8, 3), np.float32)
     goals[:3] = [[0.45, 0.3, 0.025], [0.6, 0.0, 0.025], [0.45, -0.3, 0.025]]
     mask = np.arange(8) < 3
-    problem = planning.straight_line(jnp.asarray(goals), jnp.asarray(mask), jnp.int32(0),
-                                     cfg=cfg.planner)  # fmt: skip
-    names, fns = exp.branches(cfg, pop)
-    plan_all = exp.make_plan_all(cfg, fns)
-    batched = jax.tree.map(lambda a: a[None, None], problem)
-    params = {"beta": jnp.ones((1, 2), jnp.float32)}
+    problem = planning.straight_line(
+        jnp.asarray(goals), jnp.asarray(mask), jnp.int32(0), cfg=cfg.planner
+    )
+    names, plan_all = exp.planner_for(cfg, pop)
+    n_runs = len(cfg.strategies) * cfg.seeds
+    batched = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_runs, 1, *a.shape)), problem)
+    params = exp.initial_params(cfg, range(n_runs))  # any parameters: the oracle reads none
     got = plan_all(jnp.int32(names.index("oracle")), params, batched)
     want = planning.plan(population_lib.population_observer(pop), problem, cfg.planner)
-    np.testing.assert_allclose(np.asarray(got.q[0, 0]), np.asarray(want.q), atol=2e-5)
+    for r in range(n_runs):
+        np.testing.assert_allclose(np.asarray(got.q[r, 0]), np.asarray(want.q), atol=2e-5)
 
 
 def test_wilson_interval_by_hand():

@@ -200,6 +200,7 @@ def quick() -> LoopConfig:
         "quick",
         planning.PlannerConfig(n_points=50, iters=30, taus=taus),
         taus=taus,
+        subset=2000,
     )
 
 
@@ -315,6 +316,19 @@ def make_plan_all(cfg: LoopConfig, fns):
     return jax.jit(jax.vmap(plan_run, in_axes=(None, 0, 0)))
 
 
+_PLANNERS: dict = {}
+
+
+def planner_for(cfg: LoopConfig, pop) -> tuple[tuple[str, ...], object]:
+    """The observers' names and :func:`make_plan_all` of ``cfg`` and ``pop``, made once per
+    process (a second run of the same config reuses the compiled program)."""
+    key = (cfg, json.dumps(pop.to_dict(), sort_keys=True))
+    if key not in _PLANNERS:
+        names, fns = branches(cfg, pop)
+        _PLANNERS[key] = (names, make_plan_all(cfg, fns))
+    return _PLANNERS[key]
+
+
 # ------------------------------------------------------------------ the study
 
 
@@ -372,7 +386,7 @@ def fit_family(cfg: LoopConfig, family: str, pool, cand, counts, rows: int, seed
     rows: parameters with a leading run axis."""
     tc = cfg.train_config(family)
     sel = selection.make_selector(tc, 1, cand.shape[1])
-    keys = jnp.stack([jax.random.key(2_000 + 97 * sd + LEARNED.index(family)) for sd in seeds])
+    keys = _init_keys(family, seeds)
     ens = jax.jit(jax.vmap(sel.init))(keys)
     ans = selection.Answers(
         jnp.asarray(cand), jnp.asarray(counts), jnp.full((cand.shape[0],), rows, jnp.int32)
@@ -382,6 +396,23 @@ def fit_family(cfg: LoopConfig, family: str, pool, cand, counts, rows: int, seed
     for j in range(n):
         ens, _ = fit(ens, pool, ans, jax.vmap(lambda k, j=j: jax.random.fold_in(k, j))(keys))
     return jax.tree.map(lambda x: x[:, 0], ens.params)
+
+
+def _init_keys(family: str, seeds) -> jax.Array:
+    return jnp.stack([jax.random.key(2_000 + 97 * sd + LEARNED.index(family)) for sd in seeds])
+
+
+def initial_params(cfg: LoopConfig, seeds) -> dict:
+    """Every family's parameters before any answer, one set per run (``seeds``: each run's
+    seed), and β = 1 for the fitted labelers: the planner's ``params`` argument."""
+    out = {}
+    for f in cfg.families:
+        if f in LEARNED:
+            sel = selection.make_selector(cfg.train_config(f), 1, 1)
+            ens = jax.vmap(sel.init)(_init_keys(f, seeds))
+            out[f] = jax.tree.map(lambda x: x[:, 0], ens.params)
+    out["beta"] = jnp.ones((len(list(seeds)), len(FITTED)), jnp.float32)
+    return out
 
 
 _FITTERS: dict = {}
@@ -465,8 +496,11 @@ def plan_scores(cfg, scorer, key, res, problems) -> dict:
 # ------------------------------------------------------------------ the loop
 
 
-def run_population(cfg: LoopConfig, name: str, pop, splits, *, progress: bool = True) -> dict:
-    """The whole loop for one population; returns its rows, comparison and timings."""
+def run_population(
+    cfg: LoopConfig, name: str, pop, splits, *, progress: bool = True, on_size=None
+) -> dict:
+    """The whole loop for one population; returns its rows, comparison and timings.
+    ``on_size(rows)`` is called with the rows so far after each size (to save them)."""
     t_all, timing = (
         time.perf_counter(),
         {
@@ -523,8 +557,7 @@ def run_population(cfg: LoopConfig, name: str, pop, splits, *, progress: bool = 
     )(jnp.asarray(prob["goals"]), jnp.asarray(prob["goal_mask"]), jnp.asarray(prob["target"]))
     planning.check_problems(straight)
     problems = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape)), straight)
-    names, fns = branches(cfg, pop)
-    plan_all = make_plan_all(cfg, fns)
+    names, plan_all = planner_for(cfg, pop)
     scorer = make_scorer(pop, cfg.taus, cfg.planner.n_points, cfg.eval_participants)
     eval_key = jax.random.key(4_000)
 
@@ -589,6 +622,8 @@ def run_population(cfg: LoopConfig, name: str, pop, splits, *, progress: bool = 
             if r == len(rows) - 1:
                 example[f] = np.asarray(res.q[0, 0])
         timing["eval_s"] += time.perf_counter() - t0
+        if on_size is not None:
+            on_size(out_rows)
         bar.update(1)
         if r + 1 == len(rows):
             break
@@ -717,6 +752,7 @@ def run(
     doc = json.loads(path.read_text()) if path.exists() else {}
     if doc.get("config") != conf:
         doc = {"preset": cfg.preset, "config": conf, "populations": [], "summary": []}
+    doc["populations"] = [p for p in doc["populations"] if not p.get("partial")]
     done = {p["population"] for p in doc["populations"]}
     todo = [p for p in populations if population_name(p) not in done]
     if todo:
@@ -731,10 +767,14 @@ def run(
         doc["environment"] = environment()
         doc["date"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     for p in todo:
-        pop = population_lib.get_population(p)
-        doc["populations"].append(
-            run_population(cfg, population_name(p), pop, splits, progress=progress)
-        )
+        pop, name = population_lib.get_population(p), population_name(p)
+
+        def save_partial(rows, name=name):  # a run stopped mid-way keeps its finished sizes
+            part = {"population": name, "partial": True, "rows": rows}
+            write_text(path, json.dumps({**doc, "populations": [*doc["populations"], part]}))
+
+        entry = run_population(cfg, name, pop, splits, progress=progress, on_size=save_partial)
+        doc["populations"].append(entry)
         doc["summary"] = summarise([r for q in doc["populations"] for r in q["rows"]])
         write_text(path, json.dumps(doc, indent=1))
     report_lib.render(doc, out, stem)

@@ -131,25 +131,32 @@ def population_section(doc: dict, pop: dict) -> list[str]:
 
 
 def verdict(doc: dict, name: str, families, strategies, c) -> list[str]:
-    """The issue's question in numbers: the best family within 2,000 answers against the
-    fitted baselines."""
+    """The issue's question in numbers: the best family within 2,000 answers, the fewest
+    answers from which it keeps 80 %, and the fitted baselines at the same answers."""
     out = []
     for s in strategies:
-        best, best_g = None, -math.inf
+        best, best_g, at = None, -math.inf, None
         for f in families:
             a, g = c.get((f, s), ([], []))
-            vals = [gi for ai, gi in zip(a, g, strict=True) if ai <= 2000]
-            if vals and vals[-1] > best_g:
-                best, best_g = f, vals[-1]
+            within = [(ai, gi) for ai, gi in zip(a, g, strict=True) if ai <= 2000]
+            if within and within[-1][1] > best_g:
+                best, (at, best_g) = f, within[-1]
         if best is None:
             continue
         base = {f: dict(zip(*c[(f, s)], strict=True)) for f in BASELINES if (f, s) in c}
-        at = max(a for a in c[(best, s)][0] if a <= 2000)
         beats = [f for f, v in base.items() if best_g > v.get(at, math.inf)]
+        reach = crossing(*c[(best, s)], 0.8)
         out.append(
-            f"- {s}: from {at:,} answers the best family is {FAMILY_TITLES.get(best, best)}, "
+            f"- {s}: at {at:,} answers the best family is {FAMILY_TITLES.get(best, best)}, "
             f"keeping {_pct(best_g)} of the oracle's gain"
-            + (f"; it beats {' and '.join(FAMILY_TITLES[f] for f in beats)} there" if beats else "")
+            + (f" (80 % from {_fmt(reach)} answers)" if reach is not None else "")
+            + (
+                "; the fitted baselines keep "
+                + " and ".join(f"{_pct(v[at])} ({FAMILY_TITLES[f]})" for f, v in base.items())
+                if base
+                else ""
+            )
+            + (f": it beats {'both' if len(beats) == 2 else 'one'}" if beats else "")
             + "."
         )
     return [*out, ""] if out else []
@@ -199,7 +206,7 @@ def evaluation(doc: dict, pop: dict, families, strategies) -> list[str]:
 def report(doc: dict, stem: str) -> str:
     cfg, env = doc["config"], doc.get("environment", {})
     best = best_family(doc, doc["populations"][0])
-    redraw = render_command(stem, Path("experiments"), best)[1:]
+    redraw = render_command(stem, Path("experiments"), best)
     head = [
         f"# From people's answers to motion people read ({doc['preset']} preset)",
         "",
@@ -255,6 +262,9 @@ def plot(doc: dict, path: Path) -> None:
             )
         ax.axhline(0.8, color="k", lw=0.5)
         ax.set_xscale("log")
+        sizes = sorted({r["answers"] for r in doc["summary"] if r["population"] == name})
+        ax.set_xticks(sizes, [f"{a:,}" for a in sizes])
+        ax.minorticks_off()
         ax.set_xlabel("answers")
         ax.set_ylabel("gain kept (plan − straight) / (oracle − straight)")
         ax.set_title(f"population: {name} (simulated people)")
@@ -268,26 +278,11 @@ def render_command(stem: str, out: Path, best: str | None) -> list[str]:
     """The command that draws ``STEM_render.png``: the straight line, the oracle and the
     best learned plan of the example problem, stopped at τ = :data:`RENDER_TAU`."""
     planners = ",".join(["straight", "oracle"] + ([best] if best else []))
-    return [
-        "python",
-        "-m",
-        "slotv_jax.render",
-        "--plans",
-        str(out / f"{stem}_plans.npz"),
-        "--problem",
-        "0",
-        "--planner",
-        planners,
-        "--tau",
-        str(RENDER_TAU),
-        "--camera",
-        "observer_angle",
-        "--mark-target",
-        "--size",
-        "480x270",
-        "--out",
-        str(out / f"{stem}_render.png"),
-    ]
+    flags = f"--problem 0 --planner {planners} --tau {RENDER_TAU} --camera observer_angle "
+    flags += "--mark-target --size 480x270 --overwrite"
+    plans, png = out / f"{stem}_plans.npz", out / f"{stem}_render.png"
+    return ["python", "-m", "slotv_jax.render", "--plans", str(plans), *flags.split(),
+            "--out", str(png)]  # fmt: skip
 
 
 def best_family(doc: dict, pop: dict) -> str | None:
