@@ -468,7 +468,8 @@ def _float_array(x, name, w, dtype) -> np.ndarray:
     if a.dtype.kind not in "biuf":
         raise ValueError(f"{w(name)}: expected numbers, got dtype {a.dtype}")
     big = float(np.finfo(dtype).max)  # a finite value beyond it would become inf, with a warning
-    over = np.argwhere(np.isfinite(a) & (np.abs(a) > big)) if a.dtype.kind == "f" else []
+    wider = a.dtype.kind == "f" and float(np.finfo(a.dtype).max) > big  # else none can exceed
+    over = np.argwhere(np.isfinite(a) & (np.abs(a) > big)) if wider else []
     if len(over):
         idx = tuple(int(v) for v in over[0])
         raise ValueError(
