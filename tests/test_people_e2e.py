@@ -77,7 +77,7 @@ def replayed(stim: Path, rows: list[tuple], seed: int) -> dict[str, list[str]]:
     return out
 
 
-@pytest.mark.slow  # ~45 s on a loaded 2-core CPU, most of it compiling the planner
+@pytest.mark.slow  # 44-97 s on a shared 2-core CPU (load 3.6-6.7); ~35 s compiling the planner
 def test_ask_learn_plan_evaluate_through_the_real_study(tiny_data, tiny_cfg, tmp_path, capsys):
     home, stim, db = tmp_path / "data", tmp_path / "stim", tmp_path / "study.db"
     home.mkdir()
