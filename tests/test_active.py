@@ -399,6 +399,7 @@ def test_recorded_reports_render_again_from_their_results(tmp_path, module, stem
 # ---------------------------------------------------------- the one-pass protocol
 
 
+@pytest.mark.slow
 def test_stream_labels_each_motion_once_for_one_update():
     """The paper's Fig. 3 protocol with selected batches: each labelled motion is used for
     exactly one optimiser step, in order (against a hand loop of the optimiser on the

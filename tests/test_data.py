@@ -52,6 +52,7 @@ def test_labels_are_distributions(tiny_data):
             np.testing.assert_allclose(y.sum(-1), 1.0, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_determinism_and_chunk_size_independence(tiny_data, tiny_cfg):
     """Same seed and config: identical arrays, whatever the chunk size."""
     again = data.generate_dataset(tiny_cfg, None, splits=["position_val"], progress=False)

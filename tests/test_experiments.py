@@ -55,6 +55,7 @@ def _check_schema(doc: dict) -> None:
     assert isinstance(doc["timing"], dict)
 
 
+@pytest.mark.slow
 def test_table1_results_schema_and_report(cache, tmp_path):
     cfg = presets.tiny()
     doc = table1.run(
@@ -90,6 +91,7 @@ def test_summarise_hand_case():
     assert s["n"] == 3 and s["mean"] == pytest.approx(0.7) and s["sd"] == pytest.approx(0.2)
 
 
+@pytest.mark.slow
 def test_killed_run_resumes_without_recomputing(cache, tmp_path):
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "slotv_jax.experiments.table1", "--preset", "tiny"]
@@ -138,6 +140,7 @@ def test_resume_refuses_another_config(cache, tmp_path):
         table1.run(other, tmp_path, labelers=["effdist"], cache=cache, progress=False)
 
 
+@pytest.mark.slow
 def test_sample_efficiency_outputs(cache, tmp_path):
     doc = curves.run("tiny", tmp_path, repeats=2, every=2, val_size=50, cache=cache, progress=False)
     rows = (tmp_path / "sample_efficiency.csv").read_text().splitlines()
@@ -156,6 +159,7 @@ def test_sample_efficiency_outputs(cache, tmp_path):
     assert curves.examples_to_reach(np.array([0, 10]), np.array([0.1, 0.5]), 0.8) is None
 
 
+@pytest.mark.slow
 def test_hparam_search_is_resumable_and_reproducible(cache, tmp_path):
     cfg = hparam_search.tiny()
     doc = hparam_search.run(cfg, tmp_path, phases=["slotv_small_batch", "trex"], cache=cache,
@@ -185,6 +189,7 @@ def test_spearman_hand_cases():
     assert summary.spearman(np.array([1.0, 1, 2, 3]), x) == pytest.approx(np.sqrt(0.9))
 
 
+@pytest.mark.slow
 def test_vmapped_trials_match_one_by_one(cache, tmp_path):
     cfg = presets.tiny()
     kw = {"labelers": ["fastapp"], "methods": ["slotv"], "cache": cache, "progress": False}
@@ -237,6 +242,7 @@ FOUR_DEVICE_RESUME = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_interrupted_multi_device_run_resumes_without_recomputing(cache, tmp_path):
     """Table 1 on 4 CPU devices: the 4 pending trials of a method (2 labelers × 2 trials)
     train as one group, one per device; a run interrupted in its second group has written
@@ -268,6 +274,7 @@ MULTI_PROCESS = [
 ]  # fmt: skip
 
 
+@pytest.mark.slow
 def test_two_processes_split_a_group_and_one_writes(cache, tmp_path):
     """jax.distributed with two CPU processes of 2 devices each on 127.0.0.1: one group of
     4 trials spans both processes, process 0 alone writes, and the accuracies equal a

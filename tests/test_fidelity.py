@@ -81,6 +81,7 @@ def test_the_chosen_defaults_are_an_ablation_setting():
         data.with_distribution(data.paper(), "v0")
 
 
+@pytest.mark.slow
 def test_fidelity_run_resumes_and_reports(cache, tmp_path):  # noqa: F811
     cfg = dataclasses.replace(fidelity.tiny(), labelers=("effdist",), methods=("slotv",))
     out = tmp_path / "fid"

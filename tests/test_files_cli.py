@@ -50,6 +50,7 @@ def assert_one_line_error(rc: int, err: str, *pieces: str) -> None:
 TRAIN = ("slotv_jax.train", "--data", "nodata", "--labeler", "dragan", "--method", "slotv")
 
 
+@pytest.mark.slow
 def test_train_never_replaces_what_it_did_not_write(tmp_path):
     user_dir = tmp_path / "results"
     user_dir.mkdir()
@@ -242,7 +243,7 @@ def test_ctrl_c_in_table1_is_one_line_leaves_no_half_file_and_resumes(tmp_path):
     assert proc.returncode == 130, (proc.returncode, err[-3000:])
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
     text = re.sub(r"\x1b\[[0-9;]*[A-Za-z]", "", err)  # the progress bars' cursor moves
-    lines = [ln for ln in re.split(r"[\r\n]", text) if ln.strip()]
+    lines = [ln.strip() for ln in re.split(r"[\r\n]", text) if ln.strip()]  # bars clear
     assert lines[-1] == "interrupted; rerun the same command to resume", err[-3000:]
     assert sum("interrupted" in ln for ln in lines) == 1, err[-3000:]
     files = [p for p in tmp_path.rglob("*") if p.is_file()]

@@ -254,6 +254,7 @@ def test_fk_orientation_matches_mujoco_c_and_dh(fk):
     assert np.linalg.norm(rot[:, :, 2] - dh_rot[:, :, 2], axis=1).max() < ROT_TOL
 
 
+@pytest.mark.slow
 def test_jacobians_match_autodiff_and_finite_differences():
     qs = np.vstack([SPEC_Q_HOME, random_configs(np.random.default_rng(SEED + 3), N_JAC - 1)])
     jac_pos, jac_axis, ad_pos, ad_axis = (
@@ -275,6 +276,7 @@ def assert_within_limits(q: np.ndarray) -> None:
     assert np.all(q <= ref.Q_MAX + LIMIT_TOL), "a joint is above its upper limit"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("region", ["box", "cube", "near_home"])
 def test_cold_ik_reaches_random_targets(cold, region):
     goal, q, res = cold["soft"][region]
@@ -285,6 +287,7 @@ def test_cold_ik_reaches_random_targets(cold, region):
     assert dh_res.max() <= IK_TOL, f"worst {region} residual {dh_res.max() * 1e3:.3f} mm"
 
 
+@pytest.mark.slow
 def test_soft_terms_cost_no_position_accuracy(cold):
     def stack(solver):
         return (np.concatenate(a) for a in zip(*cold[solver].values(), strict=True))
@@ -304,6 +307,7 @@ def test_soft_terms_cost_no_position_accuracy(cold):
     )
 
 
+@pytest.mark.slow
 def test_path_ik_is_accurate_and_continuous(paths):
     p, q, xyz, res = paths
     assert q.shape == (N_PATHS + N_LINES, N_POINTS, 7) and res.shape == (
@@ -388,6 +392,7 @@ def test_ik_config_rejects_bad_values(kwargs, field):
 # --------------------------------------------------------------------------- tracing
 
 
+@pytest.mark.slow
 def test_jitted_kinematics_trace_once(fk, cold, paths):
     rng = np.random.default_rng(SEED + 4)
     for _ in range(3):
@@ -401,6 +406,7 @@ def test_jitted_kinematics_trace_once(fk, cold, paths):
 # --------------------------------------------- joint limits: the active set keeps IK exact
 
 
+@pytest.mark.slow
 def test_soft_terms_cost_no_accuracy_near_joint_limits():
     """Targets near the base put joint 4 on its limit; locking it keeps the soft terms harmless."""
     rng = np.random.default_rng(5)
@@ -415,6 +421,7 @@ def test_soft_terms_cost_no_accuracy_near_joint_limits():
     assert not lost.any(), f"{lost.sum()} targets lost to the soft terms"
 
 
+@pytest.mark.slow
 def test_cold_ik_reaches_a_target_near_the_base():
     q_true = np.array([-0.09, -0.65, -0.12, -3.07, -0.28, 1.52, 0.85])  # joint 4 near its limit
     target = jnp.asarray(ref.tcp_positions(q_true[None]), jnp.float32)

@@ -168,6 +168,7 @@ def test_prefix_scores_with_plus(method):
     np.testing.assert_allclose(got, s, rtol=0, atol=1e-5 * np.max(np.abs(s)))
 
 
+@pytest.mark.slow
 def test_packed_updates_exact_and_reach_the_new_parameters():
     """SLOT-V+ updates on the real pairs equal the all-slots update, and the gradient reaches
     α."""

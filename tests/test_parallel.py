@@ -156,6 +156,7 @@ FOUR_DEVICES = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_runs_side_by_side_on_four_devices_equal_sequential_training():
     """4 runs train side by side, one per device, with no collective in the compiled
     program; each run's parameters (and accuracy) equal those of training it alone on one

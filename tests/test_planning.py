@@ -146,6 +146,7 @@ def test_oracle_raises_true_legibility_within_budget(problems, solved):
 # ------------------------------------------------------------- constraints
 
 
+@pytest.mark.slow
 def test_endpoints_limits_table(problems, solved):
     goals, _, target = problems
     straight, res = solved
@@ -173,6 +174,7 @@ def test_endpoints_limits_table(problems, solved):
     assert d.objective.shape == (N_PROBLEMS, cfg.iters + 1)
 
 
+@pytest.mark.slow
 def test_deterministic_and_traces_once(planner, straight, counter):
     few = jax.tree.map(lambda a: a[:8], straight)
     first = jax.device_get(planner.plan_problems(few, observer="dragan"))
@@ -209,6 +211,7 @@ def test_vmap_equals_loop(straight):
 # ----------------------------------------------------------------- gradient
 
 
+@pytest.mark.slow
 def test_gradient_matches_finite_differences_float64(straight):
     i = 7
     with jax.enable_x64(True):
@@ -416,6 +419,7 @@ def test_prefix_objective_by_hand():
         assert float(whole) == pytest.approx(logs[-1], abs=1e-6)
 
 
+@pytest.mark.slow
 def test_whole_motion_objective_unchanged(straight):
     """taus=None (the default) is log softmax(observer(ξ))[target], bit for bit; taus=(1,)
     scores the whole motion through the prefix (the same value up to rounding)."""

@@ -332,6 +332,7 @@ def test_gradients_are_finite_and_ignore_unseen_points():
     assert np.all(np.isfinite(grad(bad, 15))) and np.isfinite(loss(bad, 15))
 
 
+@pytest.mark.slow
 def test_gradient_matches_finite_differences():
     """The hand-written gradient of the softmax mixture against central differences
     (float64), on a path without a repeated point: there the direction's ε-floor bends

@@ -146,6 +146,7 @@ def test_labeler_prefix_is_the_sliced_labeler(paths, name):
         np.testing.assert_allclose(jax.nn.softmax(got[a]), ref, atol=PROB_TOL)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", labelers.LABELER_NAMES)
 def test_labeler_prefix_gradient_is_the_sliced_gradient(paths, name):
     xyz, goals, mask = paths

@@ -708,6 +708,7 @@ def test_cli_training_then_load_observer(small, tmp_path, capsys):
                     str(out)])  # fmt: skip
 
 
+@pytest.mark.slow
 def test_readme_example_runs(tmp_path):
     text = (ROOT / "README.md").read_text()
     m = re.search(r"<!-- study-example:start -->\n```bash\n(.*?)```\n<!-- study-example:end -->",

@@ -305,6 +305,7 @@ def assert_packed_equals_dense(model, batch, cap: int, backward: str = "autodiff
     return ga
 
 
+@pytest.mark.slow
 def test_packed_slotv_updates_are_exact(tiny):
     """SLOT-V updates on the batch's real (trajectory, goal) pairs: the capacity covers every
     batch of the run (counted independently here), and loss and gradient equal the
@@ -367,6 +368,7 @@ TWO_DEVICES = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_one_and_two_devices_give_the_same_params():
     """The batch axis sharded over 2 CPU devices gives the 1-device result (fresh process,
     so the device-count flag applies before JAX starts; slotv_jax appends its own flag)."""
@@ -392,6 +394,7 @@ def test_one_and_two_devices_give_the_same_params():
 # ------------------------------------------------------------- in-loop validation, progress
 
 
+@pytest.mark.slow
 def test_eval_every_k_updates(tiny):
     tr, te = tiny
     data = types.prepare(tr, "effdist")

@@ -146,6 +146,7 @@ def test_segment_timing_spends_equal_time_per_segment(tiny_data, counts):
     np.testing.assert_array_equal(way, w2)
 
 
+@pytest.mark.slow
 def test_sample_trajectory_deterministic_with_new_options(tiny_data):
     """0 via points and equal time per segment (arc length: the test above)."""
     cfg = T.TrajectoryConfig(via_counts=(0, 2), timing="segment")
@@ -179,6 +180,7 @@ def test_dataset_trajectories_are_executed_paths(tiny_data):
             np.testing.assert_allclose(split.xyz[i, j], d.site_xpos[site], atol=1e-5)
 
 
+@pytest.mark.slow
 def test_sample_trajectory_deterministic_and_tool_down(tiny_data):
     from slotv_jax.world.scene import Scene
 

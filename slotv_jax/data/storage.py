@@ -128,7 +128,7 @@ def data_command(cfg: DataConfig, out: str | Path | None = None) -> str | None:
     express ``cfg`` (a config made in Python). The command is checked: the config it builds
     has ``cfg``'s digest.
 
-    >>> data_command(quick())
+    >>> data_command(PRESETS["quick"]())
     'python -m slotv_jax.data --preset quick'
     """
     if cfg.preset not in PRESETS:
