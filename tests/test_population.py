@@ -560,7 +560,8 @@ def test_readme_population_file_is_the_default():
 
 
 def test_readme_python_example_runs(tmp_path, monkeypatch):
-    block = _readme_block("from slotv_jax.observers import population\n", "```\n")
+    head = "import jax.numpy as jnp\nfrom slotv_jax.observers import population\n"
+    block = _readme_block(head, "```\n")  # the population section's block (the walk's differs)
     monkeypatch.chdir(tmp_path)
     env: dict = {}
     exec("import jax\nimport jax.numpy as jnp\nfrom slotv_jax.observers import population\n"
