@@ -82,6 +82,7 @@ def take_part(page, url: str, pid: str, *, reload_at=None, back_at=None) -> tupl
         n += 1
 
 
+@pytest.mark.slow
 def test_readme_study_walk_with_people_in_chromium(browser, tiny_data, tiny_cfg, tmp_path):
     text = (ROOT / "README.md").read_text()
     m = re.search(r"<!-- study-walk:start -->\n```bash\n(.*?)```\n<!-- study-walk:end -->",
