@@ -69,6 +69,33 @@ def test_a_rerun_keeps_the_document(tiny_run):
 
 
 @pytest.mark.slow
+def test_another_seed_adds_its_rows_to_the_document(tiny_run, tmp_path):
+    """A run with another seed of the same config (one GPU call per seed) keeps seed 0's rows
+    as they were, adds its own, and the summary and report count both seeds."""
+    out, _, argv, doc = tiny_run
+    mine = tmp_path / "out"
+    mine.mkdir()
+    (mine / "people_loop_tiny_results.json").write_bytes(
+        (out / "people_loop_tiny_results.json").read_bytes()
+    )
+    argv = [*argv[:3], str(mine), *argv[4:]]
+    assert exp.main([*argv, "--first-seed", "1", "--seeds", "1"]) == 0
+    merged = json.loads((mine / "people_loop_tiny_results.json").read_text())
+    (before,), (after,) = doc["populations"], merged["populations"]
+    assert after["rows"][: len(before["rows"])] == before["rows"]
+    assert {r["seed"] for r in after["rows"]} == {0, 1}
+    assert len(after["rows"]) == 2 * len(before["rows"])
+    assert [r["seeds"] for r in after["runs"]] == [[0], [1]]
+    assert after["comparison"] == before["comparison"]
+    assert all(s["seeds"] == 2 for s in merged["summary"])
+    assert "2 seed(s) (0, 1)" in (mine / "people_loop_tiny.md").read_text()
+    # evaluation keys depend on a run's strategy and seed alone, not on the runs beside it
+    both = exp.eval_keys([("random", 0), ("margin", 1)])
+    alone = exp.eval_keys([("margin", 1)])
+    assert np.array_equal(jax.random.key_data(both[1]), jax.random.key_data(alone[0]))
+
+
+@pytest.mark.slow
 def test_random_and_active_share_round_zero_and_its_answers(tiny_run):
     """Round 0 is the same random draw for every strategy of a seed, so at the first size the
     families fitted on it plan the same (the same answers, the same keys)."""

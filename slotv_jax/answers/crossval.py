@@ -18,6 +18,7 @@ from tqdm.auto import tqdm
 from slotv_jax.answers.fitting import answer_logits, train_study
 from slotv_jax.answers.format import BETA_RANGE, PROB_FLOOR, Study
 from slotv_jax.core import validation
+from slotv_jax.core.shapes import bucket, pad_rows
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers import labelers
 from slotv_jax.training.config import TrainConfig
@@ -90,10 +91,10 @@ def labeler_probs(
     out = np.zeros((study.n_rows, G_MAX), np.float64)
     for L in np.unique(seen):
         rows = np.flatnonzero(seen == L)
-        tr = traj[rows]
-        t = study.t[tr, :L] if study.t is not None else np.zeros((len(rows), L))
+        tr = pad_rows(traj[rows], bucket(rows.size))  # a few shapes, not one per study size
+        t = study.t[tr, :L] if study.t is not None else np.zeros((tr.size, L))
         y = f(study.xyz[tr, :L], study.goals[tr], study.goal_mask[tr], jnp.float32(beta), t)
-        out[rows] = np.asarray(y, np.float64)
+        out[rows] = np.asarray(y, np.float64)[: rows.size]
     return out
 
 

@@ -70,6 +70,7 @@ from slotv_jax.asking import selection
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
+from slotv_jax.core.shapes import bucket, pad_rows
 from slotv_jax.experiments import people_loop_report as report_lib
 from slotv_jax.observers import population as population_lib
 from slotv_jax.observers.common import mask_logits, masked_log, seen_points
@@ -358,6 +359,8 @@ def held_out_problems(cfg: LoopConfig, splits) -> dict[str, np.ndarray]:
 def answers_of(pop, seed: int, pool: selection.Pool, cand: np.ndarray, per: int) -> np.ndarray:
     """(len(cand), G) guess counts: ``per`` fresh participants per candidate, from a key of
     the seed and the candidate alone (every strategy of a seed hears the same answers)."""
+    n = len(cand)
+    cand = pad_rows(cand, bucket(n))  # a few compiled shapes; the padding is cut off below
     t = np.asarray(pool.traj)[cand]
     keys = jax.vmap(lambda c: jax.random.fold_in(jax.random.key(10_000 + seed), c))(
         jnp.asarray(cand)
@@ -366,7 +369,7 @@ def answers_of(pop, seed: int, pool: selection.Pool, cand: np.ndarray, per: int)
         keys, pool.xyz[t], pool.goals[t], pool.goal_mask[t], pool.seen[jnp.asarray(cand)]
     )
     g = pool.goals.shape[1]
-    return np.asarray(jax.nn.one_hot(guesses, g).sum(1), np.float32)
+    return np.asarray(jax.nn.one_hot(guesses[:n], g).sum(1), np.float32)
 
 
 _SAMPLERS: dict = {}
@@ -477,12 +480,25 @@ def wilson(k: float, n: int, z: float = 1.96) -> tuple[float, float]:
     return ((p + z * z / (2 * n) - c) / d, (p + z * z / (2 * n) + c) / d)
 
 
-def plan_scores(cfg, scorer, key, res, problems) -> dict:
-    """Mean P_pop over problems and τ (the score), per τ, and the evaluation study."""
+def eval_keys(runs: Sequence[tuple[str, int]]) -> jax.Array:
+    """One evaluation-study key per run, from its strategy and seed alone, so a seed's
+    evaluation draws are the same whichever other seeds run beside it."""
+    base = jax.random.key(4_000)
+    return jnp.stack(
+        [
+            jax.random.fold_in(jax.random.fold_in(base, sd), selection.STRATEGIES.index(st))
+            for st, sd in runs
+        ]
+    )
+
+
+def plan_scores(cfg, scorer, keys: jax.Array, res, problems) -> dict:
+    """Mean P_pop over problems and τ (the score), per τ, and the evaluation study
+    (``keys``: :func:`eval_keys`, one per run)."""
     shape = res.xyz.shape[:2]
     flat = lambda a: a.reshape((-1, *a.shape[2:]))  # noqa: E731
     p, correct = scorer(
-        jax.random.split(key, shape[0] * shape[1]),
+        jax.vmap(lambda k: jax.random.split(k, shape[1]))(keys).reshape(-1),
         flat(res.xyz),
         flat(problems.goals),
         flat(problems.goal_mask),
@@ -497,10 +513,18 @@ def plan_scores(cfg, scorer, key, res, problems) -> dict:
 
 
 def run_population(
-    cfg: LoopConfig, name: str, pop, splits, *, progress: bool = True, on_size=None
+    cfg: LoopConfig,
+    name: str,
+    pop,
+    splits,
+    seeds: Sequence[int],
+    *,
+    progress: bool = True,
+    on_size=None,
 ) -> dict:
-    """The whole loop for one population; returns its rows, comparison and timings.
-    ``on_size(rows)`` is called with the rows so far after each size (to save them)."""
+    """The whole loop for one population and ``seeds``; returns its rows, comparison and
+    timings. Each seed's rows depend on that seed alone, so seeds run apart merge into one
+    document. ``on_size(rows)`` is called with the rows so far after each size."""
     t_all, timing = (
         time.perf_counter(),
         {
@@ -517,7 +541,7 @@ def run_population(
     n_c, per, g = int(pool.traj.shape[0]), cfg.per_stimulus, int(pool.goals.shape[1])
     rows = [s // per for s in cfg.sizes]
     cap = rows[-1]
-    seeds = list(range(cfg.first_seed, cfg.first_seed + cfg.seeds))
+    seeds = list(seeds)
     runs = [(st, sd) for st in cfg.strategies for sd in seeds]
     n_r = len(runs)
     run_seeds = [sd for _, sd in runs]
@@ -559,7 +583,7 @@ def run_population(
     problems = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape)), straight)
     names, plan_all = planner_for(cfg, pop)
     scorer = make_scorer(pop, cfg.taus, cfg.planner.n_points, cfg.eval_participants)
-    eval_key = jax.random.key(4_000)
+    keys_eval = eval_keys(runs)
 
     out_rows, floor, example = [], None, {}
     bar = tqdm(total=len(rows), desc=f"people loop ({name})", unit="size", disable=not progress)
@@ -584,11 +608,13 @@ def run_population(
         t0 = time.perf_counter()
         if floor is None:
             floor = {
-                "straight": plan_scores(cfg, scorer, eval_key, straight_as_plan(problems), problems)
+                "straight": plan_scores(
+                    cfg, scorer, keys_eval, straight_as_plan(problems), problems
+                )
             }
             for o in ("oracle", "oracle_whole"):
                 res = plan_all(jnp.int32(names.index(o)), params, problems)
-                floor[o] = plan_scores(cfg, scorer, eval_key, res, problems)
+                floor[o] = plan_scores(cfg, scorer, keys_eval, res, problems)
                 example[o] = np.asarray(res.q[0, 0])
             example["straight"] = np.asarray(problems.q[0, 0])
         plans = {}
@@ -599,7 +625,7 @@ def run_population(
         t0 = time.perf_counter()
         lo, hi = floor["straight"]["score"], floor["oracle"]["score"]
         for f, res in plans.items():
-            sc = plan_scores(cfg, scorer, eval_key, res, problems)
+            sc = plan_scores(cfg, scorer, keys_eval, res, problems)
             for i, (st, sd) in enumerate(runs):
                 n_eval = cfg.problems * len(cfg.taus) * cfg.eval_participants
                 acc = float(sc["correct"][i])
@@ -736,6 +762,9 @@ def is_results(path: Path) -> bool:
     return fileio.is_json_object_with(path, ("preset", "config", "populations", "summary"))
 
 
+SEED_FIELDS = ("seeds", "first_seed")  # which seeds ran: the rows say it, not the config
+
+
 def run(
     cfg: LoopConfig,
     out: Path,
@@ -744,17 +773,23 @@ def run(
     cache: Path = Path("data"),
     progress: bool = True,
 ) -> dict:
-    """Run the loop for each population not yet in ``OUT/STEM_results.json``; write the
-    document after each, then the report."""
+    """Run the loop for every (population, seed) not yet in ``OUT/STEM_results.json``, write
+    the document after each population, then the report. Seeds accumulate: a run with other
+    seeds of the same config adds its rows (one GPU call per seed at the paper preset)."""
     stem = stem_of(cfg.preset)
     path = out / f"{stem}_results.json"
-    conf = cfg.to_json()
+    conf = {k: v for k, v in cfg.to_json().items() if k not in SEED_FIELDS}
     doc = json.loads(path.read_text()) if path.exists() else {}
     if doc.get("config") != conf:
         doc = {"preset": cfg.preset, "config": conf, "populations": [], "summary": []}
     doc["populations"] = [p for p in doc["populations"] if not p.get("partial")]
-    done = {p["population"] for p in doc["populations"]}
-    todo = [p for p in populations if population_name(p) not in done]
+    wanted = range(cfg.first_seed, cfg.first_seed + cfg.seeds)
+    entries = {p["population"]: p for p in doc["populations"]}
+    todo = {}
+    for spec in populations:
+        have = {r["seed"] for r in entries.get(population_name(spec), {}).get("rows", [])}
+        if missing := [sd for sd in wanted if sd not in have]:
+            todo[spec] = missing
     if todo:
         ddir = data_lib.dataset_dir(cache, cfg.data)
         splits = data_lib.generate_dataset(
@@ -764,17 +799,26 @@ def run(
             splits=("train", "position_test", "goal_count_test"),
         )
         doc["dataset"] = str(ddir)
-        doc["environment"] = environment()
-        doc["date"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    for p in todo:
-        pop, name = population_lib.get_population(p), population_name(p)
+    for spec, seeds in todo.items():
+        pop, name = population_lib.get_population(spec), population_name(spec)
 
         def save_partial(rows, name=name):  # a run stopped mid-way keeps its finished sizes
             part = {"population": name, "partial": True, "rows": rows}
             write_text(path, json.dumps({**doc, "populations": [*doc["populations"], part]}))
 
-        entry = run_population(cfg, name, pop, splits, progress=progress, on_size=save_partial)
-        doc["populations"].append(entry)
+        got = run_population(cfg, name, pop, splits, seeds, progress=progress, on_size=save_partial)
+        record = {
+            "seeds": seeds,
+            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            "environment": environment(),
+            "timing": got.pop("timing"),
+        }
+        if name in entries:  # the comparison and example do not depend on the seed
+            entries[name]["rows"] += got["rows"]
+            entries[name]["runs"].append(record)
+        else:
+            entries[name] = {**got, "runs": [record]}
+            doc["populations"].append(entries[name])
         doc["summary"] = summarise([r for q in doc["populations"] for r in q["rows"]])
         write_text(path, json.dumps(doc, indent=1))
     report_lib.render(doc, out, stem)

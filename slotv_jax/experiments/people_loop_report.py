@@ -63,7 +63,7 @@ def population_section(doc: dict, pop: dict) -> list[str]:
     lines += [
         "Gain kept, (plan − straight) / (oracle − straight), each scored by the population's "
         "mean P_pop(target | ξ_{0:τ}) over the study's stop times; the mean over "
-        f"{cfg['seeds']} seed(s).",
+        f"{len(seeds_of(pop))} seed(s) ({', '.join(map(str, seeds_of(pop)))}).",
         "",
     ]
     for s in strategies:
@@ -120,14 +120,21 @@ def population_section(doc: dict, pop: dict) -> list[str]:
         )
     lines.append("")
     lines += evaluation(doc, pop, families, strategies)
-    t = pop["timing"]
-    lines += [
-        f"Time: {t['total_s'] / 60:.1f} min (fits {t['fit_s']:.0f} s, β fits "
-        f"{t['beta_s']:.0f} s, selection {t['select_s']:.0f} s, planning {t['plan_s']:.0f} s, "
-        f"evaluation {t['eval_s']:.0f} s, answers {t['answers_s']:.0f} s).",
-        "",
-    ]
-    return lines
+    for run in pop["runs"]:
+        t, env = run["timing"], run["environment"]
+        lines.append(
+            f"- Seed(s) {', '.join(map(str, run['seeds']))}: {t['total_s'] / 60:.1f} min on "
+            f"{', '.join(env.get('devices', []))} ({run['date']}; fits {t['fit_s']:.0f} s, "
+            f"β fits {t['beta_s']:.0f} s, selection {t['select_s']:.0f} s, planning "
+            f"{t['plan_s']:.0f} s, evaluation {t['eval_s']:.0f} s, answers "
+            f"{t['answers_s']:.0f} s)."
+        )
+    return [*lines, ""]
+
+
+def seeds_of(pop: dict) -> list[int]:
+    """The seeds whose rows a population's entry holds."""
+    return sorted({r["seed"] for r in pop["rows"]})
 
 
 def verdict(doc: dict, name: str, families, strategies, c) -> list[str]:
@@ -204,7 +211,9 @@ def evaluation(doc: dict, pop: dict, families, strategies) -> list[str]:
 
 
 def report(doc: dict, stem: str) -> str:
-    cfg, env = doc["config"], doc.get("environment", {})
+    cfg = doc["config"]
+    env = doc["populations"][0]["runs"][-1]["environment"]
+    seeds = sorted({sd for p in doc["populations"] for sd in seeds_of(p)})
     best = best_family(doc, doc["populations"][0])
     redraw = render_command(stem, Path("experiments"), best)
     head = [
@@ -216,13 +225,14 @@ def report(doc: dict, stem: str) -> str:
         f"Rendered from `{stem}_results.json` (`python -m slotv_jax.experiments.people_loop "
         f"--preset {doc['preset']}`). Stop times τ = {', '.join(f'{t:g}' for t in cfg['taus'])}; "
         f"{cfg['per_stimulus']} answers per asked stimulus; pool {cfg['pool']:,} training motions; "
-        f"{cfg['problems']} held-out problems; seeds {cfg['first_seed']}–"
-        f"{cfg['first_seed'] + cfg['seeds'] - 1}; active selection asks an ensemble of "
+        f"{cfg['problems']} held-out problems; seeds {', '.join(map(str, seeds))}; active "
+        "selection asks an ensemble of "
         f"{cfg['members']} {FAMILY_TITLES.get(cfg['select_family'])} observers.",
         "",
         f"Machine: {', '.join(env.get('devices', []))}; Python {env.get('python')}, jax "
         f"{env.get('jax')}, flax {env.get('flax')}, optax {env.get('optax')}, mujoco "
-        f"{env.get('mujoco')}, numpy {env.get('numpy')}; {doc.get('date', '')}.",
+        f"{env.get('mujoco')}, numpy {env.get('numpy')} (the last run; each population's "
+        "section lists its runs, their machines and times).",
         "",
         f"![gain kept against answers]({stem}.png)",
         "",
