@@ -38,6 +38,7 @@ def environment() -> dict:
         "mujoco": _version("mujoco"),
         "numpy": np.__version__,
         "devices": [str(d) for d in jax.devices()],
+        "device_kind": jax.devices()[0].device_kind,
         "xla_flags": XLA_CONFIG.xla_flags,
         "xla": XLA_CONFIG.summary(),
     }

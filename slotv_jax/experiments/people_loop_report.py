@@ -124,7 +124,7 @@ def population_section(doc: dict, pop: dict) -> list[str]:
         t, env = run["timing"], run["environment"]
         lines.append(
             f"- Seed(s) {', '.join(map(str, run['seeds']))}: {t['total_s'] / 60:.1f} min on "
-            f"{', '.join(env.get('devices', []))} ({run['date']}; fits {t['fit_s']:.0f} s, "
+            f"{env.get('device_kind') or ', '.join(env.get('devices', []))} ({run['date']}; fits {t['fit_s']:.0f} s, "
             f"β fits {t['beta_s']:.0f} s, selection {t['select_s']:.0f} s, planning "
             f"{t['plan_s']:.0f} s, evaluation {t['eval_s']:.0f} s, answers "
             f"{t['answers_s']:.0f} s)."
