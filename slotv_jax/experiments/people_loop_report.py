@@ -177,7 +177,7 @@ def evaluation(doc: dict, pop: dict, families, strategies) -> list[str]:
     seed = min(r["seed"] for r in pop["rows"])
     n = cfg["problems"] * len(cfg["taus"]) * cfg["eval_participants"]
     lines = [
-        f"### Evaluation studies at {last:,} answers (seed {seed}, {n} guesses each)",
+        f"### Evaluation studies at {last:,} answers (seed {seed}, {n:,} guesses each)",
         "",
         "| family | " + " | ".join(strategies) + " |",
         "|---|" + "---|" * len(strategies),
@@ -229,7 +229,7 @@ def report(doc: dict, stem: str) -> str:
         "selection asks an ensemble of "
         f"{cfg['members']} {FAMILY_TITLES.get(cfg['select_family'])} observers.",
         "",
-        f"Machine: {', '.join(env.get('devices', []))}; Python {env.get('python')}, jax "
+        f"Machine: {env.get('device_kind') or ', '.join(env.get('devices', []))}; Python {env.get('python')}, jax "
         f"{env.get('jax')}, flax {env.get('flax')}, optax {env.get('optax')}, mujoco "
         f"{env.get('mujoco')}, numpy {env.get('numpy')} (the last run; each population's "
         "section lists its runs, their machines and times).",
