@@ -10,6 +10,7 @@ number can be traced to the software and hardware that produced it.
 
 from __future__ import annotations
 
+import os
 import sys
 from importlib import metadata
 
@@ -39,6 +40,7 @@ def environment() -> dict:
         "numpy": np.__version__,
         "devices": [str(d) for d in jax.devices()],
         "device_kind": jax.devices()[0].device_kind,
+        "cpu_count": os.cpu_count(),
         "xla_flags": XLA_CONFIG.xla_flags,
         "xla": XLA_CONFIG.summary(),
     }

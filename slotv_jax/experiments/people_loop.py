@@ -64,16 +64,13 @@ from tqdm.auto import tqdm
 
 from slotv_jax import data as data_lib
 from slotv_jax import planning
-from slotv_jax.answers import crossval
-from slotv_jax.answers.format import make_study
-from slotv_jax.asking import selection
+from slotv_jax.asking import selection, simulated
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
-from slotv_jax.core.shapes import bucket, pad_rows
 from slotv_jax.experiments import people_loop_report as report_lib
 from slotv_jax.observers import population as population_lib
-from slotv_jax.observers.common import mask_logits, masked_log, seen_points
+from slotv_jax.observers.common import mask_logits, masked_log
 from slotv_jax.observers.prefix import prefix_labels
 from slotv_jax.planning import evaluation
 from slotv_jax.training import config as train_config
@@ -323,7 +320,7 @@ _PLANNERS: dict = {}
 def planner_for(cfg: LoopConfig, pop) -> tuple[tuple[str, ...], object]:
     """The observers' names and :func:`make_plan_all` of ``cfg`` and ``pop``, made once per
     process (a second run of the same config reuses the compiled program)."""
-    key = (cfg, json.dumps(pop.to_dict(), sort_keys=True))
+    key = (dataclasses.replace(cfg, seeds=1, first_seed=0), pop)  # seeds do not change it
     if key not in _PLANNERS:
         names, fns = branches(cfg, pop)
         _PLANNERS[key] = (names, make_plan_all(cfg, fns))
@@ -356,49 +353,14 @@ def held_out_problems(cfg: LoopConfig, splits) -> dict[str, np.ndarray]:
     return {k: every[k][pick] for k in ("goals", "goal_mask", "target")}
 
 
-def answers_of(pop, seed: int, pool: selection.Pool, cand: np.ndarray, per: int) -> np.ndarray:
-    """(len(cand), G) guess counts: ``per`` fresh participants per candidate, from a key of
-    the seed and the candidate alone (every strategy of a seed hears the same answers)."""
-    n = len(cand)
-    cand = pad_rows(cand, bucket(n))  # a few compiled shapes; the padding is cut off below
-    t = np.asarray(pool.traj)[cand]
-    keys = jax.vmap(lambda c: jax.random.fold_in(jax.random.key(10_000 + seed), c))(
-        jnp.asarray(cand)
-    )
-    guesses = _sample(pop, per)(
-        keys, pool.xyz[t], pool.goals[t], pool.goal_mask[t], pool.seen[jnp.asarray(cand)]
-    )
-    g = pool.goals.shape[1]
-    return np.asarray(jax.nn.one_hot(guesses[:n], g).sum(1), np.float32)
-
-
-_SAMPLERS: dict = {}
-
-
-def _sample(pop, n: int):
-    key = (id(pop), n)
-    if key not in _SAMPLERS:
-        _SAMPLERS[key] = jax.jit(
-            jax.vmap(lambda k, x, g, m, s: population_lib.sample_guesses(pop, k, x, g, m, s, n))
-        )
-    return _SAMPLERS[key]
-
-
 def fit_family(cfg: LoopConfig, family: str, pool, cand, counts, rows: int, seeds) -> dict:
-    """Member 0 of a fresh one-member fit of ``family`` on each run's first ``rows`` answer
-    rows: parameters with a leading run axis."""
+    """A fresh fit of ``family`` on each run's first ``rows`` answer rows
+    (:func:`slotv_jax.asking.simulated.fit_runs`): parameters with a leading run axis."""
     tc = cfg.train_config(family)
-    sel = selection.make_selector(tc, 1, cand.shape[1])
-    keys = _init_keys(family, seeds)
-    ens = jax.jit(jax.vmap(sel.init))(keys)
-    ans = selection.Answers(
-        jnp.asarray(cand), jnp.asarray(counts), jnp.full((cand.shape[0],), rows, jnp.int32)
+    blocks = cfg.updates(rows, tc.batch_size, cfg.epochs, cfg.min_updates) // cfg.block
+    return simulated.fit_runs(
+        tc, pool, cand, counts, rows, _init_keys(family, seeds), blocks, cfg.block
     )
-    fit = _fitter(sel, cfg.block)
-    n = cfg.updates(rows, tc.batch_size, cfg.epochs, cfg.min_updates) // cfg.block
-    for j in range(n):
-        ens, _ = fit(ens, pool, ans, jax.vmap(lambda k, j=j: jax.random.fold_in(k, j))(keys))
-    return jax.tree.map(lambda x: x[:, 0], ens.params)
 
 
 def _init_keys(family: str, seeds) -> jax.Array:
@@ -418,66 +380,7 @@ def initial_params(cfg: LoopConfig, seeds) -> dict:
     return out
 
 
-_FITTERS: dict = {}
-
-
-def _fitter(sel, updates: int):
-    if (sel, updates) not in _FITTERS:
-        _FITTERS[sel, updates] = jax.jit(
-            jax.vmap(
-                lambda e, p, a, k: sel.fit(e, p, a, k, updates=updates), in_axes=(0, None, 0, 0)
-            )
-        )
-    return _FITTERS[sel, updates]
-
-
-def fitted_betas(pool, taus, cand: np.ndarray, counts: np.ndarray) -> list[float]:
-    """β of Dragan's and Nikolaidis' labelers fitted on one run's answers (the answers as a
-    :class:`slotv_jax.answers.Study`, τ the stop time of each candidate's prefix)."""
-    traj = np.asarray(pool.traj)[cand]
-    used, row_traj = np.unique(traj, return_inverse=True)
-    n_t = len(taus)
-    study = make_study(
-        np.asarray(pool.xyz)[used],
-        np.asarray(pool.goals)[used],
-        np.asarray(pool.goal_mask)[used],
-        row_traj,
-        counts,
-        answer_tau=np.asarray(taus)[cand % n_t],
-        source="people_loop answers",
-    )
-    return [crossval.fit_beta(study, lab, camera=CAMERA)[0] for lab in FITTED.values()]
-
-
 # ------------------------------------------------------------------ evaluation
-
-
-def make_scorer(pop, taus: Sequence[float], n_points: int, n_eval: int):
-    """``score(key, xyz (B, T, 3), goals, mask, target) -> (p (B, K), correct (B, K))``: the
-    population's P_pop(target | ξ_{0:τ}) at each stop time τ, and the fraction of
-    ``n_eval`` fresh participants per (plan, τ) who guessed the target."""
-    seen = jnp.asarray(seen_points(taus, n_points))
-    fixed = population_lib.quadrature(pop)
-    probs = population_lib.population_probs
-    sample = population_lib.sample_guesses
-
-    def one(key, x, g, m, tgt):
-        p = jax.vmap(lambda s: probs(fixed, x, g, m, s))(seen)[:, tgt]
-        ks = jax.random.split(key, seen.shape[0])
-        guess = jax.vmap(lambda k, s: sample(pop, k, x, g, m, s, n_eval))(ks, seen)
-        return p, jnp.mean(guess == tgt, axis=-1)
-
-    return jax.jit(jax.vmap(one))
-
-
-def wilson(k: float, n: int, z: float = 1.96) -> tuple[float, float]:
-    """The 95 % Wilson score interval of a proportion k / n (Wilson 1927)."""
-    if n == 0:
-        return (float("nan"), float("nan"))
-    p = k / n
-    c = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
-    d = 1 + z * z / n
-    return ((p + z * z / (2 * n) - c) / d, (p + z * z / (2 * n) + c) / d)
 
 
 def eval_keys(runs: Sequence[tuple[str, int]]) -> jax.Array:
@@ -492,21 +395,11 @@ def eval_keys(runs: Sequence[tuple[str, int]]) -> jax.Array:
     )
 
 
-def plan_scores(cfg, scorer, keys: jax.Array, res, problems) -> dict:
-    """Mean P_pop over problems and τ (the score), per τ, and the evaluation study
-    (``keys``: :func:`eval_keys`, one per run)."""
-    shape = res.xyz.shape[:2]
-    flat = lambda a: a.reshape((-1, *a.shape[2:]))  # noqa: E731
-    p, correct = scorer(
-        jax.vmap(lambda k: jax.random.split(k, shape[1]))(keys).reshape(-1),
-        flat(res.xyz),
-        flat(problems.goals),
-        flat(problems.goal_mask),
-        flat(problems.target),
+def plan_scores(scorer, keys: jax.Array, res, problems) -> dict:
+    """:func:`slotv_jax.planning.evaluation.population_scores` of plans ``res``."""
+    return evaluation.population_scores(
+        scorer, keys, res.xyz, problems.goals, problems.goal_mask, problems.target
     )
-    p = np.asarray(p, np.float64).reshape(*shape, -1)  # (R, P, K)
-    correct = np.asarray(correct, np.float64).reshape(*shape, -1)
-    return {"score": p.mean((1, 2)), "per_tau": p.mean(1), "correct": correct.mean((1, 2))}
 
 
 # ------------------------------------------------------------------ the loop
@@ -554,7 +447,9 @@ def run_population(
         sd = runs[i][1]
         todo = np.asarray([c for c in new if c not in heard[sd]], np.int32)
         if todo.size:
-            for c, k in zip(todo, answers_of(pop, sd, pool, todo, per), strict=True):
+            for c, k in zip(
+                todo, simulated.population_answers(pop, sd, pool, todo, per), strict=True
+            ):
                 heard[sd][int(c)] = k
         cand[i, start : start + new.size] = new
         counts[i, start : start + new.size] = [heard[sd][int(c)] for c in new]
@@ -582,7 +477,9 @@ def run_population(
     planning.check_problems(straight)
     problems = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape)), straight)
     names, plan_all = planner_for(cfg, pop)
-    scorer = make_scorer(pop, cfg.taus, cfg.planner.n_points, cfg.eval_participants)
+    scorer = evaluation.population_scorer(
+        pop, cfg.taus, cfg.planner.n_points, cfg.eval_participants
+    )
     keys_eval = eval_keys(runs)
 
     out_rows, floor, example = [], None, {}
@@ -600,7 +497,14 @@ def run_population(
         betas = np.ones((n_r, len(FITTED)), np.float32)
         if any(f in FITTED for f in cfg.families):
             for i in range(n_r):
-                betas[i] = fitted_betas(pool, cfg.taus, cand[i, :n_rows], counts[i, :n_rows])
+                betas[i] = simulated.fitted_betas(
+                    pool,
+                    cfg.taus,
+                    cand[i, :n_rows],
+                    counts[i, :n_rows],
+                    list(FITTED.values()),
+                    CAMERA,
+                )
         params["beta"] = jnp.asarray(betas)
         timing["beta_s"] += time.perf_counter() - t0
 
@@ -608,13 +512,11 @@ def run_population(
         t0 = time.perf_counter()
         if floor is None:
             floor = {
-                "straight": plan_scores(
-                    cfg, scorer, keys_eval, straight_as_plan(problems), problems
-                )
+                "straight": plan_scores(scorer, keys_eval, straight_as_plan(problems), problems)
             }
             for o in ("oracle", "oracle_whole"):
                 res = plan_all(jnp.int32(names.index(o)), params, problems)
-                floor[o] = plan_scores(cfg, scorer, keys_eval, res, problems)
+                floor[o] = plan_scores(scorer, keys_eval, res, problems)
                 example[o] = np.asarray(res.q[0, 0])
             example["straight"] = np.asarray(problems.q[0, 0])
         plans = {}
@@ -625,7 +527,7 @@ def run_population(
         t0 = time.perf_counter()
         lo, hi = floor["straight"]["score"], floor["oracle"]["score"]
         for f, res in plans.items():
-            sc = plan_scores(cfg, scorer, keys_eval, res, problems)
+            sc = plan_scores(scorer, keys_eval, res, problems)
             for i, (st, sd) in enumerate(runs):
                 n_eval = cfg.problems * len(cfg.taus) * cfg.eval_participants
                 acc = float(sc["correct"][i])
@@ -639,7 +541,7 @@ def run_population(
                     "score_per_tau": sc["per_tau"][i].round(6).tolist(),
                     "gain_kept": float((sc["score"][i] - lo[i]) / (hi[i] - lo[i])),
                     "accuracy": acc,
-                    "accuracy_95": [round(v, 4) for v in wilson(acc * n_eval, n_eval)],
+                    "accuracy_95": [round(v, 4) for v in evaluation.wilson(acc * n_eval, n_eval)],
                     "feasible": float(np.mean(np.asarray(res.feasible[i]))),
                 }
                 if f in FITTED:
@@ -665,7 +567,7 @@ def run_population(
                 jnp.full((len(active),), n_rows, jnp.int32),
             )
             keys = jnp.stack([jax.random.key(5_000 + 31 * r + runs[i][1]) for i in active])
-            fit = _fitter(selector, cfg.block)
+            fit = simulated.fitter(selector, cfg.block)
             for j in range(
                 cfg.updates(n_rows, stc.batch_size, cfg.select_epochs, cfg.block) // cfg.block
             ):

@@ -121,15 +121,21 @@ def population_section(doc: dict, pop: dict) -> list[str]:
     lines.append("")
     lines += evaluation(doc, pop, families, strategies)
     for run in pop["runs"]:
-        t, env = run["timing"], run["environment"]
+        t, dev = run["timing"], device(run["environment"])
         lines.append(
             f"- Seed(s) {', '.join(map(str, run['seeds']))}: {t['total_s'] / 60:.1f} min on "
-            f"{env.get('device_kind') or ', '.join(env.get('devices', []))} ({run['date']}; fits {t['fit_s']:.0f} s, "
+            f"{dev} ({run['date']}; fits {t['fit_s']:.0f} s, "
             f"β fits {t['beta_s']:.0f} s, selection {t['select_s']:.0f} s, planning "
             f"{t['plan_s']:.0f} s, evaluation {t['eval_s']:.0f} s, answers "
             f"{t['answers_s']:.0f} s)."
         )
     return [*lines, ""]
+
+
+def device(env: dict) -> str:
+    """The machine of an environment record: the device's kind (e.g. the GPU's name)."""
+    kind = env.get("device_kind") or ", ".join(env.get("devices", []))
+    return f"CPU, {env['cpu_count']} cores" if kind == "cpu" and "cpu_count" in env else kind
 
 
 def seeds_of(pop: dict) -> list[int]:
@@ -143,7 +149,7 @@ def verdict(doc: dict, name: str, families, strategies, c) -> list[str]:
     out = []
     for s in strategies:
         best, best_g, at = None, -math.inf, None
-        for f in families:
+        for f in (f for f in families if f not in BASELINES):  # the best *learned* family
             a, g = c.get((f, s), ([], []))
             within = [(ai, gi) for ai, gi in zip(a, g, strict=True) if ai <= 2000]
             if within and within[-1][1] > best_g:
@@ -229,7 +235,7 @@ def report(doc: dict, stem: str) -> str:
         "selection asks an ensemble of "
         f"{cfg['members']} {FAMILY_TITLES.get(cfg['select_family'])} observers.",
         "",
-        f"Machine: {env.get('device_kind') or ', '.join(env.get('devices', []))}; Python {env.get('python')}, jax "
+        f"Machine: {device(env)}; Python {env.get('python')}, jax "
         f"{env.get('jax')}, flax {env.get('flax')}, optax {env.get('optax')}, mujoco "
         f"{env.get('mujoco')}, numpy {env.get('numpy')} (the last run; each population's "
         "section lists its runs, their machines and times).",

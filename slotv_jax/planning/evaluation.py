@@ -11,16 +11,26 @@ itself (the ceiling). The share of the oracle's gain a planner keeps,
 
 is the one number of a planner (Dragan & Srinivasa 2013 score legibility by the same
 probability of the goal).
+
+Where the truth is a population of simulated people (:mod:`slotv_jax.observers.population`)
+and people see a motion stopped at times τ, a plan's score is the population's mean
+P_pop(target | ξ_{0:τ}) over the stop times, beside an evaluation study of fresh
+participants (:func:`population_scorer`, :func:`population_scores`).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 
+import jax
+import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from slotv_jax.observers import labelers, labelling
+from slotv_jax.observers import population as population_lib
+from slotv_jax.observers.common import seen_points
 
 
 def scene_problems(
@@ -136,3 +146,60 @@ def gain_kept(mean_gain: float, oracle_gain: float) -> float | None:
     """The share of the oracle's gain over the straight line that a planner keeps (None
     where the oracle gains nothing)."""
     return mean_gain / oracle_gain if oracle_gain > 0 else None
+
+
+def population_scorer(
+    pop: population_lib.Population, taus: Sequence[float], n_points: int, n_eval: int
+):
+    """``score(keys (B,), xyz (B, T, 3), goals (B, 8, 3), mask (B, 8), target (B,)) ->
+    (p (B, K), correct (B, K))``: the population's P_pop(target | ξ_{0:τ}) at each of the K
+    stop times, and the fraction of ``n_eval`` fresh participants per (path, τ) who guessed
+    the target (:func:`slotv_jax.observers.population.sample_guesses`). Compiled once."""
+    seen = jnp.asarray(seen_points(taus, n_points))
+    fixed = population_lib.quadrature(pop)
+
+    def one(key, x, g, m, tgt):
+        p = jax.vmap(lambda s: population_lib.population_probs(fixed, x, g, m, s))(seen)[:, tgt]
+        ks = jax.random.split(key, seen.shape[0])
+        guess = jax.vmap(lambda k, s: population_lib.sample_guesses(pop, k, x, g, m, s, n_eval))(
+            ks, seen
+        )
+        return p, jnp.mean(guess == tgt, axis=-1)
+
+    return jax.jit(jax.vmap(one))
+
+
+def population_scores(
+    scorer,
+    keys: jax.Array,
+    xyz: Float[Array, "R P T 3"],
+    goals: Float[Array, "R P 8 3"],
+    goal_mask: Bool[Array, "R P 8"],
+    target: Int[Array, "R P"],
+) -> dict[str, np.ndarray]:
+    """Runs × problems of paths scored by a :func:`population_scorer`, one key per run
+    (each run's problems get ``split(key, P)``): ``score`` (R,) the mean P_pop over problems
+    and τ, ``per_tau`` (R, K) and the evaluation study's ``correct`` (R,)."""
+    r, n = xyz.shape[:2]
+    flat = lambda a: a.reshape((-1, *a.shape[2:]))  # noqa: E731
+    p, correct = scorer(
+        jax.vmap(lambda k: jax.random.split(k, n))(keys).reshape(-1),
+        flat(xyz),
+        flat(goals),
+        flat(goal_mask),
+        flat(target),
+    )
+    p = np.asarray(p, np.float64).reshape(r, n, -1)
+    correct = np.asarray(correct, np.float64).reshape(r, n, -1)
+    return {"score": p.mean((1, 2)), "per_tau": p.mean(1), "correct": correct.mean((1, 2))}
+
+
+def wilson(k: float, n: int, z: float = 1.96) -> tuple[float, float]:
+    """The 95 % Wilson score interval of a proportion k / n (Wilson 1927):
+    (p + z²/2n ± z √(p(1 − p)/n + z²/4n²)) / (1 + z²/n)."""
+    if n == 0:
+        return (float("nan"), float("nan"))
+    p = k / n
+    c = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    d = 1 + z * z / n
+    return ((p + z * z / (2 * n) - c) / d, (p + z * z / (2 * n) + c) / d)
