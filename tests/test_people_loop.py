@@ -4,6 +4,7 @@ directly, and every bad flag refused before any work."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -69,27 +70,49 @@ def test_a_rerun_keeps_the_document(tiny_run):
     assert (out / "people_loop_tiny_results.json").read_bytes() == before
 
 
-@pytest.mark.slow
-def test_another_seed_adds_its_rows_to_the_document(tiny_run, tmp_path):
-    """A run with another seed of the same config (one GPU call per seed) keeps seed 0's rows
-    as they were, adds its own, and the summary and report count both seeds."""
-    out, _, argv, doc = tiny_run
-    mine = tmp_path / "out"
-    mine.mkdir()
-    (mine / "people_loop_tiny_results.json").write_bytes(
-        (out / "people_loop_tiny_results.json").read_bytes()
-    )
-    argv = [*argv[:3], str(mine), *argv[4:]]
-    assert exp.main([*argv, "--first-seed", "1", "--seeds", "1"]) == 0
-    merged = json.loads((mine / "people_loop_tiny_results.json").read_text())
-    (before,), (after,) = doc["populations"], merged["populations"]
+def test_another_seed_adds_its_rows_to_the_document(tmp_path, monkeypatch):
+    """A run with another seed of the same config (one GPU call per seed) keeps the rows it
+    finds, runs only the seeds missing, adds their rows and records the run; the summary
+    and the report count every seed. (The loop itself is replaced by a stand-in that
+    returns one row per (family, strategy, size, seed): this tests the document.)"""
+    cfg = exp.tiny()
+    calls = []
+
+    def fake_run_population(cfg, name, pop, splits, seeds, *, progress=True, on_size=None):
+        calls.append(list(seeds))
+        rows = [
+            {"population": name, "family": f, "strategy": st, "seed": sd, "answers": a,
+             "score": 0.5 + 0.01 * sd, "gain_kept": 0.1 * (sd + 1), "accuracy": 0.4}
+            for f in cfg.families for st in cfg.strategies for a in cfg.sizes for sd in seeds
+        ]  # fmt: skip
+        cmp_ = {o: {"score": 0.3, "per_tau": [0.3, 0.3], "accuracy": 0.3}
+                for o in ("straight", "oracle", "oracle_whole")}  # fmt: skip
+        return {"population": name, "population_config": {}, "rows": rows, "comparison": cmp_,
+                "example": {}, "timing": {"total_s": 1.0}}  # fmt: skip
+
+    monkeypatch.setattr(exp, "run_population", fake_run_population)
+    monkeypatch.setattr(exp.data_lib, "generate_dataset", lambda *a, **k: {})
+    monkeypatch.setattr(exp.report_lib, "render", lambda *a, **k: None)
+    monkeypatch.setattr(exp, "draw_example", lambda *a, **k: None)
+    path = tmp_path / "people_loop_tiny_results.json"
+    exp.run(cfg, tmp_path, ["default"], cache=tmp_path / "data", progress=False)
+    first = json.loads(path.read_text())
+    exp.run(dataclasses.replace(cfg, first_seed=1, seeds=2), tmp_path, ["default"],
+            cache=tmp_path / "data", progress=False)  # fmt: skip
+    doc = json.loads(path.read_text())
+    assert calls == [[0], [1, 2]]  # seed 0 was there: only 1 and 2 ran
+    (before,), (after,) = first["populations"], doc["populations"]
     assert after["rows"][: len(before["rows"])] == before["rows"]
-    assert {r["seed"] for r in after["rows"]} == {0, 1}
-    assert len(after["rows"]) == 2 * len(before["rows"])
-    assert [r["seeds"] for r in after["runs"]] == [[0], [1]]
-    assert after["comparison"] == before["comparison"]
-    assert all(s["seeds"] == 2 for s in merged["summary"])
-    assert "2 seed(s) (0, 1)" in (mine / "people_loop_tiny.md").read_text()
+    assert [r["seeds"] for r in after["runs"]] == [[0], [1, 2]]
+    assert all("environment" in r and "date" in r for r in after["runs"])
+    for s in doc["summary"]:
+        assert s["seeds"] == 3 and s["gain_kept"] == pytest.approx(0.2)  # mean of .1, .2, .3
+    exp.run(dataclasses.replace(cfg, seeds=3), tmp_path, ["default"],
+            cache=tmp_path / "data", progress=False)  # fmt: skip
+    assert calls == [[0], [1, 2]]  # every seed is there: nothing runs again
+    other = dataclasses.replace(cfg, problems=2)  # another config starts a new document
+    exp.run(other, tmp_path, ["default"], cache=tmp_path / "data", progress=False)
+    assert calls[-1] == [0] and len(json.loads(path.read_text())["populations"][0]["runs"]) == 1
     # evaluation keys depend on a run's strategy and seed alone, not on the runs beside it
     both = exp.eval_keys([("random", 0), ("margin", 1)])
     alone = exp.eval_keys([("margin", 1)])
