@@ -97,6 +97,7 @@ def test_readme_study_walk_with_people_in_chromium(browser, tiny_data, tiny_cfg,
     home = data.dataset_dir(tmp_path / data.DEFAULT_CACHE, data.quick())
     home.mkdir(parents=True)
     data.save_split(home, tiny_data["trajectory_test"], tiny_cfg)
+    data.save_split(home, tiny_data["position_test"], tiny_cfg)  # the held-out motions
     env = {**os.environ, "PYTHONPATH": str(ROOT),
            "PATH": str(Path(sys.executable).parent) + ":/usr/bin:/bin"}  # fmt: skip
     proc = subprocess.Popen(["bash", "-e", "-c", script], cwd=tmp_path, env=env, text=True,
@@ -150,3 +151,7 @@ def test_readme_study_walk_with_people_in_chromium(browser, tiny_data, tiny_cfg,
     probs = re.search(r"P\(goal \| motion\): \[([0-9., ]+)\]", out).group(1).split(",")
     assert abs(sum(map(float, probs)) - 1) < 5e-3
     assert "legibility gradient: (100, 3) finite: True" in out
+    # the walk's observer has learned these people: held out, clearly above the uniform guess
+    found = re.search(r"held-out accuracy: ([0-9.]+) \(the uniform guess: ([0-9.]+)\)", out)
+    acc, chance = float(found.group(1)), float(found.group(2))
+    assert acc >= chance + 0.25, (acc, chance)
