@@ -137,17 +137,17 @@ def test_readme_study_walk_with_people_in_chromium(browser, tiny_data, tiny_cfg,
         assert [(r[3], r[4]) for r in mine] == [(g, c) for _, g, c in clicked]
         assert all(r[1] == f"person{i}-x" and r[2] == code and 0 <= r[5] < 60000 for r in mine)
         assert len(mine) == 5  # practice, 3 motions, 1 attention check
-    assert len(rows) == 23 * 5  # and the 20 simulated participants
+    assert len(rows) == 63 * 5  # and the 60 simulated participants
     # what the README's commands made of them
     # each participant: a practice trial, 3 stimuli and an attention check
     assert (
-        "20 of 20 simulated participants finished, 100 answers (60 on the stimuli, "
-        "20 attention checks, 20 practice trials; export keeps those on the stimuli)"
+        "60 of 60 simulated participants finished, 300 answers (180 on the stimuli, "
+        "60 attention checks, 60 practice trials; export keeps those on the stimuli)"
     ) in out
-    assert ("wrote answers: 69 answers to 3 trajectories from 23 participants (the stimuli's "
-            "answers; left out: 23 attention checks, 23 practice trials)") in out  # fmt: skip
+    assert ("wrote answers: 189 answers to 3 trajectories from 63 participants (the stimuli's "
+            "answers; left out: 63 attention checks, 63 practice trials)") in out  # fmt: skip
     s = study.load_study(tmp_path / "people.npz")
-    assert s.n_answers == 69 and s.conditions == ("observer",)
+    assert s.n_answers == 189 and s.conditions == ("observer",)
     probs = re.search(r"P\(goal \| motion\): \[([0-9., ]+)\]", out).group(1).split(",")
     assert abs(sum(map(float, probs)) - 1) < 5e-3
     assert "legibility gradient: (100, 3) finite: True" in out
