@@ -145,7 +145,9 @@ def test_one_compiled_planner_plans_as_the_planner_does(tiny_run):
     )
     names, plan_all = exp.planner_for(cfg, pop)
     n_runs = len(cfg.strategies) * cfg.seeds
-    batched = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_runs, 1, *a.shape)), problem)
+    # the run's own shapes (runs × problems), so the compiled program is the run's
+    shape = (n_runs, cfg.problems)
+    batched = jax.tree.map(lambda a: jnp.broadcast_to(a, (*shape, *a.shape)), problem)
     params = exp.initial_params(cfg, range(n_runs))  # any parameters: the oracle reads none
     got = plan_all(jnp.int32(names.index("oracle")), params, batched)
     want = planning.plan(population_lib.population_observer(pop), problem, cfg.planner)

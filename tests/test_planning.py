@@ -477,9 +477,16 @@ def test_family_planner_compiles_once_and_plans_each_parameter_set(straight):
     n = len(traces)
     fam.plan_problems(betas * 1.5, few)
     assert len(traces) == n  # other values: the same compiled program
+    # each observer planned alone (planning.plan; one program for both temperatures)
+    alone = jax.jit(
+        jax.vmap(
+            lambda p, b: planning.plan(planning.labeler_observer("dragan", beta=b), p, cfg),
+            in_axes=(0, None),
+        )
+    )
     for f, beta in enumerate([5.0, 20.0]):
         obs = planning.labeler_observer("dragan", beta=beta)
-        one = jax.jit(jax.vmap(lambda p, obs=obs: planning.plan(obs, p, cfg)))(few)
+        one = alone(few, jnp.float32(beta))
         np.testing.assert_allclose(res.xyz[f], one.xyz, atol=1e-5)
         np.testing.assert_allclose(res.diagnostics.objective[f], one.diagnostics.objective,
                                    atol=1e-5)  # fmt: skip
