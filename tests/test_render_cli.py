@@ -225,3 +225,16 @@ def test_no_opengl_is_one_line_naming_mujoco_gl(dataset, tmp_path):
     errors = [line for line in out.stderr.splitlines() if line.startswith("error: ")]
     assert len(errors) == 1 and "MUJOCO_GL=glfw" in errors[0] and "libegl1" in errors[0]
     assert not (tmp_path / "a.mp4").exists()
+
+
+def test_egl_is_chosen_without_a_display_whatever_imports_mujoco_first():
+    """Without a display and MUJOCO_GL, importing any module that loads MuJoCo first (the
+    data room, as `study next` does) still leaves it on EGL: the choice is the package's."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("DISPLAY", "WAYLAND_DISPLAY", "MUJOCO_GL")}  # fmt: skip
+    code = ("import os, sys, slotv_jax.data; "
+            "print(os.environ.get('MUJOCO_GL'), 'mujoco' in sys.modules)")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         timeout=120)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["egl", "True"]

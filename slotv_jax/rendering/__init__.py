@@ -19,16 +19,7 @@ command, stimulus sets, the planning figures); the rest of ``slotv_jax`` never n
 >>> rendering.write_video("clip.mp4", frames, fps=30)  # doctest: +SKIP
 """
 
-import os
 import sys
-
-if (
-    sys.platform.startswith("linux")
-    and "mujoco" not in sys.modules
-    and not os.environ.get("DISPLAY")
-    and not os.environ.get("WAYLAND_DISPLAY")
-):
-    os.environ.setdefault("MUJOCO_GL", "egl")
 
 from slotv_jax.rendering.backend import RenderBackendError, backend_message
 
