@@ -70,7 +70,7 @@ def test_a_rerun_keeps_the_document(tiny_run):
     assert (out / "people_loop_tiny_results.json").read_bytes() == before
 
 
-def test_another_seed_adds_its_rows_to_the_document(tmp_path, monkeypatch):
+def test_another_seed_adds_its_rows_to_the_document(tmp_path, monkeypatch, capsys):
     """A run with another seed of the same config (one GPU call per seed) keeps the rows it
     finds, runs only the seeds missing, adds their rows and records the run; the summary
     and the report count every seed. (The loop itself is replaced by a stand-in that
@@ -109,7 +109,8 @@ def test_another_seed_adds_its_rows_to_the_document(tmp_path, monkeypatch):
         assert s["seeds"] == 3 and s["gain_kept"] == pytest.approx(0.2)  # mean of .1, .2, .3
     exp.run(dataclasses.replace(cfg, seeds=3), tmp_path, ["default"],
             cache=tmp_path / "data", progress=False)  # fmt: skip
-    assert calls == [[0], [1, 2]]  # every seed is there: nothing runs again
+    assert calls == [[0], [1, 2]]  # every seed is there: nothing runs again, and it says so
+    assert "nothing ran" in capsys.readouterr().err
     other = dataclasses.replace(cfg, problems=2)  # another config starts a new document
     exp.run(other, tmp_path, ["default"], cache=tmp_path / "data", progress=False)
     assert calls[-1] == [0] and len(json.loads(path.read_text())["populations"][0]["runs"]) == 1

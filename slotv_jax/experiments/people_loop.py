@@ -692,6 +692,13 @@ def run(
         have = {r["seed"] for r in entries.get(population_name(spec), {}).get("rows", [])}
         if missing := [sd for sd in wanted if sd not in have]:
             todo[spec] = missing
+    if not todo:  # say so: a recorded document makes the command return in seconds
+        print(
+            f"people loop: {path} already holds every population and seed asked for; nothing "
+            "ran, the report is drawn again (other --seeds/--first-seed, --population or "
+            "--out run more)",
+            file=sys.stderr,
+        )
     if todo:
         ddir = data_lib.dataset_dir(cache, cfg.data)
         splits = data_lib.generate_dataset(
