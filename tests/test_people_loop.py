@@ -21,7 +21,7 @@ from slotv_jax.planning import evaluation
 pytestmark = pytest.mark.xdist_group("people_loop")
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # once per worker, whatever order the tests run in
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("loop")
     cache = tmp_path_factory.mktemp("data")
