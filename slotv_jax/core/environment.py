@@ -30,6 +30,7 @@ def _version(dist: str) -> str:
 
 def environment() -> dict:
     """Library versions and devices, recorded with every output."""
+    devices = jax.devices()
     return {
         "slotv_jax": __version__,
         "python": sys.version.split()[0],
@@ -38,8 +39,8 @@ def environment() -> dict:
         "optax": _version("optax"),
         "mujoco": _version("mujoco"),
         "numpy": np.__version__,
-        "devices": [str(d) for d in jax.devices()],
-        "device_kind": jax.devices()[0].device_kind,
+        "devices": [str(d) for d in devices],
+        "device_kind": devices[0].device_kind,
         "cpu_count": os.cpu_count(),
         "xla_flags": XLA_CONFIG.xla_flags,
         "xla": XLA_CONFIG.summary(),

@@ -699,7 +699,7 @@ def run(
             "--out run more)",
             file=sys.stderr,
         )
-    if todo:
+    else:
         ddir = data_lib.dataset_dir(cache, cfg.data)
         splits = data_lib.generate_dataset(
             cfg.data,

@@ -54,7 +54,7 @@ def _pct(x: float) -> str:
 
 
 def population_section(doc: dict, pop: dict) -> list[str]:
-    name, cfg = pop["population"], doc["config"]
+    name, cfg, seeds = pop["population"], doc["config"], seeds_of(pop)
     c = curves(doc, name)
     sizes = sorted({a for (a_list, _) in c.values() for a in a_list})
     strategies = [s for s in cfg["strategies"] if any(k[1] == s for k in c)]
@@ -63,7 +63,7 @@ def population_section(doc: dict, pop: dict) -> list[str]:
     lines += [
         "Gain kept, (plan − straight) / (oracle − straight), each scored by the population's "
         "mean P_pop(target | ξ_{0:τ}) over the study's stop times; the mean over "
-        f"{len(seeds_of(pop))} seed(s) ({', '.join(map(str, seeds_of(pop)))}).",
+        f"{len(seeds)} seed(s) ({', '.join(map(str, seeds))}).",
         "",
     ]
     for s in strategies:
