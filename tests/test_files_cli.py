@@ -274,3 +274,30 @@ def test_readme_commands_write_distinct_outputs():
                 assert m.group(2) not in outs, (line, outs.get(m.group(2)))
                 outs[m.group(2)] = line
     assert len(outs) >= 15 and "ckpt/dragan" in outs and "ckpt/dragan_plus" in outs
+
+
+@pytest.mark.parametrize(
+    "module, folder",
+    [
+        ("active", "runs/active_quick"),
+        ("active_stream", "runs/active_stream_quick"),
+        ("people_loop", "runs/people_loop_quick"),
+        ("study_size.__main__", "runs/study_size_quick"),
+    ],
+)
+def test_experiments_never_write_the_recorded_results_by_default(
+    module, folder, tmp_path, monkeypatch, capsys
+):
+    """Without --out an experiment's folder is runs/<name>_<preset>, never experiments/
+    (the recorded results a newcomer's run would have overwritten); --report there, with
+    nothing run yet, names the folder it read."""
+    import importlib
+
+    monkeypatch.chdir(tmp_path)
+    main = importlib.import_module(f"slotv_jax.experiments.{module}").main
+    with pytest.raises(SystemExit) as exit_:
+        main(["--report"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert f"{folder}/" in err and "no results document" in err, err
+    assert not (tmp_path / "experiments").exists()

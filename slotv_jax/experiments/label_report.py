@@ -338,7 +338,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         description="Label entropy, target agreement and labeler agreement per split.",
     )
     p.add_argument("--data", type=Path, required=True, help="dataset directory (<split>.npz/json)")
-    p.add_argument("--out", type=Path, default=Path("experiments"))
+    p.add_argument("--out", type=Path, default=Path("runs/labels"), help="default: runs/labels")
     p.add_argument("--splits", nargs="+", choices=data_lib.SPLITS, default=list(data_lib.SPLITS))
     p.add_argument("--date", help="date to print in the report (default: today)")
     args = p.parse_args(argv)

@@ -73,6 +73,7 @@ from slotv_jax.observers import population as population_lib
 from slotv_jax.observers.common import mask_logits, masked_log
 from slotv_jax.observers.prefix import prefix_labels
 from slotv_jax.planning import evaluation
+from slotv_jax.runs import command
 from slotv_jax.training import config as train_config
 
 LEARNED = ("mlp", "slotv_plus", "dragan_archetype", "viewpoint_archetype")
@@ -786,7 +787,9 @@ def parser() -> argparse.ArgumentParser:
         default="default",
         help="comma-separated: default, homogeneous, or population JSON files",
     )
-    ap.add_argument("--out", default="experiments", help="folder of the results and report")
+    ap.add_argument(
+        "--out", help="folder of the results and report (default: runs/people_loop_<preset>)"
+    )
     ap.add_argument("--data-cache", default="data", help="where datasets are cached")
     ap.add_argument("--seeds", type=int, help="number of seeds (default: the preset's)")
     ap.add_argument("--first-seed", type=int, help="first seed (default 0)")
@@ -831,7 +834,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise ValueError("--population: expected at least one population")
     for p in specs:  # every population file is read and checked before any work
         population_lib.get_population(p)
-    out = Path(args.out)
+    out = command.out_dir(args, "people_loop")
     stem = stem_of(cfg.preset)
     names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png", "_plans.npz", "_render.png")]
     fileio.check_output_files(out, names, ours={names[0]: is_results})
