@@ -511,6 +511,25 @@ def test_simulate_population_through_the_server(dot_study, tmp_path, capsys):
     assert len(guesses) == 18 and set(guesses) <= {"A", "B", "C"}
 
 
+def test_simulate_against_another_study_names_the_stimuli_folder(dot_study, tmp_path, capsys):
+    """A server that serves another study folder than --stimuli: one line naming the
+    folder, not a KeyError traceback (the stills of a set at another τ are not this one's)."""
+    other = tmp_path / "other"
+    write_dot_set(other, n=4, taus=(0.3,))
+    server = ServerProcess(other, tmp_path / "study.db")
+    try:
+        with pytest.raises(SystemExit) as e:
+            study_cli.main(["simulate", "--url", server.url, "--stimuli", str(dot_study),
+                            "--participants", "2", "--population", "default"])  # fmt: skip
+    finally:
+        server.stop()
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: --stimuli {dot_study}: the server showed a still") and (
+        err.count("\n") == 1
+    ), err
+
+
 def test_simulate_population_errors_before_any_work(tmp_path, capsys, dot_study):
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps(_bad(lapse=3)))

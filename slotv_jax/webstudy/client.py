@@ -69,14 +69,26 @@ class _Stimuli:
     """Every stimulus of a study folder, found by the SHA-256 of its still."""
 
     def __init__(self, stimdir: str | Path):
+        self.stimdir = stimdir
         self.by_still: dict[str, tuple[dict, stimuli.StimulusSet]] = {}
         for r in stimuli.find_rounds(stimdir):
             st = stimuli.load_stimulus_set(stimuli.round_dir(stimdir, r), verify=False)
             for s in st.manifest["stimuli"]:
                 self.by_still[s["still_sha256"]] = (s, st)
 
+    def find(self, still: bytes) -> tuple[dict, stimuli.StimulusSet]:
+        """The manifest entry and set of the stimulus whose still this is; a still that is
+        none of the folder's (the server serves another study) is a ``ValueError``."""
+        found = self.by_still.get(hashlib.sha256(still).hexdigest())
+        if found is None:
+            raise ValueError(
+                f"--stimuli {self.stimdir}: the server showed a still that is none of this "
+                "folder's stimuli (does it serve another study folder?)"
+            )
+        return found
+
     def motion(self, still: bytes) -> _Motion:
-        s, st = self.by_still[hashlib.sha256(still).hexdigest()]
+        s, st = self.find(still)
         pts = np.array(st.trajectories[s["trajectory"]], np.float64)
         seen = max(2, int(np.sum(pts[:, 0] <= s["tau"] + 1e-9)))
         goals = np.zeros((8, 3), np.float32)
