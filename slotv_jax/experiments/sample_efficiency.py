@@ -92,9 +92,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         hit = s["examples_to_threshold_mean_curve"]
         print(
             f"{METHOD_TITLES[method]:>6s}: final accuracy {s['final_accuracy_mean']:.3f} ± "
-            f"{s['final_accuracy_sd']:.3f}; reaches {args.threshold:.0%} after "
-            f"{'never' if hit is None else f'{hit:,.0f}'} examples "
-            f"(of {s['examples_per_epoch']:,} in the epoch)"
+            f"{s['final_accuracy_sd']:.3f}; "
+            + (
+                f"never reaches {args.threshold:.0%}"
+                if hit is None
+                else f"reaches {args.threshold:.0%} after {hit:,.0f} examples"
+            )
+            + f" (of {s['examples_per_epoch']:,} in the epoch)"
         )
     print(f"wrote {out}/sample_efficiency.{{csv,json,png}}; "
           f"this run took {time.perf_counter() - t0:.0f} s")  # fmt: skip
