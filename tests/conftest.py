@@ -1,10 +1,19 @@
 """Shared fixtures: one small, real, labelled dataset per test session."""
 
 import os
+import tempfile
 
 # Rendering tests need an OpenGL backend, chosen before MuJoCo is first imported (below,
 # through slotv_jax.data): EGL, a GPU's or Mesa's software one on a headless machine.
 os.environ.setdefault("MUJOCO_GL", "egl")
+# JAX's persistent compilation cache, shared by the two xdist workers and every command the
+# tests start in a subprocess (set before jax is imported, so they all inherit it): a
+# program compiled once in the run is loaded, not compiled again, by the next process.
+# Keyed by the program, the compile options and the versions, so it changes no result.
+os.environ.setdefault(
+    "JAX_COMPILATION_CACHE_DIR",
+    os.path.join(tempfile.gettempdir(), f"slotv_jax_tests_xla_cache_{os.getuid()}"),
+)
 
 import pytest
 from hypothesis import HealthCheck, settings
