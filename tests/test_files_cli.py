@@ -301,3 +301,27 @@ def test_experiments_never_write_the_recorded_results_by_default(
     err = capsys.readouterr().err
     assert f"{folder}/" in err and "no results document" in err, err
     assert not (tmp_path / "experiments").exists()
+
+
+@pytest.mark.parametrize(
+    "coordinator, piece",
+    [
+        ("host0.invalid:12355", "cannot resolve host 'host0.invalid'"),
+        ("host0", "expected HOST:PORT"),
+        ("127.0.0.1:99999", "expected HOST:PORT"),
+    ],
+)
+def test_a_coordinator_nobody_can_reach_is_one_line_at_once(coordinator, piece, tmp_path, capsys):
+    """--coordinator with a host this machine cannot resolve (the README's multi-host
+    example run on one machine): one line naming it, before jax.distributed waits its
+    5 minutes and aborts with a C++ stack trace."""
+    from slotv_jax.experiments import table1
+
+    argv = ["--out", str(tmp_path / "t"), "--coordinator", coordinator,
+            "--num-processes", "2", "--process-id", "0"]  # fmt: skip
+    t0 = time.monotonic()
+    with pytest.raises(SystemExit) as e:
+        table1.main(argv)
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.startswith(f"error: --coordinator {coordinator}: "), err
+    assert piece in err and err.count("\n") == 1 and time.monotonic() - t0 < 30

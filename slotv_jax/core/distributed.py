@@ -5,6 +5,7 @@ broadcasts, barriers and gathers.
 from __future__ import annotations
 
 import argparse
+import socket
 
 import jax
 import numpy as np
@@ -41,6 +42,22 @@ def add_cli_args(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--process-id", type=int)
 
 
+def check_coordinator(coordinator: str) -> None:
+    """``HOST:PORT`` of process 0, with a host this machine can resolve: else a ValueError
+    naming ``--coordinator`` at once (JAX would wait its 5-minute connection timeout and
+    abort the process with a C++ stack trace)."""
+    host, sep, port = coordinator.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"--coordinator {coordinator}: expected HOST:PORT, e.g. 10.0.0.1:12355")
+    try:
+        socket.getaddrinfo(host.strip("[]"), int(port))
+    except OSError as e:
+        raise ValueError(
+            f"--coordinator {coordinator}: cannot resolve host {host!r} ({e.strerror}); give "
+            "process 0's host name or address as this machine knows it"
+        ) from None
+
+
 def init_from_args(args: argparse.Namespace) -> None:
     """Call :func:`initialize` if the parsed :func:`add_cli_args` flags ask for it."""
     manual = (args.coordinator, args.num_processes, args.process_id)
@@ -53,6 +70,7 @@ def init_from_args(args: argparse.Namespace) -> None:
             raise ValueError(
                 f"--process-id: expected 0 <= id < {args.num_processes}, got {args.process_id}"
             )
+        check_coordinator(args.coordinator)
         initialize(*manual)
     elif args.distributed:
         initialize()
