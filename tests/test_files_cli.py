@@ -281,7 +281,7 @@ def test_readme_commands_write_distinct_outputs():
     [
         ("active", "runs/active_quick"),
         ("active_stream", "runs/active_stream_quick"),
-        ("people_loop", "runs/people_loop_quick"),
+        ("people_loop.__main__", "runs/people_loop_quick"),
         ("study_size.__main__", "runs/study_size_quick"),
     ],
 )

@@ -15,6 +15,7 @@ import pytest
 
 from slotv_jax import planning
 from slotv_jax.experiments import people_loop as exp
+from slotv_jax.experiments.people_loop.__main__ import main
 from slotv_jax.observers import population as population_lib
 from slotv_jax.planning import evaluation
 
@@ -30,7 +31,7 @@ def tiny_run(tmp_path_factory):
         out = tmp_path_factory.mktemp("loop")
         cache = tmp_path_factory.mktemp("data")
         argv = ["--preset", "tiny", "--out", str(out), "--data-cache", str(cache)]
-        assert exp.main(argv) == 0
+        assert main(argv) == 0
         doc = json.loads((out / "people_loop_tiny_results.json").read_text())
         _TINY_RUN.append((out, cache, argv, doc))
     return _TINY_RUN[0]
@@ -71,7 +72,7 @@ def test_the_document_holds_spec_rows_and_its_own_numbers(tiny_run):
 def test_a_rerun_keeps_the_document(tiny_run):
     out, _, argv, _ = tiny_run
     before = (out / "people_loop_tiny_results.json").read_bytes()
-    assert exp.main(argv) == 0  # the population is there: nothing runs again
+    assert main(argv) == 0  # the population is there: nothing runs again
     assert (out / "people_loop_tiny_results.json").read_bytes() == before
 
 
@@ -185,7 +186,7 @@ def test_wilson_interval_by_hand():
 def test_bad_flags_are_one_line_errors_before_any_work(tmp_path, capsys, flags, needle):
     out = tmp_path / "out"
     with pytest.raises(SystemExit) as e:
-        exp.main(["--preset", "tiny", "--out", str(out), *flags])
+        main(["--preset", "tiny", "--out", str(out), *flags])
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) >= 1 and needle in err[-1], err
@@ -196,7 +197,7 @@ def test_a_bad_population_file_is_named(tmp_path, capsys):
     bad = tmp_path / "people.json"
     bad.write_text(json.dumps({**population_lib.default().to_dict(), "lapse": 2.0}))
     with pytest.raises(SystemExit) as e:
-        exp.main(["--preset", "tiny", "--out", str(tmp_path / "o"), "--population", str(bad)])
+        main(["--preset", "tiny", "--out", str(tmp_path / "o"), "--population", str(bad)])
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "people.json" in err and "lapse" in err, err

@@ -1,0 +1,221 @@
+"""From people's answers to motion people read: the whole loop, run and measured as one.
+
+    python -m slotv_jax.experiments.people_loop                    # quick preset, CPU
+    python -m slotv_jax.experiments.people_loop --preset paper     # the paper's MLP, a GPU
+    python -m slotv_jax.experiments.people_loop --population homogeneous   # the sanity row
+
+The people are simulated: a :class:`slotv_jax.observers.population.Population` (the
+``default`` one: three viewpoints, three inference rules, log-normal temperatures, a
+recency-weighted memory and lapses; or ``homogeneous``: everyone the dataset's Dragan
+labeler; or a JSON file of the same fields). Every result below is a result on that
+model of people, and says which.
+
+Protocol, per population, seed and strategy (every step the library's public path):
+
+1. **Ask.** Stimuli are dataset motions (the ``train`` split's first ``pool``) shown up to
+   each stop time τ in ``taus`` (:func:`slotv_jax.asking.selection.make_pool`). Each asked
+   stimulus gets ``per_stimulus`` answers, each from a fresh participant of the population
+   (:func:`slotv_jax.observers.population.sample_guesses`; a stimulus gets the same answers
+   under every strategy of a seed). Round 0 is drawn at random; after it, ``random`` keeps
+   drawing at random and an active strategy (``margin``, ``error``, …) picks by an
+   ensemble of ``select_family`` observers trained on the answers so far
+   (:class:`slotv_jax.asking.selection.Selector`, warm-started from round to round).
+2. **Learn.** After each size in ``sizes`` (answers), every family is fitted on the
+   answers so far, prefixes included: the paper MLP, SLOT-V+ and the dragan and viewpoint
+   archetypes by the count likelihood of the guesses (a fresh fit of ``epochs`` passes,
+   at least ``min_updates`` updates); Dragan's and Nikolaidis' labelers by their β alone
+   (:func:`slotv_jax.answers.crossval.fit_beta`): the baselines a researcher would use
+   without slotv_jax.
+3. **Plan.** Every fitted observer plans the held-out problems (scenes of
+   ``position_test`` and ``goal_count_test``, which no round showed; every real goal a
+   target) with the prefix objective, the mean over τ of log P(target | ξ_{0:τ})
+   (:class:`slotv_jax.planning.PlannerConfig` ``taus``); so does the population itself
+   (the oracle: its exact P_pop); the straight line is the floor. One compiled planner
+   serves every observer (a ``lax.switch`` over families).
+4. **Evaluate.** Each plan's score is the population's mean P_pop(target | ξ_{0:τ}) over
+   the study's τ, averaged over problems; beside it an evaluation study of fresh
+   participants (``eval_participants`` guesses per plan and τ): accuracy with a 95 %
+   Wilson interval. **Gain kept** = (plan − straight) / (oracle − straight).
+
+Writes ``OUT/people_loop[_paper]_results.json`` (``summary``: rows {population, family,
+strategy, answers, gain_kept (mean over seeds), seeds}; the per-seed rows; the whole-motion
+against prefix comparison; config, environment, timing), the Markdown report and figures
+rendered from it (:mod:`slotv_jax.experiments.people_loop.report`). A rerun with another
+``--population`` adds its rows to the same document; one already there is kept.
+
+The package: :mod:`~slotv_jax.experiments.people_loop.config` (the families, the config and
+its presets), :mod:`~slotv_jax.experiments.people_loop.loop` (the loop for one population:
+ask, learn, plan, evaluate), this module (the results document: seeds and populations
+accumulate, the example drawn), :mod:`~slotv_jax.experiments.people_loop.report` (the report)
+and ``__main__`` (the command line).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from slotv_jax import data as data_lib
+from slotv_jax.core import fileio
+from slotv_jax.core.environment import environment
+from slotv_jax.core.fileio import write_text
+from slotv_jax.experiments.people_loop import report as report_lib
+from slotv_jax.experiments.people_loop.config import (  # noqa: F401  (the package's names)
+    CAMERA,
+    FAMILIES,
+    FITTED,
+    LEARNED,
+    PRESETS,
+    LoopConfig,
+    paper,
+    quick,
+    tiny,
+)
+from slotv_jax.experiments.people_loop.loop import eval_keys, run_population  # noqa: F401
+from slotv_jax.observers import population as population_lib
+
+# ------------------------------------------------------------------ the document
+
+
+def summarise(rows: Sequence[dict]) -> list[dict]:
+    """SPEC §12's ``summary``: gain kept per (population, family, strategy, answers), the
+    mean over seeds (and the seeds)."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["population"], r["family"], r["strategy"], r["answers"]), []).append(r)
+    return [
+        {
+            "population": p,
+            "family": f,
+            "strategy": s,
+            "answers": a,
+            "gain_kept": round(float(np.mean([r["gain_kept"] for r in rs])), 6),
+            "gain_kept_sd": round(float(np.std([r["gain_kept"] for r in rs])), 6),
+            "accuracy": round(float(np.mean([r["accuracy"] for r in rs])), 6),
+            "seeds": len(rs),
+        }
+        for (p, f, s, a), rs in groups.items()
+    ]
+
+
+def stem_of(preset: str) -> str:
+    return "people_loop" if preset == "quick" else f"people_loop_{preset}"
+
+
+def is_results(path: Path) -> bool:
+    """Whether ``path`` holds a results document of this experiment (ours to extend)."""
+    return fileio.is_json_object_with(path, ("preset", "config", "populations", "summary"))
+
+
+SEED_FIELDS = ("seeds", "first_seed")  # which seeds ran: the rows say it, not the config
+
+
+def run(
+    cfg: LoopConfig,
+    out: Path,
+    populations: Sequence[str],
+    *,
+    cache: Path = Path("data"),
+    progress: bool = True,
+) -> dict:
+    """Run the loop for every (population, seed) not yet in ``OUT/STEM_results.json``, write
+    the document after each population, then the report. Seeds accumulate: a run with other
+    seeds of the same config adds its rows (one GPU call per seed at the paper preset)."""
+    stem = stem_of(cfg.preset)
+    path = out / f"{stem}_results.json"
+    conf = {k: v for k, v in cfg.to_json().items() if k not in SEED_FIELDS}
+    doc = json.loads(path.read_text()) if path.exists() else {}
+    if doc.get("config") != conf:
+        doc = {"preset": cfg.preset, "config": conf, "populations": [], "summary": []}
+    doc["populations"] = [p for p in doc["populations"] if not p.get("partial")]
+    wanted = range(cfg.first_seed, cfg.first_seed + cfg.seeds)
+    entries = {p["population"]: p for p in doc["populations"]}
+    todo = {}
+    for spec in populations:
+        have = {r["seed"] for r in entries.get(population_name(spec), {}).get("rows", [])}
+        if missing := [sd for sd in wanted if sd not in have]:
+            todo[spec] = missing
+    if not todo:  # say so: a recorded document makes the command return in seconds
+        print(
+            f"people loop: {path} already holds every population and seed asked for; nothing "
+            "ran, the report is drawn again (other --seeds/--first-seed, --population or "
+            "--out run more)",
+            file=sys.stderr,
+        )
+    else:
+        ddir = data_lib.dataset_dir(cache, cfg.data)
+        splits = data_lib.generate_dataset(
+            cfg.data,
+            ddir,
+            progress=progress,
+            splits=("train", "position_test", "goal_count_test"),
+        )
+        doc["dataset"] = str(ddir)
+    for spec, seeds in todo.items():
+        pop, name = population_lib.get_population(spec), population_name(spec)
+
+        def save_partial(rows, name=name):  # a run stopped mid-way keeps its finished sizes
+            part = {"population": name, "partial": True, "rows": rows}
+            write_text(path, json.dumps({**doc, "populations": [*doc["populations"], part]}))
+
+        got = run_population(cfg, name, pop, splits, seeds, progress=progress, on_size=save_partial)
+        record = {
+            "seeds": seeds,
+            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            "environment": environment(),
+            "timing": got.pop("timing"),
+        }
+        if name in entries:  # the comparison and example do not depend on the seed
+            entries[name]["rows"] += got["rows"]
+            entries[name]["runs"].append(record)
+        else:
+            entries[name] = {**got, "runs": [record]}
+            doc["populations"].append(entries[name])
+        doc["summary"] = summarise([r for q in doc["populations"] for r in q["rows"]])
+        write_text(path, json.dumps(doc, indent=1))
+    report_lib.render(doc, out, stem)
+    draw_example(doc, out, stem)
+    return doc
+
+
+def example_plans(doc: dict) -> dict[str, np.ndarray]:
+    """The first population's example problem as a plans file of the planning experiment's
+    format (``python -m slotv_jax.render --plans``): goals, goal_mask, target, names, q."""
+    ex = doc["populations"][0]["example"]
+    names = list(ex["q"])
+    return {
+        "goals": np.asarray(ex["problem"]["goals"], np.float32)[None],
+        "goal_mask": np.asarray(ex["problem"]["goal_mask"], bool)[None],
+        "target": np.asarray([ex["problem"]["target"]], np.int32),
+        "names": np.asarray(names),
+        "q": np.stack([np.asarray(ex["q"][n], np.float32) for n in names])[:, None],
+    }
+
+
+def draw_example(doc: dict, out: Path, stem: str) -> None:
+    """Write ``STEM_plans.npz`` and draw ``STEM_render.png`` from it with the render command
+    (in its own process: the loop itself needs no OpenGL); without OpenGL, say so in one
+    line and go on."""
+    plans = out / f"{stem}_plans.npz"
+    fileio.atomic_write(plans, lambda f: np.savez_compressed(f, **example_plans(doc)))
+    best = report_lib.best_family(doc, doc["populations"][0])
+    cmd = [sys.executable, *report_lib.render_command(stem, out, best)[1:]]
+    r = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if r.returncode != 0:
+        last = (r.stderr.strip().splitlines() or ["no output"])[-1]
+        print(
+            f"people loop: the example was not drawn ({last}); draw it with: "
+            f"{' '.join(report_lib.render_command(stem, out, best))}",
+            file=sys.stderr,
+        )
+
+
+def population_name(spec: str) -> str:
+    """``default``, ``homogeneous``, or a JSON file's stem."""
+    return spec if spec in population_lib.PRESETS else Path(spec).stem

@@ -1,0 +1,112 @@
+"""``python -m slotv_jax.experiments.people_loop``: the command line of the people loop
+(the package docstring)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from slotv_jax.core import cli, fileio
+from slotv_jax.experiments.people_loop import (
+    FAMILIES,
+    PRESETS,
+    LoopConfig,
+    draw_example,
+    is_results,
+    report_lib,
+    run,
+    stem_of,
+)
+from slotv_jax.observers import population as population_lib
+from slotv_jax.runs import command
+
+# ------------------------------------------------------------------ command line
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="python -m slotv_jax.experiments.people_loop",
+        description="Simulated people's answers -> observers -> legible plans -> evaluation.",
+    )
+    ap.add_argument("--preset", choices=sorted(PRESETS), default="quick")
+    ap.add_argument(
+        "--population",
+        default="default",
+        help="comma-separated: default, homogeneous, or population JSON files",
+    )
+    ap.add_argument(
+        "--out", help="folder of the results and report (default: runs/people_loop_<preset>)"
+    )
+    ap.add_argument("--data-cache", default="data", help="where datasets are cached")
+    ap.add_argument("--seeds", type=int, help="number of seeds (default: the preset's)")
+    ap.add_argument("--first-seed", type=int, help="first seed (default 0)")
+    ap.add_argument("--strategies", help="comma-separated (random first), e.g. random,margin")
+    ap.add_argument("--families", help=f"comma-separated of {','.join(FAMILIES)}")
+    ap.add_argument("--sizes", help="comma-separated answer counts, e.g. 250,500,1000")
+    ap.add_argument("--problems", type=int, help="held-out planning problems")
+    ap.add_argument("--report", action="store_true", help="only render the report again")
+    return ap
+
+
+def config_from(args: argparse.Namespace) -> LoopConfig:
+    """The preset with the command line's overrides (checked by :class:`LoopConfig`)."""
+    cfg = PRESETS[args.preset]()
+    change = {}
+    if args.seeds is not None:
+        change["seeds"] = args.seeds
+    if args.first_seed is not None:
+        change["first_seed"] = args.first_seed
+    if args.problems is not None:
+        change["problems"] = args.problems
+    for name in ("strategies", "families"):
+        v = getattr(args, name)
+        if v is not None:
+            change[name] = tuple(x.strip() for x in v.split(",") if x.strip())
+    if args.sizes is not None:
+        try:
+            change["sizes"] = tuple(int(x) for x in args.sizes.split(","))
+        except ValueError:
+            raise ValueError(
+                f"--sizes: expected comma-separated integers, got {args.sizes!r}"
+            ) from None
+    return dataclasses.replace(cfg, **change)
+
+
+@cli.command(resumes=True)
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    cfg = config_from(args)
+    specs = [p.strip() for p in args.population.split(",") if p.strip()]
+    if not specs:
+        raise ValueError("--population: expected at least one population")
+    for p in specs:  # every population file is read and checked before any work
+        population_lib.get_population(p)
+    out = command.out_dir(args, "people_loop")
+    stem = stem_of(cfg.preset)
+    names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png", "_plans.npz", "_render.png")]
+    fileio.check_output_files(out, names, ours={names[0]: is_results})
+    if args.report:
+        path = out / names[0]
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no results document to render")
+        doc = json.loads(path.read_text())
+        report_lib.render(doc, out, stem)
+        draw_example(doc, out, stem)
+        return 0
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    run(cfg, out, specs, cache=Path(args.data_cache))
+    print(
+        f"people loop: {time.perf_counter() - t0:.0f} s; report {out / (stem + '.md')}",
+        file=sys.stderr,
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,195 @@
+"""The people loop's configuration: the families it fits, :class:`LoopConfig` and its
+presets (``quick`` on a CPU, ``paper`` on a GPU, ``tiny`` for the tests)."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import math
+
+from slotv_jax import data as data_lib
+from slotv_jax import planning
+from slotv_jax.asking import selection
+from slotv_jax.training import config as train_config
+
+LEARNED = ("mlp", "slotv_plus", "dragan_archetype", "viewpoint_archetype")
+FITTED = {"dragan_fitted": "dragan", "nikolaidis_fitted": "nikolaidis"}  # family -> labeler
+FAMILIES = LEARNED + tuple(FITTED)
+CAMERA = "observer"  # the viewpoint of the fitted Nikolaidis baseline (the dataset's)
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopConfig:
+    """One people-loop experiment (module docstring)."""
+
+    preset: str
+    data: data_lib.DataConfig
+    train_preset: str  # slotv_jax.training.config preset of the learned families
+    planner: planning.PlannerConfig  # its taus: the prefix objective (the study's τ)
+    sizes: tuple[int, ...] = (250, 500, 1000, 2000, 4000, 8000)  # answers after each round
+    taus: tuple[float, ...] = (0.4, 0.7, 1.0)  # the study's stop times
+    per_stimulus: int = 5  # answers (fresh participants) per asked stimulus
+    strategies: tuple[str, ...] = ("random", "margin", "error")
+    families: tuple[str, ...] = FAMILIES
+    select_family: str = "slotv_plus"  # the ensemble that active strategies ask
+    members: int = 4  # its size E
+    select_epochs: float = 2.0  # its warm-start passes over the answers per round
+    pool: int = 2000  # motions of the train split (× len(taus) candidates)
+    subset: int = 1000  # candidates an active strategy scores per round
+    epochs: float = 20.0  # passes over the answer rows of each family's fit
+    min_updates: int = 300  # at least this many updates per fit
+    block: int = 100  # updates per compiled call
+    problems: int = 12  # held-out planning problems
+    eval_participants: int = 20  # evaluation study: guesses per plan and τ
+    seeds: int = 2
+    first_seed: int = 0
+    overrides: tuple[str, ...] = ()  # TrainConfig key=value overrides of the MLP families
+
+    def __post_init__(self):
+        s, per = self.sizes, self.per_stimulus
+        if len(s) < 1 or list(s) != sorted(set(s)) or s[0] < per:
+            raise ValueError(f"sizes: expected increasing answer counts >= per_stimulus, got {s}")
+        if any(x % per for x in s):
+            raise ValueError(f"sizes: expected multiples of per_stimulus ({per}), got {s}")
+        if not (isinstance(per, int) and per >= 1):
+            raise ValueError(f"per_stimulus: expected an int >= 1, got {per!r}")
+        if tuple(sorted(set(self.taus))) != tuple(self.taus) or not all(
+            0 < t <= 1 for t in self.taus
+        ):
+            raise ValueError(f"taus: expected increasing stop times in (0, 1], got {self.taus}")
+        if self.planner.taus is None or tuple(self.planner.taus) != tuple(self.taus):
+            raise ValueError("planner: expected the prefix objective at the study's taus")
+        bad = [x for x in self.strategies if x not in selection.STRATEGIES]
+        if (
+            bad
+            or "random" not in self.strategies
+            or len(set(self.strategies)) < len(self.strategies)
+        ):
+            raise ValueError(
+                f"strategies: expected 'random' and distinct names of {selection.STRATEGIES}, "
+                f"got {list(self.strategies)}"
+            )
+        bad = [f for f in self.families if f not in FAMILIES]
+        if bad or not self.families:
+            raise ValueError(f"families: expected names of {FAMILIES}, got {list(self.families)}")
+        if self.select_family not in LEARNED:
+            raise ValueError(
+                f"select_family: expected one of {LEARNED}, got {self.select_family!r}"
+            )
+        if s[-1] // per > self.pool * len(self.taus):
+            raise ValueError(
+                f"sizes: {s[-1] // per} stimuli asked, the pool holds {self.pool} motions × "
+                f"{len(self.taus)} stop times"
+            )
+        k_max = max([s[0] // per] + [(b - a) // per for a, b in itertools.pairwise(s)])
+        if self.subset < 2 * k_max and set(self.strategies) != {"random"}:
+            raise ValueError(
+                f"subset: expected >= twice the largest round ({k_max}), got {self.subset}"
+            )
+        for f in (
+            "members",
+            "pool",
+            "min_updates",
+            "block",
+            "problems",
+            "eval_participants",
+            "seeds",
+        ):
+            v = getattr(self, f)
+            if not (isinstance(v, int) and v >= 1):
+                raise ValueError(f"{f}: expected an int >= 1, got {v!r}")
+        if not (self.epochs > 0 and self.select_epochs > 0):
+            raise ValueError("epochs, select_epochs: expected > 0")
+
+    def train_config(self, family: str) -> train_config.TrainConfig:
+        """The TrainConfig that fits ``family`` (a learned one) on answers."""
+        if family in ("dragan_archetype", "viewpoint_archetype"):
+            model = family.split("_")[0]
+            return train_config.archetype(self.train_preset, model, train_size=None)
+        cfg = train_config.preset(self.train_preset, "slotv", train_size=None)
+        if family == "slotv_plus":
+            cfg = dataclasses.replace(cfg, start_term=True, time_weight=True)
+        elif family != "mlp":
+            raise ValueError(f"family: expected one of {LEARNED}, got {family!r}")
+        return train_config.apply_overrides(cfg, self.overrides)
+
+    def updates(self, rows: int, batch: int, epochs: float, least: int) -> int:
+        """Updates of a fit on ``rows`` answer rows: ``epochs`` passes, at least ``least``,
+        rounded up to whole blocks."""
+        u = max(least, math.ceil(epochs * rows / batch))
+        return self.block * math.ceil(u / self.block)
+
+    def to_json(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["train"] = {f: self.train_config(f).to_dict() for f in LEARNED if f in self.families}
+        return json.loads(json.dumps(d))
+
+
+def quick() -> LoopConfig:
+    """CPU preset: the quick dataset and networks (64/32), 2 seeds, 12 problems, 50-point
+    plans of 30 steps."""
+    taus = (0.4, 0.7, 1.0)
+    return LoopConfig(
+        "quick",
+        data_lib.quick(),
+        "quick",
+        planning.PlannerConfig(n_points=50, iters=30, taus=taus),
+        taus=taus,
+        subset=2000,
+    )
+
+
+def paper() -> LoopConfig:
+    """GPU preset: the paper's networks and dataset distribution (12,000 training motions, of
+    which the pool takes 10,000, and the held-out scenes), 3 seeds, 100 problems, the
+    default planner (100 points, 50 steps)."""
+    taus = (0.4, 0.7, 1.0)
+    return LoopConfig(
+        "paper",
+        dataclasses.replace(data_lib.paper(), n_train=12_000, n_eval=1_000, n_new_scenes=20),
+        "paper",
+        planning.PlannerConfig(taus=taus),
+        taus=taus,
+        pool=10000,
+        subset=4000,
+        problems=100,
+        eval_participants=40,
+        seeds=3,
+        epochs=30.0,
+        min_updates=1000,
+        block=250,
+    )
+
+
+def tiny() -> LoopConfig:
+    """The tests' preset: seconds on a CPU."""
+    taus = (0.5, 1.0)
+    d = data_lib.DataConfig(
+        preset="tiny", n_train=120, n_eval=40, n_train_scenes=12, n_new_scenes=2, chunk_size=256
+    )
+    return LoopConfig(
+        "tiny",
+        d,
+        "quick",
+        planning.PlannerConfig(n_points=20, iters=3, taus=taus),
+        sizes=(20, 40),
+        taus=taus,
+        per_stimulus=2,
+        strategies=("random", "margin"),
+        families=("mlp", "dragan_archetype", "dragan_fitted"),
+        select_family="mlp",
+        members=2,
+        pool=60,
+        subset=40,
+        epochs=2.0,
+        min_updates=20,
+        block=10,
+        problems=3,
+        eval_participants=4,
+        seeds=1,
+        overrides=("hidden=16,8",),
+    )
+
+
+PRESETS = {"quick": quick, "paper": paper, "tiny": tiny}

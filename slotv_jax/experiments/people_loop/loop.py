@@ -1,0 +1,395 @@
+"""The loop for one population and its seeds (the package docstring's protocol): the
+planner's observers in one compiled switch, the simulated study on the pool, the fits,
+the plans and their evaluation by the population."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+from slotv_jax import planning
+from slotv_jax.asking import selection, simulated
+from slotv_jax.experiments.people_loop.config import CAMERA, FITTED, LEARNED, LoopConfig
+from slotv_jax.observers import population as population_lib
+from slotv_jax.observers.common import mask_logits, masked_log
+from slotv_jax.observers.prefix import prefix_labels
+from slotv_jax.planning import evaluation
+
+# ------------------------------------------------------------------ the observers
+
+
+def labeler_prefix(name: str, beta, xyz, goals, goal_mask, seen):
+    """log y of labeler ``name`` at a traced ``beta`` on the first ``seen`` points
+    (:func:`slotv_jax.observers.prefix.prefix_labels`, as the labelers' prefix observers)."""
+    y = prefix_labels(name, xyz, goals, goal_mask, seen, beta=beta, camera=CAMERA)
+    return masked_log(y, goal_mask)
+
+
+def branches(cfg: LoopConfig, pop) -> tuple[tuple[str, ...], tuple]:
+    """The planner's observers as prefix functions ``f(params, xyz, goals, mask, seen) ->
+    logits``: the population (``oracle``; ``oracle_whole`` scores the whole motion whatever
+    τ, so its plan is the whole-motion objective's), then each family. ``params`` is a dict
+    with each learned family's parameters and ``beta`` (the two fitted temperatures)."""
+    obs = population_lib.population_observer(pop)
+    names = ["oracle", "oracle_whole"]
+    fns = [
+        lambda p, x, g, m, s: obs.prefix(x, g, m, s),
+        lambda p, x, g, m, s: obs(x, g, m),
+    ]
+    for f in cfg.families:
+        names.append(f)
+        if f in FITTED:
+            j = list(FITTED).index(f)
+            fns.append(
+                lambda p, x, g, m, s, lab=FITTED[f], j=j: labeler_prefix(
+                    lab, p["beta"][j], x, g, m, s
+                )
+            )
+        else:
+            sel = selection.make_selector(cfg.train_config(f), 1, 1)
+            fns.append(
+                lambda p, x, g, m, s, f=f, sel=sel: mask_logits(
+                    selection.candidate_scores(sel.base.model(p[f]), x, g, m, s), m
+                )
+            )
+    return tuple(names), tuple(fns)
+
+
+def make_plan_all(cfg: LoopConfig, fns):
+    """``plan_all(index, params (R, ...), problems (R, P, ...)) -> PlanResult (R, P, ...)``:
+    one compiled program for every observer (``lax.switch`` on an unbatched index)."""
+
+    def plan_run(index, params, problems):
+        def prefix(x, g, m, s):
+            return jax.lax.switch(index, fns, params, x, g, m, s)
+
+        def whole(x, g, m):
+            return prefix(x, g, m, x.shape[0])
+
+        whole.prefix = prefix
+        return jax.vmap(lambda pr: planning.plan(whole, pr, cfg.planner))(problems)
+
+    return jax.jit(jax.vmap(plan_run, in_axes=(None, 0, 0)))
+
+
+_PLANNERS: dict = {}
+
+
+def planner_for(cfg: LoopConfig, pop) -> tuple[tuple[str, ...], object]:
+    """The observers' names and :func:`make_plan_all` of ``cfg`` and ``pop``, made once per
+    process (a second run of the same config reuses the compiled program)."""
+    key = (dataclasses.replace(cfg, seeds=1, first_seed=0), pop)  # seeds do not change it
+    if key not in _PLANNERS:
+        names, fns = branches(cfg, pop)
+        _PLANNERS[key] = (names, make_plan_all(cfg, fns))
+    return _PLANNERS[key]
+
+
+# ------------------------------------------------------------------ the study
+
+
+def pool_motions(cfg: LoopConfig, split) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(xyz (N, T, 3), goals (N, 8, 3), goal_mask (N, 8)) of the pool's motions."""
+    n = min(cfg.pool, split.xyz.shape[0])
+    if n < cfg.pool:
+        raise ValueError(f"pool: the train split holds {n} motions, asked for {cfg.pool}")
+    goals = split.scene_goals[split.env_id[:n]]
+    mask = split.scene_mask[split.env_id[:n]]
+    return np.asarray(split.xyz[:n], np.float32), goals, mask
+
+
+def held_out_problems(cfg: LoopConfig, splits) -> dict[str, np.ndarray]:
+    """Every (scene, real goal) of the held-out scenes (:func:`planning.evaluation.scene_problems`
+    on ``position_test`` and ``goal_count_test``), cut evenly to ``cfg.problems``."""
+    names = ("position_test", "goal_count_test")
+    scenes = {s: (splits[s].scene_goals, splits[s].scene_mask) for s in names}
+    every = evaluation.scene_problems(scenes, names)
+    n = every["target"].size
+    if n < cfg.problems:
+        raise ValueError(f"problems: the held-out scenes have {n}, asked for {cfg.problems}")
+    pick = np.linspace(0, n - 1, cfg.problems).round().astype(int)
+    return {k: every[k][pick] for k in ("goals", "goal_mask", "target")}
+
+
+def fit_family(cfg: LoopConfig, family: str, pool, cand, counts, rows: int, seeds) -> dict:
+    """A fresh fit of ``family`` on each run's first ``rows`` answer rows
+    (:func:`slotv_jax.asking.simulated.fit_runs`): parameters with a leading run axis."""
+    tc = cfg.train_config(family)
+    blocks = cfg.updates(rows, tc.batch_size, cfg.epochs, cfg.min_updates) // cfg.block
+    return simulated.fit_runs(
+        tc, pool, cand, counts, rows, _init_keys(family, seeds), blocks, cfg.block
+    )
+
+
+def _init_keys(family: str, seeds) -> jax.Array:
+    return jnp.stack([jax.random.key(2_000 + 97 * sd + LEARNED.index(family)) for sd in seeds])
+
+
+def initial_params(cfg: LoopConfig, seeds) -> dict:
+    """Every family's parameters before any answer, one set per run (``seeds``: each run's
+    seed), and β = 1 for the fitted labelers: the planner's ``params`` argument."""
+    out = {}
+    for f in cfg.families:
+        if f in LEARNED:
+            sel = selection.make_selector(cfg.train_config(f), 1, 1)
+            ens = jax.vmap(sel.init)(_init_keys(f, seeds))
+            out[f] = jax.tree.map(lambda x: x[:, 0], ens.params)
+    out["beta"] = jnp.ones((len(list(seeds)), len(FITTED)), jnp.float32)
+    return out
+
+
+# ------------------------------------------------------------------ evaluation
+
+
+def eval_keys(runs: Sequence[tuple[str, int]]) -> jax.Array:
+    """One evaluation-study key per run, from its strategy and seed alone, so a seed's
+    evaluation draws are the same whichever other seeds run beside it."""
+    base = jax.random.key(4_000)
+    return jnp.stack(
+        [
+            jax.random.fold_in(jax.random.fold_in(base, sd), selection.STRATEGIES.index(st))
+            for st, sd in runs
+        ]
+    )
+
+
+def plan_scores(scorer, keys: jax.Array, res, problems) -> dict:
+    """:func:`slotv_jax.planning.evaluation.population_scores` of plans ``res``."""
+    return evaluation.population_scores(
+        scorer, keys, res.xyz, problems.goals, problems.goal_mask, problems.target
+    )
+
+
+# ------------------------------------------------------------------ the loop
+
+
+def run_population(
+    cfg: LoopConfig,
+    name: str,
+    pop,
+    splits,
+    seeds: Sequence[int],
+    *,
+    progress: bool = True,
+    on_size=None,
+) -> dict:
+    """The whole loop for one population and ``seeds``; returns its rows, comparison and
+    timings. Each seed's rows depend on that seed alone, so seeds run apart merge into one
+    document. ``on_size(rows)`` is called with the rows so far after each size."""
+    t_all, timing = (
+        time.perf_counter(),
+        {
+            "answers_s": 0.0,
+            "fit_s": 0.0,
+            "beta_s": 0.0,
+            "select_s": 0.0,
+            "plan_s": 0.0,
+            "eval_s": 0.0,
+        },
+    )
+    xyz, goals, mask = pool_motions(cfg, splits["train"])
+    pool = selection.make_pool(xyz, goals, mask, cfg.taus)
+    n_c, per, g = int(pool.traj.shape[0]), cfg.per_stimulus, int(pool.goals.shape[1])
+    rows = [s // per for s in cfg.sizes]
+    cap = rows[-1]
+    seeds = list(seeds)
+    runs = [(st, sd) for st in cfg.strategies for sd in seeds]
+    n_r = len(runs)
+    run_seeds = [sd for _, sd in runs]
+    cand = np.zeros((n_r, cap), np.int32)
+    counts = np.zeros((n_r, cap, g), np.float32)
+    asked = np.zeros((n_r, n_c), bool)
+    heard: dict[int, dict[int, np.ndarray]] = {sd: {} for sd in seeds}
+
+    def ask(i: int, start: int, new: np.ndarray) -> None:
+        sd = runs[i][1]
+        todo = np.asarray([c for c in new if c not in heard[sd]], np.int32)
+        if todo.size:
+            for c, k in zip(
+                todo, simulated.population_answers(pop, sd, pool, todo, per), strict=True
+            ):
+                heard[sd][int(c)] = k
+        cand[i, start : start + new.size] = new
+        counts[i, start : start + new.size] = [heard[sd][int(c)] for c in new]
+        asked[i, new] = True
+
+    t0 = time.perf_counter()
+    for i, (_, sd) in enumerate(runs):  # round 0: the same random draw for every strategy
+        ask(i, 0, np.random.default_rng([sd, 1]).choice(n_c, rows[0], replace=False))
+    timing["answers_s"] += time.perf_counter() - t0
+
+    active = [i for i, (st, _) in enumerate(runs) if st != "random"]
+    stc = cfg.train_config(cfg.select_family)
+    selector = selection.make_selector(stc, cfg.members, cap)
+    ens = None
+    if active:
+        ens = jax.jit(jax.vmap(selector.init))(
+            jnp.stack([jax.random.key(3_000 + runs[i][1]) for i in active])
+        )
+
+    # The held-out problems, their straight lines, and the planner for every observer.
+    prob = held_out_problems(cfg, splits)
+    straight = jax.jit(
+        jax.vmap(lambda gl, m, t: planning.straight_line(gl, m, t, cfg=cfg.planner))
+    )(jnp.asarray(prob["goals"]), jnp.asarray(prob["goal_mask"]), jnp.asarray(prob["target"]))
+    planning.check_problems(straight)
+    problems = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape)), straight)
+    names, plan_all = planner_for(cfg, pop)
+    scorer = evaluation.population_scorer(
+        pop, cfg.taus, cfg.planner.n_points, cfg.eval_participants
+    )
+    keys_eval = eval_keys(runs)
+
+    out_rows, floor, example = [], None, {}
+    bar = tqdm(total=len(rows), desc=f"people loop ({name})", unit="size", disable=not progress)
+    for r, n_rows in enumerate(rows):
+        # Learn: every family on the answers so far.
+        t0 = time.perf_counter()
+        params = {
+            f: fit_family(cfg, f, pool, cand, counts, n_rows, run_seeds)
+            for f in cfg.families
+            if f in LEARNED
+        }
+        timing["fit_s"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        betas = np.ones((n_r, len(FITTED)), np.float32)
+        if any(f in FITTED for f in cfg.families):
+            for i in range(n_r):
+                betas[i] = simulated.fitted_betas(
+                    pool,
+                    cfg.taus,
+                    cand[i, :n_rows],
+                    counts[i, :n_rows],
+                    list(FITTED.values()),
+                    CAMERA,
+                )
+        params["beta"] = jnp.asarray(betas)
+        timing["beta_s"] += time.perf_counter() - t0
+
+        # Plan and evaluate: the floor and the oracles once, every family at every size.
+        t0 = time.perf_counter()
+        if floor is None:
+            floor = {
+                "straight": plan_scores(scorer, keys_eval, straight_as_plan(problems), problems)
+            }
+            for o in ("oracle", "oracle_whole"):
+                res = plan_all(jnp.int32(names.index(o)), params, problems)
+                floor[o] = plan_scores(scorer, keys_eval, res, problems)
+                example[o] = np.asarray(res.q[0, 0])
+            example["straight"] = np.asarray(problems.q[0, 0])
+        plans = {}
+        for f in cfg.families:
+            plans[f] = plan_all(jnp.int32(names.index(f)), params, problems)
+        jax.block_until_ready(plans)
+        timing["plan_s"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        lo, hi = floor["straight"]["score"], floor["oracle"]["score"]
+        for f, res in plans.items():
+            sc = plan_scores(scorer, keys_eval, res, problems)
+            for i, (st, sd) in enumerate(runs):
+                n_eval = cfg.problems * len(cfg.taus) * cfg.eval_participants
+                acc = float(sc["correct"][i])
+                row = {
+                    "population": name,
+                    "family": f,
+                    "strategy": st,
+                    "seed": sd,
+                    "answers": int(cfg.sizes[r]),
+                    "score": float(sc["score"][i]),
+                    "score_per_tau": sc["per_tau"][i].round(6).tolist(),
+                    "gain_kept": float((sc["score"][i] - lo[i]) / (hi[i] - lo[i])),
+                    "accuracy": acc,
+                    "accuracy_95": [round(v, 4) for v in evaluation.wilson(acc * n_eval, n_eval)],
+                    "feasible": float(np.mean(np.asarray(res.feasible[i]))),
+                }
+                if f in FITTED:
+                    row["beta"] = float(betas[i, list(FITTED).index(f)])
+                out_rows.append(row)
+            if r == len(rows) - 1:
+                example[f] = np.asarray(res.q[0, 0])
+        timing["eval_s"] += time.perf_counter() - t0
+        if on_size is not None:
+            on_size(out_rows)
+        bar.update(1)
+        if r + 1 == len(rows):
+            break
+
+        # Ask: the next round's stimuli.
+        k = rows[r + 1] - n_rows
+        t0 = time.perf_counter()
+        picks = {}
+        if active:
+            ans = selection.Answers(
+                jnp.asarray(cand[active]),
+                jnp.asarray(counts[active]),
+                jnp.full((len(active),), n_rows, jnp.int32),
+            )
+            keys = jnp.stack([jax.random.key(5_000 + 31 * r + runs[i][1]) for i in active])
+            fit = simulated.fitter(selector, cfg.block)
+            for j in range(
+                cfg.updates(n_rows, stc.batch_size, cfg.select_epochs, cfg.block) // cfg.block
+            ):
+                ens, _ = fit(
+                    ens, pool, ans, jax.vmap(lambda kk, j=j: jax.random.fold_in(kk, j))(keys)
+                )
+            for a, i in enumerate(active):
+                st, sd = runs[i]
+                free = np.flatnonzero(~asked[i])
+                sub = np.random.default_rng([sd, 2, r]).choice(
+                    free, min(cfg.subset, free.size), replace=False
+                )
+                member = jax.tree.map(lambda x, a=a: x[a], ens.params)
+                logp = _scorer(selector)(member, pool, jnp.asarray(sub))
+                pick = selection.select(
+                    st, jax.random.fold_in(keys[a], 1), logp, jnp.ones(sub.size, bool), k
+                )
+                picks[i] = sub[np.asarray(pick)]
+        timing["select_s"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        for i, (st, sd) in enumerate(runs):
+            if st == "random":
+                free = np.flatnonzero(~asked[i])
+                picks[i] = np.random.default_rng([sd, 3, r]).choice(free, k, replace=False)
+            ask(i, n_rows, np.asarray(picks[i], np.int32))
+        timing["answers_s"] += time.perf_counter() - t0
+    bar.close()
+    timing["total_s"] = time.perf_counter() - t_all
+    comparison = {
+        o: {
+            "score": float(floor[o]["score"][0]),
+            "per_tau": floor[o]["per_tau"][0].round(6).tolist(),
+            "accuracy": float(floor[o]["correct"][0]),
+        }
+        for o in ("straight", "oracle", "oracle_whole")
+    }
+    return {
+        "population": name,
+        "population_config": pop.to_dict(),
+        "rows": out_rows,
+        "comparison": comparison,
+        "example": {
+            "problem": {k: v[0].tolist() for k, v in prob.items()},
+            "q": {k: v.round(6).tolist() for k, v in example.items()},
+        },
+        "timing": {k: round(v, 2) for k, v in timing.items()},
+    }
+
+
+_SCORERS: dict = {}
+
+
+def _scorer(sel):
+    if sel not in _SCORERS:
+        _SCORERS[sel] = jax.jit(lambda p, pool, c: sel.log_probs(p, pool, c))
+    return _SCORERS[sel]
+
+
+def straight_as_plan(problems: planning.Problem):
+    """The straight lines in the shape of a plan (``xyz``)."""
+    return planning.PlanResult(problems.xyz, problems.q, None)
