@@ -240,7 +240,8 @@ def test_a_preset_name_reads_the_cached_dataset(tiny_data, tmp_path, monkeypatch
     stamp = os.stat(home / "position_test.npz").st_mtime_ns
     assert data_cli.main(["--preset", "quick", "--splits", "position_test"]) == 0
     out = capsys.readouterr().out
-    assert f"wrote {home} in" in out and "other commands find it as --data quick" in out
+    assert f"found {home}: every split was already there" in out  # nothing was made
+    assert "other commands find it as --data quick" in out
     assert os.stat(home / "position_test.npz").st_mtime_ns == stamp  # not regenerated
     (tmp_path / "quick").mkdir()  # a folder of that name is what it names
     assert data.find_dataset("quick") == tmp_path.joinpath("quick").relative_to(tmp_path)

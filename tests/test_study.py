@@ -258,7 +258,7 @@ def test_the_columns_study_export_records_are_accepted_and_not_read(tmp_path):
     s, rep = study.read_tables(*_write_tables(tmp_path, answers=answers + "\n"))
     np.testing.assert_array_equal(s.counts[:, :2], [[2, 1], [2, 0], [0, 1]])  # as without
     assert rep.left_out["answers"] == tuple(extra)
-    assert f"5 rows, 3 participants, 1 distinct prefix times; not read: {', '.join(extra)}" in (
+    assert f"5 rows, 3 participants, 1 distinct prefix time; not read: {', '.join(extra)}" in (
         rep.describe(s)
     )
 

@@ -298,7 +298,11 @@ class ImportReport:
                 f"read {self.files['goals']}: {self.goal_rows} goals" + unread("goals"),
                 f"read {self.files['answers']}: {self.answer_rows} rows"
                 + (f", {self.participants} participants" if self.participants else "")
-                + (f", {self.taus} distinct prefix times" if self.taus else "")
+                + (
+                    f", {self.taus} distinct prefix time{'s' * (self.taus != 1)}"
+                    if self.taus
+                    else ""
+                )
                 + unread("answers"),
                 study.summary(),
             ]

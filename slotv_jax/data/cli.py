@@ -86,6 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # a dataset of ours is resumed (finished splits are kept); anything else is refused
     fileio.check_output_dir(out, ours=is_dataset_dir, resume=True)
     print(XLA_CONFIG.summary(), file=sys.stderr)
+    had = [n for n in args.splits if (Path(out) / f"{n}.json").exists()]  # kept, not made
     t0 = time.perf_counter()
     data = generate_dataset(cfg, out, splits=args.splits)
     dt = time.perf_counter() - t0
@@ -96,7 +97,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"trajectory rejection {r['trajectory_rejection_rate']:.2%}, "
             f"scene rejection {r['scenes']['rejection_rate']:.2%}"
         )
-    print(f"wrote {out} in {dt:.1f} s (config digest {cfg.digest()})")
+    if len(had) == len(args.splits):
+        print(f"found {out}: every split was already there (config digest {cfg.digest()})")
+    else:
+        kept = f", {len(had)} split(s) already there" if had else ""
+        print(f"wrote {out} in {dt:.1f} s{kept} (config digest {cfg.digest()})")
     if out == preset_dir(args.preset):
         print(f"other commands find it as --data {args.preset} (in Python: "
               f'load_split("{args.preset}", ...))')  # fmt: skip

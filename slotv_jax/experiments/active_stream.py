@@ -329,10 +329,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     render(doc, out, record.command_line(PROG, argv))
     for c in doc["summary"]:
         r = c["ratio_random_over_this"]
-        print(
-            f"{c['strategy']}: {_fmt(c['examples_to_target'])} examples to "
-            f"{cfg.target:.0%}" + ("" if r is None else f" (random / this {r:.2f})")
-        )
+        hit = c["examples_to_target"]
+        reach = (f"{hit:,.0f} examples to {cfg.target:.0%}" if hit is not None
+                 else f"does not reach {cfg.target:.0%}")  # fmt: skip
+        print(f"{c['strategy']}: {reach}" + ("" if r is None else f" (random / this {r:.2f})"))
     return 0
 
 

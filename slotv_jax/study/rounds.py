@@ -27,6 +27,7 @@ the members' agreement and each pick's score.
 from __future__ import annotations
 
 import argparse
+import collections
 import dataclasses
 import functools
 import json
@@ -268,8 +269,11 @@ def next_main(args: argparse.Namespace) -> int:
         )  # fmt: skip
     finally:
         renderer.close()
+    kinds = collections.Counter(s["kind"] for s in manifest["stimuli"])
+    extra = ", ".join(f"{kinds[k]} {k}" for k in ("attention", "practice") if kinds[k])
     print(
-        f"round {r}: {len(manifest['stimuli'])} stimuli in {out} ({choice['strategy']} of "
+        f"round {r}: {len(manifest['stimuli'])} stimuli in {out} ("
+        f"{kinds['trial']} trials{', ' + extra if extra else ''}; {choice['strategy']} of "
         f"{choice['candidates']} candidates, trained on {choice['answers']:g} answers)"
     )
     return 0

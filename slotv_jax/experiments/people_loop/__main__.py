@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from slotv_jax.core import cli, fileio
+from slotv_jax.core.xla import XLA_CONFIG
 from slotv_jax.experiments.people_loop import (
     FAMILIES,
     PRESETS,
@@ -99,6 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         draw_example(doc, out, stem)
         return 0
     out.mkdir(parents=True, exist_ok=True)
+    print(XLA_CONFIG.summary(), file=sys.stderr)
     t0 = time.perf_counter()
     run(cfg, out, specs, cache=Path(args.data_cache))
     print(
