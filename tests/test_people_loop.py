@@ -37,6 +37,14 @@ def tiny_run(tmp_path_factory):
     return _TINY_RUN[0]
 
 
+def test_the_tests_of_the_tiny_run_share_one_worker(request):
+    """Under ``--dist loadgroup`` (pyproject's addopts) this module's tests run on one xdist
+    worker, which builds the tiny run once: xdist marks their ids with the group. (pytest
+    9.2 with pytest-xdist 3.8 lost the mark silently and both workers built it.)"""
+    if getattr(request.config.option, "loadgroup", False):  # set on xdist workers
+        assert request.node.nodeid.endswith("@people_loop"), request.node.nodeid
+
+
 @pytest.mark.slow
 def test_the_document_holds_spec_rows_and_its_own_numbers(tiny_run):
     out, _, _, doc = tiny_run
