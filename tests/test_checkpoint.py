@@ -227,11 +227,13 @@ def test_loading_prints_nothing(tmp_path):
     bad = []
     for i, keep in enumerate((0.5, -1)):
         ck = shutil.copytree(good[0], tmp_path / f"bad{i}")
-        data = max((ck / "state").rglob("d/*"), key=lambda f: f.stat().st_size)
-        if keep < 0:
-            data.unlink()
-        else:
-            data.write_bytes(data.read_bytes()[: len(data.read_bytes()) // 2])
+        # every data file: which one holds the parameters (all that loading reads) varies
+        # from save to save, so cutting only the largest one let a load pass once in CI
+        for data in (ck / "state").rglob("d/*"):
+            if keep < 0:
+                data.unlink()
+            else:
+                data.write_bytes(data.read_bytes()[: len(data.read_bytes()) // 2])
         bad.append(ck)
     script = textwrap.dedent(f"""
         import gc, time
