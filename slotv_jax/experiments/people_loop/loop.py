@@ -131,19 +131,6 @@ def _init_keys(family: str, seeds) -> jax.Array:
     return jnp.stack([jax.random.key(2_000 + 97 * sd + LEARNED.index(family)) for sd in seeds])
 
 
-def initial_params(cfg: LoopConfig, seeds) -> dict:
-    """Every family's parameters before any answer, one set per run (``seeds``: each run's
-    seed), and β = 1 for the fitted labelers: the planner's ``params`` argument."""
-    out = {}
-    for f in cfg.families:
-        if f in LEARNED:
-            sel = selection.make_selector(cfg.train_config(f), 1, 1)
-            ens = jax.vmap(sel.init)(_init_keys(f, seeds))
-            out[f] = jax.tree.map(lambda x: x[:, 0], ens.params)
-    out["beta"] = jnp.ones((len(list(seeds)), len(FITTED)), jnp.float32)
-    return out
-
-
 # ------------------------------------------------------------------ evaluation
 
 
