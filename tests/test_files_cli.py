@@ -277,20 +277,20 @@ def test_readme_commands_write_distinct_outputs():
 
 
 @pytest.mark.parametrize(
-    "module, folder",
+    "module, document",
     [
-        ("active", "runs/active_quick"),
-        ("active_stream", "runs/active_stream_quick"),
-        ("people_loop.__main__", "runs/people_loop_quick"),
-        ("study_size.__main__", "runs/study_size_quick"),
+        ("active", "experiments/active_results.json"),
+        ("active_stream", "experiments/active_stream_results.json"),
+        ("people_loop.__main__", "experiments/people_loop_results.json"),
+        ("study_size.__main__", "experiments/study_size.json"),
     ],
 )
-def test_experiments_never_write_the_recorded_results_by_default(
-    module, folder, tmp_path, monkeypatch, capsys
+def test_experiments_whose_records_spec_names_default_to_them(
+    module, document, tmp_path, monkeypatch, capsys
 ):
-    """Without --out an experiment's folder is runs/<name>_<preset>, never experiments/
-    (the recorded results a newcomer's run would have overwritten); --report there, with
-    nothing run yet, names the folder it read."""
+    """SPEC §10-§12: active, study_size and the people loop write experiments/NAME.md and
+    its results (active_stream beside active), where a rerun resumes the recorded document;
+    --report where nothing ran yet names the document it looked for, in one line."""
     import importlib
 
     monkeypatch.chdir(tmp_path)
@@ -299,8 +299,7 @@ def test_experiments_never_write_the_recorded_results_by_default(
         main(["--report"])
     assert exit_.value.code == 2
     err = capsys.readouterr().err
-    assert f"{folder}/" in err and "no results document" in err, err
-    assert not (tmp_path / "experiments").exists()
+    assert document in err and "no results document" in err and err.count("\n") == 1, err
 
 
 @pytest.mark.parametrize(

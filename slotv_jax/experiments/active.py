@@ -332,7 +332,7 @@ def _parse_args(argv):
 @cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
-    out = command.out_dir(args, "active")
+    out = Path(args.out)
     if args.report:
         again = lambda doc, cmd: render(summarise(doc), out, cmd)  # noqa: E731
         return command.render_again(

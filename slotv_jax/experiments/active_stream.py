@@ -316,7 +316,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = command.seeded_parser(PROG, __doc__.split("\n\n")[0], PRESETS)
     ap.add_argument("--steps", type=int, default=None, help="updates (each on a new batch)")
     args = ap.parse_args(argv)
-    out = command.out_dir(args, "active_stream")
+    out = Path(args.out)
     if args.report:
         again = lambda doc, cmd: render(summarise(doc), out, cmd)  # noqa: E731
         return command.render_again(

@@ -22,7 +22,7 @@ def seeded_parser(prog: str, description: str, presets: Sequence[str]) -> argpar
     motions, strategies; :func:`seeded_overrides` reads it back."""
     ap = argparse.ArgumentParser(prog=prog, description=description)
     ap.add_argument("--preset", default="quick", choices=tuple(presets))
-    ap.add_argument("--out", help="output folder (default: runs/<experiment>_<preset>)")
+    ap.add_argument("--out", default="experiments", help="output folder (default: experiments)")
     ap.add_argument("--cache", default="data", help="dataset cache folder")
     ap.add_argument("--seeds", type=int, default=None)
     ap.add_argument("--first-seed", type=int, default=None, help="seeds from this one (tuning)")
@@ -37,12 +37,6 @@ def seeded_parser(prog: str, description: str, presets: Sequence[str]) -> argpar
     )
     ap.add_argument("--no-progress", action="store_true")
     return ap
-
-
-def out_dir(args: argparse.Namespace, name: str) -> Path:
-    """``--out``, or ``runs/NAME_PRESET`` when it is not given: a run never writes over the
-    recorded results in ``experiments/`` unless asked to (``--out experiments``)."""
-    return Path(args.out) if args.out else Path("runs") / f"{name}_{args.preset}"
 
 
 def seeded_overrides(args: argparse.Namespace, names: Sequence[str] = ()) -> dict:

@@ -24,7 +24,6 @@ from slotv_jax.experiments.people_loop import (
     stem_of,
 )
 from slotv_jax.observers import population as population_lib
-from slotv_jax.runs import command
 
 # ------------------------------------------------------------------ command line
 
@@ -40,9 +39,7 @@ def parser() -> argparse.ArgumentParser:
         default="default",
         help="comma-separated: default, homogeneous, or population JSON files",
     )
-    ap.add_argument(
-        "--out", help="folder of the results and report (default: runs/people_loop_<preset>)"
-    )
+    ap.add_argument("--out", default="experiments", help="folder of the results and report")
     ap.add_argument("--data-cache", default="data", help="where datasets are cached")
     ap.add_argument("--seeds", type=int, help="number of seeds (default: the preset's)")
     ap.add_argument("--first-seed", type=int, help="first seed (default 0)")
@@ -87,7 +84,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise ValueError("--population: expected at least one population")
     for p in specs:  # every population file is read and checked before any work
         population_lib.get_population(p)
-    out = command.out_dir(args, "people_loop")
+    out = Path(args.out)
     stem = stem_of(cfg.preset)
     names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png", "_plans.npz", "_render.png")]
     fileio.check_output_files(out, names, ours={names[0]: is_results})

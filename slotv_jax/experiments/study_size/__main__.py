@@ -24,7 +24,7 @@ def _parse_args(argv):
         description="Simulated studies: trajectories × participants for a learned observer.",
     )
     ap.add_argument("--preset", default="quick", choices=tuple(PRESETS))
-    ap.add_argument("--out", help="output folder (default: runs/study_size_<preset>)")
+    ap.add_argument("--out", default="experiments", help="output folder (default: experiments)")
     ap.add_argument("--cache", default="data", help="dataset cache folder")
     ap.add_argument("--n-grid", default=None, help="comma-separated N, e.g. 100,1000")
     ap.add_argument("--participants", default=None, help="comma-separated P; 0 means ∞")
@@ -74,7 +74,7 @@ def report_again(out: Path, preset: str) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse_args(argv)
     if args.report:
-        return report_again(command.out_dir(args, "study_size"), args.preset)
+        return report_again(Path(args.out), args.preset)
     print(slotv_jax.XLA_CONFIG.summary(), flush=True)
     kw: dict = {}
     if args.n_grid:
@@ -93,7 +93,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     cfg = PRESETS[args.preset](**kw)
     if args.set:  # after the preset's own overrides
         cfg = dataclasses.replace(cfg, overrides=cfg.overrides + tuple(args.set))
-    out = command.out_dir(args, "study_size")
+    out = Path(args.out)
     doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress)
     stem = stem_of(cfg.preset)
     plot(doc, out / f"{stem}.png")
