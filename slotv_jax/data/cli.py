@@ -20,6 +20,7 @@ from slotv_jax.data.storage import (
     _read_json,
     dataset_dir,
     find_dataset,
+    has_split,
     is_dataset_dir,
     load_split,
     preset_dir,
@@ -86,7 +87,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # a dataset of ours is resumed (finished splits are kept); anything else is refused
     fileio.check_output_dir(out, ours=is_dataset_dir, resume=True)
     print(XLA_CONFIG.summary(), file=sys.stderr)
-    had = [n for n in args.splits if (Path(out) / f"{n}.json").exists()]  # kept, not made
+    had = [n for n in args.splits if has_split(out, n)]  # kept, not made
     t0 = time.perf_counter()
     data = generate_dataset(cfg, out, splits=args.splits)
     dt = time.perf_counter() - t0

@@ -56,6 +56,7 @@ from slotv_jax.data.storage import (
     Split,
     _check_dir_config,
     dataset_dir,
+    has_split,
     load_split,
     save_split,
 )
@@ -286,7 +287,7 @@ def generate_dataset(
     result: dict[str, Split] = {}
     scene_sets: dict[str, tuple[Scene, dict]] | None = None
     for name in tqdm(splits, desc="splits", unit="split", disable=not progress):
-        if out is not None and (out / f"{name}.json").exists():
+        if out is not None and has_split(out, name):
             result[name] = load_split(out, name)
             continue
         if scene_sets is None:

@@ -250,9 +250,15 @@ def _read_json(path: Path) -> dict:
         raise ValueError(f"{path}: corrupt JSON sidecar ({e})") from e
 
 
+def has_split(directory: str | Path, name: str) -> bool:
+    """Whether the dataset folder ``directory`` holds split ``name`` (its sidecar is written
+    last, after the arrays, so a split with a sidecar is finished)."""
+    return (Path(directory) / f"{name}.json").is_file()
+
+
 def _missing_split(directory: Path, name: str) -> FileNotFoundError:
     """The error for a split that ``directory`` lacks, naming the command that makes it."""
-    held = [n for n in SPLITS if (directory / f"{n}.json").is_file()]
+    held = [n for n in SPLITS if has_split(directory, n)]
     where = f"{directory / f'{name}.json'}: split sidecar not found"
     if not held:
         return FileNotFoundError(
@@ -281,7 +287,7 @@ def load_split(directory: str | Path, name: str) -> Split:
     if name not in SPLITS:
         raise ValueError(f"name: expected one of {SPLITS}, got {name!r}")
     directory = find_dataset(directory)
-    if not (directory / f"{name}.json").exists():
+    if not has_split(directory, name):
         raise _missing_split(directory, name)
     meta = _read_json(directory / f"{name}.json")
     path = directory / f"{name}.npz"

@@ -108,7 +108,6 @@ class LabelerGuesser:
         self.fn = getattr(labelers, labeler)
         self.rng = np.random.default_rng(seed)
         self.stimuli = _Stimuli(stimdir)
-        self.by_still = self.stimuli.by_still
 
     def probs(self, still: bytes) -> tuple[list[str], np.ndarray]:
         """The labeler's goal probabilities for the stimulus whose still this is."""
@@ -146,7 +145,6 @@ class PopulationGuesser:
             population.get_population(pop))  # fmt: skip
         self.seed = seed
         self.stimuli = _Stimuli(stimdir)
-        self.by_still = self.stimuli.by_still
 
     def participant(self, i: int) -> PopulationParticipant:
         """Participant ``i``, with their own parameters."""

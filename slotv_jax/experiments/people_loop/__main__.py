@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 import time
 from collections.abc import Sequence
@@ -24,6 +23,7 @@ from slotv_jax.experiments.people_loop import (
     stem_of,
 )
 from slotv_jax.observers import population as population_lib
+from slotv_jax.runs import command
 
 # ------------------------------------------------------------------ command line
 
@@ -88,14 +88,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     stem = stem_of(cfg.preset)
     names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png", "_plans.npz", "_render.png")]
     fileio.check_output_files(out, names, ours={names[0]: is_results})
-    if args.report:
-        path = out / names[0]
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: no results document to render")
-        doc = json.loads(path.read_text())
-        report_lib.render(doc, out, stem)
-        draw_example(doc, out, stem)
-        return 0
+    if args.report:  # the report and the example drawn again from the document alone
+
+        def again(doc: dict, _command: str) -> None:
+            report_lib.render(doc, out, stem)
+            draw_example(doc, out, stem)
+
+        return command.render_again(out, stem, is_results, again, "")
     out.mkdir(parents=True, exist_ok=True)
     print(XLA_CONFIG.summary(), file=sys.stderr)
     t0 = time.perf_counter()
