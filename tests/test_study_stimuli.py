@@ -92,3 +92,33 @@ def test_npz_and_study_sources_by_ik(renderer, motions, tmp_path):
     man = make_stimuli.make_set(m, tmp_path / "st", n=2, taus=(0.5, 1.0), attention=0,
                                 renderer=renderer, progress=False)  # fmt: skip
     assert len(man["stimuli"]) == 5 and man["stimuli"][-1]["kind"] == "practice"
+
+
+def test_trials_per_participant_is_written_and_an_edited_study_json_kept(
+    renderer, motions, tmp_path
+):
+    """``trials`` (``stimuli --trials K``) sets study.json's trials_per_participant: in a new
+    folder over the defaults, in a replaced set field by field, keeping what a researcher
+    edited; a K above --n or on a later round is refused before anything is rendered."""
+    _, xyz, goals, mask, target = motions
+    np.savez(tmp_path / "m.npz", xyz=xyz, goals=goals, goal_mask=mask, target=target)
+    m = make_stimuli.motions_from_npz(tmp_path / "m.npz")
+    kw = {"taus": (1.0,), "attention": 0, "practice": False, "renderer": renderer,
+          "progress": False}  # fmt: skip
+    out = tmp_path / "stim"
+    make_stimuli.make_set(m, out, n=2, trials=1, **kw)
+    got = json.loads((out / "study.json").read_text())
+    assert got == {**stimuli.SETTINGS, "trials_per_participant": 1}
+    (out / "study.json").write_text(json.dumps({**got, "title": "Mine"}))
+    make_stimuli.make_set(m, out, n=2, trials=2, overwrite=True, **kw)
+    assert stimuli.read_settings(out)["trials_per_participant"] == 2
+    assert stimuli.read_settings(out)["title"] == "Mine"
+    make_stimuli.make_set(m, out, n=2, overwrite=True, **kw)  # no --trials: the file's
+    assert stimuli.read_settings(out)["trials_per_participant"] == 2
+    before = sorted(p.name for p in tmp_path.iterdir())
+    with pytest.raises(ValueError, match=r"--trials 3: expected 1\.\.2"):
+        make_stimuli.make_set(m, tmp_path / "new", n=2, trials=3, **kw)
+    with pytest.raises(ValueError, match=r"round 1 keeps round 0's study\.json"):
+        make_stimuli.make_set(m, out / "round-1", n=1, trials=1, round_=1, **kw)
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert not (out / "round-1").exists()

@@ -1,6 +1,6 @@
 """The README's study walk-through, with three people in a real browser.
 
-The README block runs verbatim in bash (stimuli from a dataset split, the server, 20
+The README block runs verbatim in bash (stimuli from a dataset split, the server, 120
 simulated participants, export, import, training, load_observer, a legibility gradient);
 while its server is up, three participants click through the study in headless Chromium
 (Playwright), one refreshing mid-trial and one pressing the back button. Their clicks
@@ -137,23 +137,28 @@ def test_readme_study_walk_with_people_in_chromium(browser, tiny_data, tiny_cfg,
         assert [(r[3], r[4]) for r in mine] == [(g, c) for _, g, c in clicked]
         assert all(r[1] == f"person{i}-x" and r[2] == code and 0 <= r[5] < 60000 for r in mine)
         assert len(mine) == 5  # practice, 3 motions, 1 attention check
-    assert len(rows) == 63 * 5  # and the 60 simulated participants
+    assert len(rows) == 123 * 5  # and the 120 simulated participants
     # what the README's commands made of them
     # each participant: a practice trial, 3 stimuli and an attention check
     assert (
-        "60 of 60 simulated participants finished, 300 answers (180 on the stimuli, "
-        "60 attention checks, 60 practice trials; export keeps those on the stimuli)"
+        "120 of 120 simulated participants finished, 600 answers (360 on the stimuli, "
+        "120 attention checks, 120 practice trials; export keeps those on the stimuli)"
     ) in out
-    assert ("wrote answers: 189 answers to 3 trajectories from 63 participants (the stimuli's "
-            "answers; left out: 63 attention checks, 63 practice trials)") in out  # fmt: skip
+    assert ("wrote answers: 369 answers to 12 trajectories from 123 participants (the stimuli's "
+            "answers; left out: 123 attention checks, 123 practice trials)") in out  # fmt: skip
     s = study.load_study(tmp_path / "people.npz")
-    assert s.n_answers == 189 and s.conditions == ("observer",)
+    assert s.n_answers == 369 and s.conditions == ("observer",)
     probs = re.search(r"P\(goal \| motion\): \[([0-9., ]+)\]", out).group(1).split(",")
     assert abs(sum(map(float, probs)) - 1) < 5e-3
     assert "legibility gradient: (100, 3) finite: True" in out
-    # the walk's observer has learned these people: held out, above the uniform guess. (Its
-    # fit on 3 motions varies: 0.39, 0.70 and 0.71 in three runs against 0.22; a margin of
-    # 0.25 failed once, so the margin asserted is 0.1.)
-    found = re.search(r"held-out accuracy: ([0-9.]+) \(the uniform guess: ([0-9.]+)\)", out)
-    acc, chance = float(found.group(1)), float(found.group(2))
-    assert acc >= chance + 0.1, (acc, chance)
+    # the walk's observer has learned these people: on held-out motions its P(goal | motion)
+    # lies closer to the population's than the hand-crafted archetype it started from. (KL in
+    # nats on the tiny split: trained 0.042-0.055 in seven runs of stimulus seeds 0-6, the
+    # archetype 0.112, the uniform guess 0.185. The same study with each row's answers moved
+    # to the next goal, or the goals' order reversed, trains to 0.18 and 0.16: answers
+    # reaching the wrong goals fail this.)
+    num = r"([0-9.]+)"
+    found = re.search(rf"held-out KL from the people \(nats\): trained {num}, "
+                      rf"untrained \(Dragan, β = 5\) {num}, uniform guess {num}", out)  # fmt: skip
+    trained, untrained, uniform = map(float, found.groups())
+    assert trained < untrained < uniform, (trained, untrained, uniform)

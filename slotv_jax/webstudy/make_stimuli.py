@@ -220,10 +220,16 @@ def make_set(
     progress: bool = True,
     source: dict | None = None,
     round_: int = 0,
+    trials: int | None = None,
 ) -> dict:
     """A stimulus set of ``n`` motions drawn at random (``seed``): each at every τ from
     every camera, ``attention`` more as attention checks, one more for practice; round
-    ``round_`` of its study folder (``out`` is that round's folder)."""
+    ``round_`` of its study folder (``out`` is that round's folder). ``trials`` (round 0):
+    each participant's main trials, ``study.json``'s ``trials_per_participant`` (``None``:
+    one per motion, or what an existing ``study.json`` says)."""
+    if trials is not None and not 1 <= trials <= n:
+        raise ValueError(f"--trials {trials}: expected 1..{n} (--n: a participant sees each "
+                         "motion at most once)")  # fmt: skip
     m = len(motions.ids)
     need = n + attention + int(practice)
     if not 1 <= n or need > m:
@@ -245,6 +251,7 @@ def make_set(
         length=motions.length[pick], t=None if motions.t is None else motions.t[pick],
         source={**(source or {}), "indices": pick.tolist(), "seed": seed},
         overwrite=overwrite, progress=progress, round_=round_,
+        settings=None if trials is None else {"trials_per_participant": trials},
     )  # fmt: skip
 
 
@@ -297,6 +304,9 @@ def add_command(sub) -> None:
     p.add_argument("--taus", default="0.4,0.7,1.0", help="stop times in (0, 1]")
     p.add_argument("--cameras", default="observer", help=f"comma-separated: {rendering.CAMERAS}")
     p.add_argument("--attention", type=int, default=2, help="attention-check motions (tau 1)")
+    p.add_argument("--trials", type=int, default=None,
+                   help="main trials a participant sees, each of another motion (default: "
+                   "every motion); study.json's trials_per_participant")  # fmt: skip
     p.add_argument("--no-practice", action="store_true", help="no practice trial")
     p.add_argument("--size", default=None, help="WIDTHxHEIGHT of the clips (480x270)")
     p.add_argument("--fps", type=float, default=None, help="frames per second (25)")
@@ -340,6 +350,9 @@ def stimuli_main(args: argparse.Namespace) -> int:
                              "leave it out")  # fmt: skip
         if args.overwrite:
             raise ValueError("--overwrite: --next-round writes a new round, never over one")
+        if args.trials is not None:
+            raise ValueError(f"--trials: --next-round keeps the study's settings; set "
+                             f"trials_per_participant in {stimdir / 'study.json'}")  # fmt: skip
         if not find_rounds(stimdir):
             raise ValueError(f"--next-round {stimdir}: no study folder ({MANIFEST} of "
                              "round 0 missing; `study stimuli --out` writes one)")  # fmt: skip
@@ -377,7 +390,7 @@ def stimuli_main(args: argparse.Namespace) -> int:
         m = make_set(
             motions, folder, n=args.n, taus=taus, cameras=cameras, attention=args.attention,
             practice=not args.no_practice, seed=args.seed, renderer=renderer,
-            overwrite=args.overwrite, source=source, round_=r,
+            overwrite=args.overwrite, source=source, round_=r, trials=args.trials,
         )  # fmt: skip
     finally:
         renderer.close()

@@ -76,9 +76,9 @@ import io
 import json
 import re
 import shutil
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 from jaxtyping import Bool, Float, UInt8
@@ -372,12 +372,24 @@ def load_stimulus_set(path: str | Path, *, verify: bool = True) -> StimulusSet:
     return StimulusSet(path, m, points, goals)
 
 
-def write_settings(stimdir: Path) -> None:
-    """Write the editable files (consent, instructions, settings) unless they exist."""
-    texts = (CONSENT, INSTRUCTIONS, json.dumps(SETTINGS, indent=2) + "\n")
+def write_settings(stimdir: Path, settings: Mapping[str, Any] | None = None) -> None:
+    """Write the editable files (consent, instructions, settings) unless they exist.
+
+    ``settings`` (keys of :data:`SETTINGS`) are set in ``study.json``: over the defaults in
+    a new one, field by field in one that exists (its other fields stay as they are)."""
+    settings = dict(settings or {})
+    if set(settings) - set(SETTINGS):
+        raise ValueError(f"settings: expected keys among {sorted(SETTINGS)}, "
+                         f"got {sorted(settings)}")  # fmt: skip
+    texts = (CONSENT, INSTRUCTIONS, json.dumps({**SETTINGS, **settings}, indent=2) + "\n")
     for name, text in zip(EDITABLE, texts, strict=True):
         if not (stimdir / name).exists():
             write_text(stimdir / name, text)
+    read_settings(stimdir)  # the file there is one the server reads
+    got = json.loads((stimdir / "study.json").read_text())
+    if {**got, **settings} != got:
+        write_text(stimdir / "study.json", json.dumps({**got, **settings}, indent=2) + "\n")
+        read_settings(stimdir)  # and still is, with the new values
 
 
 def read_settings(stimdir: str | Path) -> dict:
@@ -458,6 +470,7 @@ def write_stimulus_set(
     source: dict | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    settings: Mapping[str, Any] | None = None,
 ) -> dict:
     """Render and write one stimulus set (a round) into the new or empty folder ``out``.
 
@@ -470,10 +483,13 @@ def write_stimulus_set(
     replaces it whole, later rounds inside it included). The set is written into a
     temporary folder beside ``out`` and renamed into place when complete, so a reader
     (the server looking for new rounds) never sees half a set. Round 0 also gets the
-    editable files (consent, instructions, settings; kept from the set it replaces).
+    editable files (consent, instructions, settings; kept from the set it replaces), with
+    ``settings`` (e.g. ``{"trials_per_participant": 3}``) set in its ``study.json``.
     Returns the manifest.
     """
     out = Path(out)
+    if settings and round_:
+        raise ValueError(f"settings: round {round_} keeps round 0's study.json; edit that")
     check_output_dir(out, ours=lambda p: (p / MANIFEST).is_file(), overwrite=overwrite,
                      what="--out")  # fmt: skip
     n = len(ids)
@@ -521,7 +537,7 @@ def write_stimulus_set(
             for name in EDITABLE:
                 if (final / name).is_file():
                     shutil.copy2(final / name, out / name)
-            write_settings(out)
+            write_settings(out, settings)
         replace_dir(out, final)
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
