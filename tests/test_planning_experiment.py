@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import subprocess
+import sys
 
 import jax
 import numpy as np
@@ -15,6 +17,7 @@ from slotv_jax.core.defaults import BETAS_V1, DEFAULT_BETAS
 from slotv_jax.experiments import planning as exp
 from slotv_jax.observers import labelers
 from slotv_jax.planning import evaluation
+from slotv_jax.planning.plans import load_plans, save_plans
 from slotv_jax.world import scene
 
 
@@ -82,9 +85,8 @@ def test_saved_plans_format(tmp_path):
             labels[f, name] = rng.random((n, 8), dtype=np.float32)
     saved = exp.saved_plans(cfg, problems, straight, plans, labels)
     path = tmp_path / "plans.npz"
-    np.savez_compressed(path, **saved)
-    with np.load(path, allow_pickle=False) as f:
-        pl = {k: f[k] for k in f.files}
+    save_plans(path, saved)  # checked on the way out and in
+    pl = load_plans(path)
     names = [str(x) for x in pl["names"]]
     assert names == ["straight", "oracle", "slotv", "trex", "slotv_plus", "trex_plus", "archetype"]
     idx = exp.example_indices(problems, exp.N_SAVED)
@@ -132,7 +134,42 @@ def test_records_are_rendered_from_their_results(stem):
     for want in planning_report.report(doc, figures=f"{stem}_").splitlines():
         # every rendered line, in order (other figures may stand between them)
         assert any(line == want for line in lines), want
-    with np.load(folder / f"{stem}_plans.npz", allow_pickle=False) as f:
-        assert set(f["family"].tolist()) == set(exp.FAMILIES)
-        np.testing.assert_array_equal(f["beta"], [betas[str(x)] for x in f["family"]])
-        assert f["q"].shape[:2] == (len(f["names"]), len(f["target"]))
+    f = load_plans(folder / f"{stem}_plans.npz")  # the plans file's format, without pickle
+    assert set(f["family"].tolist()) == set(exp.FAMILIES)
+    np.testing.assert_array_equal(f["beta"], [betas[str(x)] for x in f["family"]])
+
+
+def test_plans_file_checked_and_every_reader_says_what_is_wrong_in_one_line(tmp_path):
+    """A plans file with a wrong shape or target is refused on write (nothing written) and
+    on read, by the render command and by the stimuli command, each naming the array."""
+    P, K, T = 2, 2, 6
+    good = {"goals": np.zeros((P, 8, 3), np.float32), "goal_mask": np.arange(8) < [[2], [3]],
+            "target": np.array([1, 2], np.int32), "names": np.array(["straight", "slotv"]),
+            "q": np.zeros((K, P, T, 7), np.float32),
+            "xyz": np.zeros((K, P, T, 3), np.float32)}  # fmt: skip
+    bad = {
+        "q": ({"q": np.zeros((K, P, T, 3), np.float32)}, r"q: expected \(K=2, P, T, 7\)"),
+        "xyz": ({"xyz": np.zeros((K, P, T + 1, 3))}, r"xyz: expected \(2, 2, 6, 3\)"),
+        "target": ({"target": np.array([1, 2]) + 1}, "target: expected the index of a real goal"),
+        "names": ({"names": np.array([1, 2])}, r"names: expected \(K,\) strings"),
+        "missing": ({"goals": None}, r"missing arrays \['goals'\]"),
+    }
+    save_plans(tmp_path / "good.npz", good)
+    assert load_plans(tmp_path / "good.npz")["target"].tolist() == [1, 2]
+    for name, (change, msg) in bad.items():
+        arrays = {k: v for k, v in {**good, **change}.items() if v is not None}
+        with pytest.raises(ValueError, match=msg):
+            save_plans(tmp_path / f"{name}.npz", arrays)
+        assert not (tmp_path / f"{name}.npz").exists()
+        np.savez(tmp_path / f"{name}.npz", **arrays)
+        with pytest.raises(ValueError, match=f"--plans {tmp_path / name}.npz: " + msg):
+            load_plans(tmp_path / f"{name}.npz")
+    for argv in (
+        ["-m", "slotv_jax.render", "--plans", str(tmp_path / "q.npz"), "--out", str(tmp_path)],
+        ["-m", "slotv_jax.study", "stimuli", "--plans", str(tmp_path / "target.npz"),
+         "--out", str(tmp_path / "stim")],
+    ):  # fmt: skip
+        r = subprocess.run([sys.executable, *argv], capture_output=True, text=True, timeout=300)
+        assert r.returncode != 0 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert "--plans" in r.stderr and ("q: expected" in r.stderr or "target:" in r.stderr)
+    assert not (tmp_path / "stim").exists()

@@ -37,26 +37,12 @@ Steps:
    plans, below), the figures rendered from those two files and ``OUT/planning.md``
    rendered from ``results.json``.
 
-``plans.npz`` (read with ``allow_pickle=False``; no object arrays) holds the plans of
-every planner for up to :data:`N_SAVED` problems per family: the first problems of
-evenly spaced held-out scenes with at least three goals, the same problems for both
-families (P = 2 × that number, the Dragan family's rows first)::
-
-    goals      (P, 8, 3) float32   goal positions (m)
-    goal_mask  (P, 8)    bool      real goal slots
-    target     (P,)      int32     the goal slot moved to
-    family     (P,)      unicode   the labeler family: dragan or nikolaidis
-    beta       (P,)      float32   the temperature that scored the row (config.scoring_betas)
-    problem    (P,)      int32     index of the problem in the run (every (scene, goal) pair)
-    split      (P,)      unicode   position_test or goal_count_test
-    scene      (P,)      int32     scene index within the split
-    names      (K,)      unicode   planners: straight, oracle (the family's labeler), slotv,
-                                   trex, slotv_plus, trex_plus, archetype (those of the run)
-    q          (K, P, T, 7) float32  joint configurations of planner k's plan (rad)
-    xyz        (K, P, T, 3) float32  its executed TCP path FK(q) (m)
-    y          (K, P, 8)    float32  its labels under the family's labeler at ``beta``
-
-A planner missing for a family (an archetype left out) has NaN rows.
+``plans.npz`` (:mod:`slotv_jax.planning.plans`) holds the plans of every planner for up
+to :data:`N_SAVED` problems per family: the first problems of evenly spaced held-out scenes
+with at least three goals, the same problems for both families (the Dragan family's rows
+first), with each row's ``family``, scoring ``beta``, ``problem``, ``split`` and ``scene``;
+``y`` is under the family's labeler. A planner missing for a family (an archetype left
+out) has NaN rows.
 """
 
 from __future__ import annotations
@@ -79,10 +65,11 @@ from slotv_jax import data as data_lib
 from slotv_jax import planning
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
-from slotv_jax.core.fileio import atomic_write, write_text
+from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments.planning_report import FIGURES, render, report, write_doc
 from slotv_jax.observers import models
 from slotv_jax.planning import evaluation
+from slotv_jax.planning.plans import save_plans
 from slotv_jax.runs import command, presets
 from slotv_jax.training import checkpoint, evaluate
 from slotv_jax.training import config as train_config
@@ -403,8 +390,7 @@ def run(
         "timing": timing,
     }
     write_text(out / "results.json", json.dumps(doc, indent=1))
-    saved = saved_plans(cfg, problems, straight, plans, labels)
-    atomic_write(out / "plans.npz", lambda f: np.savez_compressed(f, **saved))
+    save_plans(out / "plans.npz", saved_plans(cfg, problems, straight, plans, labels))
     render(out, cfg.n_examples)
     write_text(out / "planning.md", report(doc))
     return doc
@@ -422,7 +408,8 @@ def example_indices(problems: dict, n: int) -> list[int]:
 
 
 def saved_plans(cfg: PlanningConfig, problems: dict, straight, plans: dict, labels: dict) -> dict:
-    """The arrays of ``plans.npz`` (module docstring) for the :func:`example_indices`."""
+    """The arrays of ``plans.npz`` (:mod:`slotv_jax.planning.plans`, with the module
+    docstring's extras) for the :func:`example_indices`."""
     idx = example_indices(problems, N_SAVED)
     names = ("straight", "oracle", *dict.fromkeys(m for f in FAMILIES for m in cfg.methods(f)))
     fams = [f for f in FAMILIES for _ in idx]

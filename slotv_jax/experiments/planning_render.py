@@ -4,9 +4,8 @@ per scene and one panel per planner (straight line, oracle, learned observers).
     python -m slotv_jax.experiments.planning_render --plans experiments/planning_plans.npz \\
         --out experiments/planning_render.png
 
-Reads a planning run's ``plans.npz`` (``goals (P, 8, 3)``, ``goal_mask (P, 8)``,
-``target (P,)``, ``family (P,)``, ``names (K,)``, ``q (K, P, T, 7)``; see
-:mod:`slotv_jax.render.cli`) and renders, for each chosen problem, every planner's
+Reads a planning run's ``plans.npz`` (:mod:`slotv_jax.planning.plans`; ``family``
+where it has one) and renders, for each chosen problem, every planner's
 motion up to τ (default 0.6: what an observer has seen before the end, when a legible
 motion should already give its goal away), with the TCP's path so far, the target's cube
 on a white disc and the cubes lettered, from the ``observer_angle`` camera (45° round
@@ -23,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from slotv_jax.core import cli, fileio
-from slotv_jax.render.cli import PLAN_ARRAYS, parse_indices, parse_size
+from slotv_jax.planning.plans import load_plans
+from slotv_jax.render.cli import parse_indices, parse_size
 from slotv_jax.rendering import compare, writers
 from slotv_jax.rendering.camera import CAMERAS, View
 from slotv_jax.rendering.frames import MotionRenderer, RenderBackendError, check_timing
@@ -126,10 +126,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     fileio.check_output_files(args.out.parent, [args.out.name])  # a figure, regenerated
     check_timing(args.tau, 1.0, 1.0, 0.0)
     size = parse_size(args.size)
-    plans = fileio.load_npz(args.plans)
-    missing = [k for k in PLAN_ARRAYS if k not in plans]
-    if missing:
-        raise cli.InputError(f"--plans {args.plans}: missing arrays {missing}")
+    plans = load_plans(args.plans)
     n = plans["q"].shape[1]
     if args.problems:
         problems = parse_indices(args.problems, n, "--problems")

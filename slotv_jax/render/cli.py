@@ -41,6 +41,7 @@ from tqdm.auto import tqdm
 from slotv_jax.answers.storage import load_study
 from slotv_jax.core import cli, fileio
 from slotv_jax.data import SPLITS, load_split
+from slotv_jax.planning.plans import load_plans
 from slotv_jax.rendering.camera import CAMERAS, FreeCamera
 from slotv_jax.rendering.compare import LAYOUTS, PALETTE, compare_frames
 from slotv_jax.rendering.frames import (
@@ -171,9 +172,6 @@ def _study_items(args) -> list[Item]:
     return items
 
 
-PLAN_ARRAYS = ("goals", "goal_mask", "target", "names", "q")
-
-
 def _plan_title(z: dict, names: list[str], k: int, p: int) -> str:
     """A planner's name, with the target's probability under the family's labeler
     (``y``, where the plans file has it)."""
@@ -183,17 +181,8 @@ def _plan_title(z: dict, names: list[str], k: int, p: int) -> str:
 
 
 def _plans_items(args) -> list[Item]:
-    z = fileio.load_npz(args.plans)
-    missing = [k for k in PLAN_ARRAYS if k not in z]
-    if missing:
-        raise cli.InputError(
-            f"--plans {args.plans}: missing arrays {missing}; it holds {sorted(z)}"
-        )
+    z = load_plans(args.plans)
     q, names = z["q"], [str(s) for s in z["names"]]
-    if q.ndim != 4 or q.shape[0] != len(names) or q.shape[-1] != 7:
-        raise cli.InputError(
-            f"--plans {args.plans}: q: expected (K={len(names)}, P, T, 7), got {q.shape}"
-        )
     idx = parse_indices(args.problem or "0", q.shape[1], "--problem")
     ks = list(range(len(names)))
     if args.planner is not None:

@@ -52,6 +52,7 @@ from slotv_jax import rendering  # first: it picks MUJOCO_GL=egl before MuJoCo l
 from slotv_jax.answers.storage import load_study
 from slotv_jax.core.fileio import check_not_input, check_output_dir, load_npz
 from slotv_jax.data import SPLITS, Split, load_split
+from slotv_jax.planning.plans import load_plans
 from slotv_jax.rendering.overlay import LABEL_LIFT
 from slotv_jax.webstudy.stimuli import (
     MANIFEST,
@@ -179,13 +180,10 @@ def motions_from_npz(path: str | Path) -> Motions:
 def motions_from_plans(path: str | Path) -> Motions:
     """A planning run's ``plans.npz``: every planner's plan of every problem (a planner's
     NaN rows left out); ids ``PLANNER-PROBLEM``, one scene per problem."""
-    z = load_npz(path)
-    missing = [k for k in ("goals", "goal_mask", "target", "names", "q", "xyz") if k not in z]
-    if missing:
-        raise ValueError(f"--plans {path}: missing arrays {missing}; it holds {sorted(z)}")
+    z = load_plans(path)
+    if "xyz" not in z:  # the TCP paths go into the study's tables
+        raise ValueError(f"--plans {path}: missing arrays ['xyz']; it holds {sorted(z)}")
     q, xyz, names = z["q"], z["xyz"], [str(s) for s in z["names"]]
-    if q.ndim != 4 or q.shape[0] != len(names) or q.shape[-1] != 7 or xyz.shape[:3] != q.shape[:3]:
-        raise ValueError(f"--plans {path}: q, xyz: expected (K, P, T, 7) and (K, P, T, 3)")
     rows = [(k, p) for k in range(q.shape[0]) for p in range(q.shape[1])
             if np.isfinite(q[k, p]).all() and np.isfinite(xyz[k, p]).all()]  # fmt: skip
     ks, ps = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])

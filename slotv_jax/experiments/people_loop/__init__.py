@@ -79,6 +79,7 @@ from slotv_jax.experiments.people_loop.config import (  # noqa: F401  (the packa
 )
 from slotv_jax.experiments.people_loop.loop import eval_keys, run_population  # noqa: F401
 from slotv_jax.observers import population as population_lib
+from slotv_jax.planning.plans import save_plans
 
 # ------------------------------------------------------------------ the document
 
@@ -185,8 +186,8 @@ def run(
 
 
 def example_plans(doc: dict) -> dict[str, np.ndarray]:
-    """The first population's example problem as a plans file of the planning experiment's
-    format (``python -m slotv_jax.render --plans``): goals, goal_mask, target, names, q."""
+    """The first population's example problem as a plans file
+    (:mod:`slotv_jax.planning.plans`; ``python -m slotv_jax.render --plans``)."""
     ex = doc["populations"][0]["example"]
     names = list(ex["q"])
     return {
@@ -203,7 +204,7 @@ def draw_example(doc: dict, out: Path, stem: str) -> None:
     (in its own process: the loop itself needs no OpenGL); without OpenGL, say so in one
     line and go on."""
     plans = out / f"{stem}_plans.npz"
-    fileio.atomic_write(plans, lambda f: np.savez_compressed(f, **example_plans(doc)))
+    save_plans(plans, example_plans(doc))
     best = report_lib.best_family(doc, doc["populations"][0])
     cmd = [sys.executable, *report_lib.render_command(stem, out, best)[1:]]
     r = subprocess.run(cmd, capture_output=True, text=True, check=False)
