@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 import ref_labelers
 
-from slotv_jax import planning
+from slotv_jax import data, planning
 from slotv_jax.core.defaults import BETAS_V1
 from slotv_jax.observers import common, labelers
 from slotv_jax.planning import planner as planning_planner
@@ -341,8 +341,7 @@ def test_experiment_problems_from_held_out_scenes(tiny_cfg, tiny_data):
     (scene, real goal) pair."""
     from slotv_jax.experiments import planning as exp
 
-    cfg = exp.PlanningConfig("tiny", tiny_cfg, {}, planning.PlannerConfig(), n_scenes=6)
-    scenes = exp.held_out_scenes(cfg, tiny_data)
+    scenes = data.held_out_scenes(tiny_cfg, tiny_data, 6, exp.SPLITS)
     for s in exp.SPLITS:
         goals, mask = scenes[s]
         k = tiny_cfg.n_new_scenes

@@ -39,12 +39,13 @@ import functools
 import hashlib
 import json
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Bool, Float
 from tqdm.auto import tqdm
 
 from slotv_jax.core import distributed
@@ -107,6 +108,33 @@ def _scene_candidates(key: jax.Array, start: int, n: int, counts: tuple[int, ...
         idx = jnp.arange(i, i + _SCENE_CHUNK)
         parts.append(_scene_candidates_chunk(key, idx, padded, len(counts)))
     return jax.tree.map(lambda *a: np.concatenate(a)[:n], *parts)
+
+
+def held_out_scenes(
+    cfg: DataConfig, dataset: Mapping[str, Split], n: int, splits: Sequence[str]
+) -> dict[str, tuple[Float[np.ndarray, "n 8 3"], Bool[np.ndarray, "n 8"]]]:
+    """The first ``n`` scenes of each of ``splits`` (scene sets of new scenes, e.g.
+    ``position_test``): ``{split: (goals (n, 8, 3), goal_mask (n, 8))}``.
+
+    Beyond the ``cfg.n_new_scenes`` stored with ``dataset``, the sets are drawn further from
+    the same random streams (:func:`sample_scene_sets` with ``n_new_scenes = n``): new
+    scenes of the same distribution, never seen in training. Their first scenes must be the
+    stored ones (RuntimeError otherwise: the dataset is not ``cfg``'s).
+    """
+    if n < 1:
+        raise ValueError(f"n: expected an integer >= 1, got {n}")
+    out = {s: (dataset[s].scene_goals, dataset[s].scene_mask) for s in splits}
+    if n <= cfg.n_new_scenes:
+        return {s: (g[:n], m[:n]) for s, (g, m) in out.items()}
+    more = sample_scene_sets(dataclasses.replace(cfg, n_new_scenes=n))
+    for s, (stored_g, stored_m) in out.items():
+        scenes = more[s][0]
+        g, m = np.asarray(scenes.goals, np.float32), np.asarray(scenes.goal_mask, bool)
+        k = stored_g.shape[0]
+        if not (np.array_equal(g[:k], stored_g) and np.array_equal(m[:k], stored_m)):
+            raise RuntimeError(f"{s}: the extended scene set does not start with the stored scenes")
+        out[s] = (g, m)
+    return out
 
 
 def sample_scene_sets(cfg: DataConfig) -> dict[str, tuple[Scene, dict]]:

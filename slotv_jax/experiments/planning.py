@@ -198,27 +198,6 @@ PRESETS = {"quick": quick, "paper": paper, "tiny": tiny}
 # ------------------------------------------------------------------- problems
 
 
-def held_out_scenes(cfg: PlanningConfig, dataset: dict) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """``{split: (goals (S, 8, 3), goal_mask (S, 8))}`` for the two held-out splits.
-
-    With ``cfg.n_scenes`` above the dataset's, the scene sets are drawn further from the
-    same streams (:func:`slotv_jax.data.sample_scene_sets`); their first scenes must be
-    the stored ones.
-    """
-    out = {s: (dataset[s].scene_goals, dataset[s].scene_mask) for s in SPLITS}
-    if cfg.n_scenes <= cfg.data.n_new_scenes:
-        return {s: (g[: cfg.n_scenes], m[: cfg.n_scenes]) for s, (g, m) in out.items()}
-    more = data_lib.sample_scene_sets(dataclasses.replace(cfg.data, n_new_scenes=cfg.n_scenes))
-    for s, (stored_g, stored_m) in out.items():
-        scenes = more[s][0]
-        g, m = np.asarray(scenes.goals, np.float32), np.asarray(scenes.goal_mask, bool)
-        k = stored_g.shape[0]
-        if not (np.array_equal(g[:k], stored_g) and np.array_equal(m[:k], stored_m)):
-            raise RuntimeError(f"{s}: the extended scene set does not start with the stored scenes")
-        out[s] = (g, m)
-    return out
-
-
 def make_problems(scenes: dict) -> dict[str, np.ndarray]:
     """Every (scene, real goal) pair of the held-out :data:`SPLITS`
     (:func:`slotv_jax.planning.evaluation.scene_problems`)."""
@@ -299,7 +278,7 @@ def run(
     timing["data_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    problems = make_problems(held_out_scenes(cfg, dataset))
+    problems = make_problems(data_lib.held_out_scenes(cfg.data, dataset, cfg.n_scenes, SPLITS))
     timing["scenes_s"] = time.perf_counter() - t0
 
     # Observers: the oracles, and the learned ones (given, or trained here on the dataset).
