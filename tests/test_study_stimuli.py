@@ -120,5 +120,9 @@ def test_trials_per_participant_is_written_and_an_edited_study_json_kept(
         make_stimuli.make_set(m, tmp_path / "new", n=2, trials=3, **kw)
     with pytest.raises(ValueError, match=r"round 1 keeps round 0's study\.json"):
         make_stimuli.make_set(m, out / "round-1", n=1, trials=1, round_=1, **kw)
+    (out / "study.json").write_text(json.dumps({"attention_checks": -1}))  # a broken edit
+    with pytest.raises(ValueError, match="field 'attention_checks'"):
+        make_stimuli.make_set(m, out, n=2, trials=1, overwrite=True, **kw)
     assert sorted(p.name for p in tmp_path.iterdir()) == before
     assert not (out / "round-1").exists()
+    assert json.loads((out / "study.json").read_text()) == {"attention_checks": -1}

@@ -385,6 +385,8 @@ def write_settings(stimdir: Path, settings: Mapping[str, Any] | None = None) -> 
     for name, text in zip(EDITABLE, texts, strict=True):
         if not (stimdir / name).exists():
             write_text(stimdir / name, text)
+    if not settings:
+        return
     read_settings(stimdir)  # the file there is one the server reads
     got = json.loads((stimdir / "study.json").read_text())
     if {**got, **settings} != got:
@@ -490,6 +492,11 @@ def write_stimulus_set(
     out = Path(out)
     if settings and round_:
         raise ValueError(f"settings: round {round_} keeps round 0's study.json; edit that")
+    if settings and set(settings) - set(SETTINGS):
+        raise ValueError(f"settings: expected keys among {sorted(SETTINGS)}, "
+                         f"got {sorted(settings)}")  # fmt: skip
+    if settings and (out / "study.json").is_file():
+        read_settings(out)  # a study.json to update: one the server reads, before rendering
     check_output_dir(out, ours=lambda p: (p / MANIFEST).is_file(), overwrite=overwrite,
                      what="--out")  # fmt: skip
     n = len(ids)
