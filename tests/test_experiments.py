@@ -363,3 +363,17 @@ def test_hparam_summary_renders_again(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         hparam_search.main(["--report-only", "--out", str(tmp_path / "empty")])
     assert e.value.code == 2
+
+
+@pytest.mark.parametrize("stem", ["explainable_quick", "explainable_paper"])
+def test_explainable_record_holds_the_tables_its_results_render(stem):
+    """``experiments/explainable.md`` (a written document around both runs) holds every
+    table row that its recorded results render to: no number typed by hand."""
+    from slotv_jax.experiments.explainable_report import report
+
+    folder = Path(__file__).resolve().parent.parent / "experiments"
+    doc = json.loads((folder / f"{stem}_results.json").read_text())
+    rows = [line for line in report(doc).splitlines() if line.startswith("|")]
+    assert len(rows) > 20
+    lines = set((folder / "explainable.md").read_text().splitlines())
+    assert [row for row in rows if row not in lines] == []
