@@ -347,6 +347,28 @@ def test_study_size_report_renders_again(tmp_path):
     assert e.value.code == 2
 
 
+def test_study_size_rerun_of_the_finished_record_changes_nothing(tmp_path, monkeypatch):
+    """The recorded quick run, rerun on its defaults: every cell is there, so no dataset is
+    loaded or made and the results document stays byte for byte (its machine and times);
+    the report is drawn again with the same rows."""
+    folder = REPO / "experiments"
+    for name in ("study_size.json", "study_size.md"):
+        (tmp_path / name).write_bytes((folder / name).read_bytes())
+    from slotv_jax.experiments.study_size.__main__ import main
+
+    def no_data(*a, **k):
+        raise AssertionError("a finished record loaded its dataset")
+
+    monkeypatch.setattr(data, "cached_dataset", no_data)
+    argv = ["--out", str(tmp_path), "--cache", str(tmp_path / "cache"), "--no-progress"]
+    assert main(argv) == 0
+    assert (tmp_path / "study_size.json").read_bytes() == (folder / "study_size.json").read_bytes()
+    assert not (tmp_path / "cache").exists()
+    rows = [x for x in (tmp_path / "study_size.md").read_text().splitlines() if x.startswith("|")]
+    recorded = [x for x in (folder / "study_size.md").read_text().splitlines() if x.startswith("|")]
+    assert rows == recorded
+
+
 def test_hparam_summary_renders_again(tmp_path, capsys):
     """``hparam_search --report-only`` renders the summary again from the recorded rollouts
     alone: every table row of the recorded summary (the scores and rank correlations), in
