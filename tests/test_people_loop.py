@@ -30,7 +30,7 @@ def tiny_run(tmp_path_factory):
     if not _TINY_RUN:
         out = tmp_path_factory.mktemp("loop")
         cache = tmp_path_factory.mktemp("data")
-        argv = ["--preset", "tiny", "--out", str(out), "--data-cache", str(cache)]
+        argv = ["--preset", "tiny", "--out", str(out), "--cache", str(cache), "--no-progress"]
         assert main(argv) == 0
         doc = json.loads((out / "people_loop_tiny_results.json").read_text())
         _TINY_RUN.append((out, cache, argv, doc))

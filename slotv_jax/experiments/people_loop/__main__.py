@@ -40,7 +40,8 @@ def parser() -> argparse.ArgumentParser:
         help="comma-separated: default, homogeneous, or population JSON files",
     )
     ap.add_argument("--out", default="experiments", help="folder of the results and report")
-    ap.add_argument("--data-cache", default="data", help="where datasets are cached")
+    ap.add_argument("--cache", "--data-cache", dest="data_cache", default="data",
+                    help="where datasets are cached")  # fmt: skip
     ap.add_argument("--seeds", type=int, help="number of seeds (default: the preset's)")
     ap.add_argument("--first-seed", type=int, help="first seed (default 0)")
     ap.add_argument("--strategies", help="comma-separated (random first), e.g. random,margin")
@@ -48,6 +49,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--sizes", help="comma-separated answer counts, e.g. 250,500,1000")
     ap.add_argument("--problems", type=int, help="held-out planning problems")
     ap.add_argument("--report", action="store_true", help="only render the report again")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bars")
     return ap
 
 
@@ -98,7 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     print(XLA_CONFIG.summary(), file=sys.stderr)
     t0 = time.perf_counter()
-    run(cfg, out, specs, cache=Path(args.data_cache))
+    run(cfg, out, specs, cache=Path(args.data_cache), progress=not args.no_progress)
     print(
         f"people loop: {time.perf_counter() - t0:.0f} s; report {out / (stem + '.md')}",
         file=sys.stderr,
