@@ -15,7 +15,7 @@ import pytest
 from slotv_jax import data
 from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.experiments import hparam_search, table1
-from slotv_jax.runs import curves, grid, presets, summary
+from slotv_jax.runs import curves, grid, presets, record, summary
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -367,6 +367,8 @@ def test_study_size_rerun_of_the_finished_record_changes_nothing(tmp_path, monke
     rows = [x for x in (tmp_path / "study_size.md").read_text().splitlines() if x.startswith("|")]
     recorded = [x for x in (folder / "study_size.md").read_text().splitlines() if x.startswith("|")]
     assert rows == recorded
+    # the command that made it, less display-only flags (a rerun with them changes nothing)
+    assert record.command_line("p", ["--preset", "quick", "--no-progress"]) == "p --preset quick"
 
 
 def test_hparam_summary_renders_again(tmp_path, capsys):

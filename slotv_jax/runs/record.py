@@ -1,7 +1,7 @@
 """Where, when and how a recorded run ran: what a results document keeps beside its numbers
 so that its report says it, and can be rendered again from the document alone.
 
->>> command_line("python -m slotv_jax.experiments.active", ["--preset", "paper"])
+>>> command_line("python -m slotv_jax.experiments.active", ["--preset", "paper", "--no-progress"])
 'python -m slotv_jax.experiments.active --preset paper'
 """
 
@@ -48,10 +48,16 @@ def versions(env: Mapping, keys: Sequence[str] = VERSIONS) -> str:
     return ", ".join(f"{k} {env[k]}" for k in keys if k in env)
 
 
+#: Flags that change how a run looks, not what it computes: left out of the recorded command,
+#: so that a rerun with or without them draws the same report.
+DISPLAY_FLAGS = ("--no-progress",)
+
+
 def command_line(prog: str, argv: Sequence[str] | None) -> str:
-    """The command as the user typed it: ``prog`` and its arguments (``argv``, or the
-    process's own when None)."""
-    return " ".join([prog, *(sys.argv[1:] if argv is None else argv)])
+    """The command that made the results: ``prog`` and its arguments (``argv``, or the
+    process's own when None), less the :data:`DISPLAY_FLAGS`."""
+    args = sys.argv[1:] if argv is None else argv
+    return " ".join([prog, *(a for a in args if a not in DISPLAY_FLAGS)])
 
 
 def recorded_command(report: str | Path) -> str | None:
