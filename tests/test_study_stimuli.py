@@ -95,7 +95,7 @@ def test_npz_and_study_sources_by_ik(renderer, motions, tmp_path):
 
 
 def test_trials_per_participant_is_written_and_an_edited_study_json_kept(
-    renderer, motions, tmp_path
+    renderer, motions, tmp_path, capsys
 ):
     """``trials`` (``stimuli --trials K``) sets study.json's trials_per_participant: in a new
     folder over the defaults, in a replaced set field by field, keeping what a researcher
@@ -126,3 +126,16 @@ def test_trials_per_participant_is_written_and_an_edited_study_json_kept(
     assert sorted(p.name for p in tmp_path.iterdir()) == before
     assert not (out / "round-1").exists()
     assert json.loads((out / "study.json").read_text()) == {"attention_checks": -1}
+    # the command: --next-round keeps the study's settings; a K of 0 is refused; one line each
+    from slotv_jax.study import cli as study_cli
+
+    src = ["stimuli", "--npz", str(tmp_path / "m.npz"), "--n", "1", "--attention", "0"]
+    for argv, msg in (
+        ([*src, "--next-round", str(out), "--trials", "1"], "--trials: --next-round keeps"),
+        ([*src, "--out", str(tmp_path / "new"), "--trials", "0"], "--trials 0: expected 1..1"),
+    ):
+        with pytest.raises(SystemExit) as e:
+            study_cli.main(argv)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert e.value.code != 0 and len(err) == 1 and msg in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
