@@ -176,9 +176,9 @@ def _commands() -> list[str]:
 # the commands that keep their finished work and go on from it when rerun (README, Files)
 RESUMES = {
     "slotv_jax.data.cli",
-    *(f"slotv_jax.experiments.{m}" for m in ("table1", "fidelity", "explainable", "planning",
-                                              "sample_efficiency", "hparam_search", "active",
-                                              "active_stream")),
+    *(f"slotv_jax.experiments.{m}" for m in ("table1", "fidelity", "explainable",
+                                              "planning.__main__", "sample_efficiency",
+                                              "hparam_search", "active", "active_stream")),
 }  # fmt: skip
 
 

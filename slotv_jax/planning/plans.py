@@ -1,7 +1,7 @@
 """The plans file: every planner's plan of a few planning problems, in one ``.npz``.
 
 Written by the planning experiment (``OUT/plans.npz``: its example problems,
-:func:`slotv_jax.experiments.planning.saved_plans`) and the people loop
+:func:`slotv_jax.experiments.planning.examples.saved_plans`) and the people loop
 (``STEM_plans.npz``: its example problem); read by ``python -m slotv_jax.render --plans``,
 ``python -m slotv_jax.study stimuli --plans`` and the planning experiment's figures. It is
 read with ``allow_pickle=False`` (no object arrays). P problems, K planners, T points::
