@@ -43,6 +43,11 @@ with at least three goals, the same problems for both families (the Dragan famil
 first), with each row's ``family``, scoring ``beta``, ``problem``, ``split`` and ``scene``;
 ``y`` is under the family's labeler. A planner missing for a family (an archetype left
 out) has NaN rows.
+
+The package: :mod:`~slotv_jax.experiments.planning.config` (families, observers, presets),
+:mod:`~slotv_jax.experiments.planning.examples` (the plans kept), this module (problems,
+observers, the run) and ``__main__`` (the command line); the report and figures are
+:mod:`slotv_jax.experiments.planning_report` and ``planning_render``.
 """
 
 from __future__ import annotations
