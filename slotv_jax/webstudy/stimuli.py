@@ -376,22 +376,19 @@ def write_settings(stimdir: Path, settings: Mapping[str, Any] | None = None) -> 
     """Write the editable files (consent, instructions, settings) unless they exist.
 
     ``settings`` (keys of :data:`SETTINGS`) are set in ``study.json``: over the defaults in
-    a new one, field by field in one that exists (its other fields stay as they are)."""
+    a new one, field by field in one that exists (its other fields stay as they are; the
+    caller has checked it with :func:`read_settings`)."""
     settings = dict(settings or {})
-    if set(settings) - set(SETTINGS):
-        raise ValueError(f"settings: expected keys among {sorted(SETTINGS)}, "
-                         f"got {sorted(settings)}")  # fmt: skip
     texts = (CONSENT, INSTRUCTIONS, json.dumps({**SETTINGS, **settings}, indent=2) + "\n")
     for name, text in zip(EDITABLE, texts, strict=True):
         if not (stimdir / name).exists():
             write_text(stimdir / name, text)
-    if not settings:
-        return
-    read_settings(stimdir)  # the file there is one the server reads
-    got = json.loads((stimdir / "study.json").read_text())
-    if {**got, **settings} != got:
-        write_text(stimdir / "study.json", json.dumps({**got, **settings}, indent=2) + "\n")
-        read_settings(stimdir)  # and still is, with the new values
+    if settings:
+        path = stimdir / "study.json"
+        got = json.loads(path.read_text())
+        if {**got, **settings} != got:
+            write_text(path, json.dumps({**got, **settings}, indent=2) + "\n")
+        read_settings(stimdir)  # what the server will read: valid, with the new values
 
 
 def read_settings(stimdir: str | Path) -> dict:
@@ -490,13 +487,14 @@ def write_stimulus_set(
     Returns the manifest.
     """
     out = Path(out)
-    if settings and round_:
-        raise ValueError(f"settings: round {round_} keeps round 0's study.json; edit that")
-    if settings and set(settings) - set(SETTINGS):
-        raise ValueError(f"settings: expected keys among {sorted(SETTINGS)}, "
-                         f"got {sorted(settings)}")  # fmt: skip
-    if settings and (out / "study.json").is_file():
-        read_settings(out)  # a study.json to update: one the server reads, before rendering
+    if settings:  # checked before anything is rendered
+        if round_:
+            raise ValueError(f"settings: round {round_} keeps round 0's study.json; edit that")
+        if set(settings) - set(SETTINGS):
+            raise ValueError(f"settings: expected keys among {sorted(SETTINGS)}, "
+                             f"got {sorted(settings)}")  # fmt: skip
+        if (out / "study.json").is_file():
+            read_settings(out)  # the study.json to update is one the server reads
     check_output_dir(out, ours=lambda p: (p / MANIFEST).is_file(), overwrite=overwrite,
                      what="--out")  # fmt: skip
     n = len(ids)
