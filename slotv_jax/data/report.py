@@ -13,7 +13,7 @@ and, per split, how often all four labelers' argmaxes agree and how often each
 pair agrees. The report says whether the tasks are non-trivial: labels far from
 one-hot, argmax not always the target, labelers disagreeing.
 
-    python -m slotv_jax.experiments.label_report --data data/quick-<digest> --out experiments
+    python -m slotv_jax.data.report --data quick --out runs/labels
 
 Writes ``OUT/labels.md`` (tables and a short reading) and ``OUT/labels.png``
 (entropy ratio and target agreement per labeler × split, four-way agreement per
@@ -32,12 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
-from slotv_jax import data as data_lib
 from slotv_jax.core import cli, fileio
+from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
 from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.data.stats import NEAR_TIE, collect
+from slotv_jax.data.storage import Split, load_split
 
-LABELERS = data_lib.LABELER_NAMES  # dragan, nikolaidis, effdist, fastapp
+LABELERS = LABELER_NAMES  # dragan, nikolaidis, effdist, fastapp
 TITLES = {
     "dragan": "Dragan",
     "nikolaidis": "Nikolaidis",
@@ -296,7 +297,7 @@ def plot(stats: dict, path: Path) -> None:
 
 
 def write_report(
-    splits: Mapping[str, data_lib.Split],
+    splits: Mapping[str, Split],
     out: str | Path,
     *,
     command: str,
@@ -334,17 +335,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command line: load the splits of ``--data`` and write the report to ``--out``."""
     argv = list(sys.argv[1:] if argv is None else argv)
     p = argparse.ArgumentParser(
-        prog="python -m slotv_jax.experiments.label_report",
+        prog="python -m slotv_jax.data.report",
         description="Label entropy, target agreement and labeler agreement per split.",
     )
     p.add_argument("--data", type=Path, required=True, help="dataset directory (<split>.npz/json)")
     p.add_argument("--out", type=Path, default=Path("runs/labels"), help="default: runs/labels")
-    p.add_argument("--splits", nargs="+", choices=data_lib.SPLITS, default=list(data_lib.SPLITS))
+    p.add_argument("--splits", nargs="+", choices=SPLITS, default=list(SPLITS))
     p.add_argument("--date", help="date to print in the report (default: today)")
     args = p.parse_args(argv)
     fileio.check_output_files(args.out, ["labels.md", "labels.png"])  # regenerated
-    splits = {name: data_lib.load_split(args.data, name) for name in args.splits}
-    command = shlex.join(["python", "-m", "slotv_jax.experiments.label_report", *argv])
+    splits = {name: load_split(args.data, name) for name in args.splits}
+    command = shlex.join(["python", "-m", "slotv_jax.data.report", *argv])
     stats = write_report(splits, args.out, command=command, date=args.date)
     for name, s in stats["splits"].items():
         cells = "  ".join(

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from slotv_jax import data
+from slotv_jax.data import report as lr
 from slotv_jax.data import stats
-from slotv_jax.experiments import label_report as lr
 
 
 def _split(name: str, labels: dict[str, np.ndarray], target, env_id, mask) -> data.Split:
