@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from slotv_jax import data, render, study
-from slotv_jax.experiments import planning_render
 from slotv_jax.render import cli
 from slotv_jax.rendering import compare, overlay
 from slotv_jax.rendering import frames as frames_lib
@@ -185,7 +184,9 @@ def test_nan_joints_in_an_npz_are_named(tmp_path, monkeypatch, capsys):
     assert err.startswith("error: t_0001: q: expected finite values"), err
 
 
-def test_planning_figure_rows_and_panels(tmp_path):
+def test_plans_grid_rows_and_panels(tmp_path):
+    """--grid: one row per problem (default: the families in turn), the same panels in each
+    (planners with a non-finite plan in any chosen problem left out, unless named)."""
     plans = tmp_path / "plans.npz"
     np.savez(
         plans,
@@ -196,22 +197,43 @@ def test_planning_figure_rows_and_panels(tmp_path):
         names=np.array(["straight", "oracle", "slotv", "archetype"]),
         q=np.stack([np.stack([Q1, Q2, Q1])] * 3 + [np.stack([Q1, Q2, np.full_like(Q1, np.nan)])]),
     )
-    z = dict(np.load(plans))
-    assert planning_render.default_problems(z["family"]) == [0]  # nikolaidis has no 2nd problem
-    fams = np.array(["d"] * 4 + ["n"] * 4)
-    assert planning_render.default_problems(fams) == [0, 5, 2]
-    assert planning_render.choose_planners(z, [0, 2]) == [0, 1, 2]
-    assert planning_render.choose_planners(z, [0, 2], ["archetype", "oracle"]) == [1]  # NaN out
-    assert planning_render.choose_planners(z, [0, 1], ["archetype", "oracle"]) == [3, 1]
-    out = tmp_path / "fig.png"
-    args = ["--plans", str(plans), "--out", str(out), "--size", "64x48", "--problems", "0,2"]
-    assert planning_render.main(args) == 0
-    img = render.read_video(out)[0]
+    assert cli.grid_problems(np.array(["dragan", "dragan", "nikolaidis"])) == [0]  # no 2nd n
+    assert cli.grid_problems(np.array(["d"] * 4 + ["n"] * 4)) == [0, 5, 2]
+    assert cli.grid_problems(np.array(["d"] * 4 + ["n"] * 4), n=2) == [0, 5]
     bar = overlay.title(np.zeros((48, 64, 3), np.uint8), "x").shape[0]
-    assert img.shape[:2] == (
-        2 * (2 * bar + 48) + compare.GAP,
-        3 * 64 + 2 * compare.GAP,
+    base = ["--plans", str(plans), "--grid", "--size", "64x48", "--quiet"]
+    cases = (
+        ([], 1, 4),  # problem 0 (the families in turn)
+        (["--problem", "0,2"], 2, 3),  # archetype is NaN in problem 2: left out of both rows
+        (["--problem", "0,1"], 2, 4),  # every planner finite in 0 and 1
+        (["--problem", "1", "--planner", "oracle,slotv"], 1, 2),
     )
+    for i, (extra, rows, panels) in enumerate(cases):
+        out = tmp_path / f"fig_{i}.png"
+        assert cli.main([*base, *extra, "--out", str(out)]) == 0
+        img = render.read_video(out)[0]
+        assert img.shape[:2] == (
+            rows * (2 * bar + 48) + (rows - 1) * compare.GAP,
+            panels * 64 + (panels - 1) * compare.GAP,
+        ), extra
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--out", "x.mp4"], "--grid: expected a .png"),
+        (["--out", "x.png", "--sheet", "2"], "--grid: expected a .png --out and no --sheet"),
+    ],
+)
+def test_plans_grid_refuses_other_outputs(tmp_path, monkeypatch, capsys, args, message):
+    monkeypatch.setattr(frames_lib.MotionRenderer, "__init__", None)  # must not be reached
+    plans = tmp_path / "plans.npz"
+    np.savez(plans, goals=GOALS[None], goal_mask=MASK[None], target=np.array([0]),
+             names=np.array(["straight"]), q=np.stack([Q1])[None])  # fmt: skip
+    with pytest.raises(SystemExit):
+        cli.main(["--plans", str(plans), "--grid", *args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
 
 
 def test_no_opengl_is_one_line_naming_mujoco_gl(dataset, tmp_path):

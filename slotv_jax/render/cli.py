@@ -12,7 +12,9 @@ Sources (one of):
   (``goals (P, 8, 3)``, ``goal_mask (P, 8)``, ``target (P,)``, ``family (P,)``,
   ``names (K,)`` planner names, ``q (K, P, T, 7)``, ``xyz (K, P, T, 3)``); without
   ``--planner`` every planner side by side (``--layout overlay``: in one scene), with
-  several names those side by side.
+  several names those side by side. ``--grid`` puts the chosen problems (default: three,
+  the families in turn) into one ``.png``, a captioned row of panels each, every planner
+  whose plans are finite in all of them (the planning experiment's figure).
 
 A TCP path without joints (``--npz`` without ``q``, ``--study``) goes through the
 project's inverse kinematics (:func:`slotv_jax.kinematics.solve_path_ik`, from
@@ -25,6 +27,8 @@ grid). Everything is checked before any rendering: an input error prints one lin
 
     python -m slotv_jax.render --data quick --split position_test --index 0 --out a.mp4
     python -m slotv_jax.render --plans plans.npz --problem 3 --tau 0.5 --out compare.png
+    python -m slotv_jax.render --plans plans.npz --grid --planner straight,oracle,slotv \
+        --camera observer_angle --tau 0.6 --size 480x270 --out figure.png
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ from slotv_jax.core import cli, fileio
 from slotv_jax.data import SPLITS, load_split
 from slotv_jax.planning.plans import load_plans
 from slotv_jax.rendering.camera import CAMERAS, FreeCamera
-from slotv_jax.rendering.compare import LAYOUTS, PALETTE, compare_frames
+from slotv_jax.rendering.compare import GAP, LAYOUTS, PALETTE, compare_frames
 from slotv_jax.rendering.frames import (
     MotionRenderer,
     RenderBackendError,
@@ -53,6 +57,7 @@ from slotv_jax.rendering.frames import (
     joints_from_tcp,
     motion_frames,
 )
+from slotv_jax.rendering.overlay import title
 from slotv_jax.rendering.writers import (
     SUFFIXES,
     check_output,
@@ -79,6 +84,7 @@ class Item:
     names: tuple[str, ...] = ()  # motion names (compared planners)
     rgbas: tuple[tuple, ...] | None = None  # their trace colours
     goal_names: tuple[str, ...] = ()  # labels of the real goals, where the source has them
+    caption: str = ""  # a --grid row's caption
 
 
 def parse_indices(text: str, n: int, what: str) -> list[int]:
@@ -180,10 +186,27 @@ def _plan_title(z: dict, names: list[str], k: int, p: int) -> str:
     return f"{names[k]}: P = {z['y'][k, p, int(z['target'][p])]:.2f}"
 
 
+def grid_problems(family: np.ndarray, n: int = 3) -> list[int]:
+    """``n`` problems taking the families in turn (in order of appearance), row r its
+    r-th problem: different scenes when the families share their problems' order."""
+    fams = list(dict.fromkeys(str(f) for f in family))
+    rows = {f: [i for i, g in enumerate(family) if str(g) == f] for f in fams}
+    out = []
+    for r in range(n):
+        idx = rows[fams[r % len(fams)]]
+        if r < len(idx) and idx[r] not in out:
+            out.append(idx[r])
+    return out
+
+
 def _plans_items(args) -> list[Item]:
     z = load_plans(args.plans)
     q, names = z["q"], [str(s) for s in z["names"]]
-    idx = parse_indices(args.problem or "0", q.shape[1], "--problem")
+    family = z.get("family")
+    if args.problem is None and args.grid:
+        idx = grid_problems(np.zeros(q.shape[1], str) if family is None else family)
+    else:
+        idx = parse_indices(args.problem or "0", q.shape[1], "--problem")
     ks = list(range(len(names)))
     if args.planner is not None:
         wanted = [w.strip() for w in args.planner.split(",")]
@@ -193,9 +216,13 @@ def _plans_items(args) -> list[Item]:
         ks = [names.index(w) for w in wanted]
     stem = Path(args.plans).stem
     suffix = f"_{args.planner.replace(',', '_')}" if args.planner else ""
+    if args.grid:  # the same panels in every row: planners finite in all the problems
+        ks = [k for k in ks if args.planner or np.isfinite(q[k, idx]).all()]
     items = []
     for p in idx:
         shown = [k for k in ks if args.planner or np.isfinite(q[k, p]).all()]  # NaN: left out
+        fam = "" if family is None else f" ({family[p]})"
+        cube = chr(ord("A") + int(z["target"][p]))
         items.append(
             Item(
                 f"{stem}_{p:04d}{suffix}",
@@ -205,6 +232,7 @@ def _plans_items(args) -> list[Item]:
                 int(z["target"][p]),
                 names=tuple(_plan_title(z, names, k, p) for k in shown),
                 rgbas=tuple(PALETTE[k % len(PALETTE)] for k in shown),
+                caption=f"problem {p}{fam}: to cube {cube}, seen up to τ = {args.tau:g}",
             )
         )
     return items
@@ -230,6 +258,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--problem", help="planning problem: I, A:B or I,J,K (with --plans)")
     p.add_argument("--planner", help="planner(s) of --plans, NAME[,NAME] (default: all)")
     p.add_argument("--layout", default="side", choices=LAYOUTS, help="how planners are compared")
+    p.add_argument(
+        "--grid",
+        action="store_true",
+        help="with --plans and a .png --out: the problems as captioned rows of one picture "
+        "(default --problem: three, the families in turn)",
+    )
     p.add_argument("--tau", type=float, default=1.0, help="show the motion up to τ in (0, 1]")
     p.add_argument("--camera", default="observer", help=f"{', '.join(CAMERAS)} or free")
     for f, d in (("lookat", "0.45,0,0.15"), ("distance", "1.6")):
@@ -277,7 +311,7 @@ def _labels(args, item: Item):
 
 def _outputs(args, items: list[Item]) -> list[Path]:
     """The output file of every item, checked (output rule) before any rendering."""
-    single = len(items) == 1 and args.out.suffix != ""
+    single = (len(items) == 1 or args.grid) and args.out.suffix != ""
     if single:
         paths = [args.out]
     else:
@@ -301,8 +335,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if (args.data is None) != (args.split is None):
         raise cli.InputError("--data and --split: expected both or neither")
-    if args.plans is None and (args.problem or args.planner):
-        raise cli.InputError("--problem and --planner: only with --plans")
+    if args.plans is None and (args.problem or args.planner or args.grid):
+        raise cli.InputError("--problem, --planner and --grid: only with --plans")
+    if args.grid and (args.out.suffix.lower() != ".png" or args.sheet is not None):
+        raise cli.InputError(f"--grid: expected a .png --out and no --sheet, got {args.out}")
     size = parse_size(args.size)
     check_timing(args.tau, args.fps, args.duration, args.hold)
     camera = _camera(args)
@@ -329,6 +365,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RenderBackendError as e:
         raise cli.InputError(str(e)) from None
     with renderer:
+        if args.grid:
+            rows = [
+                _grid_row(it, kw | {"renderer": renderer}, args)
+                for it in tqdm(items, disable=args.quiet, unit="row")
+            ]
+            gap = np.full((GAP, rows[0].shape[1], 3), 255, np.uint8)
+            write_png(paths[0], np.concatenate([x for r in rows for x in (r, gap)][:-1]))
+            print(f"wrote {paths[0]} ({len(items)} problems x {len(items[0].qs)} planners)")
+            return 0
         for it, path in tqdm(list(zip(items, paths, strict=True)), disable=args.quiet, unit="clip"):
             target = it.target if args.mark_target and it.target >= 0 else None
             common = {
@@ -358,3 +403,19 @@ def main(argv: Sequence[str] | None = None) -> int:
                 write_video(path, frames, args.fps)
     print(f"wrote {len(paths)} file(s): {paths[0]}{' ...' if len(paths) > 1 else ''}")
     return 0
+
+
+def _grid_row(item: Item, kw: dict, args) -> np.ndarray:
+    """One ``--grid`` row: the item's planners side by side at τ, under its caption."""
+    last = compare_frames(
+        item.qs,
+        item.goals,
+        item.goal_mask,
+        names=item.names,
+        rgbas=item.rgbas,
+        layout="side",
+        show_labels=args.labels != "none",
+        target=item.target,
+        **{**kw, "fps": 1.0 / args.tau, "duration": 1.0, "hold": 0.0},
+    )[-1]
+    return np.concatenate([title(last, item.caption), last])

@@ -47,7 +47,8 @@ out) has NaN rows.
 The package: :mod:`~slotv_jax.experiments.planning.config` (families, observers, presets),
 :mod:`~slotv_jax.experiments.planning.examples` (the plans kept), this module (problems,
 observers, the run) and ``__main__`` (the command line); the report and figures are
-:mod:`slotv_jax.experiments.planning_report` and ``planning_render``.
+:mod:`slotv_jax.experiments.planning_report`; the figure of its plans seen by the
+observer is ``python -m slotv_jax.render --plans PLANS --grid`` (the README's command).
 """
 
 from __future__ import annotations
