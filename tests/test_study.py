@@ -652,6 +652,26 @@ def test_simulated_participants_follow_the_labeler():
     assert np.all(got[~mask] == 0)
 
 
+def test_a_study_from_labels_is_the_limit_of_many_participants():
+    """P = ∞: one row per (n, τ) holding the label itself; many simulated participants'
+    normalised counts approach those rows (within 5 SD of the multinomial)."""
+    xyz, goals, mask = synthetic(12, 30, seed=3)
+    taus = (0.5, 1.0)
+    probs = study.prefix_labels(xyz, goals, mask, taus, beta=10.0)
+    s = study.study_from_labels(xyz, goals, mask, taus, probs)
+    assert s.n_rows == 24 and s.answer_trajectory.tolist() == [n for n in range(12) for _ in taus]
+    np.testing.assert_allclose(s.answer_tau, np.tile(taus, 12))
+    np.testing.assert_allclose(s.counts, probs.reshape(24, 8), atol=1e-6)  # n_answers 1 a row
+    which, guess = study.simulate_guesses(jax.random.key(0), probs, mask, 4000)
+    many = study.study_from_guesses(xyz, goals, mask, taus, which, guess)
+    assert many.answer_trajectory.tolist() == s.answer_trajectory.tolist()
+    total = many.counts.sum(-1, keepdims=True)
+    sd = np.sqrt(s.counts * (1 - s.counts) / total) + 1e-9
+    assert np.all(np.abs(many.counts / total - s.counts) <= 5 * sd + 1e-6)
+    with pytest.raises(ValueError, match=r"probs: expected \(12, 2, 8\)"):
+        study.study_from_labels(xyz, goals, mask, taus, probs[:, :1])
+
+
 def test_fit_beta_recovers_the_simulated_beta():
     xyz, goals, mask = synthetic(60, 30, seed=2)
     s = study.simulate_study(jax.random.key(1), xyz, goals, mask, 200, beta=12.0)

@@ -52,6 +52,7 @@ from slotv_jax.answers.simulate import (
     simulate_guesses,
     simulate_study,
     study_from_guesses,
+    study_from_labels,
 )
 from slotv_jax.answers.storage import (
     load_study,
@@ -91,6 +92,7 @@ __all__ = [
     "simulate_study",
     "study_data",
     "study_from_guesses",
+    "study_from_labels",
     "study_loss",
     "study_trainer",
     "train_study",

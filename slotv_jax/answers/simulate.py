@@ -106,6 +106,28 @@ def study_from_guesses(
     )  # fmt: skip
 
 
+def study_from_labels(
+    xyz: Float[np.ndarray, "N T 3"],
+    goals: Float[np.ndarray, "N 8 3"],
+    goal_mask: Bool[np.ndarray, "N 8"],
+    taus: Sequence[float],
+    probs: Float[np.ndarray, "N K 8"],
+) -> Study:
+    """The study of infinitely many participants (P = ∞): one row per trajectory n and stop
+    time τ_k, holding the labeler's distribution ``probs[n, k]`` (:func:`prefix_labels`) as
+    one answer, so the cross-entropy trains on the labels themselves (SLOT-V's loss,
+    Wallkötter et al. 2022, Eq. 3)."""
+    taus = check_taus(taus)
+    n, k = np.shape(xyz)[0], taus.size
+    if np.shape(probs)[:2] != (n, k):
+        raise ValueError(f"probs: expected ({n}, {k}, 8) for {n} trajectories and {k} taus, "
+                         f"got {np.shape(probs)}")  # fmt: skip
+    return make_study(
+        xyz, goals, goal_mask, np.repeat(np.arange(n), k), probs=np.reshape(probs, (n * k, -1)),
+        n_answers=np.ones(n * k), answer_tau=np.tile(taus, n), source="labels",
+    )  # fmt: skip
+
+
 def simulate_study(
     key: jax.Array,
     xyz: Float[np.ndarray, "N T 3"],

@@ -181,22 +181,6 @@ def recorded_references(folder: Path) -> dict:
     return ref
 
 
-def label_study(xyz, goals, mask, probs, n: int, taus) -> study.Study:
-    """The first ``n`` motions as a study answered by the labeler itself (P = ∞): one row
-    per motion and stop time τ, holding the label's probabilities as one answer."""
-    k = len(taus)
-    return study.make_study(
-        xyz[:n],
-        goals[:n],
-        mask[:n],
-        np.repeat(np.arange(n), k),
-        probs=probs[:n].reshape(n * k, -1),
-        n_answers=np.ones(n * k),
-        answer_tau=np.tile(study.check_taus(taus), n),
-        source="labels",
-    )
-
-
 def run(
     cfg: StudySizeConfig,
     out: Path,
@@ -257,7 +241,7 @@ def run(
         bar.set_postfix_str(f"{m} P={p_name(p)} N={n} trial {t}")
         tc = cfg.train_config(m)
         if p == INF:
-            s = label_study(xyz, goals, mask, probs, n, cfg.taus)
+            s = study.study_from_labels(xyz[:n], goals[:n], mask[:n], cfg.taus, probs[:n])
         else:
             if t not in sims:
                 key = jax.random.fold_in(jax.random.key(cfg.seed), t)
@@ -313,7 +297,7 @@ def budget_curve(cfg: StudySizeConfig, xyz, goals, mask, probs, ev, *, progress=
     does not limit them."""
 
     n = max(cfg.n_grid)
-    s = label_study(xyz, goals, mask, probs, n, cfg.taus)
+    s = study.study_from_labels(xyz[:n], goals[:n], mask[:n], cfg.taus, probs[:n])
     data = study.study_data(s)
     out = {"n": n}
     for m in METHODS:
