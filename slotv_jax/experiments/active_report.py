@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -294,84 +295,21 @@ def notes(doc: dict) -> list[str]:
     return out
 
 
-NOTES = [
-    "## Notes",
-    "",
-    "- The paper's Fig. 3 counts examples of one pass over fresh motions (5,760 to 80 % on "
-    "Dragan at the paper preset, `experiments/sample_efficiency.json`). Here every answer "
-    "is reused for as many updates as the rounds give (a study pays for answers, not "
-    "updates), so random selection itself needs far fewer distinct answers; the ratios "
-    "compare strategies within this protocol.",
-    "- Member 0 of each ensemble is an ordinary training run on the answers so far (no "
-    "bootstrap): its accuracy is the observer the study would deliver. The other members "
-    "only feed the criteria.",
-    "- Why the criteria differ. `margin` asks about motions near the observer's decision "
-    "between two goals, which is what held-out accuracy (the argmax) measures. `uncertainty` "
-    "(entropy) also rewards motions whose guesses spread over many goals. The BALD family "
-    "asks about what the ensemble members disagree on; with few answers that is the "
-    "atypical motions, which teach little about the typical held-out motion (the "
-    "cold-start problem of disagreement-based selection; an ensemble of a few members is a "
-    "coarse posterior).",
-    "- `margin_cluster` adds the diversity of `bald_cluster` to `margin`: of motions tied "
-    "at the decision, ask about one of each kind.",
-    "- `epig` (expected predictive information gain) keeps only the disagreement of the "
-    "members that changes their predictions on the pool (1,024 of the scored candidates "
-    "stand in for it), where BALD rewards any disagreement about the observer. Both measure "
-    "information about the guess distribution, and so also about how sure the observer "
-    "is; held-out accuracy depends only on the decision, which `margin` aims at directly.",
-]
+def _notes_file(name: str) -> list[str]:
+    """The lines of a notes file beside this module (prose kept as Markdown, not code)."""
+    return (resources.files(__package__) / name).read_text(encoding="utf-8").splitlines()
 
-# Tuning runs of the paper preset (python -m slotv_jax.experiments.active --preset paper
-# --seeds 3 --first-seed 10 --eval-offset 5000 --groups labels/dragan/mlp,study/dragan/mlp
-# with --strategies random,uncertainty,margin,margin_cluster, once with random alone and
-# --updates 300 --study-updates 900, and once with random,uncertainty,margin,epig and the two
-# oracles); then for studies with the paper MLP up to 2,048 motions, --seeds 5 --first-seed
-# 10, once with --members 6 and once with sizes geometric(8, 2048, 2 ** 0.25)): other
-# seeds, other held-out motions than the report's.
-PAPER_NOTES = [
-    "- Tuning (seeds 10–12, held-out motions 5,000–7,999, never the reported ones; "
-    "`--first-seed 10 --eval-offset 5000`). Training is not what bounds random: with three "
-    "times the updates per round it needed 54 labelled motions (47 with the preset's) on "
-    "Dragan labels and 24,982 answers (14,202) in studies with the paper MLP (more updates "
-    "on the same single guesses fit their noise); so the preset keeps 100 (labels) and 300 "
-    "(study) updates per round, and `round_epochs` (at least 4 passes over the answers so "
-    "far) binds only from 1,024 labelled motions. `margin_cluster` did worse than `margin` "
-    "(labels 69 vs 46 motions, random 47; studies 10,467 vs 6,639 answers, random 14,202) "
-    "and the preset leaves it out, as it does `bald_fantasy` (behind `bald_cluster` in 4 of "
-    "5 groups of a 3-seed run), to pay for 5 seeds; both ran beside random in a run of "
-    "their own (`experiments/active_paper_diversity/`), and the quick preset runs all. "
-    "`epig` and the oracles were first tried on the tuning seeds "
-    "(labels: random 56, uncertainty 41, margin 47, epig 81, oracle_loss 61, oracle_margin "
-    "64 motions; studies: random 15,286, margin 8,082, epig 13,923, oracle_loss 7,239 "
-    "answers) and kept as they were.",
-    "- Two later tuning runs (seeds 10–14, the same held-out motions; studies with the "
-    "paper MLP up to 2,048 motions). Six members instead of three: margin 11,829 answers "
-    "against 10,347 (random 14,524 in both, member 0 being the same run). Rounds growing "
-    "by 2^¼ instead of √2 (33 rounds instead of 17, each at least 300 updates): random "
-    "24,058 and margin 14,694 answers (1.64×). More rounds mean more updates on the same "
-    "single guesses, which fit their noise, and the schedule moves random itself by 1.7×; "
-    "the preset keeps three members and ×√2.",
-    "- `error` (1 − p̄(ŷ₀), the ensemble's doubt about the observer's own guess) was "
-    "first tried on seeds 10–14 in studies with the paper MLP: random 14,524, margin "
-    "10,347 (1.40×), error 7,675 answers (1.89×; with p̄ over members 1 and 2 only, 9,511). "
-    "It was then run, with random and margin beside it, on seeds 30–39 that no run had "
-    "used (`experiments/active_paper_error/fresh_seeds_30-39`: 2.08×, margin 1.77×), and "
-    "on seeds 0–4 and 20–29 (`experiments/active_paper_error/`).",
-    "- The paper's own protocol (Fig. 3: one pass, each label used for one update; "
-    "`python -m slotv_jax.experiments.active_stream --preset paper`, "
-    "`experiments/active_stream_paper.md`, seeds 0–4): a strategy picking each batch of 32 "
-    "from 512 unlabelled motions does not cut the examples either. Random needed 5,312 to "
-    "80 % on Dragan, margin 4,736 (1.12×), uncertainty 5,920 (0.90×); the largest-loss "
-    "oracle missed 80 % within 8,000 in one seed.",
-    "- The same seed gives the same numbers in the same run, but a strategy's picks round "
-    "differently when the compiled program changes (another set of strategies vmapped "
-    "together, another capacity): a last-bit difference in the predictive distribution "
-    "reorders near-ties, and the runs part. Seeds 20–29 run twice with different largest "
-    "sizes gave random identical curves and margin 10,898 and 11,550 answers; seeds 0–4 "
-    "gave random 72 and 77 labelled motions (Dragan) and 22,637 and 20,705 answers (studies, "
-    "paper MLP) in the main run and in `experiments/active_paper_diversity/`. Differences "
-    "of this size between strategies are within what one seed's rerun moves.",
-]
+
+NOTES = _notes_file("active_notes.md")  # why the criteria differ, what member 0 is
+
+# PAPER_NOTES: the tuning runs of the paper preset (python -m slotv_jax.experiments.active
+# --preset paper --seeds 3 --first-seed 10 --eval-offset 5000 --groups
+# labels/dragan/mlp,study/dragan/mlp with --strategies random,uncertainty,margin,margin_cluster,
+# once with random alone and --updates 300 --study-updates 900, and once with
+# random,uncertainty,margin,epig and the two oracles); then for studies with the paper MLP up
+# to 2,048 motions, --seeds 5 --first-seed 10, once with --members 6 and once with sizes
+# geometric(8, 2048, 2 ** 0.25)): other seeds, other held-out motions than the report's.
+PAPER_NOTES = _notes_file("active_paper_notes.md")
 
 
 def _three_fold(doc: dict) -> list[str]:
