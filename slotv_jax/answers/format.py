@@ -89,7 +89,7 @@ from collections.abc import Sequence
 import numpy as np
 from jaxtyping import Bool, Float, Int
 
-from slotv_jax.core.validation import G_MAX
+from slotv_jax.core.validation import G_MAX, SAME_POSITION
 
 # τ within this fraction of the motion's duration of t_i counts as t_i (one definition)
 from slotv_jax.observers.common import TAU_RTOL
@@ -336,7 +336,7 @@ def make_study(
             raise ValueError(f"{w('goal_mask', i)}: expected the real goals in the first slots")
     _check_finite_where(goals, goal_mask[..., None], "goals", w)
     d = np.linalg.norm(goals[:, :, None].astype(np.float64) - goals[:, None], axis=-1)
-    same = np.argwhere(goal_mask[:, :, None] & goal_mask[:, None] & (d < 1e-9))
+    same = np.argwhere(goal_mask[:, :, None] & goal_mask[:, None] & (d < SAME_POSITION))
     same = same[same[:, 1] < same[:, 2]]
     if same.size:
         i, a, b = (int(v) for v in same[0])

@@ -20,7 +20,7 @@ import numpy as np
 
 from slotv_jax.answers.format import TAU_RTOL, Study, make_study
 from slotv_jax.core import fileio
-from slotv_jax.core.validation import G_MAX
+from slotv_jax.core.validation import G_MAX, SAME_POSITION
 
 # ------------------------------------------------------------ table import
 
@@ -413,8 +413,8 @@ def read_tables(
     for g in gsets.values():  # distinct as stored (float32)
         pos = np.array([p for p, _ in g.values()], np.float32).astype(np.float64)
         d = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(len(pos))
-        if (d < 1e-9).any():
-            j = int(np.argwhere(d < 1e-9)[0].max())
+        if (d < SAME_POSITION).any():
+            j = int(np.argwhere(d < SAME_POSITION)[0].max())
             row = list(g.values())[j][1]
             raise ValueError(f"{gt.at(row, 'x')}: two goals share one position")
 

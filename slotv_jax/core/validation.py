@@ -103,8 +103,13 @@ def check_goal_mask(name: str, goal_mask, *, batch_shape: tuple[int, ...] = ()) 
         raise ValueError(f"{name}: expected 1..{G_MAX} real goals, found a mask with none")
 
 
+#: Metres: two real goals nearer than this share one position (and are refused).
+SAME_POSITION = 1e-9
+
+
 def check_goals(name: str, goals, goal_mask, *, batch_shape: tuple[int, ...] = ()) -> None:
-    """Goals are finite (G_MAX, 3) arrays; real goals must be pairwise distinct."""
+    """Goals are finite (G_MAX, 3) arrays; real goals must be pairwise distinct (at least
+    :data:`SAME_POSITION` apart)."""
     check_array(name, goals, (*batch_shape, G_MAX, 3))
     check_goal_mask("goal_mask", goal_mask, batch_shape=batch_shape)
     if not (is_concrete(goals) and is_concrete(goal_mask)):
@@ -113,7 +118,7 @@ def check_goals(name: str, goals, goal_mask, *, batch_shape: tuple[int, ...] = (
     m = np.asarray(goal_mask, bool).reshape(-1, G_MAX)
     d = np.linalg.norm(g[:, :, None] - g[:, None, :], axis=-1)
     pair = m[:, :, None] & m[:, None, :] & ~np.eye(G_MAX, dtype=bool)
-    if np.any(pair & (d < 1e-9)):
+    if np.any(pair & (d < SAME_POSITION)):
         raise ValueError(f"{name}: two real goals share the same position")
 
 
