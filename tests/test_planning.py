@@ -460,22 +460,33 @@ def test_prefix_objective_bad_input():
 @pytest.mark.slow
 def test_family_planner_compiles_once_and_plans_each_parameter_set(straight):
     """Observers built from traced parameters inside one compiled program: the plans equal
-    those of each observer planned alone, and new values do not recompile."""
+    those of each observer planned alone, and new values do not recompile. Two families
+    reading one parameter pytree share that program (``family=``, a switch): each plan's
+    objective is its own family's legibility."""
     cfg = planning.PlannerConfig(iters=3, taus=(0.4, 0.7, 1.0))
     traces = []
 
-    def build(beta):
+    def build(p):
         traces.append(1)
-        return planning.labeler_observer("dragan", beta=beta)
+        return planning.labeler_observer("dragan", beta=p[0])
 
-    fam = planning.make_family_planner(build, jnp.float32(5.0), cfg)
+    def nikolaidis(p):
+        return planning.labeler_observer("nikolaidis", beta=p[1])
+
+    fam = planning.make_family_planner({"dragan": build, "nik": nikolaidis}, jnp.ones(2), cfg)
+    assert fam.families == ("dragan", "nik")
     few = jax.tree.map(lambda a: a[:2], straight)
-    betas = jnp.array([5.0, 20.0], jnp.float32)
-    res = jax.device_get(fam.plan_problems(betas, few))
+    params = jnp.array([[5.0, 7.5], [20.0, 30.0]], jnp.float32)
+    res = jax.device_get(fam.plan_problems(params, few))  # the first family by default
     assert res.xyz.shape == (2, 2, cfg.n_points, 3)
     n = len(traces)
-    fam.plan_problems(betas * 1.5, few)
-    assert len(traces) == n  # other values: the same compiled program
+    fam.plan_problems(params * 1.5, few)
+    nik = jax.device_get(fam.plan_problems(params, few, family="nik"))
+    assert len(traces) == n  # other values, another family: the same compiled program
+    with pytest.raises(ValueError, match=r"family: expected one of \['dragan', 'nik'\], got 'x'"):
+        fam.plan_problems(params, few, family="x")
+    with pytest.raises(ValueError, match=r"build 'nik': expected a function"):
+        planning.make_family_planner({"dragan": build, "nik": 3}, jnp.ones(2), cfg)
     # each observer planned alone (planning.plan; one program for both temperatures)
     alone = jax.jit(
         jax.vmap(
@@ -483,14 +494,21 @@ def test_family_planner_compiles_once_and_plans_each_parameter_set(straight):
             in_axes=(0, None),
         )
     )
-    for f, beta in enumerate([5.0, 20.0]):
+    for f, (beta, beta_n) in enumerate([(5.0, 7.5), (20.0, 30.0)]):
         obs = planning.labeler_observer("dragan", beta=beta)
+        obs_n = planning.labeler_observer("nikolaidis", beta=beta_n)
         one = alone(few, jnp.float32(beta))
         np.testing.assert_allclose(res.xyz[f], one.xyz, atol=1e-5)
         np.testing.assert_allclose(res.diagnostics.objective[f], one.diagnostics.objective,
                                    atol=1e-5)  # fmt: skip
-        # the prefix objective of the plan, recomputed: at least the straight line's
+        # the prefix objective of the plan, recomputed: at least the straight line's; the
+        # other family's plan reports its own family's legibility
         for b in range(2):
             p = jax.tree.map(lambda a, b=b: a[b], few)
             val = planning.legibility(obs, res.xyz[f, b], p.goals, p.goal_mask, p.target, cfg)
             assert float(val) >= float(res.diagnostics.objective_straight[f, b]) - 1e-6
+            val_n = planning.legibility(obs_n, nik.xyz[f, b], p.goals, p.goal_mask, p.target,
+                                        cfg)  # fmt: skip
+            iterates = np.asarray(nik.diagnostics.objective[f, b])  # the plan is one of them
+            assert np.abs(iterates - float(val_n)).min() < 1e-4, (float(val_n), iterates)
+            assert float(val_n) >= float(nik.diagnostics.objective_straight[f, b]) - 1e-6

@@ -690,14 +690,10 @@ def make_planner(
     )
 
     def index_of(name):
-        if name is None:
-            return 0
-        if name not in names:
-            raise ValueError(f"observer: expected one of {list(names)}, got {name!r}")
-        return names.index(name)
+        return _index_of(names, name, "observer")
 
     def plan_problems(problems: Problem, observer: str | None = None) -> PlanResult:
-        return run(problems, jnp.asarray(index_of(observer), jnp.int32))
+        return run(problems, index_of(observer))
 
     def straight_lines(goals, goal_mask, target, start=None) -> Problem:
         return _straight_problems(straight, goals, goal_mask, target, start)
@@ -705,7 +701,7 @@ def make_planner(
     def planner(goals, goal_mask, target, start=None, observer=None) -> PlanResult:
         index = index_of(observer)
         problems = straight_lines(goals, goal_mask, target, start)
-        return run(problems, jnp.asarray(index, jnp.int32))
+        return run(problems, index)
 
     planner.plan_problems = plan_problems  # type: ignore[attr-defined]
     planner.straight_line = straight_lines  # type: ignore[attr-defined]
@@ -714,8 +710,19 @@ def make_planner(
     return planner
 
 
+def _index_of(names: Sequence[str], name: str | None, what: str) -> jax.Array:
+    """The switch index of ``name`` among ``names`` (None: the first), checked."""
+    if name is None:
+        return jnp.int32(0)
+    if name not in names:
+        raise ValueError(f"{what}: expected one of {list(names)}, got {name!r}")
+    return jnp.int32(names.index(name))
+
+
 def make_family_planner(
-    build: Callable[[Any], Observer], example: Any, cfg: PlannerConfig = PlannerConfig()
+    build: Callable[[Any], Observer] | Mapping[str, Callable[[Any], Observer]],
+    example: Any,
+    cfg: PlannerConfig = PlannerConfig(),
 ) -> Callable[..., PlanResult]:
     """A validated planner for many observers of one family in one compiled program.
 
@@ -723,12 +730,19 @@ def make_family_planner(
     arrays: a labeler's β, a checkpoint's ``params`` with
     :func:`slotv_jax.training.checkpoint.make_observer`); it must accept traced
     parameters. ``example`` is one parameter set, for the checks of :func:`make_planner`.
-    Returns ``planner(params, goals (B, 8, 3), goal_mask (B, 8), target (B,), start=None)
-    -> PlanResult`` whose fields have leading axes (F, B): every problem planned with
-    every one of the F parameter sets stacked along the leading axis of ``params``. It
-    compiles once per (F, B) and parameter structure, whatever the values: the planner
-    for the dozens of observers a study fits. ``planner.plan_problems(params, problems)``
-    plans problems of ``planner.straight_line(goals, goal_mask, target, start=None)``.
+    Returns ``planner(params, goals (B, 8, 3), goal_mask (B, 8), target (B,), start=None,
+    family=None) -> PlanResult`` whose fields have leading axes (F, B): every problem
+    planned with every one of the F parameter sets stacked along the leading axis of
+    ``params``. It compiles once per (F, B) and parameter structure, whatever the values:
+    the planner for the dozens of observers a study fits.
+    ``planner.plan_problems(params, problems, family=None)`` plans problems of
+    ``planner.straight_line(goals, goal_mask, target, start=None)``.
+
+    Given a mapping ``{name: build}``, several families read one parameter pytree (each
+    its own part of it) and ``family=`` names the one to plan with (default: the first);
+    they share one compiled program, a ``lax.switch`` on an unbatched index as in
+    :func:`make_planner` (``planner.families``: the names): every family fitted in every
+    run of a study, planned with one compilation.
 
     The pattern it packages, which :func:`plan`'s purity allows (the observer is built
     from traced parameters inside the compiled function):
@@ -748,40 +762,63 @@ def make_family_planner(
     """
     if not isinstance(cfg, PlannerConfig):
         raise ValueError(f"cfg: expected a PlannerConfig, got {type(cfg).__name__}")
-    if not callable(build):
-        raise ValueError(f"build: expected a function of parameters, got {type(build).__name__}")
-    try:
-        abstract = jax.eval_shape(lambda p: p, example)
-        obs = build(example)
-        check_observer(obs, cfg.n_points, prefix=cfg.taus is not None)
-        spec = (jax.ShapeDtypeStruct((cfg.n_points, 3), jnp.float32),
-                jax.ShapeDtypeStruct((G_MAX, 3), jnp.float32),
-                jax.ShapeDtypeStruct((G_MAX,), jnp.bool_))  # fmt: skip
-        jax.eval_shape(lambda p, *a: build(p)(*a), abstract, *spec)
-    except ValueError as e:
-        raise ValueError(f"build: {e}") from None
-    except Exception as e:  # build(traced parameters) failed
-        raise ValueError(f"build: it does not accept traced parameters ({e})") from e
+    builds = dict(build) if isinstance(build, Mapping) else {"family": build}
+    if not builds:
+        raise ValueError("build: expected at least one family")
+    abstract = jax.eval_shape(lambda p: p, example)
+    spec = (jax.ShapeDtypeStruct((cfg.n_points, 3), jnp.float32),
+            jax.ShapeDtypeStruct((G_MAX, 3), jnp.float32),
+            jax.ShapeDtypeStruct((G_MAX,), jnp.bool_))  # fmt: skip
+    for name, b in builds.items():
+        what = "build" if not isinstance(build, Mapping) else f"build {name!r}"
+        if not callable(b):
+            raise ValueError(f"{what}: expected a function of parameters, got {type(b).__name__}")
+        try:
+            check_observer(b(example), cfg.n_points, prefix=cfg.taus is not None)
+            jax.eval_shape(lambda p, *a, b=b: b(p)(*a), abstract, *spec)
+        except ValueError as e:
+            raise ValueError(f"{what}: {e}") from None
+        except Exception as e:  # build(traced parameters) failed
+            raise ValueError(f"{what}: it does not accept traced parameters ({e})") from e
+    names, fns = tuple(builds), tuple(builds.values())
+
+    def observer_of(index, p) -> Observer:
+        if len(fns) == 1:
+            return fns[0](p)
+        calls = tuple(lambda p, x, g, m, b=b: b(p)(x, g, m) for b in fns)
+
+        def obs(xyz, g, m):
+            return jax.lax.switch(index, calls, p, xyz, g, m)
+
+        if cfg.taus is not None:
+            prefixes = tuple(lambda p, x, g, m, n, b=b: b(p).prefix(x, g, m, n) for b in fns)
+            obs.prefix = lambda xyz, g, m, n: jax.lax.switch(index, prefixes, p, xyz, g, m, n)
+        return obs
 
     straight = jax.jit(jax.vmap(functools.partial(straight_line, cfg=cfg)))
 
-    def plan_grid(params, problems: Problem) -> PlanResult:
+    def plan_grid(params, problems: Problem, index) -> PlanResult:
         def one_set(p):
-            obs = build(p)
+            obs = observer_of(index, p)
             return jax.vmap(lambda prob: plan(obs, prob, cfg))(problems)
 
         return jax.vmap(one_set)(params)
 
     run = jax.jit(plan_grid)
 
+    def plan_problems(params, problems: Problem, family: str | None = None) -> PlanResult:
+        return run(params, problems, _index_of(names, family, "family"))
+
     def straight_lines(goals, goal_mask, target, start=None) -> Problem:
         return _straight_problems(straight, goals, goal_mask, target, start)
 
-    def planner(params, goals, goal_mask, target, start=None) -> PlanResult:
-        return run(params, straight_lines(goals, goal_mask, target, start))
+    def planner(params, goals, goal_mask, target, start=None, family=None) -> PlanResult:
+        index = _index_of(names, family, "family")
+        return run(params, straight_lines(goals, goal_mask, target, start), index)
 
-    planner.plan_problems = run  # type: ignore[attr-defined]
+    planner.plan_problems = plan_problems  # type: ignore[attr-defined]
     planner.straight_line = straight_lines  # type: ignore[attr-defined]
+    planner.families = names  # type: ignore[attr-defined]
     planner.config = cfg  # type: ignore[attr-defined]
     return planner
 

@@ -17,77 +17,66 @@ from slotv_jax import planning
 from slotv_jax.asking import selection, simulated
 from slotv_jax.experiments.people_loop.config import CAMERA, FITTED, LEARNED, LoopConfig
 from slotv_jax.observers import population as population_lib
-from slotv_jax.observers.common import mask_logits, masked_log
-from slotv_jax.observers.prefix import prefix_labels
+from slotv_jax.observers.common import mask_logits
 from slotv_jax.planning import evaluation
 
 # ------------------------------------------------------------------ the observers
 
 
-def labeler_prefix(name: str, beta, xyz, goals, goal_mask, seen):
-    """log y of labeler ``name`` at a traced ``beta`` on the first ``seen`` points
-    (:func:`slotv_jax.observers.prefix.prefix_labels`, as the labelers' prefix observers)."""
-    y = prefix_labels(name, xyz, goals, goal_mask, seen, beta=beta, camera=CAMERA)
-    return masked_log(y, goal_mask)
-
-
-def branches(cfg: LoopConfig, pop) -> tuple[tuple[str, ...], tuple]:
-    """The planner's observers as prefix functions ``f(params, xyz, goals, mask, seen) ->
-    logits``: the population (``oracle``; ``oracle_whole`` scores the whole motion whatever
-    τ, so its plan is the whole-motion objective's), then each family. ``params`` is a dict
-    with each learned family's parameters and ``beta`` (the two fitted temperatures)."""
+def builds(cfg: LoopConfig, pop) -> dict:
+    """The planner's observers, each built from one run's parameters ``p`` (a dict with
+    each learned family's parameters and ``beta``, the two fitted temperatures): the
+    population (``oracle``; ``oracle_whole`` scores the whole motion whatever τ, so its
+    plan is the whole-motion objective's), then each family
+    (:func:`slotv_jax.planning.make_family_planner`'s families)."""
     obs = population_lib.population_observer(pop)
-    names = ["oracle", "oracle_whole"]
-    fns = [
-        lambda p, x, g, m, s: obs.prefix(x, g, m, s),
-        lambda p, x, g, m, s: obs(x, g, m),
-    ]
+    out = {"oracle": lambda p: obs, "oracle_whole": lambda p: _whole_motion(obs)}
     for f in cfg.families:
-        names.append(f)
         if f in FITTED:
             j = list(FITTED).index(f)
-            fns.append(
-                lambda p, x, g, m, s, lab=FITTED[f], j=j: labeler_prefix(
-                    lab, p["beta"][j], x, g, m, s
-                )
+            out[f] = lambda p, lab=FITTED[f], j=j: planning.labeler_observer(
+                lab, beta=p["beta"][j], camera=CAMERA
             )
         else:
             sel = selection.make_selector(cfg.train_config(f), 1, 1)
-            fns.append(
-                lambda p, x, g, m, s, f=f, sel=sel: mask_logits(
-                    selection.candidate_scores(sel.base.model(p[f]), x, g, m, s), m
-                )
-            )
-    return tuple(names), tuple(fns)
+            out[f] = lambda p, f=f, sel=sel: _learned(sel, p[f])
+    return out
 
 
-def make_plan_all(cfg: LoopConfig, fns):
-    """``plan_all(index, params (R, ...), problems (R, P, ...)) -> PlanResult (R, P, ...)``:
-    one compiled program for every observer (``lax.switch`` on an unbatched index)."""
+def _whole_motion(obs):
+    """``obs`` scoring the whole motion at every stop time."""
 
-    def plan_run(index, params, problems):
-        def prefix(x, g, m, s):
-            return jax.lax.switch(index, fns, params, x, g, m, s)
+    def whole(x, g, m):
+        return obs(x, g, m)
 
-        def whole(x, g, m):
-            return prefix(x, g, m, x.shape[0])
+    whole.prefix = lambda x, g, m, s: obs(x, g, m)
+    return whole
 
-        whole.prefix = prefix
-        return jax.vmap(lambda pr: planning.plan(whole, pr, cfg.planner))(problems)
 
-    return jax.jit(jax.vmap(plan_run, in_axes=(None, 0, 0)))
+def _learned(sel, params):
+    """The observer of a fitted family as active selection scores it
+    (:func:`slotv_jax.asking.selection.candidate_scores` of the prefix, masked)."""
+
+    def prefix(x, g, m, s):
+        return mask_logits(selection.candidate_scores(sel.base.model(params), x, g, m, s), m)
+
+    def whole(x, g, m):
+        return prefix(x, g, m, x.shape[0])
+
+    whole.prefix = prefix
+    return whole
 
 
 _PLANNERS: dict = {}
 
 
-def planner_for(cfg: LoopConfig, pop) -> tuple[tuple[str, ...], object]:
-    """The observers' names and :func:`make_plan_all` of ``cfg`` and ``pop``, made once per
-    process (a second run of the same config reuses the compiled program)."""
+def planner_for(cfg: LoopConfig, pop, example: dict):
+    """:func:`slotv_jax.planning.make_family_planner` of :func:`builds` (``example``: one
+    run's parameters), made once per process: a second run of the same config reuses the
+    compiled program."""
     key = (dataclasses.replace(cfg, seeds=1, first_seed=0), pop)  # seeds do not change it
     if key not in _PLANNERS:
-        names, fns = branches(cfg, pop)
-        _PLANNERS[key] = (names, make_plan_all(cfg, fns))
+        _PLANNERS[key] = planning.make_family_planner(builds(cfg, pop), example, cfg.planner)
     return _PLANNERS[key]
 
 
@@ -227,7 +216,6 @@ def run_population(
     )(jnp.asarray(prob["goals"]), jnp.asarray(prob["goal_mask"]), jnp.asarray(prob["target"]))
     planning.check_problems(straight)
     problems = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape)), straight)
-    names, plan_all = planner_for(cfg, pop)
     scorer = evaluation.population_scorer(
         pop, cfg.taus, cfg.planner.n_points, cfg.eval_participants
     )
@@ -258,6 +246,7 @@ def run_population(
                 )
         params["beta"] = jnp.asarray(betas)
         timing["beta_s"] += time.perf_counter() - t0
+        planner = planner_for(cfg, pop, jax.tree.map(lambda a: a[0], params))
 
         # Plan and evaluate: the floor and the oracles once, every family at every size.
         t0 = time.perf_counter()
@@ -266,13 +255,13 @@ def run_population(
                 "straight": plan_scores(scorer, keys_eval, straight_as_plan(problems), problems)
             }
             for o in ("oracle", "oracle_whole"):
-                res = plan_all(jnp.int32(names.index(o)), params, problems)
+                res = planner.plan_problems(params, straight, family=o)
                 floor[o] = plan_scores(scorer, keys_eval, res, problems)
                 example[o] = np.asarray(res.q[0, 0])
             example["straight"] = np.asarray(problems.q[0, 0])
         plans = {}
         for f in cfg.families:
-            plans[f] = plan_all(jnp.int32(names.index(f)), params, problems)
+            plans[f] = planner.plan_problems(params, straight, family=f)
         jax.block_until_ready(plans)
         timing["plan_s"] += time.perf_counter() - t0
         t0 = time.perf_counter()
