@@ -1,8 +1,11 @@
-"""Legible motion planning for the Panda with any observer model (:mod:`.planner`).
+"""Legible motion planning for the Panda with any observer model (:mod:`.planner`: the
+objective and the planner of one problem; :mod:`.compiled`: batches of problems, observers
+and fitted families in one compiled program).
 
 This package re-exports the planner's public names.
 """
 
+from slotv_jax.planning.compiled import check_problems, make_family_planner, make_planner
 from slotv_jax.planning.planner import (
     MAX_RESIDUAL,
     Diagnostics,
@@ -11,11 +14,8 @@ from slotv_jax.planning.planner import (
     PlanResult,
     Problem,
     check_observer,
-    check_problems,
     labeler_observer,
     legibility,
-    make_family_planner,
-    make_planner,
     metric_inverse,
     objective,
     plan,

@@ -66,7 +66,9 @@ iterates that satisfy the trust region and the clearance), so both constraints h
 exactly on the result. The straight line is feasible, so there always is one.
 
 Everything is a pure function of arrays; batch it with ``vmap`` over problems and
-compile it with ``jit``. :func:`make_planner` is the validated, compiled entry point:
+compile it with ``jit``. :func:`slotv_jax.planning.compiled.make_planner` is the validated,
+compiled entry point (:mod:`.compiled`: many problems, observers and fitted families in one
+program):
 
 >>> import jax
 >>> from slotv_jax import labelers, planning, scene
@@ -81,9 +83,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Sequence
 from numbers import Real
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -108,8 +110,6 @@ __all__ = [
     "check_observer",
     "labeler_observer",
     "legibility",
-    "make_family_planner",
-    "make_planner",
     "metric_inverse",
     "objective",
     "plan",
@@ -595,248 +595,3 @@ def plan(observer: Observer, problem: Problem, cfg: PlannerConfig = PlannerConfi
         feasible=feasible,
     )
     return PlanResult(xyz=xyz, q=q, diagnostics=diag)
-
-
-# ------------------------------------------------------------ the entry point
-
-
-def _check_targets(goals, goal_mask, target) -> np.ndarray:
-    t = np.asarray(target)
-    if t.dtype.kind not in "iu" and not (t.dtype.kind == "f" and np.all(t == np.round(t))):
-        raise ValueError(f"target: expected integer goal slots, got dtype {t.dtype}")
-    t = t.astype(np.int64)
-    n = np.shape(goals)[0]
-    if t.shape != (n,):
-        raise ValueError(f"target: expected shape ({n},) (one slot per problem), got {t.shape}")
-    mask = np.asarray(goal_mask, bool)
-    bad = (t < 0) | (t >= G_MAX)
-    bad |= ~mask[np.arange(n), np.clip(t, 0, G_MAX - 1)]
-    if np.any(bad):
-        i = int(np.flatnonzero(bad)[0])
-        raise ValueError(
-            f"target: problem {i} asks for slot {int(t[i])}, which is not a real goal "
-            f"(its real slots are {np.flatnonzero(mask[i]).tolist()})"
-        )
-    return t
-
-
-def _straight_problems(straight, goals, goal_mask, target, start) -> Problem:
-    """Validated straight-line problems from the compiled ``straight`` (vmapped
-    :func:`straight_line`)."""
-    validation.check_goals("goals", goals, goal_mask, batch_shape=(None,))
-    n = int(np.shape(goals)[0])
-    t = jnp.asarray(_check_targets(goals, goal_mask, target), jnp.int32)
-    goals32 = jnp.asarray(goals, jnp.float32)
-    mask = jnp.asarray(goal_mask).astype(bool)
-    if start is None:
-        start = np.broadcast_to(kinematics.home_tcp(), (n, 3))
-    validation.check_array("start", start, (n, 3))
-    problems = straight(goals32, mask, t, jnp.asarray(start, jnp.float32))
-    check_problems(problems)
-    return problems
-
-
-def make_planner(
-    observer: Observer | Mapping[str, Observer], cfg: PlannerConfig = PlannerConfig()
-) -> Callable[..., PlanResult]:
-    """A validated, compiled, batched planner for one observer or a set of named observers.
-
-    Returns ``planner(goals (B, 8, 3), goal_mask (B, 8), target (B,), start=None,
-    observer=None) -> PlanResult`` with a leading problem axis on every field; ``start``
-    is ``(B, 3)`` (default TCP(q_home)). Given a mapping of observers, ``observer=`` names
-    the one to plan with (default: the first). All of them share one compiled program:
-    the observer is a ``lax.switch`` on an unbatched index, so the forward kinematics and
-    its gradient, most of the compilation, are compiled once whatever the observer. Two
-    compiled functions in all (the straight lines, the planner) per batch size.
-
-    Raises ValueError naming the argument for: an observer that does not return (8,)
-    logits; with ``cfg.taus``, an observer without ``.prefix``; NaN/inf or badly shaped
-    goals, masks or starts; a target slot that is not a real goal; a start or target that
-    IK cannot reach within 2 mm; an unknown observer name. (The budget and the stop times
-    are checked by :class:`PlannerConfig`.)
-
-    ``planner.straight_line(goals, goal_mask, target, start=None)`` gives the straight-line
-    problems (batched; one compiled function for every start) and
-    ``planner.plan_problems(problems, observer=None)`` plans them.
-    """
-    if not isinstance(cfg, PlannerConfig):
-        raise ValueError(f"cfg: expected a PlannerConfig, got {type(cfg).__name__}")
-    observers = dict(observer) if isinstance(observer, Mapping) else {"observer": observer}
-    if not observers:
-        raise ValueError("observer: expected at least one observer")
-    for name, obs in observers.items():
-        try:
-            check_observer(obs, cfg.n_points, prefix=cfg.taus is not None)
-        except ValueError as e:
-            raise ValueError(f"observer {name!r}: {e}") from None
-    names = tuple(observers)
-    branches = tuple(observers.values())
-
-    def switched(index):
-        if len(branches) == 1:
-            return branches[0]
-
-        def obs(xyz, g, m):
-            return jax.lax.switch(index, branches, xyz, g, m)
-
-        if cfg.taus is not None:
-            prefixes = tuple(b.prefix for b in branches)
-            obs.prefix = lambda xyz, g, m, n: jax.lax.switch(index, prefixes, xyz, g, m, n)
-        return obs
-
-    straight = jax.jit(jax.vmap(functools.partial(straight_line, cfg=cfg)))
-    run = jax.jit(
-        lambda problems, index: jax.vmap(lambda p: plan(switched(index), p, cfg))(problems)
-    )
-
-    def index_of(name):
-        return _index_of(names, name, "observer")
-
-    def plan_problems(problems: Problem, observer: str | None = None) -> PlanResult:
-        return run(problems, index_of(observer))
-
-    def straight_lines(goals, goal_mask, target, start=None) -> Problem:
-        return _straight_problems(straight, goals, goal_mask, target, start)
-
-    def planner(goals, goal_mask, target, start=None, observer=None) -> PlanResult:
-        index = index_of(observer)
-        problems = straight_lines(goals, goal_mask, target, start)
-        return run(problems, index)
-
-    planner.plan_problems = plan_problems  # type: ignore[attr-defined]
-    planner.straight_line = straight_lines  # type: ignore[attr-defined]
-    planner.observers = names  # type: ignore[attr-defined]
-    planner.config = cfg  # type: ignore[attr-defined]
-    return planner
-
-
-def _index_of(names: Sequence[str], name: str | None, what: str) -> jax.Array:
-    """The switch index of ``name`` among ``names`` (None: the first), checked."""
-    if name is None:
-        return jnp.int32(0)
-    if name not in names:
-        raise ValueError(f"{what}: expected one of {list(names)}, got {name!r}")
-    return jnp.int32(names.index(name))
-
-
-def make_family_planner(
-    build: Callable[[Any], Observer] | Mapping[str, Callable[[Any], Observer]],
-    example: Any,
-    cfg: PlannerConfig = PlannerConfig(),
-) -> Callable[..., PlanResult]:
-    """A validated planner for many observers of one family in one compiled program.
-
-    ``build(params) -> observer`` makes the observer of one parameter set (any pytree of
-    arrays: a labeler's β, a checkpoint's ``params`` with
-    :func:`slotv_jax.training.checkpoint.make_observer`); it must accept traced
-    parameters. ``example`` is one parameter set, for the checks of :func:`make_planner`.
-    Returns ``planner(params, goals (B, 8, 3), goal_mask (B, 8), target (B,), start=None,
-    family=None) -> PlanResult`` whose fields have leading axes (F, B): every problem
-    planned with every one of the F parameter sets stacked along the leading axis of
-    ``params``. It compiles once per (F, B) and parameter structure, whatever the values:
-    the planner for the dozens of observers a study fits.
-    ``planner.plan_problems(params, problems, family=None)`` plans problems of
-    ``planner.straight_line(goals, goal_mask, target, start=None)``.
-
-    Given a mapping ``{name: build}``, several families read one parameter pytree (each
-    its own part of it) and ``family=`` names the one to plan with (default: the first);
-    they share one compiled program, a ``lax.switch`` on an unbatched index as in
-    :func:`make_planner` (``planner.families``: the names): every family fitted in every
-    run of a study, planned with one compilation.
-
-    The pattern it packages, which :func:`plan`'s purity allows (the observer is built
-    from traced parameters inside the compiled function):
-
-    >>> import jax, jax.numpy as jnp
-    >>> from slotv_jax import planning, scene
-    >>> cfg = planning.PlannerConfig(iters=5, taus=(0.4, 0.7, 1.0))
-    >>> s = scene.sample_scene(jax.random.key(0), 3)
-    >>> problems = jax.vmap(lambda t: planning.straight_line(s.goals, s.goal_mask, t, cfg=cfg))(
-    ...     jnp.array([0, 1]))                                              # doctest: +SKIP
-    >>> def plan_all(beta):  # one β: every problem
-    ...     obs = planning.labeler_observer("dragan", beta=beta)
-    ...     return jax.vmap(lambda p: planning.plan(obs, p, cfg))(problems)
-    >>> res = jax.jit(jax.vmap(plan_all))(jnp.array([5.0, 10.0, 20.0]))   # doctest: +SKIP
-    >>> res.xyz.shape                                                       # doctest: +SKIP
-    (3, 2, 100, 3)
-    """
-    if not isinstance(cfg, PlannerConfig):
-        raise ValueError(f"cfg: expected a PlannerConfig, got {type(cfg).__name__}")
-    builds = dict(build) if isinstance(build, Mapping) else {"family": build}
-    if not builds:
-        raise ValueError("build: expected at least one family")
-    abstract = jax.eval_shape(lambda p: p, example)
-    spec = (jax.ShapeDtypeStruct((cfg.n_points, 3), jnp.float32),
-            jax.ShapeDtypeStruct((G_MAX, 3), jnp.float32),
-            jax.ShapeDtypeStruct((G_MAX,), jnp.bool_))  # fmt: skip
-    for name, b in builds.items():
-        what = "build" if not isinstance(build, Mapping) else f"build {name!r}"
-        if not callable(b):
-            raise ValueError(f"{what}: expected a function of parameters, got {type(b).__name__}")
-        try:
-            check_observer(b(example), cfg.n_points, prefix=cfg.taus is not None)
-            jax.eval_shape(lambda p, *a, b=b: b(p)(*a), abstract, *spec)
-        except ValueError as e:
-            raise ValueError(f"{what}: {e}") from None
-        except Exception as e:  # build(traced parameters) failed
-            raise ValueError(f"{what}: it does not accept traced parameters ({e})") from e
-    names, fns = tuple(builds), tuple(builds.values())
-
-    def observer_of(index, p) -> Observer:
-        if len(fns) == 1:
-            return fns[0](p)
-        calls = tuple(lambda p, x, g, m, b=b: b(p)(x, g, m) for b in fns)
-
-        def obs(xyz, g, m):
-            return jax.lax.switch(index, calls, p, xyz, g, m)
-
-        if cfg.taus is not None:
-            prefixes = tuple(lambda p, x, g, m, n, b=b: b(p).prefix(x, g, m, n) for b in fns)
-            obs.prefix = lambda xyz, g, m, n: jax.lax.switch(index, prefixes, p, xyz, g, m, n)
-        return obs
-
-    straight = jax.jit(jax.vmap(functools.partial(straight_line, cfg=cfg)))
-
-    def plan_grid(params, problems: Problem, index) -> PlanResult:
-        def one_set(p):
-            obs = observer_of(index, p)
-            return jax.vmap(lambda prob: plan(obs, prob, cfg))(problems)
-
-        return jax.vmap(one_set)(params)
-
-    run = jax.jit(plan_grid)
-
-    def plan_problems(params, problems: Problem, family: str | None = None) -> PlanResult:
-        return run(params, problems, _index_of(names, family, "family"))
-
-    def straight_lines(goals, goal_mask, target, start=None) -> Problem:
-        return _straight_problems(straight, goals, goal_mask, target, start)
-
-    def planner(params, goals, goal_mask, target, start=None, family=None) -> PlanResult:
-        index = _index_of(names, family, "family")
-        return run(params, straight_lines(goals, goal_mask, target, start), index)
-
-    planner.plan_problems = plan_problems  # type: ignore[attr-defined]
-    planner.straight_line = straight_lines  # type: ignore[attr-defined]
-    planner.families = names  # type: ignore[attr-defined]
-    planner.config = cfg  # type: ignore[attr-defined]
-    return planner
-
-
-def check_problems(problems: Problem) -> None:
-    """Raise ValueError if a (batched, concrete) problem's start or target is out of reach."""
-    for name, res in (("start", problems.start_residual), ("target", problems.target_residual)):
-        r = np.asarray(res, np.float64).reshape(-1)
-        bad = ~(r <= MAX_RESIDUAL)
-        if np.any(bad):
-            i = int(np.flatnonzero(bad)[0])
-            where = np.asarray(problems.start if name == "start" else problems.goals)
-            pos = where.reshape(r.size, -1, 3)[i, 0] if name == "start" else None
-            if name == "target":
-                pos = where.reshape(r.size, G_MAX, 3)[
-                    i, int(np.asarray(problems.target).reshape(-1)[i])
-                ]
-            raise ValueError(
-                f"{name}: problem {i} at {np.round(pos, 4).tolist()} m is out of reach "
-                f"(IK residual {r[i] * 1e3:.1f} mm > {MAX_RESIDUAL * 1e3:.0f} mm)"
-            )
