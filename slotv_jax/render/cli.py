@@ -365,37 +365,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RenderBackendError as e:
         raise cli.InputError(str(e)) from None
     with renderer:
-        if args.grid:
-            rows = [
-                _grid_row(it, kw | {"renderer": renderer}, args)
-                for it in tqdm(items, disable=args.quiet, unit="row")
-            ]
+        if args.grid:  # each row: the last frame at τ, under its caption
+            still = {**kw, "fps": 1.0 / args.tau, "duration": 1.0, "hold": 0.0}
+            rows = []
+            for it in tqdm(items, disable=args.quiet, unit="row"):
+                last = _frames(args, it, **still, target=it.target, renderer=renderer)[-1]
+                rows.append(np.concatenate([title(last, it.caption), last]))
             gap = np.full((GAP, rows[0].shape[1], 3), 255, np.uint8)
             write_png(paths[0], np.concatenate([x for r in rows for x in (r, gap)][:-1]))
             print(f"wrote {paths[0]} ({len(items)} problems x {len(items[0].qs)} planners)")
             return 0
         for it, path in tqdm(list(zip(items, paths, strict=True)), disable=args.quiet, unit="clip"):
             target = it.target if args.mark_target and it.target >= 0 else None
-            common = {
-                **kw,
-                "labels": _labels(args, it),
-                "show_labels": args.labels != "none",
-                "target": target,
-                "renderer": renderer,
-            }
-            if len(it.qs) == 1 and not it.names:
-                frames = motion_frames(it.qs[0], it.goals, it.goal_mask, t=it.t, **common)
-            else:
-                layout = args.layout
-                frames = compare_frames(
-                    it.qs,
-                    it.goals,
-                    it.goal_mask,
-                    names=it.names,
-                    rgbas=it.rgbas,
-                    layout=layout,
-                    **common,
-                )
+            frames = _frames(args, it, **kw, target=target, renderer=renderer)
             if path.suffix == ".png" and args.sheet:
                 write_png(path, contact_sheet(frames, args.sheet, cols=min(args.sheet, 4)))
             else:
@@ -405,17 +387,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def _grid_row(item: Item, kw: dict, args) -> np.ndarray:
-    """One ``--grid`` row: the item's planners side by side at τ, under its caption."""
-    last = compare_frames(
-        item.qs,
-        item.goals,
-        item.goal_mask,
-        names=item.names,
-        rgbas=item.rgbas,
-        layout="side",
-        show_labels=args.labels != "none",
-        target=item.target,
-        **{**kw, "fps": 1.0 / args.tau, "duration": 1.0, "hold": 0.0},
-    )[-1]
-    return np.concatenate([title(last, item.caption), last])
+def _frames(args, it: Item, **kw) -> np.ndarray:
+    """Every frame of one item: its motion, or its motions compared (``--layout``)."""
+    kw |= {"labels": _labels(args, it), "show_labels": args.labels != "none"}
+    if len(it.qs) == 1 and not it.names:
+        return motion_frames(it.qs[0], it.goals, it.goal_mask, t=it.t, **kw)
+    return compare_frames(
+        it.qs, it.goals, it.goal_mask, names=it.names, rgbas=it.rgbas, layout=args.layout, **kw
+    )
