@@ -14,7 +14,7 @@ import pytest
 
 from slotv_jax import data
 from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
-from slotv_jax.experiments import hparam_search, table1
+from slotv_jax.experiments import fidelity_report, hparam_search, table1
 from slotv_jax.runs import curves, grid, presets, record, summary
 
 REPO = Path(__file__).resolve().parent.parent
@@ -401,3 +401,34 @@ def test_explainable_record_holds_the_tables_its_results_render(stem):
     assert len(rows) > 20
     lines = set((folder / "explainable.md").read_text().splitlines())
     assert [row for row in rows if row not in lines] == []
+
+
+@pytest.mark.parametrize(
+    "stem, render",
+    [
+        ("table1_quick", lambda doc: table1.report(doc)),
+        ("table1_paper", lambda doc: table1.report(doc)),
+        ("fidelity", lambda doc: fidelity_report.render_markdown(doc)),
+    ],
+)
+def test_written_records_hold_the_table_rows_their_results_render(stem, render):
+    """Table 1's and the fidelity ablation's records (written documents around the runs:
+    how they ran, what they mean) hold every table row their recorded results render to:
+    no number typed by hand."""
+    folder = Path(__file__).resolve().parent.parent / "experiments"
+    name = "fidelity_results.json" if stem == "fidelity" else f"{stem}_results.json"
+    doc = json.loads((folder / name).read_text())
+    rows = [line for line in render(doc).splitlines() if line.startswith("|")]
+    assert len(rows) > 15
+    lines = set((folder / f"{stem}.md").read_text().splitlines())
+    assert [row for row in rows if row not in lines] == []
+
+
+@pytest.mark.parametrize("stem", ["people_loop", "people_loop_paper"])
+def test_people_loop_records_are_their_results_rendered(stem):
+    """The people loop's recorded reports are exactly what their results render to."""
+    from slotv_jax.experiments.people_loop import report
+
+    folder = Path(__file__).resolve().parent.parent / "experiments"
+    doc = json.loads((folder / f"{stem}_results.json").read_text())
+    assert report.report(doc, stem) == (folder / f"{stem}.md").read_text()
