@@ -135,3 +135,26 @@ def test_write_report_rejects_mixed_datasets(split, tmp_path):
     other.meta["config_digest"] = "different"
     with pytest.raises(ValueError, match="different dataset configs"):
         lr.write_report({"train": split, "position_test": other}, tmp_path, command="x")
+
+
+def test_the_command_reports_the_splits_a_dataset_holds(split, tmp_path, capsys):
+    """Without --splits the command takes every split the folder holds (a dataset made for
+    one experiment holds only some); a folder without one is a one-line error."""
+    other = _split("position_test", {n: [_onehot(0)] for n in lr.LABELERS}, [0], [1], MASK)
+    folder = tmp_path / "dataset"
+    folder.mkdir()
+    for s in (split, other):
+        s.meta.pop("config_digest")  # save_split writes the config's own
+        data.save_split(folder, s, data.DataConfig(preset="tiny", n_train=3, n_eval=1))
+    out = tmp_path / "report"
+    assert lr.main(["--data", str(folder), "--out", str(out), "--date", "2026-11-27"]) == 0
+    md = (out / "labels.md").read_text()
+    assert "| train | 3 |" in md and "| position_test | 1 |" in md
+    assert "trajectory_val" not in md
+    assert lr.main(["--data", str(folder), "--out", str(out), "--splits", "train"]) == 0
+    assert "position_test" not in (out / "labels.md").read_text()
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SystemExit) as e:
+        lr.main(["--data", str(tmp_path / "empty"), "--out", str(out)])
+    assert e.value.code == 2
+    assert capsys.readouterr().err.strip().endswith("holds no dataset split")

@@ -36,7 +36,7 @@ from slotv_jax.core import cli, fileio
 from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
 from slotv_jax.core.fileio import save_figure, write_text
 from slotv_jax.data.stats import NEAR_TIE, collect
-from slotv_jax.data.storage import Split, load_split
+from slotv_jax.data.storage import Split, find_dataset, has_split, load_split
 
 LABELERS = LABELER_NAMES  # dragan, nikolaidis, effdist, fastapp
 TITLES = {
@@ -338,13 +338,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         prog="python -m slotv_jax.data.report",
         description="Label entropy, target agreement and labeler agreement per split.",
     )
-    p.add_argument("--data", type=Path, required=True, help="dataset directory (<split>.npz/json)")
+    p.add_argument(
+        "--data", required=True, help="dataset folder, or a preset name (quick: the main job's)"
+    )
     p.add_argument("--out", type=Path, default=Path("runs/labels"), help="default: runs/labels")
-    p.add_argument("--splits", nargs="+", choices=SPLITS, default=list(SPLITS))
+    p.add_argument(
+        "--splits", nargs="+", choices=SPLITS, help="default: every split the dataset holds"
+    )
     p.add_argument("--date", help="date to print in the report (default: today)")
     args = p.parse_args(argv)
     fileio.check_output_files(args.out, ["labels.md", "labels.png"])  # regenerated
-    splits = {name: load_split(args.data, name) for name in args.splits}
+    folder = find_dataset(args.data)
+    names = args.splits or [n for n in SPLITS if has_split(folder, n)]
+    if not names:
+        raise cli.InputError(f"--data {args.data}: holds no dataset split")
+    splits = {name: load_split(folder, name) for name in names}
     command = shlex.join(["python", "-m", "slotv_jax.data.report", *argv])
     stats = write_report(splits, args.out, command=command, date=args.date)
     for name, s in stats["splits"].items():
