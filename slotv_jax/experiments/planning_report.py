@@ -20,8 +20,9 @@ import jax
 import numpy as np
 
 from slotv_jax.core import cli, fileio
-from slotv_jax.core.fileio import save_figure, write_text
+from slotv_jax.core.fileio import write_text
 from slotv_jax.robot.kinematics import home_tcp
+from slotv_jax.runs import figures as figure_style
 from slotv_jax.world.scene import camera, project
 
 TITLES = {"straight": "straight line", "dragan": "Dragan (oracle)",
@@ -54,11 +55,7 @@ def render(out: Path, n_examples: int = 3) -> None:
     """``out/scenes.png`` (top view for the first family, the observer camera's view for
     the others) and ``out/bars.png`` (true legibility per planner ± SD), from
     ``out/plans.npz`` and ``out/results.json``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = figure_style.pyplot()
     with np.load(out / "plans.npz", allow_pickle=False) as f:
         pl = {k: f[k] for k in f.files}
     doc = json.loads((out / "results.json").read_text())
@@ -97,8 +94,7 @@ def render(out: Path, n_examples: int = 3) -> None:
             ax.legend(fontsize=7, loc="best", framealpha=0.6)
             fig.colorbar(sc, ax=ax, shrink=0.7, label="true y of the oracle plan")
     fig.tight_layout()
-    save_figure(fig, out / "scenes.png", dpi=90)
-    plt.close(fig)
+    figure_style.save(fig, out / "scenes.png", dpi=90)
 
     fig, axes = plt.subplots(1, len(fams), figsize=(10, 3.8), sharey=True, squeeze=False)
     for ax, family in zip(axes[0], fams, strict=True):
@@ -113,8 +109,7 @@ def render(out: Path, n_examples: int = 3) -> None:
         ax.tick_params(axis="x", rotation=25)
         plt.setp(ax.get_xticklabels(), ha="right", rotation_mode="anchor")
     fig.tight_layout()
-    save_figure(fig, out / "bars.png", dpi=100)
-    plt.close(fig)
+    figure_style.save(fig, out / "bars.png", dpi=100)
 
 
 def report(doc: dict, figures: str = "") -> str:

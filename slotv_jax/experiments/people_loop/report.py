@@ -8,7 +8,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from slotv_jax.core.fileio import save_figure, write_text
+from slotv_jax.core.fileio import write_text
+from slotv_jax.runs import figures
 from slotv_jax.runs.summary import crossing
 
 FAMILY_TITLES = {
@@ -258,11 +259,9 @@ def report(doc: dict, stem: str) -> str:
 
 
 def plot(doc: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """The gain kept against answers, one panel per population, a line per family and
+    strategy."""
+    plt = figures.pyplot()
     pops = [p["population"] for p in doc["populations"]]
     fig, axes = plt.subplots(1, len(pops), figsize=(6.5 * len(pops), 4.2), squeeze=False)
     for ax, name in zip(axes[0], pops, strict=True):
@@ -286,8 +285,7 @@ def plot(doc: dict, path: Path) -> None:
         ax.set_title(f"population: {name} (simulated people)")
         ax.legend(fontsize=6, ncol=2)
     fig.tight_layout()
-    save_figure(fig, path, dpi=120)
-    plt.close(fig)
+    figures.save(fig, path, dpi=120)
 
 
 def render_command(stem: str, out: Path, best: str | None) -> list[str]:
