@@ -158,3 +158,28 @@ def test_the_command_reports_the_splits_a_dataset_holds(split, tmp_path, capsys)
         lr.main(["--data", str(tmp_path / "empty"), "--out", str(out)])
     assert e.value.code == 2
     assert capsys.readouterr().err.strip().endswith("holds no dataset split")
+
+
+def test_the_command_regenerates_its_report_and_refuses_anybody_elses(split, tmp_path, capsys):
+    """--out may hold anything: a report of ours is written again, a labels.md (or a
+    labels.png without our labels.md) of somebody else's is refused before any work and
+    left as it was."""
+    folder = tmp_path / "dataset"
+    folder.mkdir()
+    split.meta.pop("config_digest")
+    data.save_split(folder, split, data.DataConfig(preset="tiny", n_train=3, n_eval=1))
+    out = tmp_path / "shared"
+    args = ["--data", str(folder), "--out", str(out)]
+    assert lr.main(args) == 0 and lr.main(args) == 0  # ours: regenerated
+    assert lr.is_report(out / "labels.md")
+    for name in ("labels.md", "labels.png"):
+        mine = tmp_path / f"mine_{name}"
+        mine.mkdir()
+        (mine / name).write_text("my own notes\n")
+        (mine / "keep.txt").write_text("x")
+        with pytest.raises(SystemExit) as e:
+            lr.main(["--data", str(folder), "--out", str(mine)])
+        assert e.value.code == 2
+        assert f"{name} exists and is not ours" in capsys.readouterr().err
+        assert (mine / name).read_text() == "my own notes\n"
+        assert sorted(p.name for p in mine.iterdir()) == sorted([name, "keep.txt"])

@@ -45,6 +45,7 @@ TITLES = {
     "effdist": "EffDist",
     "fastapp": "FastApp",
 }
+TITLE = "# Label statistics: are the four labelling tasks non-trivial?"  # the report's first line
 AT_CHANCE = 0.02  # target agreement within this of chance, in every split, counts as chance
 
 
@@ -161,7 +162,7 @@ def render_markdown(
         if k in environment
     )
     devices = ", ".join(environment.get("devices", [])) or "unknown"
-    L = ["# Label statistics: are the four labelling tasks non-trivial?", ""]
+    L = [TITLE, ""]
     L += [
         f"- Command: `{command}`",
         f"- Dataset config digest: `{digest}`",
@@ -330,6 +331,15 @@ def write_report(
     return stats
 
 
+def is_report(path: Path) -> bool:
+    """Whether ``path`` holds a label report this module wrote (its first line)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.readline().rstrip("\n") == TITLE
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
 @cli.command
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line: load the splits of ``--data`` and write the report to ``--out``."""
@@ -347,7 +357,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--date", help="date to print in the report (default: today)")
     args = p.parse_args(argv)
-    fileio.check_output_files(args.out, ["labels.md", "labels.png"])  # regenerated
+    # a report of ours is regenerated; a labels.md or .png of anybody else's is refused
+    ours = {"labels.md": is_report, "labels.png": lambda p: is_report(p.with_name("labels.md"))}
+    fileio.check_output_files(args.out, ["labels.md", "labels.png"], ours=ours)
     folder = find_dataset(args.data)
     names = args.splits or [n for n in SPLITS if has_split(folder, n)]
     if not names:
