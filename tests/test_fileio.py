@@ -65,6 +65,13 @@ def test_report_files_resume_only_from_our_results(tmp_path):
     assert (tmp_path / "x_results.json").read_text() == "my notes"
     (tmp_path / "x_results.json").write_text("{}")
     fileio.check_output_files(tmp_path, names, ours=ours)
+    # beside: a report of that name with no results document of ours next to it is not ours
+    fileio.check_output_files(tmp_path, names, ours=ours, beside=names[0])  # ours beside it
+    (tmp_path / "x_results.json").unlink()
+    with pytest.raises(fileio.OutputError, match=r"x\.md exists beside no x_results\.json"):
+        fileio.check_output_files(tmp_path, names, ours=ours, beside=names[0])
+    assert (tmp_path / "x.md").read_text() == "an old report"
+    fileio.check_output_files(tmp_path, names, ours=ours)  # without beside: regenerated
 
 
 def test_an_output_is_never_one_of_the_inputs(tmp_path):

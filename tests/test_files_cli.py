@@ -324,3 +324,37 @@ def test_a_coordinator_nobody_can_reach_is_one_line_at_once(coordinator, piece, 
     err = capsys.readouterr().err
     assert e.value.code == 2 and err.startswith(f"error: --coordinator {coordinator}: "), err
     assert piece in err and err.count("\n") == 1 and time.monotonic() - t0 < 30
+
+
+@pytest.mark.parametrize(
+    "module, stem",
+    [
+        ("slotv_jax.experiments.active", "active"),
+        ("slotv_jax.experiments.active_stream", "active_stream"),
+        ("slotv_jax.experiments.study_size.__main__", "study_size"),
+        ("slotv_jax.experiments.people_loop.__main__", "people_loop"),
+    ],
+)
+def test_shared_folder_reports_replace_only_their_own(tmp_path, capsys, module, stem):
+    """The experiments that write into a shared folder (default ``experiments/``) regenerate
+    their report and figure only beside a results document of theirs: somebody's own
+    ``<stem>.md`` (or a results document that is not theirs) is refused before any work
+    and left as it was, and nothing else is written."""
+    import importlib
+
+    main = importlib.import_module(module).main
+    results = "study_size.json" if stem == "study_size" else f"{stem}_results.json"
+    for name, text, needle in (
+        (f"{stem}.md", "my notes\n", f"{stem}.md exists beside no {results}"),
+        (results, '{"mine": 1}', f"{results} exists and is not ours"),
+    ):
+        folder = tmp_path / name
+        folder.mkdir()
+        (folder / name).write_text(text)
+        with pytest.raises(SystemExit) as e:
+            main(["--out", str(folder), "--no-progress"])
+        assert e.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0], err
+        assert [p.name for p in folder.iterdir()] == [name]
+        assert (folder / name).read_text() == text

@@ -222,6 +222,7 @@ def check_output_files(
     *,
     what: str = "--out",
     ours: Mapping[str, Callable[[Path], bool]] | None = None,
+    beside: str | None = None,
 ) -> None:
     """Check, before any work, that the files ``names`` can be written into ``folder``.
 
@@ -229,7 +230,10 @@ def check_output_files(
     folder is a directory or can be made, it can be written, and no name is a directory.
     Files of those names are regenerated; nothing else in the folder is touched. A file
     named in ``ours`` (a results document the command resumes from) that exists must
-    pass its check, or the command is refused: it is somebody else's file.
+    pass its check, or the command is refused: it is somebody else's file. With
+    ``beside`` (a name in ``ours``: the results document its reports are drawn from), any
+    other of the ``names`` that exists must stand beside that document, ours: a report of
+    that name with no results document of ours next to it is somebody else's, refused.
     """
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
@@ -243,6 +247,13 @@ def check_output_files(
             raise OutputError(
                 f"{what} {folder}: {name} exists and is not ours; choose another {what}"
             )
+    if beside is not None and not (folder / beside).exists():
+        for name in names:
+            if name != beside and (folder / name).exists():
+                raise OutputError(
+                    f"{what} {folder}: {name} exists beside no {beside} of ours (so it is not "
+                    f"ours); choose another {what}"
+                )
 
 
 def temp_dir_beside(path: str | os.PathLike) -> Path:

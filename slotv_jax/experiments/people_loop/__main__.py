@@ -89,7 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = Path(args.out)
     stem = stem_of(cfg.preset)
     names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png", "_plans.npz", "_render.png")]
-    fileio.check_output_files(out, names, ours={names[0]: is_results})
+    fileio.check_output_files(out, names, ours={names[0]: is_results}, beside=names[0])
     if args.report:  # the report and the example drawn again from the document alone
 
         def again(doc: dict, _command: str) -> None:

@@ -59,6 +59,7 @@ from tqdm.auto import tqdm
 import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax import study
+from slotv_jax.core import fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
 from slotv_jax.runs import record
@@ -145,6 +146,11 @@ def stem_of(preset: str) -> str:
     return "study_size" if preset == "quick" else f"study_size_{preset}"
 
 
+def is_results(path: Path) -> bool:
+    """Whether ``path`` holds a results document of this experiment (ours to resume)."""
+    return fileio.is_json_object_with(path, ("preset", "config", "cells", "summary", "needed"))
+
+
 def p_name(p: int) -> str:
     return "∞ (labels)" if p == INF else str(p)
 
@@ -194,6 +200,8 @@ def run(
     (:func:`recorded_references`)."""
 
     stem = stem_of(cfg.preset)
+    names = [f"{stem}{s}" for s in (".json", ".md", ".png")]  # checked before any work
+    fileio.check_output_files(out, names, ours={names[0]: is_results}, beside=names[0])
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{stem}.json"
     conf = json.loads(json.dumps(cfg.to_json()))

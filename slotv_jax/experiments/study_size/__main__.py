@@ -9,9 +9,9 @@ from pathlib import Path
 
 import slotv_jax
 from slotv_jax import data as data_lib
-from slotv_jax.core import cli, fileio
+from slotv_jax.core import cli
 from slotv_jax.core.fileio import write_text
-from slotv_jax.experiments.study_size import PRESETS, p_name, run, stem_of
+from slotv_jax.experiments.study_size import PRESETS, is_results, p_name, run, stem_of
 from slotv_jax.experiments.study_size.report import plot, report
 from slotv_jax.runs import command, record
 
@@ -58,15 +58,12 @@ def report_again(out: Path, preset: str) -> int:
     date is today's)."""
     stem = stem_of(preset)
 
-    def ours(path: Path) -> bool:
-        return fileio.is_json_object_with(path, ("preset", "config", "cells", "summary", "needed"))
-
     def render(doc: dict, cmd: str) -> None:
         plot(doc, out / f"{stem}.png")
         write_text(out / f"{stem}.md", report(doc, stem, cmd))
 
     return command.render_again(
-        out, stem, ours, render, f"{PROG} --preset {preset}", results=f"{stem}.json"
+        out, stem, is_results, render, f"{PROG} --preset {preset}", results=f"{stem}.json"
     )
 
 
@@ -93,9 +90,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     cfg = PRESETS[args.preset](**kw)
     if args.set:  # after the preset's own overrides
         cfg = dataclasses.replace(cfg, overrides=cfg.overrides + tuple(args.set))
-    out = Path(args.out)
+    out, stem = Path(args.out), stem_of(cfg.preset)
     doc = run(cfg, out, cache=Path(args.cache), progress=not args.no_progress)
-    stem = stem_of(cfg.preset)
     plot(doc, out / f"{stem}.png")
     write_text(out / f"{stem}.md", report(doc, stem, record.command_line(PROG, argv).strip()))
     for r in doc["needed"]:
