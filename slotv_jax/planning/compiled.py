@@ -107,22 +107,13 @@ def make_planner(
             raise ValueError(f"observer {name!r}: {e}") from None
     names = tuple(observers)
     branches = tuple(observers.values())
-
-    def switched(index):
-        if len(branches) == 1:
-            return branches[0]
-
-        def obs(xyz, g, m):
-            return jax.lax.switch(index, branches, xyz, g, m)
-
-        if cfg.taus is not None:
-            prefixes = tuple(b.prefix for b in branches)
-            obs.prefix = lambda xyz, g, m, n: jax.lax.switch(index, prefixes, xyz, g, m, n)
-        return obs
+    prefix = cfg.taus is not None
 
     straight = jax.jit(jax.vmap(functools.partial(straight_line, cfg=cfg)))
     run = jax.jit(
-        lambda problems, index: jax.vmap(lambda p: plan(switched(index), p, cfg))(problems)
+        lambda problems, index: jax.vmap(
+            lambda p: plan(_switched(index, branches, prefix), p, cfg)
+        )(problems)
     )
 
     def index_of(name):
@@ -144,6 +135,22 @@ def make_planner(
     planner.observers = names  # type: ignore[attr-defined]
     planner.config = cfg  # type: ignore[attr-defined]
     return planner
+
+
+def _switched(index: jax.Array, observers: Sequence[Observer], prefix: bool) -> Observer:
+    """The observer ``observers[index]``, and its ``prefix`` with ``prefix``: a
+    ``lax.switch`` on an unbatched index, so one program holds them all."""
+    if len(observers) == 1:
+        return observers[0]
+    observers = tuple(observers)
+
+    def obs(xyz, g, m):
+        return jax.lax.switch(index, observers, xyz, g, m)
+
+    if prefix:
+        prefixes = tuple(o.prefix for o in observers)
+        obs.prefix = lambda xyz, g, m, n: jax.lax.switch(index, prefixes, xyz, g, m, n)
+    return obs
 
 
 def _index_of(names: Sequence[str], name: str | None, what: str) -> jax.Array:
@@ -218,18 +225,8 @@ def make_family_planner(
             raise ValueError(f"{what}: it does not accept traced parameters ({e})") from e
     names, fns = tuple(builds), tuple(builds.values())
 
-    def observer_of(index, p) -> Observer:
-        if len(fns) == 1:
-            return fns[0](p)
-        calls = tuple(lambda p, x, g, m, b=b: b(p)(x, g, m) for b in fns)
-
-        def obs(xyz, g, m):
-            return jax.lax.switch(index, calls, p, xyz, g, m)
-
-        if cfg.taus is not None:
-            prefixes = tuple(lambda p, x, g, m, n, b=b: b(p).prefix(x, g, m, n) for b in fns)
-            obs.prefix = lambda xyz, g, m, n: jax.lax.switch(index, prefixes, p, xyz, g, m, n)
-        return obs
+    def observer_of(index, p) -> Observer:  # every family's observer of p, switched
+        return _switched(index, [b(p) for b in fns], cfg.taus is not None)
 
     straight = jax.jit(jax.vmap(functools.partial(straight_line, cfg=cfg)))
 

@@ -49,12 +49,14 @@ def seeded_overrides(args: argparse.Namespace, names: Sequence[str] = ()) -> dic
     return kw
 
 
-def prepare_out(out: Path, stem: str, is_ours: Callable[[Path], bool]) -> None:
-    """Before any work: ``OUT/STEM_results.json``, ``.md`` and ``.png`` can be written, and
-    the results document, if there, is ours (``is_ours``; it is resumed and the report and
-    figure rewritten from it), and a report or figure there stands beside it; then make
-    ``out``."""
-    names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png")]
+def prepare_out(
+    out: Path, stem: str, is_ours: Callable[[Path], bool], results: str | None = None
+) -> None:
+    """Before any work: ``OUT/STEM_results.json`` (or ``OUT/results``), ``STEM.md`` and
+    ``STEM.png`` can be written, and the results document, if there, is ours (``is_ours``;
+    it is resumed and the report and figure rewritten from it), and a report or figure
+    there stands beside it; then make ``out``."""
+    names = [results or f"{stem}_results.json", f"{stem}.md", f"{stem}.png"]
     fileio.check_output_files(out, names, ours={names[0]: is_ours}, beside=names[0])
     out.mkdir(parents=True, exist_ok=True)
 

@@ -62,7 +62,7 @@ from slotv_jax import study
 from slotv_jax.core import fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
-from slotv_jax.runs import record
+from slotv_jax.runs import command, record
 from slotv_jax.runs.presets import METHODS
 from slotv_jax.runs.summary import crossing, pooled
 from slotv_jax.training import config as train_config
@@ -200,10 +200,8 @@ def run(
     (:func:`recorded_references`)."""
 
     stem = stem_of(cfg.preset)
-    names = [f"{stem}{s}" for s in (".json", ".md", ".png")]  # checked before any work
-    fileio.check_output_files(out, names, ours={names[0]: is_results}, beside=names[0])
-    out.mkdir(parents=True, exist_ok=True)
     path = out / f"{stem}.json"
+    command.prepare_out(out, stem, is_results, results=path.name)  # before any work
     conf = json.loads(json.dumps(cfg.to_json()))
     doc = json.loads(path.read_text()) if path.exists() else {}
     if doc.get("config") != conf:
