@@ -148,7 +148,9 @@ __all__ = [
     "MAX_NODES",
     "MEMORIES",
     "PRESETS",
+    "RANDOM_PREFIX",
     "RULES",
+    "SUITE_DRAWS",
     "WORLD",
     "Participants",
     "Population",
@@ -160,12 +162,15 @@ __all__ = [
     "guess_goals",
     "homogeneous",
     "load_population",
+    "parse_random",
     "participant_probs",
     "population_observer",
     "population_probs",
     "quadrature",
+    "random_population",
     "sample_guesses",
     "save_population",
+    "suite_specs",
 ]
 
 #: The inference rules, in the order of :attr:`Participants.rule`'s indices.
@@ -408,19 +413,155 @@ def save_population(pop: Population, path: str | os.PathLike) -> None:
 
 
 def get_population(spec: str | os.PathLike) -> Population:
-    """``default``, ``homogeneous`` (:data:`PRESETS`) or the path of a population JSON file.
+    """``default``, ``homogeneous`` (:data:`PRESETS`), ``random:K`` (the K-th draw of the
+    hyper-distribution, :func:`random_population`) or the path of a population JSON file.
 
     >>> get_population("homogeneous").memory
     'dragan'
     """
     if str(spec) in PRESETS:
         return PRESETS[str(spec)]()
+    if str(spec).startswith(RANDOM_PREFIX):
+        return random_population(parse_random(str(spec)))
     if not Path(spec).is_file():
         raise ValueError(
             f"population: expected {' or '.join(PRESETS)} or a population JSON file, got "
             f"{str(spec)!r} (no such file)"
         )
     return load_population(spec)
+
+
+# ------------------------------------------------------------------ populations nobody wrote
+
+#: ``random:K`` names the K-th draw of the hyper-distribution (:func:`random_population`).
+RANDOM_PREFIX = "random:"
+#: The candidate viewpoints of a drawn population: the scene's three observer cameras and
+#: the motion seen in 3-D.
+HYPER_VIEWPOINTS: tuple[str, ...] = ("observer", "observer_angle", "observer_side", WORLD)
+#: Log-uniform ranges of the temperature centres β₀ per rule (the unit of each rule's
+#: evidence: per metre or per unit of image plane; none for ``direction``).
+HYPER_BETA: dict[str, tuple[float, float]] = {
+    "cost_to_go": (10.0, 60.0),
+    "proximity": (10.0, 60.0),
+    "direction": (2.0, 10.0),
+}
+HYPER_SIGMA = (0.0, 1.0)  # σ of log β ~ U(lo, hi)
+HYPER_RECENCY = 0.75  # P(memory = recency); else Dragan's time weights
+HYPER_ALPHA = (0.0, 2.0)  # recency: lo ~ U(0, 2), hi = lo + U(0, 2)
+HYPER_LAPSE = (0.0, 0.10)  # λ ~ U(lo, hi)
+_HYPER_SEED = 44  # the hyper-distribution's own stream: draw K uses SeedSequence((44, K))
+#: The drawn populations of ``--population suite`` (after ``default`` and ``homogeneous``):
+#: the first draws K = 0, 1, 2, … whose oracle gain over the straight line is large enough to
+#: measure (``python -m slotv_jax.experiments.people_loop.suite`` screens them and records
+#: the rule and every screened draw in ``experiments/population_suite.md``).
+SUITE_DRAWS: tuple[int, ...] = (0, 1, 2, 3, 4, 5, 6, 7)
+
+
+def parse_random(spec: str) -> int:
+    """K of ``random:K`` (a ValueError naming the population for anything else)."""
+    k = spec[len(RANDOM_PREFIX) :] if spec.startswith(RANDOM_PREFIX) else ""
+    if not (k.isascii() and k.isdigit()) or len(k) > 9:
+        raise ValueError(
+            f"population: expected random:K with K an integer in 0..999999999, got {spec!r}"
+        )
+    return int(k)
+
+
+def random_population(k: int) -> Population:
+    """The K-th draw of the hyper-distribution over every population field (issue 44: a suite
+    of populations nobody tuned to). Reproducible: draw K comes from NumPy's PCG64 seeded by
+    ``SeedSequence((44, K))`` alone, whatever else runs. Named ``random:K``.
+
+    ============== =========================================== ===============================
+    field          distribution                                why
+    ============== =========================================== ===============================
+    viewpoints     each of ``observer``, ``observer_angle``,   a study films its clips from
+                   ``observer_side`` and ``world`` kept with   one camera or several, or shows
+                   probability 1/2 (drawn again if none is     the robot live (3-D, ``world``);
+                   kept); weights Dirichlet(1, …, 1) over      any subset and weighting is
+                   those kept                                  possible, none is favoured
+    rules          weights Dirichlet(1, 1, 1) over             the literature finds people's
+                   ``cost_to_go``, ``proximity``,              goal inference explained by
+                   ``direction``                               efficiency (Dragan & Srinivasa
+                                                               2013; Baker et al. 2009), by
+                                                               proximity and by heading
+                                                               (Gielniak & Thomaz 2011 on
+                                                               anticipation); no mix is known,
+                                                               so uniform on the simplex
+    beta           per rule, log-uniform: cost-to-go and       the dataset's temperatures (20
+                   proximity on [10, 60], direction on         m⁻¹, 30 per image unit; the
+                   [2, 10]                                     default's direction 5) sit near
+                                                               each range's geometric centre;
+                                                               at β = 10 five centimetres of
+                                                               progress give odds 1.6 (a
+                                                               hesitant reader), at 60 they
+                                                               give 20 (a sharp one)
+    beta_sigma_log U(0, 1)                                     from everyone alike to the
+                                                               middle 68 % within a factor 2.7:
+                                                               fitted rationality differs
+                                                               widely between people (Baker
+                                                               et al. 2009)
+    memory         recency with probability 3/4, else          people update their guess as a
+                   Dragan's time weights                       motion unfolds, recent points
+                                                               weigh more (Hogarth & Einhorn
+                                                               1992); the labelers' own
+                                                               weighting stays possible
+    alpha_range    lo ~ U(0, 2), hi = lo + U(0, 2)             from equal weights (α = 0) to
+                                                               judging from the last points
+                                                               (α = 4: the last fifth carries
+                                                               ~60 % of the weight)
+    lapse          U(0, 0.10)                                  0–6 % in the laboratory
+                                                               (Wichmann & Hill 2001), more in
+                                                               online studies of inattentive
+                                                               participants
+    ============== =========================================== ===============================
+
+    The quadrature keeps 8 + 8 nodes (within 3e-4 of 64 + 64 at σ = 1, :func:`quadrature`).
+    These ranges were chosen from the literature above before any result with them was seen.
+
+    >>> random_population(3) == random_population(3), random_population(3).name
+    (True, 'random:3')
+    """
+    if not (_is_int(k) and 0 <= k <= 999_999_999):
+        raise ValueError(f"k: expected an integer in 0..999999999, got {k!r}")
+    rng = np.random.default_rng(np.random.SeedSequence((_HYPER_SEED, int(k))))
+    keep = np.zeros(len(HYPER_VIEWPOINTS), bool)
+    while not keep.any():
+        keep = rng.random(len(HYPER_VIEWPOINTS)) < 0.5
+    views = [v for v, kept in zip(HYPER_VIEWPOINTS, keep, strict=True) if kept]
+    w_view = _simplex(rng.dirichlet(np.ones(len(views))))
+    w_rule = _simplex(rng.dirichlet(np.ones(len(RULES))))
+    beta = {r: float(np.exp(rng.uniform(*np.log(HYPER_BETA[r])))) for r in RULES}
+    sigma = float(rng.uniform(*HYPER_SIGMA))
+    recency = bool(rng.random() < HYPER_RECENCY)
+    lo = float(rng.uniform(*HYPER_ALPHA))
+    hi = lo + float(rng.uniform(*HYPER_ALPHA))
+    lapse = float(rng.uniform(*HYPER_LAPSE))
+    return Population(
+        name=f"{RANDOM_PREFIX}{k}",
+        viewpoints=tuple(zip(views, w_view, strict=True)),
+        rules=tuple(zip(RULES, w_rule, strict=True)),
+        beta=tuple((r, round(beta[r], 6)) for r in RULES),
+        beta_sigma_log=round(sigma, 6),
+        memory="recency" if recency else "dragan",
+        alpha_range=(round(lo, 6), round(hi, 6)) if recency else None,
+        lapse=round(lapse, 6),
+        beta_nodes=8,
+        alpha_nodes=8,
+    )
+
+
+def _simplex(w: np.ndarray) -> list[float]:
+    """Weights rounded to 6 digits that still sum to 1 (the last takes the remainder), so a
+    drawn population reads back from its JSON form unchanged."""
+    r = [round(float(x), 6) for x in w[:-1]]
+    return [*r, round(1.0 - math.fsum(r), 6)]
+
+
+def suite_specs() -> tuple[str, ...]:
+    """``--population suite``: ``default``, ``homogeneous`` and the draws of
+    :data:`SUITE_DRAWS`."""
+    return ("default", "homogeneous", *(f"{RANDOM_PREFIX}{k}" for k in SUITE_DRAWS))
 
 
 # ------------------------------------------------------------------ viewpoints and evidence
