@@ -48,6 +48,7 @@ from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
@@ -550,12 +551,12 @@ def check_seen(seen, n_points: int, *, batch_shape: tuple[int, ...] = ()) -> Non
         raise ValueError(f"seen: expected shape {tuple(batch_shape)}, got {jnp.shape(seen)}")
     if not jnp.issubdtype(jnp.result_type(seen), jnp.integer) or isinstance(seen, bool):
         raise ValueError(f"seen: expected an integer count of points, got {seen!r}")
-    if validation.is_concrete(seen):
-        v = jnp.asarray(seen)
-        if not bool(jnp.all((v >= 2) & (v <= n_points))):
+    if validation.is_concrete(seen):  # NumPy: jnp would trace a Python int inside jit
+        v = np.asarray(seen)
+        if not bool(np.all((v >= 2) & (v <= n_points))):
             raise ValueError(
                 f"seen: expected 2 <= seen <= {n_points} (the trajectory's points), got "
-                f"{jnp.asarray(seen).tolist()}"
+                f"{v.tolist()}"
             )
 
 
