@@ -15,9 +15,10 @@ h11 protocol inside :class:`BoundedConnection`, one per connection, under three
 - **keep-alive** (``--keep-alive``, s): a connection idle between requests is closed
   after it (uvicorn's ``timeout_keep_alive``).
 - **connections** (``--max-connections``): at most this many are open. When one more
-  arrives, the connection that has waited longest on its own client (idle between
-  requests, or still sending one) is closed to make room; only when every connection is
-  busy in the application does the newcomer get ``503`` (and ``Retry-After``). So a
+  arrives, of the connections waiting on their own client (idle between requests, or
+  still sending one) the one whose last request began longest ago is closed to make
+  room (found at once while the first in that order waits); only when every connection
+  is busy in the application does the newcomer get ``503`` (and ``Retry-After``). So a
   participant gets through at once while one client holds every connection with requests
   it never finishes; while it holds them with replies it never reads, the participant
   gets 503 until those are cut, one client timeout after they stalled.
@@ -76,19 +77,27 @@ class Limits:
 
 
 class _Pool:
-    """The open connections of one server."""
+    """The open connections of one server, the one whose request began longest ago first
+    (an ordered set: a connection moves to the end when a request of it begins)."""
 
     def __init__(self, limits: Limits):
         self.limits = limits
-        self.open: set[BoundedConnection] = set()
+        self.open: dict[BoundedConnection, None] = {}
+
+    def begin(self, c: BoundedConnection) -> None:
+        """``c`` begins a request (or opens): it goes last."""
+        self.open.pop(c, None)
+        self.open[c] = None
 
     def make_room(self) -> bool:
-        """Close the connection that has waited longest on its client; False if none waits."""
-        waiting = [c for c in self.open if c.waiting()]
-        if not waiting:
+        """Close the connection that has waited longest on its client: the first, in the
+        order of their requests' beginnings, idle or still sending its request (the first
+        in the order usually is, so this is quick); False if every one is busy in the
+        application."""
+        oldest = next((c for c in self.open if c.waiting()), None)
+        if oldest is None:
             return False
-        oldest = min(waiting, key=lambda c: c.since)  # idle ones (since 0) first
-        self.open.discard(oldest)
+        del self.open[oldest]
         oldest.drop()
         return True
 
@@ -109,7 +118,6 @@ class BoundedConnection(asyncio.Protocol):
         self._deadline: asyncio.TimerHandle | None = None  # the request must be in by then
         self._stalled: asyncio.TimerHandle | None = None  # the client must read on by then
         self._refused = False
-        self.since = 0.0  # loop time the current request began; 0 between requests
 
     # ------------------------------------------------------------ the limits
 
@@ -128,14 +136,13 @@ class BoundedConnection(asyncio.Protocol):
             self.drop()
 
     def _begin_request(self) -> None:
-        self.since = self._loop.time()
+        self._pool.begin(self)
         self._deadline = self._loop.call_later(self._pool.limits.client_timeout, self._late)
 
     def _end_request(self) -> None:
         if self._deadline is not None:
             self._deadline.cancel()
             self._deadline = None
-        self.since = 0.0
 
     def _read_on(self) -> None:
         if self._stalled is not None:
@@ -152,7 +159,6 @@ class BoundedConnection(asyncio.Protocol):
             transport.write(BUSY)
             transport.close()
             return
-        pool.open.add(self)
         self._inner.connection_made(transport)
         self._begin_request()  # the first request is due from the opening
 
@@ -183,7 +189,7 @@ class BoundedConnection(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         self._end_request()
         self._read_on()
-        self._pool.open.discard(self)
+        self._pool.open.pop(self, None)
         if not self._refused:
             self._inner.connection_lost(exc)
 
