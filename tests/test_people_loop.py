@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from slotv_jax import planning
+from slotv_jax.asking import selection
 from slotv_jax.experiments import people_loop as exp
 from slotv_jax.experiments.people_loop.__main__ import main
 from slotv_jax.observers import population as population_lib
@@ -132,6 +133,17 @@ def test_another_seed_adds_its_rows_to_the_document(tmp_path, monkeypatch, capsy
     both = exp.eval_keys([("random", 0), ("margin", 1)])
     alone = exp.eval_keys([("margin", 1)])
     assert np.array_equal(jax.random.key_data(both[1]), jax.random.key_data(alone[0]))
+
+
+def test_every_run_has_its_own_evaluation_key():
+    """eval_keys: a key from the run's strategy and seed alone, so each strategy's evaluation
+    study (and each seed's) draws its own participants, and a run's key is the same
+    whichever runs stand beside it."""
+    runs = [(st, sd) for st in selection.STRATEGIES for sd in (0, 1, 7)]
+    keys = np.asarray(jax.random.key_data(exp.eval_keys(runs)))
+    assert len({k.tobytes() for k in keys}) == len(runs)  # no two runs share a study
+    for run, key in zip(runs, keys, strict=True):
+        np.testing.assert_array_equal(jax.random.key_data(exp.eval_keys([run])[0]), key)
 
 
 @pytest.mark.slow

@@ -461,8 +461,9 @@ def test_prefix_objective_bad_input():
 def test_family_planner_compiles_once_and_plans_each_parameter_set(straight):
     """Observers built from traced parameters inside one compiled program: the plans equal
     those of each observer planned alone, and new values do not recompile. Two families
-    reading one parameter pytree share that program (``family=``, a switch): each plan's
-    objective is its own family's legibility."""
+    reading one parameter pytree share that program (``family=``, a switch): each plan,
+    the first family's and the last's by name, is its own family's (the plans of the one
+    equal its observers planned alone, the objective of the other is its legibility)."""
     cfg = planning.PlannerConfig(iters=3, taus=(0.4, 0.7, 1.0))
     traces = []
 
@@ -477,12 +478,18 @@ def test_family_planner_compiles_once_and_plans_each_parameter_set(straight):
     assert fam.families == ("dragan", "nik")
     few = jax.tree.map(lambda a: a[:2], straight)
     params = jnp.array([[5.0, 7.5], [20.0, 30.0]], jnp.float32)
-    res = jax.device_get(fam.plan_problems(params, few))  # the first family by default
+    res = jax.device_get(fam.plan_problems(params, few, family="dragan"))
     assert res.xyz.shape == (2, 2, cfg.n_points, 3)
     n = len(traces)
     fam.plan_problems(params * 1.5, few)
     nik = jax.device_get(fam.plan_problems(params, few, family="nik"))
     assert len(traces) == n  # other values, another family: the same compiled program
+    # every family by its name, the first and the last (a switch clamps an index past the
+    # last back to it, so only the first shows an index one too high): the default is the
+    # first family, and the two families' plans differ
+    default = jax.device_get(fam.plan_problems(params, few))
+    np.testing.assert_array_equal(default.xyz, res.xyz)
+    assert np.abs(nik.xyz - res.xyz).max() > 1e-3
     with pytest.raises(ValueError, match=r"family: expected one of \['dragan', 'nik'\], got 'x'"):
         fam.plan_problems(params, few, family="x")
     with pytest.raises(ValueError, match=r"build 'nik': expected a function"):

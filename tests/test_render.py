@@ -16,7 +16,8 @@ import pytest
 from PIL import Image, ImageDraw
 
 from slotv_jax import render
-from slotv_jax.rendering import compare, overlay, writers
+from slotv_jax.core import opengl
+from slotv_jax.rendering import backend, compare, overlay, writers
 from slotv_jax.rendering import frames as frames_lib
 from slotv_jax.robot import kinematics
 from slotv_jax.world import scene
@@ -263,6 +264,41 @@ def test_missing_gl_backend_is_explained(monkeypatch):
     monkeypatch.setattr(mujoco, "Renderer", no_gl)
     with pytest.raises(render.RenderBackendError, match=r"MUJOCO_GL.*libegl1 libgl1-mesa-dri"):
         render.MotionRenderer(SIZE)
+
+
+def test_choose_mujoco_gl_egl_where_it_loads_else_disable(monkeypatch):
+    """Headless and unset: egl where an EGL library loads, disable (MuJoCo loads no OpenGL)
+    where none does; a display, the user's own value or an imported MuJoCo: unchanged."""
+    monkeypatch.delitem(sys.modules, "mujoco")  # as before MuJoCo's first import
+    monkeypatch.setattr(opengl, "egl_library", lambda: "libEGL.so.1")
+    assert opengl.choose_mujoco_gl(env := {}) == "egl" and env == {"MUJOCO_GL": "egl"}
+    assert opengl.choose_mujoco_gl(env := {"DISPLAY": ":0"}) is None and "MUJOCO_GL" not in env
+    monkeypatch.setattr(opengl, "egl_library", lambda: None)
+    assert opengl.choose_mujoco_gl({}) == "disable"
+    assert opengl.choose_mujoco_gl({"MUJOCO_GL": "egl"}) == "egl"  # the user's choice
+    monkeypatch.setitem(sys.modules, "mujoco", mujoco)
+    assert opengl.choose_mujoco_gl(env := {}) is None and env == {}  # too late to choose
+
+
+@pytest.mark.parametrize("gl", ["egl", "disable"])
+def test_no_egl_library_is_one_line_before_any_context(monkeypatch, gl):
+    """Headless with no EGL library: the renderer refuses before MuJoCo opens a context, and
+    a backend failure is explained as the missing library, in one line."""
+    for k in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(k, raising=False)
+    monkeypatch.setenv("MUJOCO_GL", gl)
+    monkeypatch.setattr(opengl, "egl_library", lambda: None)
+    monkeypatch.setattr(mujoco, "Renderer", None)  # must not be reached
+    with pytest.raises(render.RenderBackendError) as e:
+        render.MotionRenderer(SIZE)
+    text = str(e.value)
+    assert text.startswith("cannot render: ") and "\n" not in text
+    assert "libEGL.so.1" in text and "apt-get install libegl1 libgl1-mesa-dri" in text
+    err = AttributeError("'NoneType' object has no attribute 'eglQueryString'")
+    assert backend.backend_message(err) == text
+    monkeypatch.setattr(opengl, "egl_library", lambda: "libEGL.so.1")  # EGL there: no verdict
+    backend.check_backend()
+    assert "MUJOCO_GL=" + gl in backend.backend_message(err)
 
 
 def test_the_library_never_imports_the_renderer():

@@ -249,6 +249,54 @@ def test_no_opengl_is_one_line_naming_mujoco_gl(dataset, tmp_path):
     assert not (tmp_path / "a.mp4").exists()
 
 
+# Prepended to a subprocess's code: no EGL library loads, as on a plain CUDA container.
+# ctypes.CDLL, and the class behind ctypes.cdll through which PyOpenGL loads, refuse libEGL.
+HIDE_EGL = """
+import ctypes
+class _NoEGL(ctypes.CDLL):
+    def __init__(self, name, *args, **kwargs):
+        if "libEGL" in str(name):
+            raise OSError(f"{name}: cannot open shared object file: No such file or directory")
+        super().__init__(name, *args, **kwargs)
+ctypes.CDLL = ctypes.cdll._dlltype = _NoEGL
+"""
+
+
+def test_without_an_egl_library_only_rendering_fails_in_one_line(tmp_path):
+    """A machine with no display and no EGL library: the package, the robot's kinematics and
+    the labelers load (MuJoCo without OpenGL: MUJOCO_GL=disable, PyOpenGL's EGL
+    never imported), and the render command refuses in one line that names the missing
+    library and how to install it, writing nothing. (It once failed at MuJoCo's import with
+    PyOpenGL's AttributeError, training and labelling too.)"""
+    plans = tmp_path / "plans.npz"
+    np.savez(plans, goals=GOALS[None], goal_mask=MASK[None], target=np.array([0]),
+             names=np.array(["straight"]), q=np.stack([Q1])[None])  # fmt: skip
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("DISPLAY", "WAYLAND_DISPLAY", "MUJOCO_GL")}  # fmt: skip
+    code = HIDE_EGL + (
+        "import os, sys\n"
+        "from slotv_jax import labelers\n"
+        "from slotv_jax.robot import kinematics\n"
+        "import mujoco\n"
+        "m = kinematics.mj_model()\n"
+        "mujoco.mj_forward(m, mujoco.MjData(m))\n"
+        "print(os.environ.get('MUJOCO_GL'), 'OpenGL.EGL' in sys.modules, flush=True)\n"
+        "from slotv_jax.render import cli\n"
+        "cli.main(sys.argv[1:])\n"
+    )
+    out_file = tmp_path / "a.mp4"
+    args = ["--plans", str(plans), "--out", str(out_file), *FAST]
+    out = subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True,
+                         text=True, timeout=120)  # fmt: skip
+    assert out.stdout.split() == ["disable", "False"], out.stderr[-3000:]
+    assert out.returncode == 2, out.stderr[-3000:]
+    err = out.stderr.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: cannot render: "), err
+    assert "no EGL library (libEGL.so.1)" in err[0], err
+    assert "apt-get install libegl1 libgl1-mesa-dri" in err[0] and "NVIDIA" in err[0], err
+    assert not out_file.exists()
+
+
 def test_egl_is_chosen_without_a_display_whatever_imports_mujoco_first():
     """Without a display and MUJOCO_GL, importing any module that loads MuJoCo first (the
     data room, as `study next` does) still leaves it on EGL: the choice is the package's."""

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from study_fixtures import DotRenderer, motions, write_dot_set
 
+from slotv_jax.core import opengl
 from slotv_jax.study import cli as study_cli
 from slotv_jax.study import rounds
 from slotv_jax.training import config as train_config
@@ -126,3 +127,21 @@ def test_next_rejects_bad_input(tmp_path, capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: --stimuli")
+
+
+def test_next_without_egl_refuses_before_training(tmp_path, monkeypatch, capsys):
+    """Headless with no EGL library, `study next` (which renders the round last, after the
+    ensemble's training) refuses in one line before reading the answers."""
+    write_dot_set(tmp_path / "study", n=2)
+    for k in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(k, raising=False)
+    monkeypatch.setenv("MUJOCO_GL", "egl")
+    monkeypatch.setattr(opengl, "egl_library", lambda: None)
+    monkeypatch.setattr(rounds, "read_answers", None)  # must not be reached
+    argv = ["next", "--stimuli", str(tmp_path / "study"), "--answers", str(tmp_path),
+            "--data", str(tmp_path)]  # fmt: skip
+    with pytest.raises(SystemExit) as e:
+        study_cli.main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: cannot render: ") and "libegl1" in err[0]

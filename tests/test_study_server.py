@@ -173,7 +173,8 @@ def test_tokens(server):
 
 def test_a_token_is_checked_whole(server):
     """A token that differs from a real one in its last characters only, or its first, is
-    no token (a comparison of a prefix would let it in)."""
+    no token (a comparison of a prefix would let it in); nor is a prefix of the admin token
+    (``Bearer a``), a longer one or an empty one."""
     app, service = server
     c, state = client(app)
     token = c.cookies[COOKIE]
@@ -192,9 +193,18 @@ def test_a_token_is_checked_whole(server):
         assert fc.post("/api/resume", json={"token": f}).status_code == 401
     assert service.storage.answers() == []
     assert TestClient(app, cookies={COOKIE: token}).get("/api/state").status_code == 200
-    for f in (ADMIN[:-1] + other(ADMIN[-1]), other(ADMIN[0]) + ADMIN[1:]):
+    # the admin token likewise, and neither a prefix of it (one letter, all but the last),
+    # nor it and more, nor an empty one is any admin token
+    admin_forged = [ADMIN[:-1] + other(ADMIN[-1]), other(ADMIN[0]) + ADMIN[1:], ADMIN[0],
+                    ADMIN[:16], ADMIN[:-1], ADMIN + "0", ADMIN + ADMIN, ""]  # fmt: skip
+    for f in admin_forged:
+        assert f != ADMIN
         r = TestClient(app).get("/api/admin/progress", headers={"Authorization": f"Bearer {f}"})
-        assert r.status_code == 401
+        assert r.status_code == 401, f
+    for header in ({}, {"Authorization": ADMIN}, {"Authorization": f"Basic {ADMIN}"}):
+        assert TestClient(app).get("/api/admin/progress", headers=header).status_code == 401
+    ok = {"Authorization": f"Bearer {ADMIN}"}
+    assert TestClient(app).get("/api/admin/progress", headers=ok).status_code == 200
 
 
 def test_lost_start_resumes_until_the_first_answer(server):

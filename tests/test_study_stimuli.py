@@ -10,6 +10,8 @@ from study_fixtures import robot_motions
 
 from slotv_jax import render, study
 from slotv_jax.webstudy import make_stimuli, stimuli
+from slotv_jax.webstudy.database import SQLiteStorage
+from slotv_jax.webstudy.service import StudyService
 
 SIZE, FPS, DURATION, HOLD = (160, 96), 10.0, 1.0, 0.2
 
@@ -62,7 +64,12 @@ def test_plans_source_clips_end_at_tau(renderer, motions, tmp_path):
     pts = st.trajectories["a-0"]
     np.testing.assert_allclose(np.array(pts)[:, 1:], m.xyz[0], atol=1e-6)
     assert [row[0] for row in st.goals["a-0"]] == ["A", "B", "C"]
-    assert json.loads((tmp_path / "stim" / "study.json").read_text())["attention_checks"] == 2
+    # one attention motion: study.json records the one attention trial a participant gets
+    recorded = json.loads((tmp_path / "stim" / "study.json").read_text())["attention_checks"]
+    service = StudyService(tmp_path / "stim", SQLiteStorage(tmp_path / "study.db"))
+    p = service.participant(service.start({}, None))
+    kinds = [t["kind"] for t in service.storage.trials(p["participant"])]
+    assert recorded == kinds.count("attention") == 1
     with pytest.raises(ValueError, match="overwrite"):
         make_stimuli.make_set(m, tmp_path / "stim", n=1, taus=(1.0,), attention=0,
                               renderer=renderer, progress=False)  # fmt: skip
@@ -108,7 +115,7 @@ def test_trials_per_participant_is_written_and_an_edited_study_json_kept(
     out = tmp_path / "stim"
     make_stimuli.make_set(m, out, n=2, trials=1, **kw)
     got = json.loads((out / "study.json").read_text())
-    assert got == {**stimuli.SETTINGS, "trials_per_participant": 1}
+    assert got == {**stimuli.SETTINGS, "trials_per_participant": 1, "attention_checks": 0}
     (out / "study.json").write_text(json.dumps({**got, "title": "Mine"}))
     make_stimuli.make_set(m, out, n=2, trials=2, overwrite=True, **kw)
     assert stimuli.read_settings(out)["trials_per_participant"] == 2

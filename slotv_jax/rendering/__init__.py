@@ -10,8 +10,10 @@ command ``python -m slotv_jax.render``, which renders a dataset trajectory, a la
 
 Rendering needs an OpenGL context: ``MUJOCO_GL=egl`` on a headless machine (a GPU's EGL,
 or Mesa's software EGL on a CPU), chosen before MuJoCo is first imported. If it is unset
-on a Linux machine without a display and MuJoCo is not imported yet, importing this
-package sets it to ``egl``. Only what writes pictures imports this package (the render
+on a Linux machine without a display and MuJoCo is not imported yet, ``import slotv_jax``
+sets it to ``egl``, or to ``disable`` where no EGL library loads; then
+:func:`check_backend` (called by every renderer) refuses in one line that says what to
+install. Only what writes pictures imports this package (the render
 command, stimulus sets, the planning figures); the rest of ``slotv_jax`` never needs OpenGL.
 
 >>> from slotv_jax import rendering
@@ -21,7 +23,7 @@ command, stimulus sets, the planning figures); the rest of ``slotv_jax`` never n
 
 import sys
 
-from slotv_jax.rendering.backend import RenderBackendError, backend_message
+from slotv_jax.rendering.backend import RenderBackendError, backend_message, check_backend
 
 try:  # importing mujoco loads the OpenGL backend that MUJOCO_GL names
     import mujoco  # noqa: F401
@@ -57,6 +59,7 @@ __all__ = [
     "FreeCamera",
     "MotionRenderer",
     "RenderBackendError",
+    "check_backend",
     "compare_frames",
     "contact_sheet",
     "frame_times",

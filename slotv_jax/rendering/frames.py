@@ -41,7 +41,7 @@ from jaxtyping import Bool, Float, UInt8
 
 from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
-from slotv_jax.rendering.backend import RenderBackendError, backend_message
+from slotv_jax.rendering.backend import RenderBackendError, backend_message, check_backend
 from slotv_jax.rendering.camera import View, check_view, scene_model
 from slotv_jax.rendering.overlay import draw_goal_labels
 from slotv_jax.robot import kinematics
@@ -172,6 +172,7 @@ class MotionRenderer:
         model.vis.global_.offheight = max(h, model.vis.global_.offheight)
         self.model = model
         self.data = mujoco.MjData(model)
+        check_backend()
         try:
             self._r = mujoco.Renderer(model, height=h, width=w)
         except Exception as e:  # the GL backends raise ImportError, RuntimeError, FatalError...

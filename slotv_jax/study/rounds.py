@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from slotv_jax import rendering
 from slotv_jax.answers.format import Study
 from slotv_jax.answers.tables import read_tables
 from slotv_jax.asking import selection
@@ -244,6 +245,10 @@ def next_main(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name} {getattr(args, name)}: expected an integer >= 1")
     if args.attention < 0:
         raise ValueError(f"--attention {args.attention}: expected an integer >= 0")
+    try:  # the round is rendered last, after the ensemble's training: say now if it cannot be
+        rendering.check_backend()
+    except rendering.RenderBackendError as e:
+        raise ValueError(str(e)) from None
     settings = json.loads((stimuli.round_dir(stimdir, 0) / stimuli.MANIFEST).read_text())
     answers = read_answers(args.answers, args.db)
     motions = make_stimuli.motions_from_split(load_split(args.data, args.split))

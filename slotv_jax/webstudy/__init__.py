@@ -5,7 +5,8 @@
 - :mod:`.design`: the kinds of trials and what a participant is assigned;
 - :mod:`.database`: every answer in SQLite, committed before the page moves on;
 - :mod:`.service` (the study's rules) and :mod:`.server` (the thin Starlette routes),
-  ``static/`` (the participant page);
+  ``static/`` (the participant page); :mod:`.limits`: what one client may hold of the
+  server (timeouts, a bound on connections);
 - :mod:`.client`: participants over HTTP (simulated people answering the real server);
 - :mod:`.export`: the answers as the tables :mod:`slotv_jax.answers.tables` reads;
 - :mod:`.web_cli`: the ``stimuli``, ``serve``, ``simulate`` and ``export`` commands.

@@ -222,9 +222,11 @@ def make_set(
 ) -> dict:
     """A stimulus set of ``n`` motions drawn at random (``seed``): each at every τ from
     every camera, ``attention`` more as attention checks, one more for practice; round
-    ``round_`` of its study folder (``out`` is that round's folder). ``trials`` (round 0):
-    each participant's main trials, ``study.json``'s ``trials_per_participant`` (``None``:
-    one per motion, or what an existing ``study.json`` says)."""
+    ``round_`` of its study folder (``out`` is that round's folder). Round 0 sets
+    ``study.json``'s ``attention_checks`` to ``attention`` (each participant gets every
+    attention check) and, with ``trials``, its ``trials_per_participant`` (each
+    participant's main trials; ``None``: one per motion, or what an existing
+    ``study.json`` says)."""
     if trials is not None and not 1 <= trials <= n:
         raise ValueError(f"--trials {trials}: expected 1..{n} (--n: a participant sees each "
                          "motion at most once)")  # fmt: skip
@@ -242,14 +244,17 @@ def make_set(
         attention=range(n, n + attention), practice=[need - 1] if practice else [],
     )  # fmt: skip
     tg = None if motions.targets is None else motions.targets[pick]
+    # round 0 sets the study's study.json: each participant gets every attention check
+    settings = {} if round_ else {"attention_checks": attention}
+    if trials is not None:
+        settings["trials_per_participant"] = trials
     return write_stimulus_set(
         out, q=motions.q[pick], xyz=motions.xyz[pick], goals=motions.goals[pick],
         goal_mask=motions.goal_mask[pick], ids=[motions.ids[i] for i in pick], specs=specs,
         render=renderer, scenes=[motions.scenes[i] for i in pick], targets=tg,
         length=motions.length[pick], t=None if motions.t is None else motions.t[pick],
         source={**(source or {}), "indices": pick.tolist(), "seed": seed},
-        overwrite=overwrite, progress=progress, round_=round_,
-        settings=None if trials is None else {"trials_per_participant": trials},
+        overwrite=overwrite, progress=progress, round_=round_, settings=settings or None,
     )  # fmt: skip
 
 
@@ -301,7 +306,9 @@ def add_command(sub) -> None:
     p.add_argument("--n", type=int, default=10, help="motions shown at every tau")
     p.add_argument("--taus", default="0.4,0.7,1.0", help="stop times in (0, 1]")
     p.add_argument("--cameras", default="observer", help=f"comma-separated: {rendering.CAMERAS}")
-    p.add_argument("--attention", type=int, default=2, help="attention-check motions (tau 1)")
+    p.add_argument("--attention", type=int, default=2,
+                   help="attention-check motions (tau 1), each shown to every participant "
+                   "(study.json's attention_checks)")  # fmt: skip
     p.add_argument("--trials", type=int, default=None,
                    help="main trials a participant sees, each of another motion (default: "
                    "every motion); study.json's trials_per_participant")  # fmt: skip

@@ -11,10 +11,9 @@ import time
 from pathlib import Path
 
 import httpx
-import uvicorn
 
 from slotv_jax.core.fileio import check_not_input
-from slotv_jax.webstudy import client, make_stimuli
+from slotv_jax.webstudy import client, limits, make_stimuli
 from slotv_jax.webstudy import export as export_lib
 from slotv_jax.webstudy.database import SYNC, connect
 from slotv_jax.webstudy.server import LOOPBACK_HOSTS, make_app
@@ -33,6 +32,17 @@ def _add_web_commands(sub) -> None:
     serve.add_argument("--sync", default="full", choices=SYNC,
                        help="full: each answer on disk before the reply (survives power "
                        "loss); normal: faster, survives a crashed server")  # fmt: skip
+    d = limits.Limits()
+    serve.add_argument("--client-timeout", type=float, default=d.client_timeout,
+                       help="seconds a client has to send a whole request, or to read on when "
+                       f"it stops taking a reply (default {d.client_timeout:g})")  # fmt: skip
+    serve.add_argument("--keep-alive", type=float, default=d.keep_alive,
+                       help="seconds a connection may stay idle between requests (default "
+                       f"{d.keep_alive:g})")  # fmt: skip
+    serve.add_argument("--max-connections", type=int, default=d.max_connections,
+                       help="open connections at most; one more closes the one that has "
+                       "waited longest on its client, or gets 503 when all are busy "
+                       f"(default {d.max_connections})")  # fmt: skip
     exp = sub.add_parser("export", help="answers -> CSV tables that `study import` reads")
     exp.add_argument("--db", required=True, help="the server's SQLite file")
     exp.add_argument("--out", required=True, help="folder for answers/trajectories/goals.csv")
@@ -66,6 +76,8 @@ def serve_main(args: argparse.Namespace) -> int:
         raise ValueError(f"--db {db}: the folder {db.parent} does not exist")
     if not 0 < args.port < 65536:
         raise ValueError(f"--port {args.port}: expected 1..65535")
+    bounds = limits.Limits(args.client_timeout, args.keep_alive, args.max_connections)
+    limits.check_file_limit(bounds)
     if args.allowed_hosts is not None:
         hosts = [h.strip() for h in args.allowed_hosts.split(",") if h.strip()]
         if not hosts:
@@ -83,7 +95,12 @@ def serve_main(args: argparse.Namespace) -> int:
     print(f"study: {url}/  (rounds {', '.join(map(str, sorted(service.sets)))})")
     print(f"admin: {url}/admin")
     print(f"admin token: {token}", flush=True)
-    uvicorn.run(app, host=args.host, port=args.port, log_level="warning", access_log=False)
+    server = limits.make_server(app, args.host, args.port, bounds, log_level="warning",
+                                access_log=False)  # fmt: skip
+    try:
+        server.run()
+    except KeyboardInterrupt:  # Ctrl-C, after uvicorn's graceful shutdown (as uvicorn.run)
+        pass
     return 0
 
 
