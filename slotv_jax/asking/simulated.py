@@ -21,7 +21,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from slotv_jax.answers import crossval
-from slotv_jax.answers.format import make_study
+from slotv_jax.answers.format import PROB_FLOOR, make_study
 from slotv_jax.asking import selection
 from slotv_jax.core.shapes import bucket, pad_rows
 from slotv_jax.observers import population as population_lib
@@ -98,6 +98,27 @@ def fit_runs(
     return jax.tree.map(lambda x: x[:, 0], ens.params)
 
 
+def answers_study(
+    pool: selection.Pool,
+    taus: Sequence[float],
+    cand: Int[np.ndarray, " A"],
+    counts: Float[np.ndarray, "A G"],
+):
+    """One run's answer rows as a :class:`slotv_jax.answers.Study` (τ the stop time of each
+    candidate's prefix; the motions asked, in order of first use)."""
+    traj = np.asarray(pool.traj)[cand]
+    used, row_traj = np.unique(traj, return_inverse=True)
+    return make_study(
+        np.asarray(pool.xyz)[used],
+        np.asarray(pool.goals)[used],
+        np.asarray(pool.goal_mask)[used],
+        row_traj,
+        counts,
+        answer_tau=np.asarray(taus)[cand % len(taus)],
+        source="simulated study",
+    )
+
+
 def fitted_betas(
     pool: selection.Pool,
     taus: Sequence[float],
@@ -107,17 +128,25 @@ def fitted_betas(
     camera: str = "observer",
 ) -> list[float]:
     """β of each hand-crafted labeler fitted on one run's answers by maximum likelihood
-    (:func:`slotv_jax.answers.crossval.fit_beta`; the answers as a
-    :class:`slotv_jax.answers.Study`, τ the stop time of each candidate's prefix)."""
-    traj = np.asarray(pool.traj)[cand]
-    used, row_traj = np.unique(traj, return_inverse=True)
-    study = make_study(
-        np.asarray(pool.xyz)[used],
-        np.asarray(pool.goals)[used],
-        np.asarray(pool.goal_mask)[used],
-        row_traj,
-        counts,
-        answer_tau=np.asarray(taus)[cand % len(taus)],
-        source="simulated study",
-    )
+    (:func:`slotv_jax.answers.crossval.fit_beta` on :func:`answers_study`)."""
+    study = answers_study(pool, taus, cand, counts)
     return [crossval.fit_beta(study, lab, camera=camera)[0] for lab in labelers]
+
+
+def labeler_log_probs(
+    pool: selection.Pool,
+    taus: Sequence[float],
+    cand: Int[np.ndarray, " A"],
+    labeler: str,
+    beta: float,
+    camera: str = "observer",
+) -> Float[np.ndarray, "A G"]:
+    """log p(g) of the hand-crafted ``labeler`` at temperature ``beta`` for each candidate
+    (its prefix; −∞ on padded goals, probabilities floored at PROB_FLOOR)."""
+    g = int(pool.goals.shape[1])
+    one = np.zeros((len(cand), g), np.float32)
+    one[:, 0] = 1.0  # any valid counts: only the motions and stop times are read
+    study = answers_study(pool, taus, cand, one)
+    y = crossval.labeler_probs(study, labeler, beta=beta, camera=camera)[:, :g]
+    mask = study.goal_mask[study.answer_trajectory, :g]
+    return np.where(mask, np.log(np.maximum(y, PROB_FLOOR)), -np.inf).astype(np.float32)

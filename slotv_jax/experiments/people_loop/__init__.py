@@ -53,6 +53,7 @@ and ``__main__`` (the command line).
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -124,10 +125,20 @@ def run(
     *,
     cache: Path = Path("data"),
     progress: bool = True,
+    processes: int = 1,
+    jobs: dict[str, list[int]] | None = None,
+    worker_flags: Sequence[str] = (),
 ) -> dict:
     """Run the loop for every (population, seed) not yet in ``OUT/STEM_results.json``, write
     the document after each population, then the report. Seeds accumulate: a run with other
-    seeds of the same config adds its rows (one GPU call per seed at the paper preset)."""
+    seeds of the same config adds its rows (one GPU call per seed at the paper preset).
+
+    ``processes > 1`` spreads the (population, seed) runs over that many worker processes,
+    worker i on GPU i alone (``CUDA_VISIBLE_DEVICES=i``; on a CPU they share its cores):
+    each writes its own document under ``OUT/.people_loop_parts/``, merged into the results
+    document as it finishes (a stopped run's finished parts are merged by the next).
+    ``jobs`` ({population: seeds}) is a worker's own share (the parent passes it, with
+    ``worker_flags``, the command-line flags that make the same config)."""
     stem = stem_of(cfg.preset)
     path = out / f"{stem}_results.json"
     conf = {k: v for k, v in cfg.to_json().items() if k not in SEED_FIELDS}
@@ -135,22 +146,27 @@ def run(
     if doc.get("config") != conf:
         doc = {"preset": cfg.preset, "config": conf, "populations": [], "summary": []}
     doc["populations"] = [p for p in doc["populations"] if not p.get("partial")]
+    parts = out / PARTS
+    if jobs is None and parts.is_dir():  # a stopped spread run: its finished parts
+        _merge_parts(doc, conf, parts, path)
     wanted = range(cfg.first_seed, cfg.first_seed + cfg.seeds)
     entries = {p["population"]: p for p in doc["populations"]}
     todo = {}
     for spec in populations:
         have = {r["seed"] for r in entries.get(population_name(spec), {}).get("rows", [])}
-        if missing := [sd for sd in wanted if sd not in have]:
+        want = wanted if jobs is None else jobs.get(spec, [])
+        if missing := [sd for sd in want if sd not in have]:
             todo[spec] = missing
     if not todo:  # say so: a recorded document makes the command return in seconds
-        print(
-            f"people loop: {path} already holds every population and seed asked for; nothing "
-            "ran, the report is drawn again (other --seeds/--first-seed, --population or "
-            "--out run more)",
-            file=sys.stderr,
-        )
+        if jobs is None:
+            print(
+                f"people loop: {path} already holds every population and seed asked for; "
+                "nothing ran, the report is drawn again (other --seeds/--first-seed, "
+                "--population or --out run more)",
+                file=sys.stderr,
+            )
     else:
-        ddir = data_lib.dataset_dir(cache, cfg.data)
+        ddir = data_lib.dataset_dir(cache, cfg.data)  # made once, before any worker starts
         splits = data_lib.generate_dataset(
             cfg.data,
             ddir,
@@ -158,31 +174,111 @@ def run(
             splits=("train", "position_test", "goal_count_test"),
         )
         doc["dataset"] = str(ddir)
-    for spec, seeds in todo.items():
-        pop, name = population_lib.get_population(spec), population_name(spec)
-
-        def save_partial(rows, name=name):  # a run stopped mid-way keeps its finished sizes
-            part = {"population": name, "partial": True, "rows": rows}
-            write_text(path, json.dumps({**doc, "populations": [*doc["populations"], part]}))
-
-        got = run_population(cfg, name, pop, splits, seeds, progress=progress, on_size=save_partial)
-        record = {
-            "seeds": seeds,
-            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-            "environment": environment(),
-            "timing": got.pop("timing"),
-        }
-        if name in entries:  # the comparison and example do not depend on the seed
-            entries[name]["rows"] += got["rows"]
-            entries[name]["runs"].append(record)
-        else:
-            entries[name] = {**got, "runs": [record]}
-            doc["populations"].append(entries[name])
-        doc["summary"] = summarise([r for q in doc["populations"] for r in q["rows"]])
-        write_text(path, json.dumps(doc, indent=1))
-    report_lib.render(doc, out, stem)
-    draw_example(doc, out, stem)
+    if todo and processes > 1 and sum(map(len, todo.values())) > 1:
+        _spread(cfg, out, todo, processes, cache, progress, worker_flags)
+        _merge_parts(doc, conf, parts, path)
+    elif todo:
+        for spec, seeds in todo.items():
+            _run_one(cfg, doc, entries, path, spec, seeds, splits, progress)
+    if jobs is None:
+        report_lib.render(doc, out, stem)
+        draw_example(doc, out, stem)
     return doc
+
+
+PARTS = ".people_loop_parts"  # the workers' documents of a spread run, inside --out
+
+
+def _run_one(cfg, doc, entries, path, spec, seeds, splits, progress) -> None:
+    """One population's seeds, added to ``doc`` (written after it)."""
+    pop, name = population_lib.get_population(spec), population_name(spec)
+
+    def save_partial(rows):  # a run stopped mid-way keeps its finished sizes
+        part = {"population": name, "partial": True, "rows": rows}
+        write_text(path, json.dumps({**doc, "populations": [*doc["populations"], part]}))
+
+    got = run_population(cfg, name, pop, splits, seeds, progress=progress, on_size=save_partial)
+    record = {
+        "seeds": seeds,
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "environment": environment(),
+        "timing": got.pop("timing"),
+    }
+    _add(doc, entries, {**got, "runs": [record]})
+    write_text(path, json.dumps(doc, indent=1))
+
+
+def _add(doc: dict, entries: dict, got: dict) -> None:
+    """Add one population entry's rows and runs (seeds not yet there) to ``doc``."""
+    name = got["population"]
+    if name in entries:  # the comparison and example do not depend on the seed
+        have = {r["seed"] for r in entries[name]["rows"]}
+        new = [r for r in got["rows"] if r["seed"] not in have]
+        if not new:
+            return
+        entries[name]["rows"] += new
+        entries[name]["runs"] += got["runs"]
+    else:
+        entries[name] = got
+        doc["populations"].append(got)
+    doc["summary"] = summarise([r for q in doc["populations"] for r in q["rows"]])
+
+
+def _spread(cfg, out, todo: dict, processes: int, cache, progress: bool, flags) -> None:
+    """Deal the runs to ``processes`` workers and wait for all: a population's seeds stay on
+    one worker (they run side by side in one program and share its compilations), the
+    populations with the most seeds first, each to the least-loaded worker; with fewer
+    populations than workers, their seeds are dealt one by one instead."""
+    if len(todo) >= processes:
+        shares: list[dict[str, list[int]]] = [{} for _ in range(processes)]
+        for spec, seeds in sorted(todo.items(), key=lambda kv: -len(kv[1])):
+            least = min(range(processes), key=lambda i: sum(map(len, shares[i].values())))
+            shares[least][spec] = list(seeds)
+    else:
+        jobs = [(spec, sd) for spec, seeds in todo.items() for sd in seeds]
+        shares = [{} for _ in range(min(processes, len(jobs)))]
+        for j, (spec, sd) in enumerate(jobs):
+            shares[j % len(shares)].setdefault(spec, []).append(sd)
+    procs = []
+    for i, share in enumerate(shares):
+        d = out / PARTS / f"worker{i}"
+        d.mkdir(parents=True, exist_ok=True)
+        argv = [sys.executable, "-m", "slotv_jax.experiments.people_loop", *flags,
+                "--population", ",".join(share), "--out", str(d), "--cache", str(cache),
+                "--worker-jobs", json.dumps(share)]  # fmt: skip
+        if not progress:
+            argv.append("--no-progress")
+        env = {**os.environ, "CUDA_VISIBLE_DEVICES": str(i)}
+        log = open(d / "log.txt", "w")
+        procs.append((subprocess.Popen(argv, env=env, stdout=log, stderr=log), log, d))
+    failed = []
+    for proc, log, d in procs:
+        proc.wait()
+        log.close()
+        if proc.returncode != 0:
+            tail = (d / "log.txt").read_text().strip().splitlines()[-1:] or ["no output"]
+            failed.append(f"{d.name}: {tail[0]}")
+    if failed:
+        raise RuntimeError("people loop: worker(s) failed: " + "; ".join(failed))
+
+
+def _merge_parts(doc: dict, conf: dict, parts: Path, path: Path) -> None:
+    """Merge every worker document of the same config under ``parts`` into ``doc``, write
+    it, then remove the merged documents (the project's own files)."""
+    entries = {p["population"]: p for p in doc["populations"]}
+    merged = []
+    for f in sorted(parts.glob("worker*/*_results.json")):
+        part = json.loads(f.read_text())
+        if part.get("config") != conf:
+            continue
+        for p in part["populations"]:
+            if not p.get("partial"):
+                _add(doc, entries, p)
+        doc.setdefault("dataset", part.get("dataset"))
+        merged.append(f)
+    write_text(path, json.dumps(doc, indent=1))
+    for f in merged:
+        f.unlink()
 
 
 def example_plans(doc: dict) -> dict[str, np.ndarray]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 import time
 from collections.abc import Sequence
@@ -37,7 +38,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument(
         "--population",
         default="default",
-        help="comma-separated: default, homogeneous, or population JSON files",
+        help="comma-separated: default, homogeneous, random:K (the K-th draw of the "
+        "hyper-distribution), suite (default, homogeneous and the suite's draws), or "
+        "population JSON files",
     )
     ap.add_argument("--out", default="experiments", help="folder of the results and report")
     ap.add_argument("--cache", "--data-cache", dest="data_cache", default="data",
@@ -48,6 +51,14 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--families", help=f"comma-separated of {','.join(FAMILIES)}")
     ap.add_argument("--sizes", help="comma-separated answer counts, e.g. 250,500,1000")
     ap.add_argument("--problems", type=int, help="held-out planning problems")
+    ap.add_argument(
+        "--processes",
+        type=int,
+        default=1,
+        help="spread the (population, seed) runs over this many worker processes, worker i "
+        "on GPU i (default 1; e.g. the number of GPUs)",
+    )
+    ap.add_argument("--worker-jobs", help=argparse.SUPPRESS)  # a worker's share (JSON)
     ap.add_argument("--report", action="store_true", help="only render the report again")
     ap.add_argument("--no-progress", action="store_true", help="no progress bars")
     return ap
@@ -77,18 +88,37 @@ def config_from(args: argparse.Namespace) -> LoopConfig:
     return dataclasses.replace(cfg, **change)
 
 
+def config_flags(args: argparse.Namespace) -> list[str]:
+    """The flags that make :func:`config_from`'s config (for a spread run's workers)."""
+    out = ["--preset", args.preset]
+    for flag in ("strategies", "families", "sizes", "problems"):
+        v = getattr(args, flag)
+        if v is not None:
+            out += [f"--{flag}", str(v)]
+    return out
+
+
 @cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(argv)
     cfg = config_from(args)
-    specs = [p.strip() for p in args.population.split(",") if p.strip()]
+    specs = []
+    for p in (p.strip() for p in args.population.split(",")):
+        for q in population_lib.suite_specs() if p == "suite" else [p] if p else []:
+            if q not in specs:
+                specs.append(q)
     if not specs:
         raise ValueError("--population: expected at least one population")
     for p in specs:  # every population file is read and checked before any work
         population_lib.get_population(p)
+    if not 1 <= args.processes <= 64:
+        raise ValueError(f"--processes: expected 1..64, got {args.processes}")
     out = Path(args.out)
     stem = stem_of(cfg.preset)
-    names = [f"{stem}{s}" for s in ("_results.json", ".md", ".png", "_plans.npz", "_render.png")]
+    names = [
+        f"{stem}{s}"
+        for s in ("_results.json", ".md", ".png", "_plans.npz", "_render.png", "_fit_plan.png")
+    ]
     fileio.check_output_files(out, names, ours={names[0]: is_results}, beside=names[0])
     if args.report:  # the report and the example drawn again from the document alone
 
@@ -100,7 +130,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     print(XLA_CONFIG.summary(), file=sys.stderr)
     t0 = time.perf_counter()
-    run(cfg, out, specs, cache=Path(args.data_cache), progress=not args.no_progress)
+    jobs = None
+    if args.worker_jobs is not None:
+        jobs = json.loads(args.worker_jobs)
+    run(
+        cfg,
+        out,
+        specs,
+        cache=Path(args.data_cache),
+        progress=not args.no_progress,
+        processes=args.processes,
+        jobs=jobs,
+        worker_flags=config_flags(args),
+    )
     print(
         f"people loop: {time.perf_counter() - t0:.0f} s; report {out / (stem + '.md')}",
         file=sys.stderr,

@@ -15,7 +15,10 @@ from slotv_jax.training import config as train_config
 
 LEARNED = ("mlp", "slotv_plus", "dragan_archetype", "viewpoint_archetype")
 FITTED = {"dragan_fitted": "dragan", "nikolaidis_fitted": "nikolaidis"}  # family -> labeler
-FAMILIES = LEARNED + tuple(FITTED)
+#: The researcher's pick (:mod:`slotv_jax.answers.pooling`): the log-linear pool of every
+#: other family of the run, weighted by the held-out likelihood of the answers alone.
+PICK = "pick"
+FAMILIES = (*LEARNED, *FITTED, PICK)
 CAMERA = "observer"  # the viewpoint of the fitted Nikolaidis baseline (the dataset's)
 
 
@@ -45,6 +48,7 @@ class LoopConfig:
     seeds: int = 2
     first_seed: int = 0
     overrides: tuple[str, ...] = ()  # TrainConfig key=value overrides of the MLP families
+    pick_folds: int = 3  # K of the pick's out-of-fold predictions (folds by motion)
 
     def __post_init__(self):
         s, per = self.sizes, self.per_stimulus
@@ -71,8 +75,12 @@ class LoopConfig:
                 f"got {list(self.strategies)}"
             )
         bad = [f for f in self.families if f not in FAMILIES]
-        if bad or not self.families:
-            raise ValueError(f"families: expected names of {FAMILIES}, got {list(self.families)}")
+        if bad or not self.families or len(set(self.families)) < len(self.families):
+            raise ValueError(
+                f"families: expected distinct names of {FAMILIES}, got {list(self.families)}"
+            )
+        if PICK in self.families and len(self.candidates) < 2:
+            raise ValueError(f"families: {PICK!r} pools at least two other families")
         if self.select_family not in LEARNED:
             raise ValueError(
                 f"select_family: expected one of {LEARNED}, got {self.select_family!r}"
@@ -89,6 +97,7 @@ class LoopConfig:
             )
         for f in (
             "members",
+            "pick_folds",
             "pool",
             "min_updates",
             "block",
@@ -101,6 +110,11 @@ class LoopConfig:
                 raise ValueError(f"{f}: expected an int >= 1, got {v!r}")
         if not (self.epochs > 0 and self.select_epochs > 0):
             raise ValueError("epochs, select_epochs: expected > 0")
+
+    @property
+    def candidates(self) -> tuple[str, ...]:
+        """The families the pick pools (every family of the run but the pick)."""
+        return tuple(f for f in self.families if f != PICK)
 
     def train_config(self, family: str) -> train_config.TrainConfig:
         """The TrainConfig that fits ``family`` (a learned one) on answers."""
@@ -177,7 +191,7 @@ def tiny() -> LoopConfig:
         taus=taus,
         per_stimulus=2,
         strategies=("random", "margin"),
-        families=("mlp", "dragan_archetype", "dragan_fitted"),
+        families=("mlp", "dragan_archetype", "dragan_fitted", PICK),
         select_family="mlp",
         members=2,
         pool=60,

@@ -14,8 +14,10 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from slotv_jax import planning
+from slotv_jax.answers import pooling
 from slotv_jax.asking import selection, simulated
-from slotv_jax.experiments.people_loop.config import CAMERA, FITTED, LEARNED, LoopConfig
+from slotv_jax.core.shapes import bucket, pad_rows
+from slotv_jax.experiments.people_loop.config import CAMERA, FITTED, LEARNED, PICK, LoopConfig
 from slotv_jax.observers import population as population_lib
 from slotv_jax.observers.common import mask_logits
 from slotv_jax.planning import evaluation
@@ -25,22 +27,42 @@ from slotv_jax.planning import evaluation
 
 def builds(cfg: LoopConfig, pop) -> dict:
     """The planner's observers, each built from one run's parameters ``p`` (a dict with
-    each learned family's parameters and ``beta``, the two fitted temperatures): the
-    population (``oracle``; ``oracle_whole`` scores the whole motion whatever τ, so its
-    plan is the whole-motion objective's), then each family
-    (:func:`slotv_jax.planning.make_family_planner`'s families)."""
+    each learned family's parameters, ``beta``, the two fitted temperatures, and
+    ``pick_w``, the pick's pool weights): the population (``oracle``; ``oracle_whole``
+    scores the whole motion whatever τ, so its plan is the whole-motion objective's), then
+    each family (:func:`slotv_jax.planning.make_family_planner`'s families). The pick is the
+    log-linear pool of the other families (:func:`slotv_jax.answers.pooling.pooled_logits`):
+    it reads their parameters and its weights, nothing of the population."""
     obs = population_lib.population_observer(pop)
     out = {"oracle": lambda p: obs, "oracle_whole": lambda p: _whole_motion(obs)}
-    for f in cfg.families:
-        if f in FITTED:
-            j = list(FITTED).index(f)
-            out[f] = lambda p, lab=FITTED[f], j=j: planning.labeler_observer(
-                lab, beta=p["beta"][j], camera=CAMERA
-            )
-        else:
-            sel = selection.make_selector(cfg.train_config(f), 1, 1)
-            out[f] = lambda p, f=f, sel=sel: _learned(sel, p[f])
+    for f in cfg.candidates:
+        out[f] = _family_build(cfg, f)
+    if PICK in cfg.families:
+        parts = [out[f] for f in cfg.candidates]
+        out[PICK] = lambda p: _pooled([b(p) for b in parts], p["pick_w"])
     return out
+
+
+def _family_build(cfg: LoopConfig, f: str):
+    if f in FITTED:
+        j = list(FITTED).index(f)
+        return lambda p: planning.labeler_observer(FITTED[f], beta=p["beta"][j], camera=CAMERA)
+    sel = selection.make_selector(cfg.train_config(f), 1, 1)
+    return lambda p: _learned(sel, p[f])
+
+
+def _pooled(observers, w):
+    """The log-linear pool of ``observers`` with weights ``w`` (F,)."""
+
+    def prefix(x, g, m, s):
+        logp = jnp.stack([jax.nn.log_softmax(o.prefix(x, g, m, s)) for o in observers])
+        return pooling.pooled_logits(logp, w, m)
+
+    def whole(x, g, m):
+        return prefix(x, g, m, x.shape[0])
+
+    whole.prefix = prefix
+    return whole
 
 
 def _whole_motion(obs):
@@ -117,7 +139,100 @@ def fit_family(cfg: LoopConfig, family: str, pool, cand, counts, rows: int, seed
 
 
 def _init_keys(family: str, seeds) -> jax.Array:
-    return jnp.stack([jax.random.key(2_000 + 97 * sd + LEARNED.index(family)) for sd in seeds])
+    """One key per run: from its seed (and, for a fold's fit, ``(seed, fold)``)."""
+    keys = []
+    for sd in seeds:
+        sd, fold = sd if isinstance(sd, tuple) else (sd, None)
+        key = jax.random.key(2_000 + 97 * sd + LEARNED.index(family))
+        keys.append(key if fold is None else jax.random.fold_in(key, 1 + fold))
+    return jnp.stack(keys)
+
+
+# ------------------------------------------------------------------ the pick
+
+
+def heldout_logp(
+    cfg: LoopConfig, pool, cand, counts, n_rows: int, run_seeds, fold: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Each candidate family's out-of-fold log-probabilities of each run's first ``n_rows``
+    answer rows (R, n_rows, G): fitted on the other folds (``fold`` (R, n_rows), by motion),
+    predicting the held-out fold. The learned families fit every (run, fold) at once, a
+    held-out row's counts set to 0 (:func:`fit_family`); the labelers fit β per fold."""
+    n_r, k = cand.shape[0], cfg.pick_folds
+    keep = np.ones((n_r * k, cand.shape[1]), np.float32)
+    for i in range(n_r):
+        for f in range(k):
+            keep[i * k + f, :n_rows] = fold[i] != f
+    cand_k = np.repeat(cand, k, axis=0)
+    counts_k = np.repeat(counts, k, axis=0) * keep[..., None]
+    seeds_k = [(sd, f) for sd in run_seeds for f in range(k)]
+    rows_pad = bucket(n_rows)
+    out = {}
+    for fam in cfg.candidates:
+        if fam in LEARNED:
+            tc = cfg.train_config(fam)
+            params = fit_family(cfg, fam, pool, cand_k, counts_k, n_rows, seeds_k)
+            sel = selection.make_selector(tc, 1, 1)
+            c = jnp.asarray(np.stack([pad_rows(c[:n_rows], rows_pad) for c in cand_k]))
+            lp = np.asarray(_fold_scorer(sel)(params, pool, c))[:, :n_rows]  # (R·K, A, G)
+            out[fam] = np.stack([lp[i * k + fold[i], np.arange(n_rows)] for i in range(n_r)])
+        else:
+            lab = FITTED[fam]
+            lp = np.zeros((n_r, n_rows, counts.shape[-1]), np.float32)
+            for i in range(n_r):
+                for f in range(k):
+                    tr, te = fold[i] != f, fold[i] == f
+                    (beta,) = simulated.fitted_betas(
+                        pool, cfg.taus, cand[i, :n_rows][tr], counts[i, :n_rows][tr], [lab],
+                        CAMERA,
+                    )  # fmt: skip
+                    lp[i, te] = simulated.labeler_log_probs(
+                        pool, cfg.taus, cand[i, :n_rows][te], lab, beta, CAMERA
+                    )
+            out[fam] = lp
+    return out
+
+
+_FOLD_SCORERS: dict = {}
+
+
+def _fold_scorer(sel):
+    """``(params (N, ...), pool, cand (N, A)) -> log p (N, A, G)``, one member per row."""
+    if sel not in _FOLD_SCORERS:
+        _FOLD_SCORERS[sel] = jax.jit(
+            jax.vmap(
+                lambda p, pool, c: sel.log_probs(jax.tree.map(lambda x: x[None], p), pool, c)[0],
+                in_axes=(0, None, 0),
+            )
+        )
+    return _FOLD_SCORERS[sel]
+
+
+def pick_runs(
+    cfg: LoopConfig, pool, cand, counts, n_rows: int, runs
+) -> tuple[np.ndarray, list[dict]]:
+    """The pick of every run from its answers alone: folds by motion, out-of-fold
+    predictions of every candidate (:func:`heldout_logp`), the pool's weights
+    (:func:`slotv_jax.answers.pooling.pick_report`). Returns the weights (R, F) and each
+    run's report."""
+    run_seeds = [sd for _, sd in runs]
+    traj = np.asarray(pool.traj)
+    fold = np.stack(
+        [
+            pooling.fold_of(traj[cand[i, :n_rows]], cfg.pick_folds, 7_000 + sd)
+            for i, sd in enumerate(run_seeds)
+        ]
+    )
+    logp = heldout_logp(cfg, pool, cand, counts, n_rows, run_seeds, fold)
+    g = counts.shape[-1]
+    weights, reports = [], []
+    for i in range(len(runs)):
+        mask = np.asarray(pool.goal_mask)[traj[cand[i, :n_rows]], :g]
+        lp = np.stack([logp[f][i] for f in cfg.candidates])
+        rep = pooling.pick_report(list(cfg.candidates), lp, counts[i, :n_rows], mask)
+        weights.append(rep["weights"])
+        reports.append(rep)
+    return np.asarray(weights, np.float32), reports
 
 
 # ------------------------------------------------------------------ evaluation
@@ -165,6 +280,7 @@ def run_population(
             "fit_s": 0.0,
             "beta_s": 0.0,
             "select_s": 0.0,
+            "pick_s": 0.0,
             "plan_s": 0.0,
             "eval_s": 0.0,
         },
@@ -246,6 +362,12 @@ def run_population(
                 )
         params["beta"] = jnp.asarray(betas)
         timing["beta_s"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        pick_reports = None
+        if PICK in cfg.families:
+            w, pick_reports = pick_runs(cfg, pool, cand, counts, n_rows, runs)
+            params["pick_w"] = jnp.asarray(w)
+        timing["pick_s"] += time.perf_counter() - t0
         planner = planner_for(cfg, pop, jax.tree.map(lambda a: a[0], params))
 
         # Plan and evaluate: the floor and the oracles once, every family at every size.
@@ -286,6 +408,14 @@ def run_population(
                 }
                 if f in FITTED:
                     row["beta"] = float(betas[i, list(FITTED).index(f)])
+                if pick_reports is not None:  # what the answers alone say of this family
+                    rep = pick_reports[i]
+                    if f == PICK:
+                        row["heldout_nll"] = rep["pool_nll"]
+                        row["weights"] = dict(zip(rep["candidates"], rep["weights"], strict=True))
+                        row["picked"] = rep["pick"]
+                    else:
+                        row["heldout_nll"] = rep["heldout_nll"][rep["candidates"].index(f)]
                 out_rows.append(row)
             if r == len(rows) - 1:
                 example[f] = np.asarray(res.q[0, 0])

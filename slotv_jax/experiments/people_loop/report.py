@@ -6,6 +6,7 @@ figure of gain kept against answers and a rendered comparison of one problem."""
 from __future__ import annotations
 
 import math
+import statistics
 from pathlib import Path
 
 from slotv_jax.core.fileio import write_text
@@ -19,6 +20,7 @@ FAMILY_TITLES = {
     "viewpoint_archetype": "viewpoint archetype",
     "dragan_fitted": "Dragan, β fitted",
     "nikolaidis_fitted": "Nikolaidis, β fitted",
+    "pick": "**pick** (answers alone)",
 }
 FAMILY_COLORS = {
     "mlp": "tab:blue",
@@ -27,7 +29,10 @@ FAMILY_COLORS = {
     "viewpoint_archetype": "tab:purple",
     "dragan_fitted": "tab:gray",
     "nikolaidis_fitted": "tab:brown",
+    "pick": "black",
 }
+PICK = "pick"
+HEADLINE = 2000  # the suite's headline: the largest size at most this many answers
 STRATEGY_STYLES = {"random": "--", "margin": "-", "error": ":"}
 BASELINES = ("dragan_fitted", "nikolaidis_fitted")
 RENDER_TAU = 0.5
@@ -61,6 +66,22 @@ def population_section(doc: dict, pop: dict) -> list[str]:
     strategies = [s for s in cfg["strategies"] if any(k[1] == s for k in c)]
     families = [f for f in cfg["families"] if any(k[0] == f for k in c)]
     lines = [f"## Population `{name}`", ""]
+    if name.startswith("random:"):  # a draw of the hyper-distribution: its fields
+        pc = pop["population_config"]
+        lines += [
+            "A draw of the hyper-distribution (`slotv_jax.observers.population."
+            "random_population`): viewpoints "
+            + ", ".join(f"{k} {v:.2f}" for k, v in pc["viewpoints"].items())
+            + "; rules "
+            + ", ".join(f"{k} {v:.2f}" for k, v in pc["rules"].items())
+            + "; β₀ "
+            + ", ".join(f"{k} {v:.3g}" for k, v in pc["beta"].items())
+            + f"; σ_log {pc['beta_sigma_log']:.2f}; memory {pc['memory']}"
+            + (f" α ∈ [{pc['alpha_range'][0]:.2f}, {pc['alpha_range'][1]:.2f}]"
+               if pc["alpha_range"] else "")
+            + f"; lapse {pc['lapse']:.3f}.",
+            "",
+        ]  # fmt: skip
     lines += [
         "Gain kept, (plan − straight) / (oracle − straight), each scored by the population's "
         "mean P_pop(target | ξ_{0:τ}) over the study's stop times; the mean over "
@@ -126,7 +147,8 @@ def population_section(doc: dict, pop: dict) -> list[str]:
         lines.append(
             f"- Seed(s) {', '.join(map(str, run['seeds']))}: {t['total_s'] / 60:.1f} min on "
             f"{dev} ({run['date']}; fits {t['fit_s']:.0f} s, "
-            f"β fits {t['beta_s']:.0f} s, selection {t['select_s']:.0f} s, planning "
+            f"β fits {t['beta_s']:.0f} s, pick {t.get('pick_s', 0):.0f} s, selection "
+            f"{t['select_s']:.0f} s, planning "
             f"{t['plan_s']:.0f} s, evaluation {t['eval_s']:.0f} s, answers "
             f"{t['answers_s']:.0f} s)."
         )
@@ -254,8 +276,9 @@ def report(doc: dict, stem: str) -> str:
         f"`{stem}_plans.npz`.*",
         "",
     ]
+    suite = [line.replace("{stem}", stem) for line in suite_section(doc)]
     body = [line for p in doc["populations"] for line in population_section(doc, p)]
-    return "\n".join(head + body)
+    return "\n".join(head + suite + body)
 
 
 def plot(doc: dict, path: Path) -> None:
@@ -263,8 +286,12 @@ def plot(doc: dict, path: Path) -> None:
     strategy."""
     plt = figures.pyplot()
     pops = [p["population"] for p in doc["populations"]]
-    fig, axes = plt.subplots(1, len(pops), figsize=(6.5 * len(pops), 4.2), squeeze=False)
-    for ax, name in zip(axes[0], pops, strict=True):
+    cols = min(len(pops), 4)
+    rows = math.ceil(len(pops) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(6.5 * cols, 4.2 * rows), squeeze=False)
+    for ax in axes.flat[len(pops) :]:
+        ax.set_axis_off()
+    for ax, name in zip(axes.flat, pops, strict=False):
         for (f, s), (a, g) in curves(doc, name).items():
             ax.plot(
                 a,
@@ -316,4 +343,154 @@ def render(doc: dict, out: Path, stem: str) -> None:
     """Write ``STEM.md`` and ``STEM.png`` from the document (``STEM_render.png`` is drawn
     from ``STEM_plans.npz`` by :func:`render_command`)."""
     plot(doc, out / f"{stem}.png")
+    plot_fit_plan(doc, out / f"{stem}_fit_plan.png")
     write_text(out / f"{stem}.md", report(doc, stem))
+
+
+# ------------------------------------------------------------------ the suite and the pick
+
+
+def _gain(doc: dict, pop: str, family: str, strategy: str = "random") -> dict[int, float]:
+    return {
+        r["answers"]: r["gain_kept"]
+        for r in doc["summary"]
+        if (r["population"], r["family"], r["strategy"]) == (pop, family, strategy)
+    }
+
+
+def headline_size(doc: dict) -> int | None:
+    """The largest size at most :data:`HEADLINE` answers that every population ran."""
+    per = [
+        {r["answers"] for r in doc["summary"] if r["population"] == p["population"]}
+        for p in doc["populations"]
+    ]
+    common = set.intersection(*per) if per else set()
+    within = [a for a in common if a <= HEADLINE]
+    return max(within) if within else None
+
+
+def suite_summary(doc: dict, strategy: str = "random") -> dict | None:
+    """The pick over the populations (random picks): each population's gain kept at every
+    size, the median and worst at each size, and the suite's mean curve."""
+    pops = [p["population"] for p in doc["populations"]]
+    if not any(_gain(doc, q, PICK, strategy) for q in pops):
+        return None
+    sizes = sorted(set.intersection(*(set(_gain(doc, q, PICK, strategy)) for q in pops)))
+    table = {q: _gain(doc, q, PICK, strategy) for q in pops}
+    out = {"sizes": sizes, "populations": pops, "gain": table}
+    for name, fn in (("median", statistics.median), ("worst", min), ("mean", statistics.fmean)):
+        out[name] = {a: fn(table[q][a] for q in pops) for a in sizes}
+    return out
+
+
+def suite_section(doc: dict) -> list[str]:
+    """The suite: one row per population (the pick and both fitted baselines), the median,
+    the worst and the mean curve; whether more answers ever cost."""
+    s = suite_summary(doc)
+    if s is None:
+        return []
+    sizes, at = s["sizes"], headline_size(doc)
+    lines = [
+        "## The suite: the pick on every population (random picks)",
+        "",
+        "Gain kept by the **pick**, the log-linear pool of the fitted families weighted by the "
+        "held-out likelihood of the answers alone (`slotv_jax.answers.pooling`); beside it the "
+        f"fitted baselines at {at:,} answers."
+        if at
+        else "",
+        "",
+        "| population | "
+        + " | ".join(f"pick {a:,}" for a in sizes)
+        + (" | Dragan, β fitted | Nikolaidis, β fitted |" if at else " |"),
+        "|---|" + "---|" * (len(sizes) + (2 if at else 0)),
+    ]
+    for q in s["populations"]:
+        cells = [_pct(s["gain"][q][a]) for a in sizes]
+        if at:
+            cells += [_pct(v[at]) if at in (v := _gain(doc, q, b)) else "—" for b in BASELINES]
+        lines.append(f"| `{q}` | " + " | ".join(cells) + " |")
+    for name in ("median", "worst", "mean"):
+        lines.append(
+            f"| **{name}** | "
+            + " | ".join(_pct(s[name][a]) for a in sizes)
+            + (" | | |" if at else " |")
+        )
+    drops = [
+        (a, b, s["mean"][a] - s["mean"][b])
+        for i, a in enumerate(sizes)
+        for b in sizes[i + 1 :]
+        if s["mean"][a] - s["mean"][b] > 0.03
+    ]
+    lines += [
+        "",
+        "More answers never cost more than 3 points of the suite's mean curve."
+        if not drops
+        else "The suite's mean curve falls by more than 3 points: "
+        + "; ".join(f"{a:,} → {b:,} answers: −{100 * d:.1f}" for a, b, d in drops)
+        + ".",
+        "",
+    ]
+    lines += pick_agreement(doc)
+    return lines
+
+
+def pick_agreement(doc: dict) -> list[str]:
+    """How often the pick's largest weight is the family the oracle would have chosen (the
+    best single family by gain kept, per population, seed and size), and what the pooled
+    pick gains or loses against that family."""
+    same, n, diff = 0, 0, []
+    for p in doc["populations"]:
+        by = {}
+        for r in p["rows"]:
+            if r["strategy"] == "random":
+                by.setdefault((r["seed"], r["answers"]), {})[r["family"]] = r
+        for rows in by.values():
+            if PICK not in rows or "picked" not in rows[PICK]:
+                continue
+            single = {f: r["gain_kept"] for f, r in rows.items() if f != PICK}
+            best = max(single, key=single.get)
+            same += rows[PICK]["picked"] == best
+            n += 1
+            diff.append(rows[PICK]["gain_kept"] - single[best])
+    if not n:
+        return []
+    return [
+        f"The pick's largest weight is on the family the oracle would have chosen in "
+        f"{same} of {n} runs (population × seed × size); the pool keeps "
+        f"{100 * statistics.fmean(diff):+.1f} points of gain against that family on average "
+        f"(median {100 * statistics.median(diff):+.1f}, worst {100 * min(diff):+.1f}).",
+        "",
+        "![held-out answer likelihood against the plans' gain]({stem}_fit_plan.png)",
+        "",
+        "*Each candidate's held-out NLL per answer (out-of-fold, by motion) against the gain "
+        "its plans keep, every population, seed and size: the single fits (colours) and the "
+        "pool (black).*",
+        "",
+    ]
+
+
+def plot_fit_plan(doc: dict, path: Path) -> bool:
+    """Held-out NLL per answer against gain kept, a point per row that has one."""
+    rows = [r for p in doc["populations"] for r in p["rows"] if "heldout_nll" in r]
+    if not rows:
+        return False
+    plt = figures.pyplot()
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for f in dict.fromkeys(r["family"] for r in rows):
+        rs = [r for r in rows if r["family"] == f]
+        ax.scatter(
+            [r["heldout_nll"] for r in rs],
+            [r["gain_kept"] for r in rs],
+            s=14 if f == PICK else 8,
+            color=FAMILY_COLORS.get(f, "k"),
+            label=FAMILY_TITLES.get(f, f).replace("**", ""),
+            alpha=0.8,
+        )
+    ax.set_xlabel("held-out NLL per answer (nats; lower fits better)")
+    ax.set_ylabel("gain kept by its plans")
+    ax.axhline(0.0, color="k", lw=0.5)
+    ax.legend(fontsize=7)
+    ax.set_title("fit against plan (simulated people)")
+    fig.tight_layout()
+    figures.save(fig, path, dpi=120)
+    return True

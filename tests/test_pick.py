@@ -1,0 +1,190 @@
+"""Populations nobody wrote and the researcher's pick (issue 44): the hyper-distribution's
+draws (reproducible, valid, spread over every field), the log-linear pool fitted on held-out
+answers against a float64 NumPy re-derivation, and the pick of a simulated study following
+the answers while never reading the population."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from slotv_jax import planning
+from slotv_jax.answers import pooling
+from slotv_jax.asking import selection, simulated
+from slotv_jax.experiments import people_loop as exp
+from slotv_jax.experiments.people_loop import loop
+from slotv_jax.experiments.people_loop.__main__ import main
+from slotv_jax.observers import labelers
+from slotv_jax.observers import population as population_lib
+
+# ------------------------------------------------------------------ the hyper-distribution
+
+
+def test_random_draws_are_reproducible_valid_and_spread():
+    a = [population_lib.random_population(k) for k in range(40)]
+    b = [population_lib.get_population(f"random:{k}") for k in range(40)]
+    assert a == b  # the K-th draw depends on K alone
+    for k, pop in enumerate(a):
+        assert pop.name == f"random:{k}"
+        d = json.loads(json.dumps(pop.to_dict()))  # the results document's form reads back
+        assert population_lib.Population.from_dict(d) == pop
+        lo, hi = population_lib.HYPER_BETA["cost_to_go"]
+        assert lo <= dict(pop.beta)["cost_to_go"] <= hi
+        assert 0 <= pop.lapse <= 0.10 and 0 <= pop.beta_sigma_log <= 1
+    views = {v for p in a for v, _ in p.viewpoints}
+    assert views == set(population_lib.HYPER_VIEWPOINTS)  # world included
+    assert {p.memory for p in a} == {"recency", "dragan"}
+    assert len({p.lapse for p in a}) == 40 and len({len(p.viewpoints) for p in a}) >= 3
+
+
+def test_suite_names_default_homogeneous_and_its_draws():
+    specs = population_lib.suite_specs()
+    assert specs[:2] == ("default", "homogeneous") and len(specs) >= 10
+    assert all(s.startswith("random:") for s in specs[2:])
+    for s in specs:
+        population_lib.get_population(s)
+
+
+@pytest.mark.parametrize("spec", ["random:", "random:-1", "random:x", "random:1e3", "random: 1"])
+def test_bad_random_specs_are_one_line_errors(tmp_path, capsys, spec):
+    with pytest.raises(SystemExit) as e:
+        main(["--preset", "tiny", "--out", str(tmp_path / "o"), "--population", spec])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "random:K" in err and repr(spec) in err, err
+    assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------ the pool
+
+
+def _pool_nll64(w, logp, counts, mask):
+    """The pool's NLL per answer in float64 NumPy (the module doc's formula)."""
+    lp = np.where(mask, np.maximum(logp, np.log(1e-12)), 0.0)
+    z = np.where(mask, np.tensordot(w, lp, axes=1), -np.inf)
+    z = z - z.max(-1, keepdims=True)
+    logq = z - np.log(np.exp(z).sum(-1, keepdims=True))
+    return -np.sum(np.where(mask, counts * logq, 0.0)) / counts.sum()
+
+
+def test_pool_weights_are_the_maximum_likelihood_against_numpy():
+    rng = np.random.default_rng(0)
+    a, g = 300, 4
+    mask = np.ones((a, g), bool)
+    mask[::3, 3] = False
+    truth = np.where(mask, rng.gamma(1.0, size=(a, g)), 0.0)
+    truth /= truth.sum(-1, keepdims=True)
+    counts = np.stack([rng.multinomial(5, p) for p in truth]).astype(np.float64)
+    with np.errstate(divide="ignore"):
+        sharp = np.log(truth) * 2.5  # an overconfident fit of the truth
+        noise = np.where(mask, np.log(rng.dirichlet(np.ones(g), a)), -np.inf)
+    sharp = np.where(mask, sharp - np.log(np.exp(sharp).sum(-1, keepdims=True)), -np.inf)
+    logp = np.stack([sharp, noise])
+    w = pooling.fit_pool_weights(logp, counts, mask)
+    best = _pool_nll64(w, logp, counts, mask)
+    # a maximum: no step along either axis, nor the single candidates, does better
+    for dw in ([0.02, 0], [-0.02, 0], [0, 0.02], [0, -0.02], [-w[0] + 1, -w[1]]):
+        other = np.maximum(w + np.asarray(dw), 0)
+        assert best <= _pool_nll64(other, logp, counts, mask) + 1e-6
+    assert abs(w[0] - 1 / 2.5) < 0.08  # calibration undoes the sharpening
+    assert pooling.heldout_nll(logp, counts, mask, w) == pytest.approx(best, rel=1e-5)
+
+
+def test_folds_keep_each_motion_whole():
+    groups = np.random.default_rng(1).integers(0, 30, 500)
+    fold = pooling.fold_of(groups, 3, seed=5)
+    for gr in np.unique(groups):
+        assert np.unique(fold[groups == gr]).size == 1
+    assert set(np.unique(fold)) == {0, 1, 2}
+    with pytest.raises(ValueError, match="folds"):
+        pooling.fold_of(groups[:2], 3, seed=0)
+
+
+# ------------------------------------------------------------------ the pick
+
+
+@pytest.fixture(scope="module")
+def label_pool():
+    """A pool of 120 straight-ish motions to 3 goals, stop times 0.5 and 1."""
+    rng = np.random.default_rng(3)
+    goals = np.zeros((8, 3), np.float32)
+    goals[:3] = [[0.5, 0.3, 0.025], [0.5, -0.3, 0.025], [0.65, 0.0, 0.025]]
+    mask = np.arange(8) < 3
+    start = np.array([0.307, 0.0, 0.487])
+    xyz = []
+    for i in range(120):
+        via = start + rng.uniform([-0.05, -0.35, -0.3], [0.35, 0.35, -0.1])
+        end = goals[i % 3]
+        t = np.linspace(0, 1, 40)[:, None]
+        xyz.append(
+            np.where(t < 0.5, start + (via - start) * 2 * t, via + (end - via) * (2 * t - 1))
+        )
+    xyz = np.asarray(xyz, np.float32)
+    taus = (0.5, 1.0)
+    pool = selection.make_pool(
+        xyz, np.broadcast_to(goals, (120, 8, 3)), np.broadcast_to(mask, (120, 8)), taus
+    )
+    return pool, taus
+
+
+def _answers(pool, taus, name, beta, n_rows=160, per=6, seed=0):
+    """Counts of ``per`` guesses per candidate drawn from the labeler ``name`` at ``beta``."""
+    cand = np.random.default_rng(seed).choice(pool.traj.shape[0], n_rows, replace=False)
+    logp = simulated.labeler_log_probs(pool, taus, cand, name, beta, exp.CAMERA)
+    rng = np.random.default_rng(seed + 1)
+    probs = np.exp(logp.astype(np.float64))
+    probs /= probs.sum(-1, keepdims=True)  # float32 rounding
+    counts = np.stack([rng.multinomial(per, p) for p in probs])
+    return cand.astype(np.int32), counts.astype(np.float32)
+
+
+@pytest.mark.parametrize("truth", ["dragan", "nikolaidis"])
+def test_the_pick_follows_the_answers_and_never_reads_the_population(
+    label_pool, monkeypatch, truth
+):
+    """Two studies of the same motions whose answers differ only in which family explains
+    them (Dragan's or Nikolaidis' observer): the pick puts its largest weight on that family.
+    Every function of the population module raises while the pick runs."""
+    pool, taus = label_pool
+    beta = {"dragan": 8.0, "nikolaidis": 12.0}[truth]
+    cand, counts = _answers(pool, taus, truth, beta)
+    cfg = dataclasses.replace(
+        exp.tiny(),
+        families=("dragan_fitted", "nikolaidis_fitted", "pick"),
+        taus=taus,
+        planner=planning.PlannerConfig(n_points=20, iters=3, taus=taus),
+    )
+
+    def forbidden(*a, **k):
+        raise AssertionError("the pick read the population")
+
+    for name in population_lib.__all__:
+        if callable(getattr(population_lib, name)) and name[0].islower():
+            monkeypatch.setattr(population_lib, name, forbidden)
+    w, reports = loop.pick_runs(cfg, pool, cand[None], counts[None], cand.size, [("random", 0)])
+    rep = reports[0]
+    assert rep["pick"] == f"{truth}_fitted", rep
+    assert w.shape == (1, 2) and w[0, rep["candidates"].index(f"{truth}_fitted")] > 0.5
+    assert rep["pool_nll"] <= min(rep["heldout_nll"]) + 1e-6
+
+
+def test_the_pools_observer_is_the_weighted_log_pool():
+    """The planner's pick observer: softmax of Σ w_f log p_f, against NumPy."""
+    goals = jnp.zeros((8, 3)).at[0].set([0.5, 0.3, 0.025]).at[1].set([0.5, -0.3, 0.025])
+    mask = jnp.arange(8) < 2
+    xyz = jnp.linspace(jnp.array([0.3, 0.0, 0.49]), goals[0], 30)
+    obs = [planning.labeler_observer("dragan"), planning.labeler_observer("effdist")]
+    w = jnp.array([0.7, 0.4])
+    pooled = loop._pooled(obs, w)
+    got = np.asarray(jax.nn.softmax(pooled.prefix(xyz, goals, mask, 20)))
+    p = [np.asarray(labelers.dragan(xyz[:20], goals, mask), np.float64)[:2],
+         np.asarray(labelers.effdist(xyz[:20], goals, mask), np.float64)[:2]]  # fmt: skip
+    z = 0.7 * np.log(p[0]) + 0.4 * np.log(p[1])
+    want = np.exp(z - z.max()) / np.exp(z - z.max()).sum()
+    np.testing.assert_allclose(got[:2], want, atol=1e-5)
+    assert np.all(got[2:] == 0)
