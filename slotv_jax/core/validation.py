@@ -15,6 +15,10 @@ import jax
 import numpy as np
 
 G_MAX = 8  # goal slots in every scene
+#: The largest magnitude float32 holds (about 3.4e38). The project computes in float32 (the
+#: networks, the study, P_pop, the planner), so a number read from a file beyond it (which
+#: float32 would make ±inf) is refused: :func:`check_float32`.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def is_concrete(x) -> bool:
@@ -39,6 +43,24 @@ def check_finite(name: str, x) -> None:
         if a.dtype.kind in "fc" and not np.all(np.isfinite(a)):
             bad = int(np.size(a) - np.count_nonzero(np.isfinite(a)))
             raise ValueError(f"{name}: expected finite values, found {bad} NaN/inf entries")
+
+
+def check_float32(name: str, x) -> None:
+    """Raise if a concrete ``x`` holds a finite value of magnitude over :data:`FLOAT32_MAX`
+    (a float64 number that would become ±inf in float32); NaN and ±inf are left to
+    :func:`check_finite`. Names the first such value and its index."""
+    if not is_concrete(x):
+        return
+    a = np.asarray(x)
+    if a.dtype.kind != "f" or np.finfo(a.dtype).max <= FLOAT32_MAX:
+        return  # float32 or narrower holds every finite value; integers are checked by range
+    over = np.argwhere(np.isfinite(a) & (np.abs(a) > FLOAT32_MAX))
+    if len(over):
+        idx = tuple(int(v) for v in over[0])
+        raise ValueError(
+            f"{name}: expected magnitudes at most {FLOAT32_MAX:.4g} (float32), found "
+            f"{float(a[idx])!r} at index {list(idx)}"
+        )
 
 
 def check_finite_result(name: str, y, why: str) -> None:
