@@ -186,7 +186,7 @@ def motions_from_plans(path: str | Path) -> Motions:
     q, xyz, names = z["q"], z["xyz"], [str(s) for s in z["names"]]
     rows = [(k, p) for k in range(q.shape[0]) for p in range(q.shape[1])
             if np.isfinite(q[k, p]).all() and np.isfinite(xyz[k, p]).all()]  # fmt: skip
-    ks, ps = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+    ks, ps = np.array([r[0] for r in rows], int), np.array([r[1] for r in rows], int)
     return Motions(q[ks, ps].astype(np.float32), xyz[ks, ps].astype(np.float32),
                    z["goals"][ps].astype(np.float32), z["goal_mask"][ps].astype(bool),
                    [f"{names[k]}-{p}" for k, p in rows], [f"problem{p}" for p in ps],
