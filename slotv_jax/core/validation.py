@@ -21,6 +21,38 @@ G_MAX = 8  # goal slots in every scene
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
+#: Seeds are integers 0 ≤ seed < 2**32. ``jax.random.key`` keeps a seed's low 32 bits
+#: (with 64-bit types off, the project's setting): 2**32 draws what 0 draws, −1 what
+#: 2**32 − 1 draws, and from 2**63 it raises OverflowError; ``jax.random.fold_in`` refuses
+#: data of 2**32 or more. (Measured with jax 0.10.)
+SEED_LIMIT = 2**32
+
+
+def check_seeds(name: str, first, count: int = 1, *, count_name: str | None = None) -> None:
+    """Raise unless the seeds ``first`` … ``first + count − 1`` are integers in
+    0 … 2**32 − 1 (:data:`SEED_LIMIT`). ``name`` names ``first`` (a flag: ``--first-seed``)
+    and ``count_name`` the flag of ``count`` (``--seeds``); a ``count`` below 1 is left to
+    its own check.
+
+    >>> check_seeds("--seed", 2**32)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ValueError: --seed 4294967296: expected a seed in 0..4294967295 (2**32 - 1: ...)
+    """
+    if not (isinstance(first, int | np.integer) and not isinstance(first, bool)) or not (
+        0 <= first < SEED_LIMIT
+    ):
+        raise ValueError(
+            f"{name} {first!r}: expected a seed in 0..{SEED_LIMIT - 1} (2**32 - 1: "
+            "jax.random.key keeps 32 bits, so 2**32 would draw what 0 draws)"
+        )
+    if count >= 1 and first + count > SEED_LIMIT:
+        raise ValueError(
+            f"{name} {first}, {count_name or 'count'} {count}: the last seed, "
+            f"{first + count - 1}, is beyond 2**32 - 1 ({SEED_LIMIT - 1}); expected {name} "
+            f"at most {SEED_LIMIT - count}"
+        )
+
+
 def is_concrete(x) -> bool:
     """True if ``x`` holds values now (not a tracer inside jit/vmap/grad)."""
     return not isinstance(x, jax.core.Tracer)

@@ -50,6 +50,7 @@ from tqdm.auto import tqdm
 
 from slotv_jax import rendering  # first: it picks MUJOCO_GL=egl before MuJoCo loads
 from slotv_jax.answers.storage import load_study
+from slotv_jax.core import validation
 from slotv_jax.core.fileio import check_not_input, check_output_dir, load_npz
 from slotv_jax.data import SPLITS, Split, load_split
 from slotv_jax.planning.plans import load_plans
@@ -326,6 +327,7 @@ def stimuli_main(args: argparse.Namespace) -> int:
     """Check every input and the output folder, then render the set (round 0, or with
     ``--next-round`` the study folder's next round)."""
     taus = _floats(args.taus, "--taus")
+    validation.check_seeds("--seed", args.seed)
     clip = {k: getattr(args, k) for k in ("size", "fps", "duration", "hold")}
     size = _size(args.size or "x".join(map(str, DEFAULTS["size"])))
     cameras = tuple(c.strip() for c in args.cameras.split(","))
