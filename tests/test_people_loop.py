@@ -235,6 +235,32 @@ def test_bad_population_inputs_are_named_before_any_work(tmp_path, capsys, no_wo
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize(
+    ("flags", "line"),
+    [
+        (["--families", "mlp,mlp"], "--families mlp,mlp: expected each name once, 'mlp' is twice"),
+        (["--strategies", "random,random"],
+         "--strategies random,random: expected each name once, 'random' is twice"),
+        (["--first-seed", str(2**32)], "--first-seed 4294967296: expected a seed in 0..4294967295"),
+        (["--first-seed", str(2**63)], f"--first-seed {2**63}: expected a seed in 0..4294967295"),
+        (["--first-seed", str(2**32 - 1), "--seeds", "2"],
+         "--first-seed 4294967295, --seeds 2: the last seed, 4294967296, is beyond 2**32 - 1"),
+    ],
+)  # fmt: skip
+def test_repeated_families_and_seeds_beyond_32_bits_are_refused(
+    flags, line, tmp_path, capsys, no_work
+):
+    """--families mlp,mlp was accepted (--strategies random,random was refused); --first-seed
+    2**32 drew what 0 draws and 2**63 failed inside JAX after the dataset work."""
+    with pytest.raises(SystemExit) as e:
+        main(["--preset", "tiny", "--out", str(tmp_path / "o"), *flags])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.startswith(f"error: {line}") and err.count("\n") == 1, err
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(ValueError, match=r"^families: expected distinct names"):
+        dataclasses.replace(exp.tiny(), families=("mlp", "mlp"))
+
+
 def test_a_bad_population_file_is_named(tmp_path, capsys):
     bad = tmp_path / "people.json"
     bad.write_text(json.dumps({**population_lib.default().to_dict(), "lapse": 2.0}))

@@ -73,6 +73,9 @@ def config_from(args: argparse.Namespace) -> LoopConfig:
         v = getattr(args, name)
         if v is not None:
             change[name] = tuple(x.strip() for x in v.split(",") if x.strip())
+            twice = [x for x in dict.fromkeys(change[name]) if change[name].count(x) > 1]
+            if twice:
+                raise ValueError(f"--{name} {v}: expected each name once, {twice[0]!r} is twice")
     if args.sizes is not None:
         try:
             change["sizes"] = tuple(int(x) for x in args.sizes.split(","))

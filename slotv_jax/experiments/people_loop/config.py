@@ -72,8 +72,10 @@ class LoopConfig:
                 f"got {list(self.strategies)}"
             )
         bad = [f for f in self.families if f not in FAMILIES]
-        if bad or not self.families:
-            raise ValueError(f"families: expected names of {FAMILIES}, got {list(self.families)}")
+        if bad or not self.families or len(set(self.families)) < len(self.families):
+            raise ValueError(
+                f"families: expected distinct names of {FAMILIES}, got {list(self.families)}"
+            )
         if self.select_family not in LEARNED:
             raise ValueError(
                 f"select_family: expected one of {LEARNED}, got {self.select_family!r}"
