@@ -179,6 +179,31 @@ def test_read_json_and_text(tmp_path):
         fileio.read_text(p)
 
 
+def test_read_json_names_a_file_python_cannot_parse(tmp_path):
+    """Nesting 100,000 deep (json raises RecursionError) and an integer of 5,000 digits
+    (int() refuses it): ValueError naming the file, also where a command only asks whether
+    a results document is ours; a hook's own error passes through."""
+    deep, long = tmp_path / "deep.json", tmp_path / "long.json"
+    deep.write_text('{"a": ' * 100_000 + "1" + "}" * 100_000)
+    long.write_text('{"a": ' + "1" * 5000 + "}")
+    with pytest.raises(ValueError, match=rf"^{deep}: not a JSON document .*nested too deeply"):
+        fileio.read_json(deep)
+    with pytest.raises(ValueError, match=rf"^{long}: not a JSON document .*5000 characters"):
+        fileio.read_json(long)
+    assert not fileio.is_json_object_with(deep, ["a"])
+    with pytest.raises(fileio.OutputError, match=r"deep\.json exists and is not ours"):
+        ours = {"deep.json": lambda p: fileio.is_json_object_with(p, ["a"])}
+        fileio.check_output_files(tmp_path, ["deep.json"], ours=ours)
+
+    def refuse(pairs):
+        raise ValueError("the hook's own message")
+
+    plain = tmp_path / "plain.json"
+    plain.write_text('{"a": 1}')
+    with pytest.raises(ValueError, match=r"^the hook's own message$"):
+        fileio.read_json(plain, object_pairs_hook=refuse)
+
+
 def test_cli_command_reports_input_errors_in_one_line(capsys):
     @cli.command
     def bad_input(argv=None):

@@ -5,6 +5,7 @@ fails before JAX does any work, so a run costs about its import time."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -136,6 +137,71 @@ def test_input_errors_are_one_line_in_every_main(tmp_path, capsys):
         assert e.value.code == 2 and "error: " in err and piece in err, (argv, err)
         assert "Traceback" not in err
     assert not (tmp_path / "ck").exists()  # refused before a checkpoint was started
+
+
+SEED_FLAGS = [  # (main's module, argv; a later input error that the old code met first)
+    ("slotv_jax.train.cli", [*TRAIN[1:], "--out", "ck", "--seed", "SEED"]),
+    ("slotv_jax.data.cli", ["--relabel", "--out", "empty", "--seed", "SEED"]),
+    ("slotv_jax.study.cli", ["cv", "nope.npz", "--seed", "SEED"]),
+    ("slotv_jax.study.cli", ["next", "--stimuli", "empty", "--data", "nodata", "--answers",
+                             "a.csv", "--strategy", "random", "--n", "1", "--seed", "SEED"]),
+    ("slotv_jax.study.cli", ["stimuli", "--npz", "nope.npz", "--out", "stim", "--seed", "SEED"]),
+    ("slotv_jax.study.cli", ["simulate", "--stimuli", "empty", "--seed", "SEED"]),
+    ("slotv_jax.experiments.planning.__main__", ["--n-scenes", "0", "--seed", "SEED"]),
+    ("slotv_jax.experiments.hparam_search", ["--report-only", "--out", "empty", "--seed",
+                                             "SEED"]),
+    ("slotv_jax.experiments.people_loop.__main__", ["--population", "nope.json",
+                                                    "--first-seed", "SEED"]),
+    ("slotv_jax.experiments.active", ["--study-max", "0", "--first-seed", "SEED"]),
+    ("slotv_jax.experiments.active_stream", ["--steps", "0", "--first-seed", "SEED"]),
+    ("slotv_jax.benchmarks.kinematics", ["--batch", "0", "--seed", "SEED"]),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("seed", [2**32, 2**63, -1])
+def test_every_seed_flag_is_range_checked_first(seed, tmp_path, capsys, monkeypatch):
+    """Every command's --seed / --first-seed: 0..2**32 - 1 (jax.random.key keeps 32 bits:
+    2**32 drew what 0 draws; 2**63 failed inside JAX after the dataset work). Out of range
+    is one line naming the flag, exit code 2, before anything else is looked at."""
+    import importlib
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "empty").mkdir()
+    for module, argv in SEED_FLAGS:
+        main = importlib.import_module(module).main
+        argv = [str(seed) if a == "SEED" else a for a in argv]
+        flag = argv[argv.index(str(seed)) - 1]
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        err = capsys.readouterr().err
+        want = f"error: {flag} {seed}: expected a seed in 0..4294967295 (2**32 - 1: "
+        assert e.value.code == 2 and err.startswith(want) and err.count("\n") == 1, (module, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty"]  # nothing written
+
+
+def test_a_range_of_seeds_stays_below_2_to_the_32(tmp_path, capsys):
+    """--first-seed with --seeds, and simulate's --first with --participants (participant i
+    draws from fold_in(key(seed), i)): the last one must be a seed too."""
+    from slotv_jax.experiments import active, active_stream, people_loop
+    from slotv_jax.study import cli as study_cli
+
+    for main, argv, want in (
+        (active.main, ["--first-seed", str(2**32 - 2), "--seeds", "3", "--study-max", "0"],
+         f"error: --first-seed {2**32 - 2}, --seeds 3: the last seed, 4294967296, is beyond "
+         f"2**32 - 1 (4294967295); expected --first-seed at most {2**32 - 3}"),
+        (study_cli.main, ["simulate", "--stimuli", str(tmp_path), "--first", str(2**32 - 5),
+                          "--participants", "10"],
+         f"error: --first {2**32 - 5}, --participants 10: the last seed, 4294967300, is "
+         "beyond"),
+    ):  # fmt: skip
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.startswith(want) and err.count("\n") == 1, err
+    # the configs check their own seeds (a preset's count with another first seed)
+    for preset in (active.PRESETS["quick"], active_stream.PRESETS["quick"], people_loop.tiny):
+        with pytest.raises(ValueError, match=r"^first_seed 4294967295, seeds \d+: the last seed"):
+            dataclasses.replace(preset(), first_seed=2**32 - 1, seeds=2)
 
 
 def test_study_table_messages(tmp_path):

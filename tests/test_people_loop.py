@@ -213,6 +213,66 @@ def test_bad_flags_are_one_line_errors_before_any_work(tmp_path, capsys, flags, 
     assert not out.exists()  # nothing was written
 
 
+@pytest.fixture
+def no_work(monkeypatch):
+    """The loop itself (dataset, fits, plans) must not start: a bad input is refused first."""
+    import slotv_jax.experiments.people_loop.__main__ as loop_main
+
+    def run(*args, **kwargs):
+        raise AssertionError("the run started")
+
+    monkeypatch.setattr(loop_main, "run", run)
+
+
+def test_bad_population_inputs_are_named_before_any_work(tmp_path, capsys, no_work):
+    """Nested 100,000 deep (a RecursionError traceback), values whose use overflows float32
+    (P_pop was NaN) and a directory (reported as no such file): one line naming the file
+    and the field, exit code 2."""
+    deep, big, wide = (tmp_path / f"{n}.json" for n in ("deep", "big", "wide"))
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    pop = population_lib.default().to_dict()
+    big.write_text(json.dumps({**pop, "beta": {**pop["beta"], "cost_to_go": 1e300}}))
+    wide.write_text(json.dumps({**pop, "beta_sigma_log": 1000}))
+    for spec, needle in (
+        (deep, f"error: {deep}: not a JSON document this program reads: arrays or objects "
+               "nested too deeply"),
+        (big, f"error: {big}: field 'beta': 'cost_to_go': expected a number in (0, "),
+        (wide, f"error: {wide}: field 'beta_sigma_log': expected a number in [0, 5]"),
+        (tmp_path, f"error: population {tmp_path}: is a directory; expected a population JSON"),
+    ):  # fmt: skip
+        with pytest.raises(SystemExit) as e:
+            main(["--preset", "tiny", "--out", str(tmp_path / "o"), "--population", str(spec)])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.startswith(needle) and err.count("\n") == 1, err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    ("flags", "line"),
+    [
+        (["--families", "mlp,mlp"], "--families mlp,mlp: expected each name once, 'mlp' is twice"),
+        (["--strategies", "random,random"],
+         "--strategies random,random: expected each name once, 'random' is twice"),
+        (["--first-seed", str(2**32)], "--first-seed 4294967296: expected a seed in 0..4294967295"),
+        (["--first-seed", str(2**63)], f"--first-seed {2**63}: expected a seed in 0..4294967295"),
+        (["--first-seed", str(2**32 - 1), "--seeds", "2"],
+         "--first-seed 4294967295, --seeds 2: the last seed, 4294967296, is beyond 2**32 - 1"),
+    ],
+)  # fmt: skip
+def test_repeated_families_and_seeds_beyond_32_bits_are_refused(
+    flags, line, tmp_path, capsys, no_work
+):
+    """--families mlp,mlp was accepted (--strategies random,random was refused); --first-seed
+    2**32 drew what 0 draws and 2**63 failed inside JAX after the dataset work."""
+    with pytest.raises(SystemExit) as e:
+        main(["--preset", "tiny", "--out", str(tmp_path / "o"), *flags])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.startswith(f"error: {line}") and err.count("\n") == 1, err
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(ValueError, match=r"^families: expected distinct names"):
+        dataclasses.replace(exp.tiny(), families=("mlp", "mlp"))
+
+
 def test_a_bad_population_file_is_named(tmp_path, capsys):
     bad = tmp_path / "people.json"
     bad.write_text(json.dumps({**population_lib.default().to_dict(), "lapse": 2.0}))

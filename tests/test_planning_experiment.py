@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 
 import jax
 import numpy as np
@@ -137,14 +138,21 @@ def test_records_are_rendered_from_their_results(stem):
     np.testing.assert_array_equal(f["beta"], [betas[str(x)] for x in f["family"]])
 
 
+def _good_plans(P: int = 2, K: int = 2, T: int = 6) -> dict[str, np.ndarray]:
+    """A valid plans file: P problems of 2 and 3 goals, K planners, T points."""
+    goals = np.zeros((P, 8, 3), np.float32)
+    goals[:, :3] = [[0.45, 0.3, 0.025], [0.55, 0.0, 0.025], [0.45, -0.3, 0.025]]
+    return {"goals": goals, "goal_mask": np.arange(8) < np.arange(2, 2 + P)[:, None],
+            "target": np.arange(1, 1 + P, dtype=np.int32),
+            "names": np.array(["straight", "slotv"][:K]), "q": np.zeros((K, P, T, 7), np.float32),
+            "xyz": np.zeros((K, P, T, 3), np.float32)}  # fmt: skip
+
+
 def test_plans_file_checked_and_every_reader_says_what_is_wrong_in_one_line(tmp_path, capsys):
     """A plans file with a wrong shape or target is refused on write (nothing written) and
     on read, by the render command and by the stimuli command, each naming the array."""
     P, K, T = 2, 2, 6
-    good = {"goals": np.zeros((P, 8, 3), np.float32), "goal_mask": np.arange(8) < [[2], [3]],
-            "target": np.array([1, 2], np.int32), "names": np.array(["straight", "slotv"]),
-            "q": np.zeros((K, P, T, 7), np.float32),
-            "xyz": np.zeros((K, P, T, 3), np.float32)}  # fmt: skip
+    good = _good_plans(P, K, T)
     bad = {
         "q": ({"q": np.zeros((K, P, T, 3), np.float32)}, r"q: expected \(K=2, P, T, 7\)"),
         "xyz": ({"xyz": np.zeros((K, P, T + 1, 3))}, r"xyz: expected \(2, 2, 6, 3\)"),
@@ -176,3 +184,73 @@ def test_plans_file_checked_and_every_reader_says_what_is_wrong_in_one_line(tmp_
         err = capsys.readouterr().err.strip().splitlines()
         assert e.value.code != 0 and len(err) == 1 and "--plans" in err[0] and msg in err[0], err
     assert not (tmp_path / "stim").exists()
+
+
+def _plans_with(**change) -> dict[str, np.ndarray]:
+    plans = _good_plans()
+    for k, f in change.items():
+        plans[k] = f(plans.get(k))
+    return plans
+
+
+def _nan_at(index):
+    def f(a):
+        a = a.astype(np.float64 if a.dtype == np.float64 else np.float32).copy()
+        a[index] = np.nan
+        return a
+
+    return f
+
+
+BAD_PLANS = {
+    "no problems": (_plans_with(goals=lambda a: a[:0], goal_mask=lambda a: a[:0],
+                                target=lambda a: a[:0], q=lambda a: a[:, :0],
+                                xyz=lambda a: a[:, :0]),
+                    "q: expected at least one problem (P >= 1)"),
+    "no planners": (_plans_with(names=lambda a: a[:0], q=lambda a: a[:0], xyz=lambda a: a[:0]),
+                    "names: expected at least one planner, got none"),
+    "every q NaN": (_plans_with(q=_nan_at(...)), "q: no plan in the file"),
+    "one point per plan": (_plans_with(q=lambda a: a[:, :, :1], xyz=lambda a: a[:, :, :1]),
+                           "q: expected at least 2 points per plan (T >= 2)"),
+    "q beyond float32": (_plans_with(q=lambda a: np.where(np.arange(7) == 3, 1e300,
+                                                          a.astype(np.float64))),
+                         "q: expected magnitudes at most 3.403e+38 (float32), found 1e+300"),
+    "every goal NaN": (_plans_with(goals=_nan_at(...)), "goals: expected finite values"),
+    "a planner twice": (_plans_with(names=lambda a: np.array(["slotv", "slotv"])),
+                        "names: expected each planner once, 'slotv' is twice"),
+    "no path of a plan": (_plans_with(xyz=_nan_at((1, 0))),
+                          "xyz: expected finite points where q is a plan, planner 'slotv' of "
+                          "problem 0"),
+    "a family per planner": (_plans_with(family=lambda _: np.array(["dragan"])),
+                             "family: expected one entry per problem, shape (2,)"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", list(BAD_PLANS))
+def test_every_reader_of_a_bad_plans_file_names_it_before_any_work(case, tmp_path, capsys,
+                                                                   monkeypatch):  # fmt: skip
+    """Zero problems or planners, no plan at all, T = 1, values beyond float32, NaN goals
+    (an IndexError traceback, an unnamed message, or an error once rendering had begun):
+    ``render --plans`` and ``study stimuli --plans`` each say one line naming the file and
+    the array, exit code 2, before a renderer is made."""
+    from slotv_jax.render import cli as render_cli
+    from slotv_jax.rendering import frames
+    from slotv_jax.study import cli as study_cli
+
+    monkeypatch.setattr(frames.MotionRenderer, "__init__", None)  # must not be reached
+    arrays, msg = BAD_PLANS[case]
+    path = tmp_path / "plans.npz"
+    np.savez(path, **arrays)
+    with pytest.raises(ValueError, match="^plans for .*: " + re.escape(msg)):
+        save_plans(tmp_path / "out.npz", arrays)
+    for main, argv in (
+        (render_cli.main, ["--plans", str(path), "--out", str(tmp_path / "r.png"), "--quiet"]),
+        (study_cli.main, ["stimuli", "--plans", str(path), "--n", "1", "--out",
+                          str(tmp_path / "stim")]),
+    ):  # fmt: skip
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        err = capsys.readouterr().err
+        want = f"error: --plans {path}: {msg}"
+        assert e.value.code == 2 and err.startswith(want) and err.count("\n") == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plans.npz"]  # nothing written

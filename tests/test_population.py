@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import json
+import math
 import sqlite3
 from pathlib import Path
 
@@ -16,9 +17,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 from study_fixtures import ServerProcess, write_dot_set
 
 from slotv_jax.core.defaults import DEFAULT_BETAS
+from slotv_jax.core.validation import FLOAT32_MAX
 from slotv_jax.observers import labelers
 from slotv_jax.observers import population as P
 from slotv_jax.planning import check_observer
@@ -432,6 +436,17 @@ BAD = {
     "nodes as float": (_bad(alpha_nodes=8.0), "'alpha_nodes'"),
     "name empty": (_bad(name=""), "'name'"),
     "not an object": ([1, 2], "expected a JSON object"),
+    # values whose use overflows float32 (P_pop was NaN)
+    "beta beyond float32": (
+        _bad(beta={"cost_to_go": 1e300, "proximity": 30.0, "direction": 5.0}),
+        "'beta': 'cost_to_go': expected a number in (0, ",
+    ),
+    "sigma too wide": (_bad(beta_sigma_log=1000), "'beta_sigma_log': expected a number in [0, 5]"),
+    "temperatures overflow at the outer node": (
+        _bad(beta_sigma_log=5.0, beta_nodes=64),
+        "'beta': 'cost_to_go': 30.0 gives participants temperatures up to",
+    ),
+    "alpha beyond float32": (_bad(alpha_range=[0.0, 1e300]), "'alpha_range'"),
 }
 
 
@@ -454,6 +469,61 @@ def test_bad_json_and_duplicate_keys(tmp_path):
     path.write_text('{"lapse": 0.1, "lapse": 0.2}')
     with pytest.raises(ValueError, match=r"people\.json: field 'lapse': given twice"):
         P.load_population(path)
+
+
+def test_deep_json_and_a_directory_are_named(tmp_path):
+    """A file nested 100,000 deep (Python's json raises RecursionError) and a directory:
+    one line naming the file, through get_population as the commands call it."""
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(ValueError, match=rf"^{deep}: not a JSON document .* nested too deeply"):
+        P.get_population(deep)
+    with pytest.raises(ValueError, match=rf"^population {tmp_path}: is a directory; expected a "):
+        P.get_population(tmp_path)
+
+
+_log_uniform = st.floats(-3.0, 40.0).map(lambda e: 10.0**e)
+# the largest centre at σ = 5: the outer node of 64 at exactly BETA_MAX
+_AT_THE_BOUND = P.BETA_MAX / math.exp(P.SIGMA_LOG_MAX * P._z_reach(5.0, P.MAX_NODES)) * 0.999
+
+
+@settings(max_examples=20)
+@given(
+    beta=st.tuples(_log_uniform, _log_uniform, _log_uniform),
+    sigma=st.one_of(st.just(0.0), st.floats(0.0, 8.0)),
+    alpha_hi=st.one_of(st.just(2.0), _log_uniform),
+    lapse=st.sampled_from([0.0, 0.05]),
+)
+@example(beta=(P.BETA_MAX,) * 3, sigma=0.0, alpha_hi=FLOAT32_MAX, lapse=0.0)  # the bounds
+@example(beta=(_AT_THE_BOUND,) * 3, sigma=P.SIGMA_LOG_MAX, alpha_hi=2.0, lapse=0.0)
+def test_an_accepted_population_gives_finite_probabilities(beta, sigma, alpha_hi, lapse):
+    """Any population the checks accept gives a finite P_pop and finite drawn participants'
+    probabilities, on a path seen from a camera and in the world; any other is refused in
+    one line naming a field (temperatures up to 1e40, σ up to 8, α up to 1e40; 64 nodes of
+    log β, the quadrature's outermost)."""
+    d = _bad(
+        viewpoints={"observer_side": 0.5, "world": 0.5},
+        beta=dict(zip(P.RULES, beta, strict=True)),
+        beta_sigma_log=sigma,
+        beta_nodes=P.MAX_NODES,
+        alpha_range=[0.0, alpha_hi],
+        alpha_nodes=2,
+        lapse=lapse,
+    )
+    try:
+        pop = P.Population.from_dict(d, "pop.json")
+    except ValueError as e:
+        assert str(e).startswith("pop.json: field '") and "\n" not in str(e), e
+        return
+    xyz, goals, mask = random_problem(0, 3)
+    p = _jit_population_probs(P.quadrature(pop), xyz, goals, mask, 20)
+    assert np.isfinite(np.asarray(p)).all() and float(p.sum()) == pytest.approx(1.0, abs=1e-5)
+    people = P.draw_participants(pop, jax.random.key(1), 16)
+    assert np.isfinite(np.asarray(_jit_participant_probs(people, xyz, goals, mask, 20))).all()
+
+
+_jit_population_probs = jax.jit(P.population_probs)  # one compilation per node count
+_jit_participant_probs = jax.jit(P.participant_probs)
 
 
 def test_population_constructed_in_python_is_checked():
@@ -531,10 +601,15 @@ def test_simulate_against_another_study_names_the_stimuli_folder(dot_study, tmp_
 
 
 def test_simulate_population_errors_before_any_work(tmp_path, capsys, dot_study):
-    bad = tmp_path / "bad.json"
+    bad, deep, big = (tmp_path / f"{n}.json" for n in ("bad", "deep", "big"))
     bad.write_text(json.dumps(_bad(lapse=3)))
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    big.write_text(json.dumps(_bad(beta_sigma_log=1000)))
     url = "http://127.0.0.1:9"  # nothing listens: the error must come before contacting it
     for extra, msg in [(["--population", str(bad)], f"{bad}: field 'lapse'"),
+                       (["--population", str(deep)], f"{deep}: not a JSON document"),
+                       (["--population", str(big)], f"{big}: field 'beta_sigma_log'"),
+                       (["--population", str(tmp_path)], "is a directory"),
                        (["--population", "nobody"], "population: expected default"),
                        (["--population", "default", "--labeler", "dragan"],
                         "--labeler, --population")]:  # fmt: skip

@@ -236,6 +236,32 @@ def test_plans_grid_refuses_other_outputs(tmp_path, monkeypatch, capsys, args, m
     assert len(err) == 1 and message in err[0], err
 
 
+def test_plans_a_problem_nobody_planned_or_too_many_planners(tmp_path, monkeypatch, capsys):
+    """A problem whose every plan is NaN, a grid with no planner in all its rows, nine
+    planners side by side (``qs: expected 1..8 motions, got 0``, once rendering had begun):
+    one line naming the file, the array and the flag that picks another, before rendering."""
+    monkeypatch.setattr(frames_lib.MotionRenderer, "__init__", None)  # must not be reached
+    plans = tmp_path / "plans.npz"
+    q = np.stack([np.stack([Q1, Q2])] * 9)
+    q[:, 1] = np.nan  # nobody planned problem 1
+    np.savez(plans, goals=np.stack([GOALS] * 2), goal_mask=np.stack([MASK] * 2),
+             target=np.array([0, 1]), names=np.array([f"p{k}" for k in range(9)]), q=q)  # fmt: skip
+    where = f"error: --plans {plans}: "
+    for args, message in (
+        (["--problem", "1"], "q: no planner has a plan of problem 1 (each row holds NaN); "
+                             "choose another --problem"),
+        (["--problem", "0,1", "--grid"], "q: no planner has a plan of every problem of the "
+                                         "grid (0, 1); choose others with --problem"),
+        (["--problem", "0"], "names: 9 planners of problem 0, at most 8 side by side; name at "
+                             "most 8 with --planner"),
+    ):  # fmt: skip
+        with pytest.raises(SystemExit) as e:
+            cli.main(["--plans", str(plans), *args, "--out", str(tmp_path / "x.png"), "--quiet"])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err == where + message + "\n", err
+    assert not (tmp_path / "x.png").exists()
+
+
 def test_no_opengl_is_one_line_naming_mujoco_gl(dataset, tmp_path):
     """A real backend failure: GLFW with no display (as on a headless machine)."""
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}

@@ -20,7 +20,7 @@ import numpy as np
 
 from slotv_jax.answers.format import TAU_RTOL, Study, make_study
 from slotv_jax.core import fileio
-from slotv_jax.core.validation import G_MAX, SAME_POSITION
+from slotv_jax.core.validation import FLOAT32_MAX, G_MAX, SAME_POSITION
 
 # ------------------------------------------------------------ table import
 
@@ -40,7 +40,7 @@ RECORDED: dict[str, tuple[str, ...]] = {
 # Coordinates, time stamps and τ must be finite in float32 (the study's and the networks'
 # precision; their differences then stay finite in float64). Counts must be whole numbers
 # that float32 holds exactly (training holds counts in float32): at most 2**24.
-NUMBER_MAX = float(np.finfo(np.float32).max)
+NUMBER_MAX = FLOAT32_MAX
 COUNT_MAX = 2**24
 ROLES = ("trajectories", "goals", "answers")
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?", re.ASCII)

@@ -51,7 +51,7 @@ import numpy as np
 
 import slotv_jax
 from slotv_jax.benchmarks._machine import cpu_model
-from slotv_jax.core import cli
+from slotv_jax.core import cli, validation
 from slotv_jax.core.xla import OPT_OUT_VAR, SETTINGS
 from slotv_jax.robot import kinematics as K
 from slotv_jax.world import scene as S
@@ -361,6 +361,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--worker", choices=("with", "without"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    validation.check_seeds("--seed", args.seed)
     for name, value in vars(args).items():
         if isinstance(value, int) and not isinstance(value, bool) and name != "seed" and value < 1:
             p.error(f"--{name.replace('_', '-')}: expected >= 1, got {value}")

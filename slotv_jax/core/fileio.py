@@ -339,22 +339,44 @@ def read_text(path: str | os.PathLike) -> str:
         ) from None
 
 
+class _LongInteger(ValueError):
+    """An integer literal longer than Python converts (``sys.get_int_max_str_digits``)."""
+
+
+def _json_int(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise _LongInteger(len(text)) from None
+
+
 def read_json(
     path: str | os.PathLike,
     *,
     object_pairs_hook: Callable[[list[tuple[str, Any]]], Any] | None = None,
 ) -> Any:
     """Parse a JSON file; ValueError names the file, line and column of a broken or
-    truncated document; FileNotFoundError if it is missing. ``object_pairs_hook`` (as in
-    :func:`json.loads`) builds each object from its key-value pairs, duplicates included."""
+    truncated document, and the file of one nested too deeply for Python's parser (which
+    raises RecursionError) or holding an integer too long to convert; FileNotFoundError if
+    it is missing. ``object_pairs_hook`` (as in :func:`json.loads`) builds each object from
+    its key-value pairs, duplicates included; the errors it raises pass through as they are.
+    Every JSON input of the project is read here (:func:`is_json_object_with` too)."""
     path = Path(path)
     text = read_text(path)
     try:
-        return json.loads(text, object_pairs_hook=object_pairs_hook)
+        return json.loads(text, object_pairs_hook=object_pairs_hook, parse_int=_json_int)
     except json.JSONDecodeError as e:
         truncated = " (the file ends early: truncated?)" if e.pos >= len(text.rstrip()) else ""
         raise ValueError(
             f"{path}, line {e.lineno}, column {e.colno}: not valid JSON: {e.msg}{truncated}"
+        ) from None
+    except RecursionError:  # json recurses once per level: 100,000 nested brackets
+        raise ValueError(
+            f"{path}: not a JSON document this program reads: arrays or objects nested too deeply"
+        ) from None
+    except _LongInteger as e:
+        raise ValueError(
+            f"{path}: not a JSON document this program reads: an integer of {e.args[0]} characters"
         ) from None
 
 
@@ -362,7 +384,7 @@ def is_json_object_with(path: str | os.PathLike, keys: Sequence[str]) -> bool:
     """Whether ``path`` holds a JSON object with at least the ``keys`` (a command's results
     document, which it may resume: :func:`check_output_files`'s ``ours``)."""
     try:
-        doc = json.loads(Path(path).read_text())
+        doc = read_json(path)
     except (OSError, ValueError):
         return False
     return isinstance(doc, dict) and set(keys) <= set(doc)

@@ -15,6 +15,42 @@ import jax
 import numpy as np
 
 G_MAX = 8  # goal slots in every scene
+#: The largest magnitude float32 holds (about 3.4e38). The project computes in float32 (the
+#: networks, the study, P_pop, the planner), so a number read from a file beyond it (which
+#: float32 would make ±inf) is refused: :func:`check_float32`.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+#: Seeds are integers 0 ≤ seed < 2**32. ``jax.random.key`` keeps a seed's low 32 bits
+#: (with 64-bit types off, the project's setting): 2**32 draws what 0 draws, −1 what
+#: 2**32 − 1 draws, and from 2**63 it raises OverflowError; ``jax.random.fold_in`` refuses
+#: data of 2**32 or more. (Measured with jax 0.10.)
+SEED_LIMIT = 2**32
+
+
+def check_seeds(name: str, first, count: int = 1, *, count_name: str | None = None) -> None:
+    """Raise unless the seeds ``first`` … ``first + count − 1`` are integers in
+    0 … 2**32 − 1 (:data:`SEED_LIMIT`). ``name`` names ``first`` (a flag: ``--first-seed``)
+    and ``count_name`` the flag of ``count`` (``--seeds``); a ``count`` below 1 is left to
+    its own check.
+
+    >>> check_seeds("--seed", 2**32)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ValueError: --seed 4294967296: expected a seed in 0..4294967295 (2**32 - 1: ...)
+    """
+    if not (isinstance(first, int | np.integer) and not isinstance(first, bool)) or not (
+        0 <= first < SEED_LIMIT
+    ):
+        raise ValueError(
+            f"{name} {first!r}: expected a seed in 0..{SEED_LIMIT - 1} (2**32 - 1: "
+            "jax.random.key keeps 32 bits, so 2**32 would draw what 0 draws)"
+        )
+    if count >= 1 and first + count > SEED_LIMIT:
+        raise ValueError(
+            f"{name} {first}, {count_name or 'count'} {count}: the last seed, "
+            f"{first + count - 1}, is beyond 2**32 - 1 ({SEED_LIMIT - 1}); expected {name} "
+            f"at most {SEED_LIMIT - count}"
+        )
 
 
 def is_concrete(x) -> bool:
@@ -39,6 +75,24 @@ def check_finite(name: str, x) -> None:
         if a.dtype.kind in "fc" and not np.all(np.isfinite(a)):
             bad = int(np.size(a) - np.count_nonzero(np.isfinite(a)))
             raise ValueError(f"{name}: expected finite values, found {bad} NaN/inf entries")
+
+
+def check_float32(name: str, x) -> None:
+    """Raise if a concrete ``x`` holds a finite value of magnitude over :data:`FLOAT32_MAX`
+    (a float64 number that would become ±inf in float32); NaN and ±inf are left to
+    :func:`check_finite`. Names the first such value and its index."""
+    if not is_concrete(x):
+        return
+    a = np.asarray(x)
+    if a.dtype.kind != "f" or np.finfo(a.dtype).max <= FLOAT32_MAX:
+        return  # float32 or narrower holds every finite value; integers are checked by range
+    over = np.argwhere(np.isfinite(a) & (np.abs(a) > FLOAT32_MAX))
+    if len(over):
+        idx = tuple(int(v) for v in over[0])
+        raise ValueError(
+            f"{name}: expected magnitudes at most {FLOAT32_MAX:.4g} (float32), found "
+            f"{float(a[idx])!r} at index {list(idx)}"
+        )
 
 
 def check_finite_result(name: str, y, why: str) -> None:

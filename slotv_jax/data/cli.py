@@ -9,7 +9,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from slotv_jax.core import cli, fileio
+from slotv_jax.core import cli, fileio, validation
 from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
 from slotv_jax.core.xla import XLA_CONFIG
 from slotv_jax.data.config import DATA_DISTRIBUTIONS, PRESETS, _config_from_json, config_for
@@ -69,6 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.add_argument(f"--beta-{n}", type=float, help=f"inverse temperature of {n}")
     p.add_argument("--camera", help="camera of the Nikolaidis labeler")
     args = p.parse_args(argv)
+    validation.check_seeds("--seed", args.seed)
 
     label_kw = {f"beta_{n}": getattr(args, f"beta_{n}") for n in LABELER_NAMES}
     label_kw["camera"] = args.camera

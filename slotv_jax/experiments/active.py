@@ -61,7 +61,7 @@ import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax.asking import replay, selection
 from slotv_jax.asking.replay import ORACLES, geometric, up_to
-from slotv_jax.core import cli, fileio
+from slotv_jax.core import cli, fileio, validation
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments.active_report import fmt_answers, render, stem_of, summarise
@@ -119,6 +119,7 @@ class ActiveConfig:
         missing = [m for m in self.study_models if m not in dict(self.study_targets)]
         if missing:
             raise ValueError(f"study_targets: no target for {missing}")
+        validation.check_seeds("first_seed", self.first_seed, self.seeds, count_name="seeds")
 
     def train_config(self, model: str) -> train_config.TrainConfig:
         if model == "dragan":

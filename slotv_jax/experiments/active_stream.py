@@ -44,7 +44,7 @@ import slotv_jax
 from slotv_jax import data as data_lib
 from slotv_jax.asking import replay
 from slotv_jax.asking.replay import ORACLES
-from slotv_jax.core import cli, fileio
+from slotv_jax.core import cli, fileio, validation
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments import active
@@ -83,6 +83,7 @@ class StreamConfig:
         for name in ("steps", "every", "seeds", "eval_size", "stride", "chunk"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected an integer >= 1, got {getattr(self, name)}")
+        validation.check_seeds("first_seed", self.first_seed, self.seeds, count_name="seeds")
         bs = self.train_config().batch_size
         if self.subset < bs:
             raise ValueError(f"subset: expected at least the batch ({bs}), got {self.subset}")

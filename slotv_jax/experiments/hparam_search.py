@@ -48,7 +48,7 @@ from tqdm.auto import tqdm
 
 import slotv_jax
 from slotv_jax import data as data_lib
-from slotv_jax.core import cli, distributed, fileio
+from slotv_jax.core import cli, distributed, fileio, validation
 from slotv_jax.core.defaults import LABELER_NAMES
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
@@ -315,6 +315,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                    "OUT/rollouts.json")  # fmt: skip
     distributed.add_cli_args(p)
     args = p.parse_args(argv)
+    validation.check_seeds("--seed", args.seed)
     if args.report_only:
         return report_again(args.out or Path("runs") / f"hparam_search_{args.preset}", args.report)
     distributed.init_from_args(args)

@@ -47,7 +47,9 @@ Each seen point's evidence gives a per-point belief, a softmax over the real goa
 
 **Temperature** β (``beta``: a centre β₀ per rule; ``beta_sigma_log`` σ): each participant
 draws ``β = β₀ · exp(σ z)``, ``z ~ N(0, 1)`` (log-normal with median β₀: some people read a
-motion sharply, some hesitate; σ = 0.5 puts the middle 68 % within a factor 1.65 of β₀).
+motion sharply, some hesitate; σ = 0.5 puts the middle 68 % within a factor 1.65 of β₀;
+σ ≤ :data:`SIGMA_LOG_MAX`, and every β a participant can get, at the quadrature's outer node
+too, at most :data:`BETA_MAX`, so that P_pop stays finite in float32).
 β's unit is the inverse of the evidence's: per unit of image plane for the cameras (≈ per
 metre at 1 m depth; the scene's cameras stand 1.3 m from the workspace centre), per metre
 for ``world``, none for ``direction`` (a cosine). The default's centres: ``cost_to_go``
@@ -139,10 +141,12 @@ from jaxtyping import Array, Bool, Float, Int
 
 from slotv_jax.core import fileio
 from slotv_jax.core.defaults import DEFAULT_BETAS
+from slotv_jax.core.validation import FLOAT32_MAX
 from slotv_jax.observers.common import masked_log, pairwise_distances, sums, time_weights
 from slotv_jax.world import scene
 
 __all__ = [
+    "BETA_MAX",
     "DEPTH_EPS",
     "DIRECTION_EPS",
     "MAX_NODES",
@@ -150,8 +154,10 @@ __all__ = [
     "PRESETS",
     "RANDOM_PREFIX",
     "RULES",
+    "SIGMA_LOG_MAX",
     "SUITE_DRAWS",
     "WORLD",
+    "Z_DRAW_MAX",
     "Participants",
     "Population",
     "Quadrature",
@@ -185,6 +191,18 @@ DIRECTION_EPS = 1e-4
 DEPTH_EPS = 1e-6
 #: The most quadrature nodes a population may ask for (per parameter).
 MAX_NODES = 64
+#: The widest spread of log β a population may have: σ ≤ 5 (the middle two thirds of people
+#: within a factor e⁵ ≈ 150 of β₀, already far wider than any group of people reads a motion;
+#: beyond it exp(σ z) at the quadrature's outer nodes leaves float32).
+SIGMA_LOG_MAX = 5.0
+#: |z| of the sampler's draws is below this: ``jax.random.normal`` in float32 draws
+#: |z| ≤ 5.42 (its uniforms' extreme float32 values through the inverse error function).
+Z_DRAW_MAX = 6.0
+#: The largest temperature a participant may get (β₀ · exp(σ z) at the quadrature's outer
+#: node or a draw's): β · e then stays finite in float32 (:data:`FLOAT32_MAX`) for evidence
+#: |e| up to 1e7 (metres for ``world``; in a camera's image plane, a point 10 m aside at the
+#: least depth seen, :data:`DEPTH_EPS`), so that P_pop is finite.
+BETA_MAX = FLOAT32_MAX / 1e7
 _SUM_TOL = 1e-6  # |Σ probabilities − 1| allowed in a population file
 
 # ------------------------------------------------------------------ the config
@@ -315,11 +333,16 @@ def _check_fields(d: Mapping[str, Any], where: str) -> dict[str, Any]:
             f"({list(d['rules'])}), got {beta!r}"
         )
     for k, b in beta.items():
-        if not (_is_number(b) and math.isfinite(b) and b > 0):
-            raise ValueError(f"{at('beta')}: {k!r}: expected a finite number > 0, got {b!r}")
+        if not (_is_number(b) and 0 < b <= BETA_MAX):
+            raise ValueError(
+                f"{at('beta')}: {k!r}: expected a number in (0, {BETA_MAX:.3g}] (β · evidence "
+                f"finite in float32), got {b!r}"
+            )
     s = d["beta_sigma_log"]
-    if not (_is_number(s) and math.isfinite(s) and s >= 0):
-        raise ValueError(f"{at('beta_sigma_log')}: expected a finite number >= 0, got {s!r}")
+    if not (_is_number(s) and 0 <= s <= SIGMA_LOG_MAX):
+        raise ValueError(
+            f"{at('beta_sigma_log')}: expected a number in [0, {SIGMA_LOG_MAX:g}], got {s!r}"
+        )
     if d["memory"] not in MEMORIES:
         raise ValueError(f"{at('memory')}: expected one of {list(MEMORIES)}, got {d['memory']!r}")
     a = d["alpha_range"]
@@ -330,11 +353,11 @@ def _check_fields(d: Mapping[str, Any], where: str) -> dict[str, Any]:
         isinstance(a, list | tuple)
         and len(a) == 2
         and all(_is_number(x) and math.isfinite(x) for x in a)
-        and 0 <= a[0] <= a[1]
+        and 0 <= a[0] <= a[1] <= FLOAT32_MAX
     ):
         raise ValueError(
-            f"{at('alpha_range')}: expected [lo, hi] with 0 <= lo <= hi (memory 'recency'), "
-            f"got {a!r}"
+            f"{at('alpha_range')}: expected [lo, hi] with 0 <= lo <= hi <= {FLOAT32_MAX:.4g} "
+            f"(float32; memory 'recency'), got {a!r}"
         )
     lapse = d["lapse"]
     if not (_is_number(lapse) and 0.0 <= lapse <= 1.0):
@@ -343,7 +366,24 @@ def _check_fields(d: Mapping[str, Any], where: str) -> dict[str, Any]:
         n = d[field]
         if not (_is_int(n) and 1 <= n <= MAX_NODES):
             raise ValueError(f"{at(field)}: expected an integer in 1..{MAX_NODES}, got {n!r}")
+    z = _z_reach(s, d["beta_nodes"])
+    for k, b in beta.items():
+        if b * math.exp(s * z) > BETA_MAX:
+            raise ValueError(
+                f"{at('beta')}: {k!r}: {b!r} gives participants temperatures up to "
+                f"{b * math.exp(s * z):.3g} (β₀ · exp(σ z) at σ = {s!r}, |z| = {z:.3g}: the "
+                f"quadrature's outer node or a draw), expected at most {BETA_MAX:.3g} (β · "
+                "evidence finite in float32); lower it, 'beta_sigma_log' or 'beta_nodes'"
+            )
     return dict(d)
+
+
+def _z_reach(sigma: float, nodes: int) -> float:
+    """The largest |z| at which a participant's β = β₀ · exp(σ z) is taken: the outer
+    Gauss–Hermite node of :func:`quadrature` (σ > 0) or a draw's (:data:`Z_DRAW_MAX`)."""
+    if sigma == 0:
+        return 0.0
+    return max(Z_DRAW_MAX, float(np.polynomial.hermite_e.hermegauss(nodes)[0].max()))
 
 
 # ------------------------------------------------------------------ presets and files
@@ -423,6 +463,11 @@ def get_population(spec: str | os.PathLike) -> Population:
         return PRESETS[str(spec)]()
     if str(spec).startswith(RANDOM_PREFIX):
         return random_population(parse_random(str(spec)))
+    if Path(spec).is_dir():
+        raise ValueError(
+            f"population {spec}: is a directory; expected a population JSON file (or "
+            f"{' or '.join(PRESETS)})"
+        )
     if not Path(spec).is_file():
         raise ValueError(
             f"population: expected {' or '.join(PRESETS)} or a population JSON file, got "

@@ -218,9 +218,24 @@ def _plans_items(args) -> list[Item]:
     suffix = f"_{args.planner.replace(',', '_')}" if args.planner else ""
     if args.grid:  # the same panels in every row: planners finite in all the problems
         ks = [k for k in ks if args.planner or np.isfinite(q[k, idx]).all()]
+        if not ks:
+            raise cli.InputError(
+                f"--plans {args.plans}: q: no planner has a plan of every problem of the grid "
+                f"({', '.join(map(str, idx))}); choose others with --problem"
+            )
     items = []
     for p in idx:
         shown = [k for k in ks if args.planner or np.isfinite(q[k, p]).all()]  # NaN: left out
+        if not shown:
+            raise cli.InputError(
+                f"--plans {args.plans}: q: no planner has a plan of problem {p} (each row "
+                "holds NaN); choose another --problem"
+            )
+        if len(shown) > len(PALETTE):
+            raise cli.InputError(
+                f"--plans {args.plans}: names: {len(shown)} planners of problem {p}, at most "
+                f"{len(PALETTE)} side by side; name at most {len(PALETTE)} with --planner"
+            )
         fam = "" if family is None else f" ({family[p]})"
         cube = chr(ord("A") + int(z["target"][p]))
         items.append(

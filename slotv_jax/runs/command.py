@@ -11,7 +11,7 @@ import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from slotv_jax.core import cli, fileio
+from slotv_jax.core import cli, fileio, validation
 from slotv_jax.runs import record
 from slotv_jax.training import config as train_config
 
@@ -42,6 +42,10 @@ def seeded_parser(prog: str, description: str, presets: Sequence[str]) -> argpar
 def seeded_overrides(args: argparse.Namespace, names: Sequence[str] = ()) -> dict:
     """The preset's fields that a :func:`seeded_parser` command line sets: seeds,
     first_seed, eval_offset, the strategies, and the flags ``names``."""
+    if args.first_seed is not None:
+        validation.check_seeds(
+            "--first-seed", args.first_seed, args.seeds or 1, count_name="--seeds"
+        )
     kw = {n: getattr(args, n) for n in ("seeds", "first_seed", "eval_offset", *names)}
     kw = {n: v for n, v in kw.items() if v is not None}
     if args.strategies:

@@ -17,7 +17,7 @@ from slotv_jax.answers.crossval import cross_validate, cv_table, model_metrics
 from slotv_jax.answers.fitting import study_trainer, train_study
 from slotv_jax.answers.storage import load_study, save_study
 from slotv_jax.answers.tables import read_tables
-from slotv_jax.core import cli, fileio
+from slotv_jax.core import cli, fileio, validation
 from slotv_jax.core.fileio import write_text
 from slotv_jax.study import rounds
 from slotv_jax.training import checkpoint
@@ -127,6 +127,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return web_cli.COMMANDS[args.command](args)
     if args.command == "next":
         return rounds.next_main(args)
+    if args.command == "cv":
+        validation.check_seeds("--seed", args.seed)
     if getattr(args, "out", None) is not None:  # before any work: never over an input
         if args.command == "import":
             inputs = {f"--{k}": getattr(args, k) for k in ("trajectories", "goals", "answers")}

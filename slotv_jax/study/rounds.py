@@ -43,6 +43,7 @@ from slotv_jax import rendering
 from slotv_jax.answers.format import Study
 from slotv_jax.answers.tables import read_tables
 from slotv_jax.asking import selection
+from slotv_jax.core import validation
 from slotv_jax.data import SPLITS, load_split
 from slotv_jax.training import config as train_config
 from slotv_jax.webstudy import export as export_lib
@@ -237,6 +238,7 @@ def add_command(sub) -> None:
 def next_main(args: argparse.Namespace) -> int:
     """Check the inputs, choose the stimuli, render the round."""
     stimdir = Path(args.stimuli)
+    validation.check_seeds("--seed", args.seed)
     r, out = stimuli.next_round(stimdir)  # errors if the folder holds no round 0
     taus = [float(x) for x in args.taus.split(",")]
     selection.seen_points(taus, 2)  # checks the τ

@@ -26,7 +26,7 @@ import jax
 import numpy as np
 
 from slotv_jax import data as data_lib
-from slotv_jax.core import cli, fileio
+from slotv_jax.core import cli, fileio, validation
 from slotv_jax.core.defaults import LABELER_NAMES, TEST_SPLITS
 from slotv_jax.core.xla import XLA_CONFIG
 from slotv_jax.study import cli as study_cli
@@ -87,6 +87,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     anything else in the way is refused.
     """
     args = _parse_args(argv)
+    validation.check_seeds("--seed", args.seed)
     if args.epochs is not None and args.epochs < 1:
         raise cli.InputError(f"--epochs: expected an integer >= 1, got {args.epochs}")
     cfg = train_config.preset(args.preset, args.method, model=args.model)

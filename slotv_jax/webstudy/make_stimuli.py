@@ -50,6 +50,7 @@ from tqdm.auto import tqdm
 
 from slotv_jax import rendering  # first: it picks MUJOCO_GL=egl before MuJoCo loads
 from slotv_jax.answers.storage import load_study
+from slotv_jax.core import validation
 from slotv_jax.core.fileio import check_not_input, check_output_dir, load_npz
 from slotv_jax.data import SPLITS, Split, load_split
 from slotv_jax.planning.plans import load_plans
@@ -186,7 +187,7 @@ def motions_from_plans(path: str | Path) -> Motions:
     q, xyz, names = z["q"], z["xyz"], [str(s) for s in z["names"]]
     rows = [(k, p) for k in range(q.shape[0]) for p in range(q.shape[1])
             if np.isfinite(q[k, p]).all() and np.isfinite(xyz[k, p]).all()]  # fmt: skip
-    ks, ps = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+    ks, ps = np.array([r[0] for r in rows], int), np.array([r[1] for r in rows], int)
     return Motions(q[ks, ps].astype(np.float32), xyz[ks, ps].astype(np.float32),
                    z["goals"][ps].astype(np.float32), z["goal_mask"][ps].astype(bool),
                    [f"{names[k]}-{p}" for k, p in rows], [f"problem{p}" for p in ps],
@@ -333,6 +334,7 @@ def stimuli_main(args: argparse.Namespace) -> int:
     """Check every input and the output folder, then render the set (round 0, or with
     ``--next-round`` the study folder's next round)."""
     taus = _floats(args.taus, "--taus")
+    validation.check_seeds("--seed", args.seed)
     clip = {k: getattr(args, k) for k in ("size", "fps", "duration", "hold")}
     size = _size(args.size or "x".join(map(str, DEFAULTS["size"])))
     cameras = tuple(c.strip() for c in args.cameras.split(","))

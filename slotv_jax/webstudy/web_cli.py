@@ -12,6 +12,7 @@ from pathlib import Path
 
 import httpx
 
+from slotv_jax.core import validation
 from slotv_jax.core.fileio import check_not_input
 from slotv_jax.webstudy import client, limits, make_stimuli
 from slotv_jax.webstudy import export as export_lib
@@ -139,6 +140,9 @@ def simulate_main(args: argparse.Namespace) -> int:
         raise ValueError(f"--participants {args.participants}: expected 1..10000")
     if args.first < 0:
         raise ValueError(f"--first {args.first}: expected an integer >= 0")
+    validation.check_seeds("--seed", args.seed)
+    # participant i draws from fold_in(key(seed), i), which takes i < 2**32 as a seed does
+    validation.check_seeds("--first", args.first, args.participants, count_name="--participants")
     if not args.url.startswith(("http://", "https://")):
         raise ValueError(f"--url {args.url}: expected http://HOST:PORT")
     if args.population is not None and args.labeler is not None:

@@ -11,7 +11,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from slotv_jax.core import cli, fileio
+from slotv_jax.core import cli, fileio, validation
 from slotv_jax.core.xla import XLA_CONFIG
 from slotv_jax.experiments.people_loop import (
     FAMILIES,
@@ -68,6 +68,12 @@ def config_from(args: argparse.Namespace) -> LoopConfig:
     """The preset with the command line's overrides (checked by :class:`LoopConfig`)."""
     cfg = PRESETS[args.preset]()
     change = {}
+    validation.check_seeds(
+        "--first-seed",
+        cfg.first_seed if args.first_seed is None else args.first_seed,
+        cfg.seeds if args.seeds is None else args.seeds,
+        count_name="--seeds",
+    )
     if args.seeds is not None:
         change["seeds"] = args.seeds
     if args.first_seed is not None:
@@ -78,6 +84,9 @@ def config_from(args: argparse.Namespace) -> LoopConfig:
         v = getattr(args, name)
         if v is not None:
             change[name] = tuple(x.strip() for x in v.split(",") if x.strip())
+            twice = [x for x in dict.fromkeys(change[name]) if change[name].count(x) > 1]
+            if twice:
+                raise ValueError(f"--{name} {v}: expected each name once, {twice[0]!r} is twice")
     if args.sizes is not None:
         try:
             change["sizes"] = tuple(int(x) for x in args.sizes.split(","))

@@ -11,6 +11,7 @@ import math
 from slotv_jax import data as data_lib
 from slotv_jax import planning
 from slotv_jax.asking import selection
+from slotv_jax.core import validation
 from slotv_jax.training import config as train_config
 
 LEARNED = ("mlp", "slotv_plus", "dragan_archetype", "viewpoint_archetype")
@@ -110,6 +111,7 @@ class LoopConfig:
                 raise ValueError(f"{f}: expected an int >= 1, got {v!r}")
         if not (self.epochs > 0 and self.select_epochs > 0):
             raise ValueError("epochs, select_epochs: expected > 0")
+        validation.check_seeds("first_seed", self.first_seed, self.seeds, count_name="seeds")
 
     @property
     def candidates(self) -> tuple[str, ...]:

@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import slotv_jax
-from slotv_jax.core import cli, fileio
+from slotv_jax.core import cli, fileio, validation
 from slotv_jax.experiments.planning import ARCHETYPES, FAMILIES, LEARNED, PRESETS, run
 from slotv_jax.experiments.planning_report import FIGURES, report, write_doc
 from slotv_jax.runs import command
@@ -48,6 +48,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="matmul dtype of the observers' training (bfloat16 on GPUs)")  # fmt: skip
     p.add_argument("--doc", type=Path, help="also write the report here, figures beside it")
     args = p.parse_args(argv)
+    validation.check_seeds("--seed", args.seed)
     print(slotv_jax.XLA_CONFIG.summary(), file=sys.stderr)
 
     cfg = dataclasses.replace(PRESETS[args.preset](), seed=args.seed)
