@@ -279,6 +279,13 @@ def _merge_parts(doc: dict, conf: dict, parts: Path, path: Path) -> None:
     write_text(path, json.dumps(doc, indent=1))
     for f in merged:
         f.unlink()
+    for d in parts.glob("worker*"):  # every document merged: the workers' logs go too
+        if d.is_dir() and not list(d.glob("*_results.json")):
+            (d / "log.txt").unlink(missing_ok=True)
+            if not any(d.iterdir()):
+                d.rmdir()
+    if parts.is_dir() and not any(parts.iterdir()):
+        parts.rmdir()
 
 
 def example_plans(doc: dict) -> dict[str, np.ndarray]:

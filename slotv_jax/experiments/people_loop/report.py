@@ -10,6 +10,8 @@ import statistics
 from pathlib import Path
 
 from slotv_jax.core.fileio import write_text
+from slotv_jax.experiments.people_loop.config import PRESETS
+from slotv_jax.observers import population as population_lib
 from slotv_jax.runs import figures
 from slotv_jax.runs.summary import crossing
 
@@ -251,8 +253,8 @@ def report(doc: dict, stem: str) -> str:
         "Every number here comes from **simulated people** (`slotv_jax.observers.population`), "
         "not from a study with humans: the population named in each section.",
         "",
-        f"Rendered from `{stem}_results.json` (`python -m slotv_jax.experiments.people_loop "
-        f"--preset {doc['preset']}`). Stop times τ = {', '.join(f'{t:g}' for t in cfg['taus'])}; "
+        f"Rendered from `{stem}_results.json` (`{command_line(doc)}`). Stop times τ = "
+        f"{', '.join(f'{t:g}' for t in cfg['taus'])}; "
         f"{cfg['per_stimulus']} answers per asked stimulus; pool {cfg['pool']:,} training motions; "
         f"{cfg['problems']} held-out problems; seeds {', '.join(map(str, seeds))}; active "
         "selection asks an ensemble of "
@@ -279,6 +281,30 @@ def report(doc: dict, stem: str) -> str:
     suite = [line.replace("{stem}", stem) for line in suite_section(doc)]
     body = [line for p in doc["populations"] for line in population_section(doc, p)]
     return "\n".join(head + suite + body)
+
+
+def command_line(doc: dict) -> str:
+    """The command that runs the document's config (its preset and the flags that differ)."""
+    cfg, words = doc["config"], ["python -m slotv_jax.experiments.people_loop"]
+    words += ["--preset", doc["preset"]]
+    base = _preset_config(doc["preset"])
+    for k in ("strategies", "sizes", "families", "problems"):
+        if base is not None and cfg[k] != base.get(k):
+            v = cfg[k]
+            words += [f"--{k}", ",".join(map(str, v)) if isinstance(v, list) else str(v)]
+    pops = [p["population"] for p in doc["populations"]]
+    if pops != ["default"]:
+        suite = set(population_lib.suite_specs())
+        words += [
+            "--population",
+            "suite" if set(pops) <= suite and len(pops) > 2 else ",".join(pops),
+        ]
+    return " ".join(words)
+
+
+def _preset_config(preset: str) -> dict | None:
+    f = PRESETS.get(preset)
+    return None if f is None else f().to_json()
 
 
 def plot(doc: dict, path: Path) -> None:
@@ -415,6 +441,14 @@ def suite_section(doc: dict) -> list[str]:
             + " | ".join(_pct(s[name][a]) for a in sizes)
             + (" | | |" if at else " |")
         )
+    missing = [q for q in population_lib.suite_specs() if q not in s["populations"]]
+    if missing:
+        lines += [
+            "",
+            f"**The suite is not complete here:** {len(s['populations'])} population(s) ran; "
+            f"not yet run: {', '.join(f'`{q}`' for q in missing)} (the same command resumes "
+            "and adds them with `--population suite`).",
+        ]
     drops = [
         (a, b, s["mean"][a] - s["mean"][b])
         for i, a in enumerate(sizes)
