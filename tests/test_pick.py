@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 
 from slotv_jax import planning
-from slotv_jax.answers import pooling
+from slotv_jax.answers import pooling, save_study, simulate_study
 from slotv_jax.asking import selection, simulated
 from slotv_jax.experiments import people_loop as exp
 from slotv_jax.experiments.people_loop import loop
 from slotv_jax.experiments.people_loop.__main__ import main
 from slotv_jax.observers import labelers
 from slotv_jax.observers import population as population_lib
+from slotv_jax.study.cli import main as study_main
 
 # ------------------------------------------------------------------ the hyper-distribution
 
@@ -188,3 +189,30 @@ def test_the_pools_observer_is_the_weighted_log_pool():
     want = np.exp(z - z.max()) / np.exp(z - z.max()).sum()
     np.testing.assert_allclose(got[:2], want, atol=1e-5)
     assert np.all(got[2:] == 0)
+
+
+# ------------------------------------------------------------------ python -m slotv_jax.study pick
+
+
+def test_study_pick_scores_every_candidate_and_writes_the_pick(label_pool, tmp_path, capsys):
+    """A study answered by Dragan's observer: the command prints each candidate's held-out
+    NLL and weight, picks Dragan's labeler and writes its β; a bad flag is one line."""
+    pool, taus = label_pool
+    xyz, goals, mask = (np.asarray(a)[:60] for a in (pool.xyz, pool.goals, pool.goal_mask))
+    study = simulate_study(jax.random.key(0), xyz, goals, mask, 6, labeler="dragan", beta=8.0,
+                           taus=taus)  # fmt: skip
+    path = tmp_path / "s.npz"
+    save_study(path, study)
+    out = tmp_path / "pick"
+    argv = ["pick", str(path), "--out", str(out), "--candidates", "dragan,nikolaidis,effdist"]
+    with pytest.raises(SystemExit) as e:
+        study_main(argv)
+    assert e.value.code == 2 and "--candidates" in capsys.readouterr().err
+    assert not out.exists()
+    argv[-1] = "dragan,nikolaidis"
+    assert study_main([*argv, "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "| dragan **(pick)** |" in text and "| nikolaidis |" in text, text
+    rec = json.loads((out / "pick.json").read_text())
+    assert rec["labeler"] == "dragan" and 4.0 < rec["beta"] < 16.0
+    assert rec["pick"]["heldout_nll"][0] < rec["pick"]["heldout_nll"][1]

@@ -1,4 +1,4 @@
-"""The command line of studies: ``python -m slotv_jax.study`` (import, show, train, cv;
+"""The command line of studies: ``python -m slotv_jax.study`` (import, show, train, cv, pick;
 stimuli, serve, export, simulate: :mod:`slotv_jax.webstudy.web_cli`)."""
 
 from __future__ import annotations
@@ -13,7 +13,8 @@ from typing import Any
 
 import jax
 
-from slotv_jax.answers.crossval import cross_validate, cv_table, model_metrics
+from slotv_jax.answers import pick as pick_lib
+from slotv_jax.answers.crossval import cross_validate, cv_table, fit_beta, model_metrics
 from slotv_jax.answers.fitting import study_trainer, train_study
 from slotv_jax.answers.storage import load_study, save_study
 from slotv_jax.answers.tables import read_tables
@@ -114,9 +115,57 @@ def _parse_args(argv):
     cv.add_argument("--condition", default=None)
     cv.add_argument("--out", default=None, help="write the results as JSON here")
     cv.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    pk = sub.add_parser(
+        "pick", help="the observer to plan with, chosen by the held-out likelihood of answers"
+    )
+    pk.add_argument("study")
+    pk.add_argument("--out", required=True, help="checkpoint folder of the pick")
+    pk.add_argument("--candidates", default=",".join(pick_lib.CANDIDATES),
+                    help="comma-separated families and labelers to choose from")  # fmt: skip
+    pk.add_argument("--preset", default="quick", choices=tuple(train_config.PRESETS))
+    pk.add_argument("--folds", type=int, default=3)
+    pk.add_argument("--seed", type=int, default=0)
+    pk.add_argument("--condition", default=None)
+    pk.add_argument("--overwrite", action="store_true", help="replace an earlier pick")
+    pk.add_argument("--no-progress", action="store_true")
     web_cli.add_commands(sub)
     rounds.add_command(sub)
     return ap.parse_args(argv)
+
+
+def pick_main(args: argparse.Namespace) -> int:
+    """``python -m slotv_jax.study pick STUDY --out DIR``: score every candidate by the
+    held-out likelihood of the study's answers (folds by motion), print the table, fit the
+    pick (the pool's largest weight) on every answer and write it: a learned family as a
+    checkpoint (``slotv_jax.load_observer(DIR)``; the table in its JSON config), a labeler
+    as ``DIR/pick.json`` with its fitted β (``planning.labeler_observer(name, beta=β)``)."""
+    validation.check_seeds("--seed", args.seed)
+    names = pick_lib.check_candidates([c.strip() for c in args.candidates.split(",")])
+    fileio.check_not_input(args.out, {"study": args.study})
+
+    def ours(p):
+        return checkpoint.exists(p) or (Path(p) / "pick.json").is_file()
+
+    fileio.check_output_dir(args.out, ours=ours, overwrite=args.overwrite)
+    study = load_study(args.study)
+    if args.condition is not None:
+        study = study.select_condition(args.condition)
+    rep = pick_lib.pick_study(study, names, preset=args.preset, folds=args.folds,
+                              seed=args.seed, progress=not args.no_progress)  # fmt: skip
+    print(pick_lib.pick_table(rep), flush=True)
+    out, winner = Path(args.out), rep["pick"]
+    meta = {"study": str(args.study), "condition": args.condition, "pick": rep}
+    if winner in pick_lib.LABELERS:
+        beta, _ = fit_beta(study, winner)
+        out.mkdir(parents=True, exist_ok=True)
+        write_text(out / "pick.json", json.dumps({**meta, "labeler": winner, "beta": beta}))
+        print(f"pick: {winner} with β = {beta:.4g} (fitted on every answer): {out / 'pick.json'}")
+        return 0
+    cfg = pick_lib.fit_config(args.preset, winner, study.n_rows)
+    state = train_study(cfg, study, jax.random.key(args.seed), progress=not args.no_progress)
+    checkpoint.save(out, cfg, state, meta=meta)
+    print(f"pick: {winner}, fitted on every answer: {out} (slotv_jax.load_observer)")
+    return 0
 
 
 @cli.command
@@ -127,6 +176,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return web_cli.COMMANDS[args.command](args)
     if args.command == "next":
         return rounds.next_main(args)
+    if args.command == "pick":
+        return pick_main(args)
     if args.command == "cv":
         validation.check_seeds("--seed", args.seed)
     if getattr(args, "out", None) is not None:  # before any work: never over an input

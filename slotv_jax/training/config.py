@@ -304,6 +304,24 @@ def preset(name: str, method: str, model: str = "mlp", **overrides: Any) -> Trai
     return PRESETS[name](method, **overrides)
 
 
+#: The observer families fitted on people's answers: the paper MLP, SLOT-V+ (the MLP with
+#: the start term and time weights), the Dragan and viewpoint archetypes.
+FAMILIES = ("mlp", "slotv_plus", "dragan_archetype", "viewpoint_archetype")
+
+
+def family(name: str, fam: str, **overrides: Any) -> TrainConfig:
+    """Preset ``name``'s SLOT-V config of an observer family of :data:`FAMILIES`, fitted on
+    answers (``train_size=None``: every answer row)."""
+    if fam in ("dragan_archetype", "viewpoint_archetype"):
+        return archetype(name, fam.split("_")[0], train_size=None, **overrides)
+    cfg = preset(name, "slotv", train_size=None, **overrides)
+    if fam == "slotv_plus":
+        return dataclasses.replace(cfg, start_term=True, time_weight=True)
+    if fam != "mlp":
+        raise ValueError(f"family: expected one of {FAMILIES}, got {fam!r}")
+    return cfg
+
+
 def _parse_value(name: str, text: str, annotation: Any) -> Any:
     hint = typing.get_type_hints(TrainConfig)[name]
     origin = typing.get_origin(hint)

@@ -119,16 +119,14 @@ class LoopConfig:
         return tuple(f for f in self.families if f != PICK)
 
     def train_config(self, family: str) -> train_config.TrainConfig:
-        """The TrainConfig that fits ``family`` (a learned one) on answers."""
-        if family in ("dragan_archetype", "viewpoint_archetype"):
-            model = family.split("_")[0]
-            return train_config.archetype(self.train_preset, model, train_size=None)
-        cfg = train_config.preset(self.train_preset, "slotv", train_size=None)
-        if family == "slotv_plus":
-            cfg = dataclasses.replace(cfg, start_term=True, time_weight=True)
-        elif family != "mlp":
+        """The TrainConfig that fits ``family`` (a learned one) on answers
+        (:func:`slotv_jax.training.config.family`; the overrides apply to the MLPs)."""
+        if family not in LEARNED:
             raise ValueError(f"family: expected one of {LEARNED}, got {family!r}")
-        return train_config.apply_overrides(cfg, self.overrides)
+        cfg = train_config.family(self.train_preset, family)
+        if family in ("mlp", "slotv_plus"):
+            cfg = train_config.apply_overrides(cfg, self.overrides)
+        return cfg
 
     def updates(self, rows: int, batch: int, epochs: float, least: int) -> int:
         """Updates of a fit on ``rows`` answer rows: ``epochs`` passes, at least ``least``,
