@@ -203,6 +203,7 @@ def tiny() -> LoopConfig:
         eval_participants=4,
         seeds=1,
         overrides=("hidden=16,8",),
+        pick_folds=2,
     )
 
 
