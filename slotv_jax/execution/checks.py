@@ -255,14 +255,16 @@ def collision_check(
         return seen[k]
 
     k, checks = 0, []
-    while k < n:
+    while True:
         c, g1, g2 = at(k)
         if c < 0.0:  # every earlier sample is certified clear: the first collision
             line = f"collision: {con.pair(g1, g2)}"
             return _clearance(seen, con), (traj.t[k], line)
         checks.append(k)
-        k = int(np.searchsorted(C, C[k] + c / 2.0, side="left"))  # first uncertified sample
-        k = max(k, checks[-1] + 1)
+        if k == n - 1:
+            break
+        nxt = int(np.searchsorted(C, C[k] + c / 2.0, side="left"))  # first uncertified sample
+        k = min(max(nxt, k + 1), n - 1)  # ... and the last sample, always
     # the least clearance: every sample of a stretch whose lower bound is below it
     best = min(v[0] for v in seen.values())
     for a, b in itertools.pairwise(checks):

@@ -35,6 +35,7 @@ __all__ = [
     "CLEARANCE_HORIZON",
     "DAMPING",
     "DT",
+    "RATE",
     "STIFFNESS",
     "collision_model",
     "dynamics_model",
@@ -44,7 +45,8 @@ __all__ = [
     "tcp_poses",
 ]
 
-DT = 1e-3  # s: the Franka Control Interface's control period (1 kHz)
+RATE = 1000  # Hz: the Franka Control Interface's control rate
+DT = 1.0 / RATE  # s: its period
 CLEARANCE_HORIZON = 0.05  # m: contacts are reported up to this far apart (the contact margin)
 # The joint impedance gains of Franka's joint impedance example (libfranka
 # examples/joint_impedance_control.cpp, franka_ros franka_example_controllers): N m/rad, N m s/rad.

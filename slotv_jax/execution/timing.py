@@ -53,7 +53,7 @@ import toppra.constraint
 from jaxtyping import Float
 
 from slotv_jax.execution.limits import DEFAULT_SPEED, ROBOTS, Limits, check_speed
-from slotv_jax.execution.models import DT, mass_matrices, tcp_poses
+from slotv_jax.execution.models import DT, RATE, mass_matrices, tcp_poses
 from slotv_jax.execution.path import JointPath, deviation, make_path, refine
 from slotv_jax.execution.refusal import Refused
 from slotv_jax.robot import kinematics
@@ -102,7 +102,7 @@ class TimingConfig:
 class Trajectory:
     """A timed joint trajectory, sampled at 1 kHz (``DT``), at rest at both ends."""
 
-    t: np.ndarray  # (N,) s: k · DT
+    t: np.ndarray  # (N,) s: k / 1000
     q: np.ndarray  # (N, 7) rad
     dq: np.ndarray  # (N, 7) rad/s: central differences (0 at both ends)
     ddq: np.ndarray  # (N, 7) rad/s²: central differences (0 at both ends)
@@ -134,7 +134,7 @@ class Trajectory:
         q, dq, ddq = self.q[pick], self.dq[pick], self.ddq[pick]
         beyond = idx > n - 1  # at rest after the end
         dq[beyond], ddq[beyond] = 0.0, 0.0
-        return idx * DT, q, dq, ddq
+        return idx / RATE, q, dq, ddq
 
 
 def rate_step(rate) -> int:
@@ -295,14 +295,18 @@ def _excess(path: JointPath, s: np.ndarray, lim: Limits):
 
 
 def _lower(scale, grid, s, ratio, power, w) -> None:
-    """Lower σ in place at the grid points near samples whose ``ratio`` exceeds 1, by
-    (0.98 / ratio)^power, over the stretch the smoothing window mixes (± w samples)."""
+    """Lower σ in place where samples overshoot (``ratio`` > 1): by (0.98 / ratio)^power at
+    both grid points around every sample the smoothing window mixes with them (± w)."""
     f = np.where(ratio > 1.0, (0.98 / np.maximum(ratio, 1.0)) ** power, 1.0)
     if f.min() >= 1.0:
         return
     f = np.lib.stride_tricks.sliding_window_view(np.pad(f, w, constant_values=1.0),
                                                  2 * w + 1).min(axis=1)  # fmt: skip
-    scale *= f[np.clip(np.searchsorted(s, grid), 0, len(s) - 1)]
+    i = np.clip(np.searchsorted(grid, s, side="right") - 1, 0, len(grid) - 2)
+    g = np.ones(len(grid))
+    np.minimum.at(g, i, f)
+    np.minimum.at(g, i + 1, f)
+    scale *= g
 
 
 TORQUE_RATE_SHARE = 0.9  # of Franka's torque-rate limit the jerk may use (step 2)
@@ -351,7 +355,7 @@ def time_path(path: JointPath, config: TimingConfig = TimingConfig()) -> Traject
 
 def _trajectory(path, config, s, q, topp_duration, w, margin, rounds) -> Trajectory:
     n = len(s)
-    t = np.arange(n) * DT
+    t = np.arange(n) / RATE  # the double nearest k / 1000: written back as such
     ext = np.concatenate([q[:1], q, q[-1:]])
     dq = (ext[2:] - ext[:-2]) / (2 * DT)
     ddq = (ext[2:] - 2 * ext[1:-1] + ext[:-2]) / DT**2
