@@ -11,6 +11,7 @@ definition. Paths are tiny; no JAX is compiled.
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import mujoco
 import numpy as np
@@ -20,10 +21,11 @@ import yaml
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from slotv_jax.core import fileio
 from slotv_jax import execution
+from slotv_jax.core import fileio
 from slotv_jax.execution import checks, cli, export, limits, models, path, timing
 from slotv_jax.execution.refusal import Refused
+from slotv_jax.experiments import execution as experiment
 from slotv_jax.planning.plans import save_plans
 from slotv_jax.robot import kinematics
 
@@ -442,3 +444,41 @@ def test_export_writes_or_refuses(plans_file, recorded, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == 1 and err.startswith("refused: t = ") and "cube 1 (goal B)" in err, err
     assert not refused.exists()
+
+
+# ------------------------------------------------------------------ the report
+
+
+def test_report_is_drawn_from_its_results(recorded, tmp_path, capsys):
+    """The experiment on two planners of one problem (one of them refused): each table cell
+    is its summary's number, the refusal is listed, and ``--report`` draws the same again."""
+    q = recorded["q"][0, 0]
+    deeper = q.copy()  # its last tenth continued twice as far down: into the table
+    deeper[90:] = q[89] + (q[89] - q[79]) * np.linspace(0.2, 2.0, 10)[:, None]
+    assert ref.tcp_positions(deeper[-1])[2] < 0
+    f = tmp_path / "plans.npz"
+    save_plans(f, {"goals": recorded["goals"][:1], "goal_mask": recorded["goal_mask"][:1],
+                   "target": recorded["target"][:1], "names": np.array(["straight", "deeper"]),
+                   "q": np.stack([q, deeper])[:, None]})  # fmt: skip
+    out = tmp_path / "out"
+    assert experiment.main(["--plans", str(f), "--out", str(out), "--no-progress"]) == 0
+    doc = json.loads((out / "execution_results.json").read_text())
+    md = (out / "execution.md").read_text()
+    s = {r["planner"]: r for r in doc["summary"]}
+    assert s["straight"]["exported"] == 1 and s["deeper"]["exported"] == 0
+    row = next(line for line in md.splitlines() if line.startswith("| straight |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    st = s["straight"]
+    assert cells[1] == "1 / 1"
+    assert cells[2].startswith(f"{st['duration_mean']:.2f} ")
+    assert (
+        cells[3] == f"{100 * st['peak_dq']:.0f} %" and cells[5] == f"{100 * st['peak_dddq']:.0f} %"
+    )
+    assert cells[6] == f"{1e3 * st['clearance']:.1f}" and cells[7] == f"{1e3 * st['deviation']:.2f}"
+    assert cells[10] == f"{100 * st['peak_tau']:.0f} %"
+    refusal = next(p["refusal"] for p in doc["plans"] if p["planner"] == "deeper")
+    assert "with goal_table" in refusal and refusal in md
+    assert (out / "execution.png").is_file()
+    assert experiment.main(["--out", str(out), "--report"]) == 0
+    assert (out / "execution.md").read_text().split("Ran on")[0] == md.split("Ran on")[0]
+    capsys.readouterr()
