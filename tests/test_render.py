@@ -101,7 +101,7 @@ def test_tcp_projects_onto_the_drawn_gripper(mjx_ref, camera):
     # the finger geoms (the two small boxes of the hand) are drawn around the TCP's pixel
     m = r.model
     hand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "hand")
-    drawn = m.geom_group < 3  # the collision shapes (group 3) are not drawn
+    drawn = kinematics.mj_model(kinematics.SCENE_XML).geom_group < 3  # not collision shapes
     fingers = [g for g in range(m.ngeom)
                if m.geom_bodyid[g] == hand and drawn[g] and m.geom_size[g, 0] < 0.015]  # fmt: skip
     assert len(fingers) == 2
