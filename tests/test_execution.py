@@ -120,8 +120,9 @@ def test_gravity_is_the_potential_energy_gradient():
 
 
 def test_straight_motion_takes_the_hand_computed_time():
-    """One joint moving d under v and a (both × speed): T = d/v + v/a if d > v²/a, else
-    2 √(d/a). TOPP-RA's time matches; smoothing adds at most its window."""
+    """One joint moving d under v and a: T = d/v + v/a if d > v²/a, else 2 √(d/a). TOPP-RA's
+    time is that under the limits it was given (the scaled ones times σ, uniform on a straight
+    line: T/σ, σ ≥ 0.98); smoothing adds at most its window."""
     cfg = timing.TimingConfig(speed=0.5)
     lim = cfg.limits.scaled(cfg.speed)
     for joint, d in ((0, 1.0), (6, 0.02)):
@@ -130,15 +131,14 @@ def test_straight_motion_takes_the_hand_computed_time():
         traj = timing.time_plan(straight(Q_HOME, q1), cfg)
         v, a = lim.dq_max[joint], lim.ddq_max[joint]
         want = d / v + v / a if d > v * v / a else 2 * np.sqrt(d / a)
-        assert abs(traj.topp_duration - want) < 2e-3 + 0.002 * want, (
-            joint,
-            traj.topp_duration,
-            want,
-        )
-        assert want <= traj.duration <= want + (traj.window + 3) * DT + 2e-3
+        sigma = traj.margin
+        assert 0.98 <= sigma <= 1.0 and traj.rounds == 1
+        got = traj.topp_duration
+        assert abs(got - want / sigma) < 2e-3 + 0.002 * want, (joint, got, want, sigma)
+        assert want <= traj.duration <= want / sigma + (traj.window + 3) * DT + 2e-3
         d1, d2, _ = differences(traj.q)
         if d > v * v / a:  # the velocity limit is reached, and kept
-            assert 0.99 * v < np.abs(d1[:, joint]).max() <= v
+            assert 0.98 * v < np.abs(d1[:, joint]).max() <= v
         assert np.abs(d2[:, joint]).max() <= a
         np.testing.assert_allclose(traj.q[-1], q1, atol=1e-12)
 

@@ -17,10 +17,10 @@ in the files a controller takes (SPEC §13, "Execution on a robot").
 2.714
 """
 
-from slotv_jax.execution.run import Execution, execute, summary
 from slotv_jax.execution.export import read_csv, write_trajectory
 from slotv_jax.execution.limits import DEFAULT_SPEED, FER, FR3, ROBOTS, Limits
 from slotv_jax.execution.refusal import Refused
+from slotv_jax.execution.run import Execution, execute, summary
 from slotv_jax.execution.timing import TimingConfig, Trajectory, time_plan
 
 __all__ = [

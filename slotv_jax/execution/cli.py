@@ -29,9 +29,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from slotv_jax.core import cli, fileio
-from slotv_jax.execution.run import execute
 from slotv_jax.execution.export import DEFAULT_RATES, FORMATS, write_trajectory
 from slotv_jax.execution.limits import DEFAULT_SPEED, ROBOTS, check_speed
+from slotv_jax.execution.run import execute
 from slotv_jax.execution.timing import TimingConfig, check_plan, rate_step
 from slotv_jax.planning.plans import load_plans
 

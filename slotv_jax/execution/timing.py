@@ -9,7 +9,7 @@ The path is fixed (:mod:`slotv_jax.execution.path`); only the time law s(t) is c
        |q′_j(s) ṡ| ≤ σ(s) v_j,   |q′_j(s) s̈ + q″_j(s) ṡ²| ≤ σ(s)² a_j,   ṡ(0) = ṡ(end) = 0,
 
    with v, a the joint velocity and acceleration limits times the speed scale, and σ ≤ 1 a
-   factor per grid point that starts at 1 (step 3). Between grid points s̈ is constant
+   factor per grid point that starts at 0.99 (step 3). Between grid points s̈ is constant
    (toppra's ``ParametrizeConstAccel``); this module samples that law at 1 kHz.
 2. **Jerk.** TOPP-RA's s̈ jumps (bang-bang), so the joint jerk is unbounded. The sampled
    s(t) is averaged over a sliding window of w samples (at rest before the start and after
@@ -310,6 +310,10 @@ def _lower(scale, grid, s, ratio, power, w) -> None:
 
 
 TORQUE_RATE_SHARE = 0.9  # of Franka's torque-rate limit the jerk may use (step 2)
+# σ's start (step 3): the moving average overshoots the velocity limit by 0.1-1.2 % on the
+# recorded plans; starting 1 % under it spares a second round on 41 % of them and, the local
+# lowering then being milder, ends 0.6 % faster on average (2.705 s against 2.722 s)
+SIGMA_START = 0.99
 
 
 def _torque_rate_jerk(path: JointPath, limits: Limits) -> np.ndarray:
@@ -329,7 +333,7 @@ def time_path(path: JointPath, config: TimingConfig = TimingConfig()) -> Traject
     w = max(1, int(np.ceil(2.0 * np.max(lim.ddq_max / lim.dddq_max) / DT - 1e-9)))
     grid = _grid(path, config.grid)
     vel, acc = _ScaledVelocity(lim.dq_max), _ScaledAcceleration(lim.ddq_max)
-    scale = np.ones(len(grid))
+    scale = np.full(len(grid), SIGMA_START)
     vel.scale = acc.scale = scale  # σ: lowered in place where a round overshoots
     for r in range(1, config.rounds + 1):
         raw = _sample(grid, _topp(path, grid, [vel, acc]))

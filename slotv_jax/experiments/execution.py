@@ -29,6 +29,7 @@ from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.core.fileio import write_text
 from slotv_jax.execution.limits import DEFAULT_SPEED, ROBOTS, SOURCE, check_speed
+from slotv_jax.execution.models import CLEARANCE_HORIZON
 from slotv_jax.execution.timing import backward_differences, check_plan
 from slotv_jax.experiments.execution_report import plot, report
 from slotv_jax.planning.plans import load_plans
@@ -118,6 +119,7 @@ def run(
             "files": list(files),
             "speed": speed,
             "robot": robot,
+            "clearance_horizon": CLEARANCE_HORIZON,
             "timing": {k: getattr(cfg, k) for k in ("deviation", "refinements", "rounds", "grid")},
         },
         "limits": {

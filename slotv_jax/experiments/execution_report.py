@@ -19,11 +19,11 @@ def _mm(x, digits: int = 1) -> str:
     return "–" if x is None else f"{1e3 * x:.{digits}f}"
 
 
-def _row(s: dict) -> str:
+def _row(s: dict, horizon_mm: str) -> str:
     head = f"| {s['planner']} | {s['exported']} / {s['plans']} |"
     if not s["exported"]:
         return head + " –" * 10 + " |"
-    clear = "> 50" if s["clearance"] is None else _mm(s["clearance"])
+    clear = f"> {horizon_mm}" if s["clearance"] is None else _mm(s["clearance"])
     cells = [
         f"{s['duration_mean']:.2f} ({s['duration_min']:.2f}–{s['duration_max']:.2f})",
         _pct(s["peak_dq"]), _pct(s["peak_ddq"]), _pct(s["peak_dddq"]), clear,
@@ -45,6 +45,7 @@ def report(doc: dict, command: str) -> str:
     """The Markdown report of a results document (``command``: the one that made it)."""
     c, env = doc["config"], doc["environment"]
     robot = {"fer": "Panda (FER)", "fr3": "FR3"}[c["robot"]]
+    horizon = f"{1e3 * c['clearance_horizon']:.0f}"
     n = len(doc["plans"])
     ok = sum(p.get("ok", False) for p in doc["plans"])
     lines = [
@@ -76,14 +77,15 @@ def report(doc: dict, command: str) -> str:
         "Columns: peaks are the largest over the planner's executed plans, as fractions of the "
         "published limits (so at most the speed scale for velocity, acceleration and jerk); "
         "the least clearance is the smallest distance between shapes that may not touch "
-        '("> 50": none nearer than the 5 cm contact horizon); tracking is the largest joint '
-        "(and TCP) distance between the simulated arm and the commanded trajectory; torque "
-        "and torque rate are the simulated controller's, against 87/12 N m and 1000 N m/s.",
+        f'("> {horizon}": none nearer than the contact horizon, {horizon} mm); tracking is the '
+        "largest joint (and TCP) distance between the simulated arm and the commanded "
+        "trajectory; torque and torque rate are the simulated controller's, against 87/12 N m "
+        "and 1000 N m/s.",
         "",
     ]
     for f in c["files"]:
         rows = [s for s in doc["summary"] if s["file"] == Path(f).name]
-        lines += [f"## `{Path(f).name}`", "", HEADER, *(_row(s) for s in rows), ""]
+        lines += [f"## `{Path(f).name}`", "", HEADER, *(_row(s, horizon) for s in rows), ""]
     refused = [p for p in doc["plans"] if p.get("refusal")]
     lines += ["## Refused plans", ""]
     if refused:
