@@ -24,7 +24,6 @@ from hypothesis import strategies as st
 from slotv_jax import execution
 from slotv_jax.core import fileio
 from slotv_jax.execution import checks, cli, export, limits, models, path, timing
-from slotv_jax.execution.refusal import Refused
 from slotv_jax.experiments import execution as experiment
 from slotv_jax.planning.plans import save_plans
 from slotv_jax.robot import kinematics
@@ -157,16 +156,12 @@ def small_paths(draw):
 @settings(max_examples=8)
 @given(small_paths())
 def test_timed_paths_never_exceed_a_limit(case):
-    """Whatever the path, the 1 kHz backward differences stay within the scaled velocity,
-    acceleration and jerk limits, the motion starts and ends at rest, and the TCP stays
-    within 1 mm of the planned path (or the plan is refused, saying why)."""
+    """Whatever the path (its corners too), it is timed, the 1 kHz backward differences stay
+    within the scaled velocity, acceleration and jerk limits, the motion starts and ends at
+    rest, and the TCP stays within 1 mm of the planned path."""
     q, speed = case
     cfg = timing.TimingConfig(speed=speed)
-    try:
-        traj = timing.time_plan(q, cfg)
-    except Refused as e:
-        assert str(e).startswith("t = ")
-        return
+    traj = timing.time_plan(q, cfg)
     lim = cfg.limits.scaled(speed)
     d1, d2, d3 = differences(traj.q)
     assert np.all(np.abs(d1) <= lim.dq_max * (1 + 1e-9))

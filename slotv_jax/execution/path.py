@@ -11,13 +11,19 @@ configurations, parametrised by the cumulative joint-space chord length
 which keeps the spline from overshooting where the steps between configurations change
 length. Repeated configurations (a step under :data:`SAME_CONFIGURATION`) are dropped.
 
-**Planned path and deviation.** The planned TCP path is the polyline through the plan's TCP
-points ``p_i = FK(q_i)``. A point of the joint path at parameter s ∈ [s_i, s_{i+1}] deviates
-by its TCP's distance to the segment [p_i, p_{i+1}] (:func:`deviation`). Where the spline
-strays more than a tolerance (a sharp corner of the plan), :func:`refine` splits that
-segment of the plan: knots are added on the straight joint-space line between q_i and
-q_{i+1} (whose TCP stays within micrometres of [p_i, p_{i+1}]), and the spline hugs it closer.
-A plan's own configurations keep their parameters s_i through every refinement.
+**Planned path and deviation.** Between two configurations the study's clips move the robot
+along the straight joint-space line (:func:`slotv_jax.rendering.frames.resample`), so the
+planned motion is the piecewise-straight joint path through the plan's configurations, and
+the planned TCP path its image. It is taken as the polyline through the TCP points of the
+spline's knots, all of which lie on that joint path: at first the plan's own configurations
+(for the SPEC's plans, TCP points about 1 cm apart, where polyline and image differ by
+micrometres), then points between them where the path is refined. A point of the spline at
+parameter s deviates by its TCP's distance to the polyline's segment that holds s
+(:func:`deviation`). Where that exceeds a tolerance (a sharp corner of the plan, or long
+steps whose TCP arcs away from the chord), :func:`refine` splits that plan segment: knots are
+added along the straight joint-space line, the spline hugs it closer, and the polyline follows
+the planned image closer. A plan's own configurations keep their parameters s_i through every
+refinement.
 """
 
 from __future__ import annotations
@@ -41,10 +47,11 @@ class JointPath:
 
     plan_q: np.ndarray  # (P, 7) the plan's distinct configurations (rad)
     plan_s: np.ndarray  # (P,) their path parameters (rad of joint-space chord)
-    plan_xyz: np.ndarray  # (P, 3) their TCP positions, the planned path's corners (m)
+    plan_xyz: np.ndarray  # (P, 3) their TCP positions (m)
     levels: np.ndarray  # (P − 1,) each plan segment is split into 2**level spline intervals
     knots_s: np.ndarray  # (K,) the spline's knots
     knots_q: np.ndarray  # (K, 7)
+    knots_xyz: np.ndarray  # (K, 3) their TCP positions: the planned path's polyline (m)
     spline: SplineInterpolator  # q(s), with derivatives path(s, 1), path(s, 2)
 
     @property
@@ -79,27 +86,30 @@ def _build(q, s, xyz, levels) -> JointPath:
         parts_q.append(q[i] + f[:, None] * (q[i + 1] - q[i]))
     ks, kq = np.concatenate(parts_s), np.concatenate(parts_q)
     levels = np.asarray(levels, int)
-    return JointPath(q, s, xyz, levels, ks, kq, SplineInterpolator(ks, kq))
+    kxyz = xyz if len(kq) == len(q) else tcp_poses(kq)[0]
+    return JointPath(q, s, xyz, levels, ks, kq, kxyz, SplineInterpolator(ks, kq))
 
 
-def refine(path: JointPath, segments: np.ndarray) -> JointPath:
+def refine(path: JointPath, segments: np.ndarray, times: np.ndarray | None = None) -> JointPath:
     """``path`` with the plan segments ``segments`` (indices) and their neighbours split
-    twice as finely."""
-    lv = path.levels.copy()
-    hit = np.zeros(len(lv), bool)
-    for i in np.unique(segments):
-        hit[max(i - 1, 0) : i + 2] = True
-    lv[hit] += 1
-    return _build(path.plan_q, path.plan_s, path.plan_xyz, lv)
+    ``2**times`` times more finely (``times`` per segment, default 1; the deviation halves
+    with each)."""
+    times = np.ones(len(segments), int) if times is None else np.asarray(times, int)
+    add = np.zeros(len(path.levels), int)
+    for i, n in zip(segments, times, strict=True):
+        lo, hi = max(i - 1, 0), i + 2
+        add[lo:hi] = np.maximum(add[lo:hi], n)
+    return _build(path.plan_q, path.plan_s, path.plan_xyz, path.levels + add)
 
 
 def deviation(
     path: JointPath, s: Float[np.ndarray, " N"], tcp: Float[np.ndarray, "N 3"]
 ) -> tuple[np.ndarray, np.ndarray]:
     """The distance (N,) (m) from each TCP position ``tcp`` of the path at parameter ``s`` to
-    its segment of the planned path, and the segment's index (N,)."""
+    its segment of the planned path's polyline, and the plan segment (N,) that holds s."""
+    k = np.clip(np.searchsorted(path.knots_s, s, side="right") - 1, 0, len(path.knots_s) - 2)
+    a, b = path.knots_xyz[k], path.knots_xyz[k + 1]
     seg = np.clip(np.searchsorted(path.plan_s, s, side="right") - 1, 0, len(path.plan_s) - 2)
-    a, b = path.plan_xyz[seg], path.plan_xyz[seg + 1]
     ab = b - a
     u = np.einsum("ij,ij->i", tcp - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-30)
     closest = a + np.clip(u, 0.0, 1.0)[:, None] * ab

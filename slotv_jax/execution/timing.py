@@ -31,7 +31,9 @@ The path is fixed (:mod:`slotv_jax.execution.path`); only the time law s(t) is c
    plan is refused.
 4. **The path as planned.** The TCP at every 1 kHz sample must lie within ``deviation``
    (1 mm) of the planned path; where it does not, the path is refined there
-   (:func:`slotv_jax.execution.path.refine`) and timed again.
+   (:func:`slotv_jax.execution.path.refine`; the deviation about halves with each split, so
+   a stretch d away is split ⌈log₂(d / 1 mm)⌉ times, at most 4 at once) and timed again,
+   at most ``refinements`` times.
 
 The result, :class:`Trajectory`, holds the 1 kHz samples with one sample at rest before the
 motion and one after (so that the central differences at both ends are 0), the time at which
@@ -390,9 +392,13 @@ def time_plan(q: Float[np.ndarray, "P 7"], config: TimingConfig = TimingConfig()
         far = traj.deviation > config.deviation
         if not far.any():
             return dataclasses.replace(traj, rounds=rounds)
-        if refinement < config.refinements:
-            _, seg = deviation(path, traj.s[far], traj.tcp[far])
-            path = refine(path, seg)
+        if refinement < config.refinements:  # halving it as often as it is too far, there
+            dev, seg = deviation(path, traj.s[far], traj.tcp[far])
+            worst = np.zeros(len(path.levels))
+            np.maximum.at(worst, seg, dev)
+            hit = np.flatnonzero(worst)
+            times = np.clip(np.ceil(np.log2(worst[hit] / config.deviation)), 1, 4).astype(int)
+            path = refine(path, hit, times)
     k = int(np.argmax(far))
     worst = float(traj.deviation.max())
     raise Refused(
