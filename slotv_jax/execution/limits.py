@@ -21,7 +21,7 @@ the Cartesian interfaces; they are checked here too, as a margin a lab may rely 
 ``max_acceleration_scaling_factor``) multiplies the velocity, acceleration and jerk limits
 the timing may use; the checks still hold the motion to the unscaled limits.
 :data:`DEFAULT_SPEED` = 0.3: the study shows people a robot moving near them, so most of
-each limit stays in reserve, and at 0.3 the recorded plans take 2.3-3.1 s on the Panda,
+each limit stays in reserve, and at 0.3 the recorded plans take 2.2-3.4 s on the Panda,
 about the 3 s the study's clips show a whole motion in (``experiments/execution.md``).
 MoveIt's own default, 0.1, would make the robot three times slower than the clips people
 judged.
