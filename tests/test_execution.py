@@ -187,9 +187,9 @@ def _polyline_distance(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
 def test_tcp_stays_within_1mm_of_the_planned_path(recorded):
     """At every 1 kHz sample, by the DH product of SPEC §1: the planned motion is the plan's
     configurations joined by straight joint-space lines (as the clips move the robot), taken
-    here 400 points along the path. A recorded plan; a path with a right-angled corner in joint space,
-    which the spline only follows after refinement; long steps, whose TCP arcs away from the
-    chords between the plan's points."""
+    here 400 points along the path. A recorded plan; a path with a right-angled corner in
+    joint space, which the spline only follows after refinement; long steps, whose TCP arcs
+    away from the chords between the plan's points."""
     bend = Q_HOME + np.array([0.6, 0, 0, 0, 0, 0, 0])
     end = bend + np.array([0, 0.5, 0, 0, 0, 0, 0])
     corner = np.vstack([straight(Q_HOME, bend, 8), straight(bend, end, 8)[1:]])
@@ -275,14 +275,17 @@ def test_self_collision_is_refused_and_found_at_its_first_sample():
     assert every[first] < 0 and problem[0] == traj.t[first]
 
 
-def test_least_clearance_is_exact_over_every_sample(recorded):
-    traj = timing.time_plan(recorded["q"][1, 4])
-    goals, mask, target = recorded["goals"][4], recorded["goal_mask"][4], int(recorded["target"][4])
-    found, problem = checks.collision_check(traj, goals, mask, target)
-    con = checks._Contacts(goals, mask, target)
-    every = np.array([con.clearance(q)[0] for q in traj.q])
-    assert problem is None and found["clearance"] == every.min()
-    assert found["contact_samples"] < len(traj.q)  # the sweep bound spared some
+def test_least_clearance_is_that_of_every_sample(recorded):
+    """Found at a fraction of the samples, the least clearance is that of all of them (to
+    50 µm; never below it), for plans whose nearest shapes are a cube and the table."""
+    for k, p in ((1, 7), (5, 5)):
+        traj = timing.time_plan(recorded["q"][k, p])
+        goals, mask, target = recorded["goals"][p], recorded["goal_mask"][p], recorded["target"][p]
+        found, problem = checks.collision_check(traj, goals, mask, int(target))
+        con = checks._Contacts(goals, mask, int(target))
+        every = np.array([con.clearance(q)[0] for q in traj.q])
+        assert problem is None and every.min() <= found["clearance"] <= every.min() + 5e-5
+        assert found["contact_samples"] < 0.3 * len(traj.q)  # the sweep bound spared most
 
 
 def test_recorded_plan_passes_every_check(recorded):
