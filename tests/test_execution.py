@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import json
+import re
 
 import mujoco
 import numpy as np
@@ -449,6 +450,21 @@ def test_export_writes_or_refuses(plans_file, recorded, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == 1 and err.startswith("refused: t = ") and "cube 1 (goal B)" in err, err
     assert not refused.exists()
+
+
+def test_check_prints_one_line_per_plan(recorded, tmp_path, capsys):
+    q = recorded["q"][0, 0]
+    deeper = q.copy()  # its last tenth continued twice as far down: into the table
+    deeper[90:] = q[89] + (q[89] - q[79]) * np.linspace(0.2, 2.0, 10)[:, None]
+    f = tmp_path / "plans.npz"
+    save_plans(f, {"goals": recorded["goals"][:1], "goal_mask": recorded["goal_mask"][:1],
+                   "target": recorded["target"][:1], "names": np.array(["straight", "deeper"]),
+                   "q": np.stack([q, deeper])[:, None]})  # fmt: skip
+    assert cli.main(["check", "--plans", str(f), "--quiet"]) == 1  # one refused
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 2 and re.fullmatch(r"straight problem 0: ok, \d\.\d{3} s", lines[0])
+    assert lines[1].startswith("deeper problem 0: refused: t = ") and "goal_table" in lines[1]
+    assert cli.main(["check", "--plans", str(f), "--planner", "straight", "--quiet"]) == 0
 
 
 # ------------------------------------------------------------------ the report

@@ -31,6 +31,7 @@ from tqdm.auto import tqdm
 from slotv_jax.core import cli, fileio
 from slotv_jax.execution.export import DEFAULT_RATES, FORMATS, write_trajectory
 from slotv_jax.execution.limits import DEFAULT_SPEED, ROBOTS, check_speed
+from slotv_jax.execution.models import CLEARANCE_HORIZON
 from slotv_jax.execution.run import execute
 from slotv_jax.execution.timing import TimingConfig, check_plan, rate_step
 from slotv_jax.planning.plans import load_plans
@@ -132,10 +133,11 @@ def _export(args, plans, row, config) -> int:
     source = {"plans": args.plans.name, "planner": args.planner, "problem": p}
     n = write_trajectory(args.out, e.trajectory, args.format, args.rate, source)
     c, t = e.checks, e.trajectory
+    near = "" if c.clearance < CLEARANCE_HORIZON else "> "
     print(
         f"wrote {args.out}: {n} samples, {t.duration:.3f} s ({args.robot.upper()}, speed "
         f"{config.speed:g}); peak |dq| {np.max(c.peak_dq / config.limits.dq_max):.2f} of its "
-        f"limit, least clearance {c.clearance * 1e3:.1f} mm, TCP within "
+        f"limit, least clearance {near}{c.clearance * 1e3:.1f} mm, TCP within "
         f"{t.deviation.max() * 1e3:.2f} mm of the planned path"
     )
     return 0
