@@ -91,8 +91,9 @@ class TimingConfig:
         if not self.deviation > 0:
             raise ValueError(f"deviation: expected metres > 0, got {self.deviation!r}")
         for f in ("refinements", "rounds", "grid"):
-            if not (isinstance(getattr(self, f), int) and getattr(self, f) >= (f != "refinements")):
-                raise ValueError(f"{f}: expected an integer >= 1, got {getattr(self, f)!r}")
+            least = int(f != "refinements")
+            if not (isinstance(getattr(self, f), int) and getattr(self, f) >= least):
+                raise ValueError(f"{f}: expected an integer >= {least}, got {getattr(self, f)!r}")
 
     @property
     def limits(self) -> Limits:
