@@ -26,9 +26,9 @@ about the 3 s the study's clips show a whole motion in (``experiments/execution.
 MoveIt's own default, 0.1, would make the robot three times slower than the clips people
 judged.
 
->>> FER.dq_max[:2], FR3.dq_max[4]
-(array([2.175, 2.175]), 3.0)
->>> FER.scaled(0.5).ddq_max[1]
+>>> FER.dq_max[:2].tolist(), float(FR3.dq_max[4])
+([2.175, 2.175], 3.0)
+>>> float(FER.scaled(0.5).ddq_max[1])
 3.75
 """
 
