@@ -189,7 +189,7 @@ LAYERS = (
     ("world",),
     ("observers",),
     ("data", "planning", "training", "rendering"),
-    ("answers", "runs"),
+    ("answers", "runs", "execution"),
     ("asking", "webstudy"),
     ("study",),
     ("", "labelers", "train", "render", "scene", "kinematics"),

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from slotv_jax import data, render, study
+from slotv_jax import data, execution, render, study
 from slotv_jax.render import cli
 from slotv_jax.rendering import compare, overlay
 from slotv_jax.rendering import frames as frames_lib
@@ -260,6 +260,44 @@ def test_plans_a_problem_nobody_planned_or_too_many_planners(tmp_path, monkeypat
         err = capsys.readouterr().err
         assert e.value.code == 2 and err == where + message + "\n", err
     assert not (tmp_path / "x.png").exists()
+
+
+def test_a_recorded_plan_at_the_robot_s_speed(tmp_path, monkeypatch, capsys):
+    """--timed: the clip lasts as long as the Panda's motion (slotv_jax.execution), and each
+    frame is the planned motion where the robot is at that moment: the untimed clip's frame
+    at the path fraction the robot has reached."""
+    plans = "experiments/planning_paper_plans.npz"
+    q = np.load(plans)["q"][0, 0]
+    traj = execution.time_plan(q)
+    out = tmp_path / "timed.mp4"
+    fast = ["--size", "128x96", "--fps", "5", "--hold", "0", "--quiet"]
+    args = ["--plans", plans, "--problem", "0", "--planner", "straight", "--timed"]
+    assert cli.main([*args, *fast, "--out", str(out)]) == 0
+    clip = render.read_video(out)
+    t = np.arange(len(clip)) / 5
+    assert len(clip) == int(np.ceil(5 * traj.duration - 1e-9)) + 1 and t[-2] < traj.duration
+
+    def untimed(tau):  # the same panel, the plan's points evenly in time, stopped at tau
+        png = tmp_path / f"still_{tau:.6f}.png"
+        assert cli.main([*args[:6], "--tau", repr(tau), *fast, "--out", str(png)]) == 0
+        return render.read_video(png)[0][..., :3].astype(int)
+
+    # each frame: the path fraction reached at t_k (knot times -> i / 99), not t_k / T; seen
+    # where the two differ most (the robot starts slowly and brakes late)
+    tau = np.interp(t[:-1], traj.knot_times, np.linspace(0, 1, len(q)))
+    for k in np.argsort(np.abs(tau - t[:-1] / t[-1]))[-2:]:
+        right, even = (np.abs(clip[k] - untimed(float(x))).mean() for x in (tau[k], t[k] / t[-1]))
+        assert right < 8.0 and right < 0.7 * even, (k, right, even)  # H.264 is lossy
+    assert np.abs(clip[-1] - untimed(1.0)).mean() < 8.0
+    monkeypatch.setattr(frames_lib.MotionRenderer, "__init__", None)  # errors come first
+    for extra, message in ((["--duration", "2"], "--duration: --timed plays"),
+                           (["--speed", "0"], "--speed: expected")):  # fmt: skip
+        with pytest.raises(SystemExit):
+            cli.main([*args, *fast, *extra, "--out", str(tmp_path / "x.mp4")])
+        assert message in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # two planners side by side: not one motion
+        cli.main([*args[:4], "--timed", *fast, "--out", str(tmp_path / "y.mp4")])
+    assert "a timed clip shows one" in capsys.readouterr().err
 
 
 def test_no_opengl_is_one_line_naming_mujoco_gl(dataset, tmp_path):

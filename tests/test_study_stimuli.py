@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from study_fixtures import robot_motions
 
-from slotv_jax import render, study
+from slotv_jax import execution, render, study
 from slotv_jax.webstudy import make_stimuli, stimuli
 from slotv_jax.webstudy.database import SQLiteStorage
 from slotv_jax.webstudy.service import StudyService
@@ -146,3 +146,34 @@ def test_trials_per_participant_is_written_and_an_edited_study_json_kept(
         err = capsys.readouterr().err.strip().splitlines()
         assert e.value.code != 0 and len(err) == 1 and msg in err[0], err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_timed_stimuli_move_at_the_robot_s_speed(tmp_path):
+    """--timed: each clip lasts as long as the Panda's motion (slotv_jax.execution) up to τ,
+    the tables hold each point's time as a fraction of that duration, the manifest records
+    the timing, and a later round is drawn the same way."""
+    plans = "experiments/planning_paper_plans.npz"
+    m = make_stimuli.motions_from_plans(plans)
+    timing = make_stimuli.robot_timing(0.3)
+    r = make_stimuli.SceneRenderer(SIZE, 5.0, None, 0.0, timing=timing)
+    try:
+        man = make_stimuli.make_set(m, tmp_path / "stim", n=1, taus=(0.5, 1.0), attention=0,
+                                    practice=False, renderer=r, progress=False)  # fmt: skip
+    finally:
+        r.close()
+    assert man["timing"] == {"robot": "fer", "speed": 0.3, "limits": timing["limits"]}
+    assert man["duration"] is None
+    st = stimuli.load_stimulus_set(tmp_path / "stim")
+    tid = man["stimuli"][0]["trajectory"]
+    i = m.ids.index(tid)
+    traj = execution.time_plan(m.q[i])
+    t = np.array(st.trajectories[tid])[:, 0]
+    np.testing.assert_allclose(t, traj.knot_times / traj.duration, atol=1e-6)  # the robot's
+    assert np.abs(t - np.linspace(0, 1, len(t))).max() > 0.01  # ... not evenly in time
+    for s in man["stimuli"]:
+        frames = render.read_video(st.file(s, "clip"))
+        assert len(frames) == len(render.frame_times(s["tau"], fps=5.0, duration=traj.duration,
+                                                     hold=0.0))  # fmt: skip
+    like = make_stimuli.SceneRenderer.like(tmp_path / "stim")
+    assert like.timing == timing and like.duration is None
+    like.close()

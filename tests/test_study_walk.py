@@ -11,6 +11,7 @@ Set ``SLOTV_JAX_REQUIRE_BROWSER=1`` (CI does) to fail instead of skip without Ch
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import sqlite3
@@ -124,6 +125,9 @@ def test_readme_study_walk_with_people_in_chromium(browser, tiny_data, tiny_cfg,
             proc.kill()
             proc.communicate()
     assert proc.returncode == 0, err[-3000:]
+    # the clips move at the Panda's speed, and the stimuli say so
+    manifest = json.loads((tmp_path / "stim" / "manifest.json").read_text())
+    assert manifest["timing"]["robot"] == "fer" and manifest["duration"] is None
     # the people's clicks are stored once each, as clicked, with their external ids
     con = sqlite3.connect(tmp_path / "study.db")
     rows = con.execute(

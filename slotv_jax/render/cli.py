@@ -16,6 +16,12 @@ Sources (one of):
   the families in turn) into one ``.png``, a captioned row of panels each, every planner
   whose plans are finite in all of them (the planning experiment's figure).
 
+``--timed`` plays the motion at the speed a Franka arm would make it
+(:func:`slotv_jax.execution.time_plan`: its published limits times ``--speed``), instead of
+``--duration`` seconds for the whole motion: the clip lasts as long as the robot's motion, each
+frame shows the robot where it is at that moment, and ``--tau`` is a fraction of that
+duration. One motion per clip (``--plans`` with one ``--planner``).
+
 A TCP path without joints (``--npz`` without ``q``, ``--study``) goes through the
 project's inverse kinematics (:func:`slotv_jax.kinematics.solve_path_ik`, from
 ``Q_HOME``) first. ``--index`` (and ``--problem``) take ``I``, ``A:B`` or ``I,J,K``;
@@ -27,6 +33,7 @@ grid). Everything is checked before any rendering: an input error prints one lin
 
     python -m slotv_jax.render --data quick --split position_test --index 0 --out a.mp4
     python -m slotv_jax.render --plans plans.npz --problem 3 --tau 0.5 --out compare.png
+    python -m slotv_jax.render --plans plans.npz --problem 3 --planner slotv --timed --out slotv.mp4
     python -m slotv_jax.render --plans plans.npz --grid --planner straight,oracle,slotv \
         --camera observer_angle --tau 0.6 --size 480x270 --out figure.png
 """
@@ -45,6 +52,8 @@ from tqdm.auto import tqdm
 from slotv_jax.answers.storage import load_study
 from slotv_jax.core import cli, fileio
 from slotv_jax.data import SPLITS, load_split
+from slotv_jax.execution import DEFAULT_SPEED, Refused, TimingConfig, time_plan
+from slotv_jax.execution.limits import ROBOTS, check_speed
 from slotv_jax.planning.plans import load_plans
 from slotv_jax.rendering.camera import CAMERAS, FreeCamera
 from slotv_jax.rendering.compare import GAP, LAYOUTS, PALETTE, compare_frames
@@ -85,6 +94,7 @@ class Item:
     rgbas: tuple[tuple, ...] | None = None  # their trace colours
     goal_names: tuple[str, ...] = ()  # labels of the real goals, where the source has them
     caption: str = ""  # a --grid row's caption
+    duration: float | None = None  # seconds of the whole motion (--timed: the robot's)
 
 
 def parse_indices(text: str, n: int, what: str) -> list[int]:
@@ -287,7 +297,15 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--elevation", type=float, default=-30.0, help="free camera elevation (deg)")
     p.add_argument("--size", default="640x360", help="frame size WxH (default 640x360)")
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
-    p.add_argument("--duration", type=float, default=3.0, help="seconds of the whole motion")
+    p.add_argument("--duration", type=float, default=None,
+                   help="seconds of the whole motion (default 3)")  # fmt: skip
+    p.add_argument("--timed", action="store_true",
+                   help="play the motion at a Franka arm's speed (its published limits times "
+                   "--speed) instead of --duration seconds")  # fmt: skip
+    p.add_argument("--speed", type=float, default=DEFAULT_SPEED,
+                   help=f"with --timed: fraction of the limits ({DEFAULT_SPEED})")  # fmt: skip
+    p.add_argument("--robot", default="fer", choices=sorted(ROBOTS),
+                   help="with --timed: whose limits (default fer, the Panda)")  # fmt: skip
     p.add_argument("--hold", type=float, default=1.0, help="seconds the last frame is held")
     p.add_argument("--labels", default="letters", choices=LABEL_CHOICES, help="goal labels")
     p.add_argument("--mark-target", action="store_true", help="draw a disc under the target")
@@ -355,11 +373,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.grid and (args.out.suffix.lower() != ".png" or args.sheet is not None):
         raise cli.InputError(f"--grid: expected a .png --out and no --sheet, got {args.out}")
     size = parse_size(args.size)
+    if args.timed and args.duration is not None:
+        raise cli.InputError("--duration: --timed plays the motion at the robot's own speed; "
+                             "leave --duration out")  # fmt: skip
+    if args.timed and args.grid:
+        raise cli.InputError("--timed: a --grid shows stills; leave --timed out")
+    args.duration = 3.0 if args.duration is None else args.duration
     check_timing(args.tau, args.fps, args.duration, args.hold)
+    timing = _timing(args) if args.timed else None
     camera = _camera(args)
     load = {"data": _data_items, "npz": _npz_items, "study": _study_items, "plans": _plans_items}
     items = next(f(args) for k, f in load.items() if getattr(args, k) is not None)
     paths = _outputs(args, items)
+    if timing is not None:  # before any rendering: every motion timed, or one line why not
+        items = [_timed(it, timing) for it in items]
     for it in items:
         for q in it.qs:
             try:
@@ -402,11 +429,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def _timing(args) -> TimingConfig:
+    try:
+        return TimingConfig(speed=check_speed(args.speed), robot=args.robot)
+    except ValueError as e:
+        raise cli.InputError(f"--{e}") from None
+
+
+def _timed(it: Item, timing: TimingConfig) -> Item:
+    """``it`` at the robot's speed: its configurations at the times the robot passes them
+    (:func:`slotv_jax.execution.time_plan`), the clip as long as the motion."""
+    if len(it.qs) != 1:
+        raise cli.InputError(f"--timed: {it.key} compares {len(it.qs)} motions; a timed clip "
+                             "shows one (choose it with --planner NAME)")  # fmt: skip
+    try:
+        traj = time_plan(it.qs[0], timing)
+    except (ValueError, Refused) as e:
+        raise cli.InputError(f"--timed: {it.key}: {e}") from None
+    return dataclasses.replace(it, qs=(traj.path.plan_q,), t=traj.knot_times,
+                               duration=traj.duration)  # fmt: skip
+
+
 def _frames(args, it: Item, **kw) -> np.ndarray:
     """Every frame of one item: its motion, or its motions compared (``--layout``)."""
+    if it.duration is not None:
+        kw["duration"] = it.duration
     kw |= {"labels": _labels(args, it), "show_labels": args.labels != "none"}
     if len(it.qs) == 1 and not it.names:
         return motion_frames(it.qs[0], it.goals, it.goal_mask, t=it.t, **kw)
-    return compare_frames(
-        it.qs, it.goals, it.goal_mask, names=it.names, rgbas=it.rgbas, layout=args.layout, **kw
-    )
+    ts = None if it.t is None else [it.t]  # a timed plan: one motion, its own times
+    return compare_frames(it.qs, it.goals, it.goal_mask, names=it.names, rgbas=it.rgbas, ts=ts,
+                          layout=args.layout, **kw)  # fmt: skip

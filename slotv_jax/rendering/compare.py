@@ -52,6 +52,7 @@ def compare_frames(
     *,
     names: Sequence[str] | None = None,
     rgbas: Sequence[tuple[float, float, float, float]] | None = None,
+    ts: Sequence[Float[np.ndarray, " T"] | None] | None = None,
     layout: str = "side",
     camera: View = "observer",
     tau: float = 1.0,
@@ -70,14 +71,19 @@ def compare_frames(
 
     ``size`` is one panel's; ``names`` title the panels (side) or the legend (overlay);
     ``rgbas`` colour the motions' traces and names (default: :data:`PALETTE` in order);
-    the other arguments as in :func:`slotv_jax.render.motion_frames`. Side by side the
+    ``ts`` are the motions' sample times (any unit, normalised per motion, as ``t`` of
+    :func:`slotv_jax.render.motion_frames`; None: evenly spaced); the other arguments as in
+    :func:`slotv_jax.render.motion_frames`. Side by side the
     frames are ``n · W + (n − 1) · GAP`` wide, with a title bar on top.
     """
     if len(qs) < 1 or len(qs) > len(PALETTE):
         raise ValueError(f"qs: expected 1..{len(PALETTE)} motions, got {len(qs)}")
+    ts = [None] * len(qs) if ts is None else list(ts)
+    if len(ts) != len(qs):
+        raise ValueError(f"ts: expected {len(qs)} time arrays (or None), got {len(ts)}")
     for i, q in enumerate(qs):
         try:
-            check_motion(q, goals, goal_mask, target=target, labels=labels)
+            check_motion(q, goals, goal_mask, t=ts[i], target=target, labels=labels)
         except ValueError as e:
             raise ValueError(f"qs[{i}]: {e}") from None
     names = [f"motion {i}" for i in range(len(qs))] if names is None else list(names)
@@ -97,7 +103,7 @@ def compare_frames(
     try:
         out = clips(
             r,
-            [(np.asarray(q), None) for q in qs],
+            [(np.asarray(q), t) for q, t in zip(qs, ts, strict=True)],
             goals,
             goal_mask,
             s,

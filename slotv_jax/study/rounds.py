@@ -200,13 +200,16 @@ def write_round(
     if practice:
         specs.append(stimuli.StimulusSpec(where[others[-1]], 1.0, cameras[0], "practice"))
     rows = np.asarray(rows)
+    t = None if motions.t is None else motions.t[rows]
+    if getattr(renderer, "timing", None) is not None:  # round 0 at the robot's speed: so this
+        t = make_stimuli.robot_times(motions.q[rows], motions.length[rows],
+                                     [motions.ids[i] for i in rows], renderer.timing)  # fmt: skip
     manifest = stimuli.write_stimulus_set(
         out, q=motions.q[rows], xyz=motions.xyz[rows], goals=motions.goals[rows],
         goal_mask=motions.goal_mask[rows], ids=[motions.ids[i] for i in rows], specs=specs,
         render=renderer, scenes=[motions.scenes[i] for i in rows],
         targets=None if motions.targets is None else motions.targets[rows],
-        length=motions.length[rows], t=None if motions.t is None else motions.t[rows],
-        round_=r, source=source, progress=progress,
+        length=motions.length[rows], t=t, round_=r, source=source, progress=progress,
     )  # fmt: skip
     return r, manifest
 
@@ -263,7 +266,11 @@ def next_main(args: argparse.Namespace) -> int:
         exclude=shown_stimuli(stimdir), seed=args.seed,
     )  # fmt: skip
     renderer = make_stimuli.SceneRenderer(
-        tuple(settings["size"]), settings["fps"], settings["duration"], settings["hold"]
+        tuple(settings["size"]),
+        settings["fps"],
+        settings["duration"],
+        settings["hold"],
+        timing=settings.get("timing"),
     )
     source = {"kind": "active", "data": str(args.data), "split": args.split,
               "model": args.model, **{k: v for k, v in choice.items() if k != "picks"}}  # fmt: skip

@@ -28,6 +28,14 @@ that taught their observer, e.g. ::
     python -m slotv_jax.study stimuli --plans plans.npz --n 6 --taus 0.4,1.0 \
         --next-round stim
 
+``--timed`` shows each motion at the speed a Franka arm makes it (:mod:`slotv_jax.execution`:
+its published limits times ``--speed``) instead of ``--duration`` seconds for every motion:
+a clip stopped at τ ends τ of the way through the robot's motion, in time, and
+``trajectories.csv`` holds each point's time as a fraction of that motion's duration, so
+that what a participant saw up to τ is the points up to t = τ. The manifest's ``timing``
+records it (``{"robot", "speed", "limits"}``; null: every motion ``duration`` seconds, its
+points evenly in time), and ``study next`` draws later rounds the same way.
+
 A TCP path without joints gets them by the project's IK from ``Q_HOME``
 (:func:`slotv_jax.rendering.joints_from_tcp`); a path it misses by more than 5 mm is refused.
 
@@ -53,6 +61,8 @@ from slotv_jax.answers.storage import load_study
 from slotv_jax.core import validation
 from slotv_jax.core.fileio import check_not_input, check_output_dir, load_npz
 from slotv_jax.data import SPLITS, Split, load_split
+from slotv_jax.execution import DEFAULT_SPEED, Refused, TimingConfig, time_plan
+from slotv_jax.execution.limits import SOURCE, check_speed
 from slotv_jax.planning.plans import load_plans
 from slotv_jax.rendering.overlay import LABEL_LIFT
 from slotv_jax.webstudy.stimuli import (
@@ -71,36 +81,49 @@ IK_TOLERANCE = 5e-3  # metres: a TCP path the IK misses by more is refused
 DEFAULTS = {"size": (480, 270), "fps": 25.0, "duration": 3.0, "hold": 0.5}
 
 
+def robot_timing(speed: float = DEFAULT_SPEED, robot: str = "fer") -> dict:
+    """The manifest's ``timing`` of clips at a Franka arm's speed (``--timed``)."""
+    return {"robot": robot, "speed": check_speed(speed), "limits": SOURCE}
+
+
 class SceneRenderer:
-    """:class:`slotv_jax.webstudy.stimuli.Renderer` on MuJoCo (one renderer, reused)."""
+    """:class:`slotv_jax.webstudy.stimuli.Renderer` on MuJoCo (one renderer, reused).
+
+    ``timing`` (:func:`robot_timing`; ``duration`` then None): each clip lasts as long as its
+    motion's time stamps, the robot's (:func:`robot_times`)."""
 
     def __init__(
         self,
         size: tuple[int, int] = DEFAULTS["size"],
         fps: float = DEFAULTS["fps"],
-        duration: float = DEFAULTS["duration"],
+        duration: float | None = DEFAULTS["duration"],
         hold: float = DEFAULTS["hold"],
         *,
         trace: bool = True,
+        timing: dict | None = None,
     ):
+        if (timing is None) == (duration is None):
+            raise ValueError("duration: expected seconds of a whole motion, or a timing")
         self.size, self.fps, self.duration, self.hold = tuple(size), fps, duration, hold
-        self.trace = trace
+        self.trace, self.timing = trace, timing
         self.renderer = rendering.MotionRenderer(self.size)
 
     @classmethod
     def like(cls, stimdir: str | Path, *, trace: bool = True) -> SceneRenderer:
-        """A renderer with the size, fps, duration and hold of a study folder's round 0, so
-        that a later round (``study next``) looks like the first."""
+        """A renderer with the size, fps, duration, hold and timing of a study folder's
+        round 0, so that a later round (``study next``) looks like the first."""
         m = load_stimulus_set(stimdir, verify=False).manifest
-        return cls(tuple(m["size"]), m["fps"], m["duration"], m["hold"], trace=trace)
+        return cls(tuple(m["size"]), m["fps"], m["duration"], m["hold"], trace=trace,
+                   timing=m.get("timing"))  # fmt: skip
 
     def frames(
         self, motion: Motion, tau: float, camera: str
     ) -> tuple[UInt8[np.ndarray, "F H W 3"], Float[np.ndarray, "G 2"]]:
         """The clip cut at τ, goals labelled (no target marked), and the labels' pixels."""
+        duration = self.duration if self.timing is None else motion.t[-1] - motion.t[0]
         f = rendering.motion_frames(
             motion.q, motion.goals, motion.goal_mask, camera=camera, tau=tau, size=self.size,
-            fps=self.fps, duration=self.duration, hold=self.hold, t=motion.t,
+            fps=self.fps, duration=duration, hold=self.hold, t=motion.t,
             labels=motion.labels, trace=self.trace, renderer=self.renderer,
         )  # fmt: skip
         anchor = np.asarray(motion.goals, np.float64)[motion.goal_mask] + [0.0, 0.0, LABEL_LIFT]
@@ -115,7 +138,7 @@ class SceneRenderer:
 
     def settings(self) -> dict:
         return {"size": list(self.size), "fps": self.fps, "duration": self.duration,
-                "hold": self.hold}  # fmt: skip
+                "hold": self.hold, "timing": self.timing}  # fmt: skip
 
     def close(self) -> None:
         self.renderer.close()
@@ -143,6 +166,26 @@ def _ik(xyz: np.ndarray, length: np.ndarray, what: str) -> np.ndarray:
         if worst > IK_TOLERANCE:
             raise ValueError(f"{what} [{i}]: IK misses the path by {worst * 1e3:.1f} mm")
     return q
+
+
+def robot_times(q: np.ndarray, length: np.ndarray, ids: list[str], timing: dict) -> np.ndarray:
+    """(M, T) time stamps (s) of the motions ``q`` (M, T, 7) (``length`` points each) at a
+    Franka arm's speed (``timing``, :func:`robot_timing`): when the robot passes each point
+    (:func:`slotv_jax.execution.time_plan`). ValueError naming the motion if it cannot."""
+    cfg = TimingConfig(speed=timing["speed"], robot=timing["robot"])
+    t = np.zeros(q.shape[:2])
+    for i in tqdm(range(len(q)), desc="timing", disable=len(q) < 20):
+        L = int(length[i])
+        try:
+            traj = time_plan(q[i, :L], cfg)
+        except (ValueError, Refused) as e:
+            raise ValueError(f"--timed: motion {ids[i]}: {e}") from None
+        if len(traj.knot_times) != L:
+            raise ValueError(f"--timed: motion {ids[i]}: repeats a configuration (it would "
+                             "stop midway); its points cannot be timed")  # fmt: skip
+        t[i, :L] = traj.knot_times
+        t[i, L:] = traj.knot_times[-1] + np.arange(1, q.shape[1] - L + 1)  # padding
+    return t
 
 
 def motions_from_split(split: Split) -> Motions:
@@ -249,11 +292,15 @@ def make_set(
     settings = {} if round_ else {"attention_checks": attention}
     if trials is not None:
         settings["trials_per_participant"] = trials
+    t = None if motions.t is None else motions.t[pick]
+    if renderer.timing is not None:  # the robot's times, before any rendering
+        t = robot_times(motions.q[pick], motions.length[pick], [motions.ids[i] for i in pick],
+                        renderer.timing)  # fmt: skip
     return write_stimulus_set(
         out, q=motions.q[pick], xyz=motions.xyz[pick], goals=motions.goals[pick],
         goal_mask=motions.goal_mask[pick], ids=[motions.ids[i] for i in pick], specs=specs,
         render=renderer, scenes=[motions.scenes[i] for i in pick], targets=tg,
-        length=motions.length[pick], t=None if motions.t is None else motions.t[pick],
+        length=motions.length[pick], t=t,
         source={**(source or {}), "indices": pick.tolist(), "seed": seed},
         overwrite=overwrite, progress=progress, round_=round_, settings=settings or None,
     )  # fmt: skip
@@ -320,6 +367,11 @@ def add_command(sub) -> None:
                    help="seconds of a whole motion, tau = 1 (3)")  # fmt: skip
     p.add_argument("--hold", type=float, default=None,
                    help="seconds the last frame stays (0.5)")  # fmt: skip
+    p.add_argument("--timed", action="store_true",
+                   help="each motion at a Franka Panda's speed (its published limits times "
+                   "--speed), not --duration seconds")  # fmt: skip
+    p.add_argument("--speed", type=float, default=None,
+                   help=f"with --timed: fraction of the limits ({DEFAULT_SPEED})")  # fmt: skip
     p.add_argument("--no-trace", action="store_true", help="do not draw the TCP's path")
     p.add_argument("--seed", type=int, default=0)
     dest = p.add_mutually_exclusive_group(required=True)
@@ -348,10 +400,19 @@ def stimuli_main(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name} {clip[name]}: expected a number > 0")
     if not (args.hold is None or args.hold >= 0):
         raise ValueError(f"--hold {args.hold}: expected seconds >= 0")
+    if args.timed and clip["duration"] is not None:
+        raise ValueError("--duration: --timed shows each motion at the robot's own speed; "
+                         "leave --duration out")  # fmt: skip
+    if args.speed is not None and not args.timed:
+        raise ValueError("--speed: only with --timed")
+    try:
+        timing = robot_timing(DEFAULT_SPEED if args.speed is None else args.speed)
+    except ValueError as e:
+        raise ValueError(f"--{e}") from None
     inputs = {f"--{k}": getattr(args, k) for k in ("data", "npz", "plans", "study")}
     if args.next_round is not None:  # the next round's folder, with round 0's clip settings
         stimdir = Path(args.next_round)
-        given = [k for k, v in clip.items() if v is not None]
+        given = [k for k, v in clip.items() if v is not None] + ["timed"] * args.timed
         if given:
             raise ValueError(f"--{given[0]}: --next-round keeps round 0's clip settings; "
                              "leave it out")  # fmt: skip
@@ -388,8 +449,10 @@ def stimuli_main(args: argparse.Namespace) -> int:
             renderer = SceneRenderer.like(stimdir, trace=not args.no_trace)
         else:
             renderer = SceneRenderer(
-                size, clip["fps"] or DEFAULTS["fps"], clip["duration"] or DEFAULTS["duration"],
+                size, clip["fps"] or DEFAULTS["fps"],
+                None if args.timed else clip["duration"] or DEFAULTS["duration"],
                 DEFAULTS["hold"] if args.hold is None else args.hold, trace=not args.no_trace,
+                timing=timing if args.timed else None,
             )  # fmt: skip
     except rendering.RenderBackendError as e:
         raise ValueError(str(e)) from None  # one line: how to get OpenGL

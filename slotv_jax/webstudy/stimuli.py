@@ -40,8 +40,11 @@ A stimulus set (one round)
 
 ``manifest.json`` holds ``format`` (``"slotv_jax.webstudy.stimuli/1"``), ``round``,
 ``source`` (where the motions came from), ``size`` [W, H], ``fps``, ``duration`` (seconds
-of a whole motion), ``hold`` (seconds the last frame is held), ``trajectories`` and
-``goals`` (the tables' file names) and ``stimuli``, a list of objects:
+of a whole motion; null with a ``timing``), ``hold`` (seconds the last frame is held),
+``timing`` (null: every motion ``duration`` seconds; or the robot whose speed the clips show,
+``{"robot", "speed", "limits"}``: each clip as long as its motion, its time stamps the
+robot's), ``trajectories`` and ``goals`` (the tables' file names) and ``stimuli``, a list of
+objects:
 
 =================  =====================================================================
 key                meaning
@@ -447,7 +450,7 @@ class Renderer(Protocol):
     def write_video(self, path: Path, frames: UInt8[np.ndarray, "F H W 3"]) -> None: ...
     def write_image(self, path: Path, image: UInt8[np.ndarray, "H W 3"]) -> None: ...
     def settings(self) -> dict:
-        """``{"size": [W, H], "fps", "duration", "hold"}`` for the manifest."""
+        """``{"size": [W, H], "fps", "duration", "hold", "timing"}`` for the manifest."""
         ...
 
 
