@@ -149,7 +149,9 @@ def population_section(doc: dict, pop: dict) -> list[str]:
         lines.append(
             f"- Seed(s) {', '.join(map(str, run['seeds']))}: {t['total_s'] / 60:.1f} min on "
             f"{dev} ({run['date']}; fits {t['fit_s']:.0f} s, "
-            f"β fits {t['beta_s']:.0f} s, pick {t.get('pick_s', 0):.0f} s, selection "
+            f"β fits {t['beta_s']:.0f} s, "
+            + (f"pick {t['pick_s']:.0f} s, " if "pick_s" in t else "")
+            + f"selection "
             f"{t['select_s']:.0f} s, planning "
             f"{t['plan_s']:.0f} s, evaluation {t['eval_s']:.0f} s, answers "
             f"{t['answers_s']:.0f} s)."
