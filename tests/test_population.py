@@ -530,6 +530,33 @@ def test_simulate_against_another_study_names_the_stimuli_folder(dot_study, tmp_
     ), err
 
 
+def test_a_later_crowd_under_answered_ids_is_refused_in_one_line(dot_study, tmp_path, capsys):
+    """``simulate --first`` under ids an earlier crowd answered with: the server refuses the
+    start (409) and the command says so in one line naming the flag and the participant,
+    not an ``HTTPStatusError`` traceback; the earlier crowd's answers stay as they were."""
+    db = tmp_path / "study.db"
+    server = ServerProcess(dot_study, db)
+    sim = ["simulate", "--url", server.url, "--stimuli", str(dot_study)]
+    try:
+        assert study_cli.main([*sim, "--participants", "2"]) == 0  # sim-0, sim-1
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as e:
+            study_cli.main([*sim, "--participants", "3", "--first", "1"])  # sim-1 answered
+    finally:
+        server.stop()
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1, err
+    assert err.startswith("error: --first 1: participant sim-1 already exists on the server "
+                          "(409 Conflict"), err  # fmt: skip
+    assert "sim-1 ... sim-3: choose another --first" in err
+    con = sqlite3.connect(db)
+    rows = con.execute("SELECT p.external_id, COUNT(*) FROM answers a JOIN trials t ON "
+                       "t.trial = a.trial JOIN participants p ON p.participant = t.participant "
+                       "GROUP BY p.external_id").fetchall()  # fmt: skip
+    con.close()
+    assert dict(rows)["sim-0"] == dict(rows)["sim-1"] == 6  # their whole study, once
+
+
 def test_simulate_population_errors_before_any_work(tmp_path, capsys, dot_study):
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps(_bad(lapse=3)))
