@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -248,15 +249,26 @@ def test_a_preset_name_reads_the_cached_dataset(tiny_data, tmp_path, monkeypatch
 
 
 def test_a_missing_dataset_names_the_command_that_makes_it(tiny_data, tmp_path, monkeypatch):
+    """A preset name run from a folder without the cache: the absolute folder looked in, how
+    to point at the dataset (the folder holding data/, or its own path), how to make it."""
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(FileNotFoundError) as e:
-        data.load_split("quick", "position_test")
-    assert f"not made yet (it goes to {data.preset_dir('quick')})" in str(e.value)
-    assert "run: python -m slotv_jax.data --preset quick " in str(e.value)
+    for name in ("quick", Path("quick")):  # the commands pass a Path
+        with pytest.raises(FileNotFoundError) as e:
+            data.load_split(name, "position_test")
+        msg = str(e.value)
+        assert msg.startswith("dataset 'quick': the quick preset's dataset is not in "
+                              f"{tmp_path / data.preset_dir('quick')} "), msg  # fmt: skip
+        assert "run the command from the folder that holds data/" in msg
+        assert f"--data DIR/data/{data.preset_dir('quick').name}" in msg
+        assert "run: python -m slotv_jax.data --preset quick " not in msg  # not the first advice
+        assert "to make it here: python -m slotv_jax.data --preset quick " in msg
+    with pytest.raises(FileNotFoundError) as e:  # another cache: looked for there
+        data.find_dataset("quick", cache=tmp_path / "elsewhere")
+    assert f"is not in {tmp_path / 'elsewhere' / data.preset_dir('quick').name};" in str(e.value)
     with pytest.raises(FileNotFoundError) as e:
         data.load_split("data/quick", "position_test")
     msg = str(e.value)
-    assert "data/quick: no such dataset folder" in msg
+    assert f"data/quick: no such dataset folder ({tmp_path / 'data/quick'})" in msg
     assert "run: python -m slotv_jax.data --preset quick --out data/quick" in msg
     assert "preset name alone (quick)" in msg
     (tmp_path / "empty").mkdir()
