@@ -314,13 +314,16 @@ def generate_dataset(
         _check_dir_config(out, cfg)
     result: dict[str, Split] = {}
     scene_sets: dict[str, tuple[Scene, dict]] | None = None
-    for name in tqdm(splits, desc="splits", unit="split", disable=not progress):
+    bar = tqdm(splits, desc="splits", unit="split", disable=not progress)
+    for name in bar:
         if out is not None and has_split(out, name):
             result[name] = load_split(out, name)
             continue
-        if scene_sets is None:
+        if scene_sets is None:  # what the bar waits for: compiling IK, checking every goal
+            bar.set_postfix_str("scenes: compiling inverse kinematics, checking the goals")
             t0 = time.perf_counter()
             scene_sets = sample_scene_sets(cfg)
+            bar.set_postfix_str("")
             for _, stats in scene_sets.values():
                 stats["time_all_sets_s"] = time.perf_counter() - t0
         set_name, _, counts = _scene_set(cfg, name)
