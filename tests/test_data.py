@@ -177,6 +177,49 @@ def test_resume_skips_finished_splits_and_refuses_other_configs(tiny_data, tiny_
         data.generate_dataset(dataclasses.replace(tiny_cfg, seed=9), tmp_path, progress=False)
 
 
+def test_ctrl_c_leaves_no_dataset_folder_or_one_that_resumes(
+    tiny_data, tiny_cfg, tmp_path, monkeypatch, capsys
+):
+    """Ctrl-C in the first split leaves nothing named like the dataset (it left an empty
+    data/<preset>-<digest>); Ctrl-C in a later split leaves the finished splits, which the
+    next run keeps, making only the rest."""
+    made = []
+
+    def split_or_ctrl_c(cfg, name, scenes, progress=True):  # stands in for minutes of work
+        if name in interrupt:
+            raise KeyboardInterrupt
+        made.append(name)
+        return dataclasses.replace(tiny_data[name], meta={"reachability": {}})
+
+    monkeypatch.setattr(generate, "sample_scene_sets",
+                        lambda cfg: collections.defaultdict(lambda: (None, {})))  # fmt: skip
+    monkeypatch.setattr(generate, "generate_split", split_or_ctrl_c)
+    monkeypatch.chdir(tmp_path)
+    home = data.dataset_dir(data.DEFAULT_CACHE, tiny_cfg)
+    splits = ["position_val", "position_test"]
+    interrupt = {"position_val"}
+    with pytest.raises(KeyboardInterrupt):
+        generate.cached_dataset(tiny_cfg, data.DEFAULT_CACHE, splits=splits, progress=False)
+    assert list(tmp_path.iterdir()) == []  # no data/, no data/tiny-<digest>
+    # through the command: one line, exit 130, still nothing written
+    monkeypatch.setattr(data_cli, "config_for", lambda *a, **k: tiny_cfg)
+    with pytest.raises(SystemExit) as e:
+        data_cli.main(["--splits", *splits])
+    assert e.value.code == 130 and list(tmp_path.iterdir()) == []
+    assert capsys.readouterr().err.strip().endswith("interrupted; rerun the same command to resume")
+    interrupt = {"position_test"}  # Ctrl-C in the second split: the first one is kept
+    with pytest.raises(KeyboardInterrupt):
+        generate.cached_dataset(tiny_cfg, data.DEFAULT_CACHE, splits=splits, progress=False)
+    assert sorted(p.name for p in home.iterdir()) == ["position_val.json", "position_val.npz"]
+    stamp = os.stat(home / "position_val.npz").st_mtime_ns
+    interrupt, made[:] = set(), []
+    out = generate.cached_dataset(tiny_cfg, data.DEFAULT_CACHE, splits=splits, progress=False)
+    assert made == ["position_test"] and os.stat(home / "position_val.npz").st_mtime_ns == stamp
+    np.testing.assert_array_equal(out["position_val"].xyz, tiny_data["position_val"].xyz)
+    np.testing.assert_array_equal(data.load_split(home, "position_test").xyz,
+                                  tiny_data["position_test"].xyz)  # fmt: skip
+
+
 def test_cli_generate_into_the_cache_and_relabel(tmp_path, monkeypatch, capsys):
     """Without --out the command writes the cache folder (as the main job does), a rerun
     regenerates nothing, the cache is never relabelled in place, and --relabel --data SRC
