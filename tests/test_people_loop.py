@@ -7,6 +7,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import shutil
+import subprocess
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -165,6 +168,32 @@ def test_one_compiled_planner_plans_as_the_planner_does(tiny_run):
     np.testing.assert_allclose(np.asarray(problem.q), ex["q"]["straight"], atol=2e-5)
     want = planning.plan(population_lib.population_observer(pop), problem, cfg.planner)
     np.testing.assert_allclose(np.asarray(want.q), ex["q"]["oracle"], atol=2e-5)
+
+
+def test_a_rerun_that_computes_nothing_keeps_the_example_drawing(tmp_path, monkeypatch):
+    """A rerun of a finished document draws its report again but keeps the example drawn
+    beside the same plans (drawing it again, in a render process, was 14 of the 20 s of
+    such a rerun on a 2-core CPU); a missing or outdated drawing is drawn."""
+    recorded = Path(__file__).resolve().parents[1] / "experiments" / "people_loop_results.json"
+    shutil.copy(recorded, tmp_path / recorded.name)
+    drawn = []
+
+    def render(cmd, **kw):  # stands in for python -m slotv_jax.render
+        drawn.append(cmd)
+        Path(cmd[cmd.index("--out") + 1]).write_bytes(b"a picture")
+        return subprocess.CompletedProcess(cmd, 0, "", "")
+
+    monkeypatch.setattr(exp.subprocess, "run", render)
+    cfg = exp.PRESETS["quick"]()
+    for _ in range(2):
+        exp.run(cfg, tmp_path, ["default"], cache=tmp_path / "data", progress=False)
+    assert len(drawn) == 1  # the first rerun found no drawing; the second kept it
+    assert (tmp_path / "people_loop.md").is_file() and not (tmp_path / "data").exists()
+    doc = json.loads(recorded.read_text())
+    q = doc["populations"][0]["example"]["q"]
+    q["straight"] = (np.asarray(q["straight"]) + 0.01).tolist()  # another example: drawn
+    exp.draw_example(doc, tmp_path, "people_loop", again=False)
+    assert len(drawn) == 2
 
 
 def test_wilson_interval_by_hand():
