@@ -173,7 +173,8 @@ def test_one_compiled_planner_plans_as_the_planner_does(tiny_run):
 def test_a_rerun_that_computes_nothing_keeps_the_example_drawing(tmp_path, monkeypatch):
     """A rerun of a finished document draws its report again but keeps the example drawn
     beside the same plans (drawing it again, in a render process, was 14 of the 20 s of
-    such a rerun on a 2-core CPU); a missing or outdated drawing is drawn."""
+    such a rerun on a 2-core CPU); a missing or outdated drawing is drawn, and --report
+    draws it again."""
     recorded = Path(__file__).resolve().parents[1] / "experiments" / "people_loop_results.json"
     shutil.copy(recorded, tmp_path / recorded.name)
     drawn = []
@@ -192,8 +193,10 @@ def test_a_rerun_that_computes_nothing_keeps_the_example_drawing(tmp_path, monke
     doc = json.loads(recorded.read_text())
     q = doc["populations"][0]["example"]["q"]
     q["straight"] = (np.asarray(q["straight"]) + 0.01).tolist()  # another example: drawn
-    exp.draw_example(doc, tmp_path, "people_loop", again=False)
+    exp.draw_example(doc, tmp_path, "people_loop")
     assert len(drawn) == 2
+    assert main(["--report", "--out", str(tmp_path)]) == 0  # --report draws it again
+    assert len(drawn) == 3
 
 
 def test_wilson_interval_by_hand():

@@ -181,7 +181,7 @@ def run(
         doc["summary"] = summarise([r for q in doc["populations"] for r in q["rows"]])
         write_text(path, json.dumps(doc, indent=1))
     report_lib.render(doc, out, stem)
-    draw_example(doc, out, stem, again=bool(todo))
+    draw_example(doc, out, stem)
     return doc
 
 
@@ -199,12 +199,12 @@ def example_plans(doc: dict) -> dict[str, np.ndarray]:
     }
 
 
-def draw_example(doc: dict, out: Path, stem: str, *, again: bool = True) -> None:
+def draw_example(doc: dict, out: Path, stem: str, *, again: bool = False) -> None:
     """Write ``STEM_plans.npz`` and draw ``STEM_render.png`` from it with the render command
     (in its own process: the loop itself needs no OpenGL); without OpenGL, say so in one
-    line and go on. With ``again`` False (a rerun that computed nothing) a drawing beside
-    plans equal to the document's is kept: drawing it again takes 10-15 s on a CPU and
-    gives the same picture."""
+    line and go on. A drawing beside plans equal to the document's example is kept (a
+    rerun that computed nothing: drawing it again takes 10-15 s on a CPU and gives the same
+    picture), unless ``again`` (``--report``: draw everything again)."""
     plans = out / f"{stem}_plans.npz"
     example = example_plans(doc)
     if not again and (out / f"{stem}_render.png").is_file() and _same_plans(plans, example):
