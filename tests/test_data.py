@@ -1,14 +1,18 @@
 """Datasets: split structure, determinism, labels, storage, corruption detection, resume, CLI."""
 
+import collections
 import dataclasses
 import json
 import os
+import types
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from slotv_jax import data
 from slotv_jax.data import cli as data_cli
+from slotv_jax.data import generate
 from slotv_jax.world.trajectories import TrajectoryConfig
 
 GOAL_COUNTS = {
@@ -173,6 +177,49 @@ def test_resume_skips_finished_splits_and_refuses_other_configs(tiny_data, tiny_
         data.generate_dataset(dataclasses.replace(tiny_cfg, seed=9), tmp_path, progress=False)
 
 
+def test_ctrl_c_leaves_no_dataset_folder_or_one_that_resumes(
+    tiny_data, tiny_cfg, tmp_path, monkeypatch, capsys
+):
+    """Ctrl-C in the first split leaves nothing named like the dataset (it left an empty
+    data/<preset>-<digest>); Ctrl-C in a later split leaves the finished splits, which the
+    next run keeps, making only the rest."""
+    made = []
+
+    def split_or_ctrl_c(cfg, name, scenes, progress=True):  # stands in for minutes of work
+        if name in interrupt:
+            raise KeyboardInterrupt
+        made.append(name)
+        return dataclasses.replace(tiny_data[name], meta={"reachability": {}})
+
+    monkeypatch.setattr(generate, "sample_scene_sets",
+                        lambda cfg: collections.defaultdict(lambda: (None, {})))  # fmt: skip
+    monkeypatch.setattr(generate, "generate_split", split_or_ctrl_c)
+    monkeypatch.chdir(tmp_path)
+    home = data.dataset_dir(data.DEFAULT_CACHE, tiny_cfg)
+    splits = ["position_val", "position_test"]
+    interrupt = {"position_val"}
+    with pytest.raises(KeyboardInterrupt):
+        generate.cached_dataset(tiny_cfg, data.DEFAULT_CACHE, splits=splits, progress=False)
+    assert list(tmp_path.iterdir()) == []  # no data/, no data/tiny-<digest>
+    # through the command: one line, exit 130, still nothing written
+    monkeypatch.setattr(data_cli, "config_for", lambda *a, **k: tiny_cfg)
+    with pytest.raises(SystemExit) as e:
+        data_cli.main(["--splits", *splits])
+    assert e.value.code == 130 and list(tmp_path.iterdir()) == []
+    assert capsys.readouterr().err.strip().endswith("interrupted; rerun the same command to resume")
+    interrupt = {"position_test"}  # Ctrl-C in the second split: the first one is kept
+    with pytest.raises(KeyboardInterrupt):
+        generate.cached_dataset(tiny_cfg, data.DEFAULT_CACHE, splits=splits, progress=False)
+    assert sorted(p.name for p in home.iterdir()) == ["position_val.json", "position_val.npz"]
+    stamp = os.stat(home / "position_val.npz").st_mtime_ns
+    interrupt, made[:] = set(), []
+    out = generate.cached_dataset(tiny_cfg, data.DEFAULT_CACHE, splits=splits, progress=False)
+    assert made == ["position_test"] and os.stat(home / "position_val.npz").st_mtime_ns == stamp
+    np.testing.assert_array_equal(out["position_val"].xyz, tiny_data["position_val"].xyz)
+    np.testing.assert_array_equal(data.load_split(home, "position_test").xyz,
+                                  tiny_data["position_test"].xyz)  # fmt: skip
+
+
 def test_cli_generate_into_the_cache_and_relabel(tmp_path, monkeypatch, capsys):
     """Without --out the command writes the cache folder (as the main job does), a rerun
     regenerates nothing, the cache is never relabelled in place, and --relabel --data SRC
@@ -247,16 +294,56 @@ def test_a_preset_name_reads_the_cached_dataset(tiny_data, tmp_path, monkeypatch
     assert data.find_dataset("quick") == tmp_path.joinpath("quick").relative_to(tmp_path)
 
 
+def test_the_splits_bar_says_what_it_waits_for_first(tiny_cfg, monkeypatch):
+    """Before the first split's bar, the scenes' goals are checked by IK, compiled first (a
+    silent 18-40 s on a loaded 2-core CPU): the splits bar says so while it waits."""
+    bars, seen = [], []
+
+    class Bar:
+        def __init__(self, iterable=None, **kw):
+            self.iterable, self.post = iterable, ""
+            bars.append(self)
+
+        def __iter__(self):
+            return iter(self.iterable)
+
+        def set_postfix_str(self, s, refresh=True):
+            self.post = s
+
+    def scene_sets(cfg):
+        seen.append(bars[0].post)
+        return collections.defaultdict(lambda: (None, {}))
+
+    monkeypatch.setattr(generate, "tqdm", Bar)
+    monkeypatch.setattr(generate, "sample_scene_sets", scene_sets)
+    made = types.SimpleNamespace(meta={"reachability": {}})
+    monkeypatch.setattr(generate, "generate_split", lambda *a, **k: made)
+    generate.generate_dataset(tiny_cfg, None, splits=["train", "position_test"])
+    assert seen == ["scenes: compiling inverse kinematics, checking the goals"]  # once
+    assert bars[0].post == ""  # gone once the splits have their own bars
+
+
 def test_a_missing_dataset_names_the_command_that_makes_it(tiny_data, tmp_path, monkeypatch):
+    """A preset name run from a folder without the cache: the absolute folder looked in, how
+    to point at the dataset (the folder holding data/, or its own path), how to make it."""
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(FileNotFoundError) as e:
-        data.load_split("quick", "position_test")
-    assert f"not made yet (it goes to {data.preset_dir('quick')})" in str(e.value)
-    assert "run: python -m slotv_jax.data --preset quick " in str(e.value)
+    for name in ("quick", Path("quick")):  # the commands pass a Path
+        with pytest.raises(FileNotFoundError) as e:
+            data.load_split(name, "position_test")
+        msg = str(e.value)
+        assert msg.startswith("dataset 'quick': the quick preset's dataset is not in "
+                              f"{tmp_path / data.preset_dir('quick')} "), msg  # fmt: skip
+        assert "run the command from the folder that holds data/" in msg
+        assert f"--data DIR/data/{data.preset_dir('quick').name}" in msg
+        assert "run: python -m slotv_jax.data --preset quick " not in msg  # not the first advice
+        assert "to make it here: python -m slotv_jax.data --preset quick " in msg
+    with pytest.raises(FileNotFoundError) as e:  # another cache: looked for there
+        data.find_dataset("quick", cache=tmp_path / "elsewhere")
+    assert f"is not in {tmp_path / 'elsewhere' / data.preset_dir('quick').name};" in str(e.value)
     with pytest.raises(FileNotFoundError) as e:
         data.load_split("data/quick", "position_test")
     msg = str(e.value)
-    assert "data/quick: no such dataset folder" in msg
+    assert f"data/quick: no such dataset folder ({tmp_path / 'data/quick'})" in msg
     assert "run: python -m slotv_jax.data --preset quick --out data/quick" in msg
     assert "preset name alone (quick)" in msg
     (tmp_path / "empty").mkdir()

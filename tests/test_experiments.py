@@ -130,6 +130,22 @@ def test_killed_run_resumes_without_recomputing(cache, tmp_path):
     assert not list(out.glob(".*tmp"))
 
 
+def test_each_cell_shows_its_training(cache, tmp_path, monkeypatch):
+    """With progress, every cell trains with the trainer's bar (which says when it
+    compiles): the cells' bar alone stood still for minutes on the first cell."""
+    shown = []
+    real = grid.train.train_trials
+
+    def spy(*a, progress=True, **kw):
+        shown.append(progress)
+        return real(*a, progress=False, **kw)
+
+    monkeypatch.setattr(grid.train, "train_trials", spy)
+    cfg = presets.tiny()
+    table1.run(cfg, tmp_path, labelers=["effdist"], methods=["trex"], cache=cache, progress=True)
+    assert shown == [True] * cfg.trials
+
+
 def test_resume_refuses_another_config(cache, tmp_path):
     cfg = presets.tiny()
     table1.run(cfg, tmp_path, labelers=["effdist"], methods=["trex"], cache=cache, progress=False)

@@ -248,6 +248,36 @@ RESUMES = {
 }  # fmt: skip
 
 
+def test_a_preset_name_is_found_by_one_resolver_in_every_command(tmp_path, capsys, monkeypatch):
+    """``--data quick`` run from a folder without ``data/``: every command that reads a
+    dataset says the same, naming the absolute folder it looked in, before any work."""
+    from slotv_jax.data import cli as data
+    from slotv_jax.data import report
+    from slotv_jax.render import cli as render
+    from slotv_jax.study import cli as study_cli
+    from slotv_jax.train import cli as train_cli
+
+    monkeypatch.chdir(tmp_path)
+    want = f"error: dataset 'quick': the quick preset's dataset is not in {tmp_path}/data/quick-"
+    cases = [
+        (train_cli.main, ["--labeler", "dragan", "--method", "slotv", "--out", "ck"]),
+        (render.main, ["--split", "position_test", "--out", "a.png"]),
+        (study_cli.main, ["stimuli", "--split", "trajectory_test", "--n", "2", "--out", "st"]),
+        (data.main, ["--relabel", "--out", "d2", "--beta-dragan", "3"]),
+        (report.main, ["--out", "r"]),
+    ]
+    for main, argv in cases:
+        if main is study_cli.main:
+            argv = [argv[0], "--data", "quick", *argv[1:]]
+        else:
+            argv = ["--data", "quick", *argv]
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert e.value.code == 2 and len(err) == 1 and err[0].startswith(want), (argv, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # nothing written
+
+
 def test_every_command_answers_ctrl_c_in_one_line(capsys, monkeypatch):
     """Every command's main goes through cli.command: Ctrl-C in it (here: while it parses
     its arguments) prints one line, saying so where rerunning resumes, and exits with 130."""

@@ -388,6 +388,78 @@ def test_camera_matches_mujoco_c(name, mj_cameras):
         assert bool(ok)
 
 
+def backend_compiles(fn) -> list[str]:
+    """The names of the functions XLA compiled while ``fn()`` ran."""
+    compiled = []
+
+    def listen(event, duration, **kw):
+        if event.endswith("backend_compile_duration"):
+            compiled.append(kw.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        fn()
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    return compiled
+
+
+def test_cameras_are_posed_in_one_compilation_and_checked_without_one(mj_cameras):
+    """Every named camera comes from one compiled MJX call (it was one per camera: each
+    several seconds on a loaded CPU), and checking a name poses nothing."""
+    scene._camera_cached.cache_clear()
+    scene._camera_poses.cache_clear()
+    assert backend_compiles(lambda: [scene.check_camera(n) for n in mj_cameras]) == []
+    with pytest.raises(ValueError, match="no camera named 'ceiling'"):
+        scene.check_camera("ceiling")
+    assert len(backend_compiles(lambda: [scene.camera(n) for n in mj_cameras])) == 1
+    for name, (pos, xmat) in mj_cameras.items():
+        np.testing.assert_allclose(np.asarray(scene.camera(name).pos), pos, atol=CAM_TOL)
+        np.testing.assert_allclose(np.asarray(scene.camera(name).rot), xmat, atol=CAM_TOL)
+
+
+def test_labelling_bar_shows_before_the_camera_and_the_compilation(monkeypatch, tiny_data):
+    """The labelling bar is up, saying that it compiles, while the camera is posed and the
+    labelers compile (a silent 14 s on a loaded CPU before the main job's first labels);
+    the note goes with the first chunk, and is not shown when nothing compiles."""
+    made, seen = [], []
+
+    class Bar:  # a tqdm that records what it was shown (post: the note now)
+        def __init__(self, *a, total=None, **kw):
+            self.n, self.post, self.notes = 0, "", []
+            made.append(self)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def set_postfix_str(self, s, refresh=True):
+            self.post = s
+            self.notes.append(s)
+
+        def update(self, n):
+            self.n += n
+
+    camera = labelling._as_camera
+
+    def posed(c):  # what the bar said while the camera was posed
+        seen.append(made[-1].post if made else None)
+        return camera(c)
+
+    monkeypatch.setattr(labelling, "tqdm", Bar)
+    monkeypatch.setattr(labelling, "_as_camera", posed)
+    split = tiny_data["trajectory_test"]
+    args = (labelling.LabelConfig(), split.xyz[:3], split.goals[:3], split.goal_mask[:3])
+    for compiled in (False, True):
+        monkeypatch.setattr(labelling, "has_compiled", lambda fn, c=compiled: c)
+        labelling.label_with(*args, progress=True)
+    assert seen == ["compiling the labelers", ""]
+    assert [b.notes for b in made] == [["compiling the labelers", ""], [""]]
+    assert [b.n for b in made] == [3, 3]
+
+
 def test_observer_camera_geometry_from_spec(mj_cameras):
     # SPEC §4.2: at (1.60, 0, 0.80), looking at (0.45, 0, 0.15); x right, y up.
     pos, xmat = mj_cameras["observer"]

@@ -7,6 +7,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import shutil
+import subprocess
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -177,6 +180,32 @@ def test_one_compiled_planner_plans_as_the_planner_does(tiny_run):
     np.testing.assert_allclose(np.asarray(problem.q), ex["q"]["straight"], atol=2e-5)
     want = planning.plan(population_lib.population_observer(pop), problem, cfg.planner)
     np.testing.assert_allclose(np.asarray(want.q), ex["q"]["oracle"], atol=2e-5)
+
+
+def test_a_rerun_that_computes_nothing_keeps_the_example_drawing(tmp_path, monkeypatch):
+    """The example drawn beside the same plans is kept (drawing it again, in a render
+    process, was 14 of the 20 s of a rerun of a finished document on a 2-core CPU); a
+    missing or outdated drawing is drawn, and --report draws it again."""
+    recorded = Path(__file__).resolve().parents[1] / "experiments" / "people_loop_results.json"
+    shutil.copy(recorded, tmp_path / recorded.name)
+    doc = json.loads(recorded.read_text())
+    drawn = []
+
+    def render(cmd, **kw):  # stands in for python -m slotv_jax.render
+        drawn.append(cmd)
+        Path(cmd[cmd.index("--out") + 1]).write_bytes(b"a picture")
+        return subprocess.CompletedProcess(cmd, 0, "", "")
+
+    monkeypatch.setattr(exp.subprocess, "run", render)
+    for _ in range(2):  # what run() does after the loop: a rerun that computed nothing
+        exp.draw_example(doc, tmp_path, "people_loop")
+    assert len(drawn) == 1  # the first found no drawing; the second kept it
+    q = doc["populations"][0]["example"]["q"]
+    q["straight"] = (np.asarray(q["straight"]) + 0.01).tolist()  # another example: drawn
+    exp.draw_example(doc, tmp_path, "people_loop")
+    assert len(drawn) == 2
+    assert main(["--report", "--out", str(tmp_path)]) == 0  # --report draws it again
+    assert len(drawn) == 3
 
 
 def test_wilson_interval_by_hand():

@@ -308,8 +308,10 @@ def test_bad_input(planner, problems):
 
 
 @pytest.mark.slow
-def test_readme_example(tmp_path, monkeypatch, tiny_data):
-    """Runs the README's planning block verbatim, with a tiny observer at ckpt/dragan."""
+def test_readme_example(tmp_path, monkeypatch, tiny_data, capsys):
+    """Runs the README's planning block verbatim, with a tiny observer at ckpt/dragan. Its
+    planner call compiles for a minute or two on a CPU, silent but for one line that says so
+    first."""
     from slotv_jax.training import checkpoint, types
     from slotv_jax.training import config as train_config
     from slotv_jax.training import trainer as train
@@ -327,10 +329,15 @@ def test_readme_example(tmp_path, monkeypatch, tiny_data):
     monkeypatch.chdir(tmp_path)
     checkpoint.save(tmp_path / "ckpt" / "dragan", cfg, train.select_trial(state, 0))
     env: dict = {}
+    capsys.readouterr()
     exec(compile(block.group(1), "README.md", "exec"), env)
     res = env["result"]
     assert res.xyz.shape == (4, 100, 3) and bool(np.all(res.feasible))
     assert np.all(np.isfinite(env["y"]))
+    note = "planning: compiling the straight lines and the planner for 4 problems"
+    assert capsys.readouterr().err.count(note) == 1
+    env["planner"](env["scenes"].goals, env["scenes"].goal_mask, env["target"])
+    assert note not in capsys.readouterr().err  # compiled: no second note
 
 
 # --------------------------------------------------------------- experiment

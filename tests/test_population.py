@@ -398,6 +398,26 @@ def test_files_round_trip_and_names(tmp_path):
         P.get_population("nobody")
 
 
+def test_a_population_is_made_and_loaded_without_posing_a_camera(tmp_path):
+    """Its camera names are checked against the scene model by name: nothing is compiled
+    (posing each camera for the check was 25 s of the README's population snippet on a
+    loaded 2-core CPU)."""
+    compiled = []
+
+    def listen(event, duration, **kw):
+        if event.endswith("backend_compile_duration"):
+            compiled.append(kw.get("fun_name"))
+
+    scene._camera_cached.cache_clear()
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        P.save_population(P.default().replace(name="mine"), tmp_path / "p.json")
+        assert P.load_population(tmp_path / "p.json").name == "mine"
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    assert compiled == []  # (an unknown camera: test_bad_population_files_are_one_named_error)
+
+
 def _bad(**changes):
     d = P.default().to_dict()
     for k, v in changes.items():
@@ -598,6 +618,33 @@ def test_simulate_against_another_study_names_the_stimuli_folder(dot_study, tmp_
     assert err.startswith(f"error: --stimuli {dot_study}: the server showed a still") and (
         err.count("\n") == 1
     ), err
+
+
+def test_a_later_crowd_under_answered_ids_is_refused_in_one_line(dot_study, tmp_path, capsys):
+    """``simulate --first`` under ids an earlier crowd answered with: the server refuses the
+    start (409) and the command says so in one line naming the flag and the participant,
+    not an ``HTTPStatusError`` traceback; the earlier crowd's answers stay as they were."""
+    db = tmp_path / "study.db"
+    server = ServerProcess(dot_study, db)
+    sim = ["simulate", "--url", server.url, "--stimuli", str(dot_study)]
+    try:
+        assert study_cli.main([*sim, "--participants", "2"]) == 0  # sim-0, sim-1
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as e:
+            study_cli.main([*sim, "--participants", "3", "--first", "1"])  # sim-1 answered
+    finally:
+        server.stop()
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1, err
+    assert err.startswith("error: --first 1: participant sim-1 already exists on the server "
+                          "(409 Conflict"), err  # fmt: skip
+    assert "sim-1 ... sim-3: choose another --first" in err
+    con = sqlite3.connect(db)
+    rows = con.execute("SELECT p.external_id, COUNT(*) FROM answers a JOIN trials t ON "
+                       "t.trial = a.trial JOIN participants p ON p.participant = t.participant "
+                       "GROUP BY p.external_id").fetchall()  # fmt: skip
+    con.close()
+    assert dict(rows)["sim-0"] == dict(rows)["sim-1"] == 6  # their whole study, once
 
 
 def test_simulate_population_errors_before_any_work(tmp_path, capsys, dot_study):

@@ -148,10 +148,13 @@ def test_a_study_file_through_ik_with_goal_names(tmp_path):
         ),
         (
             ["--data", "data/quick"],
-            "data/quick: no such dataset folder; run: python -m "
+            "data/quick: no such dataset folder (TMP/data/quick); run: python -m "
             "slotv_jax.data --preset quick --out data/quick",
         ),
-        (["--data", "quick"], "the quick preset's dataset is not made yet (it goes to data/quick-"),
+        (
+            ["--data", "quick"],
+            "dataset 'quick': the quick preset's dataset is not in TMP/data/quick-",
+        ),
         (["--index", "0:2", "--out", "x.mp4"], "2 items need a folder"),
     ],
 )
@@ -170,6 +173,7 @@ def test_bad_input_is_one_line_before_rendering(
         cli.main([*(x for kv in base.items() for x in kv), "--quiet"])
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
+    message = message.replace("TMP", str(tmp_path))  # the folder it ran in
     assert len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
 
 

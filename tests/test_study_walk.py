@@ -83,13 +83,32 @@ def take_part(page, url: str, pid: str, *, reload_at=None, back_at=None) -> tupl
         n += 1
 
 
+def readme_block(name: str) -> str:
+    """The bash block between the README's ``<!-- NAME:start -->`` and ``:end`` markers."""
+    text = (ROOT / "README.md").read_text()
+    m = re.search(rf"<!-- {name}:start -->\n```bash\n(.*?)```\n<!-- {name}:end -->", text, re.S)
+    assert m, f"README: {name} block not found"
+    return m.group(1)
+
+
+def crowd_ids(block: str) -> range:
+    """The participant numbers of the block's one ``study simulate`` (ids sim-N)."""
+    cmd = re.search(rf"{SIMULATE}((?:[^\n]*\\\n)*[^\n]*)", block).group(1)
+    first = re.search(r"--first (\d+)", cmd)
+    start = int(first.group(1)) if first else 0
+    return range(start, start + int(re.search(r"--participants (\d+)", cmd).group(1)))
+
+
+def test_the_readme_later_round_asks_new_ids():
+    """The README's later round, run after its study walk on the same server, starts its
+    crowd after the walk's: the server refuses a start under an id that has answered."""
+    walk, later = crowd_ids(readme_block("study-walk")), crowd_ids(readme_block("later-round"))
+    assert len(walk) == 120 and not set(walk) & set(later), (walk, later)
+
+
 @pytest.mark.slow
 def test_readme_study_walk_with_people_in_chromium(browser, tiny_data, tiny_cfg, tmp_path):
-    text = (ROOT / "README.md").read_text()
-    m = re.search(r"<!-- study-walk:start -->\n```bash\n(.*?)```\n<!-- study-walk:end -->",
-                  text, re.S)  # fmt: skip
-    assert m, "README: study walk block not found"
-    block = m.group(1)
+    block = readme_block("study-walk")
     url = re.search(r"--url (http://127\.0\.0\.1:\d+)", block).group(1)
     assert block.count(SIMULATE) == 1
     # the people take part before the simulated ones (a test-only wait before that line)

@@ -440,6 +440,40 @@ def test_progress_reaches_the_host(tiny):
     np.testing.assert_allclose([v for _, _, v in seen], np.ravel(metrics.loss), rtol=1e-6)
 
 
+def test_train_trials_shows_its_bar_before_it_compiles(tiny, monkeypatch):
+    """The training bar opens before the compiled call and says that it compiles (the
+    first call: a quiet minute on a loaded CPU, inside Table 1's first cell), then runs to
+    its total; a second call with the same shapes only starts."""
+    tr, _ = tiny
+    cfg = small_cfg("trex", epochs=1, train_size=64, log_every=2, hidden=(20, 4))  # its own
+    bars = []
+
+    class Bar:  # a tqdm that records what it was shown
+        def __init__(self, total, **kw):
+            self.total, self.n, self.notes = total, 0, []
+            bars.append(self)
+
+        def set_postfix_str(self, s, refresh=True):
+            self.notes.append(s)
+
+        def set_postfix(self, refresh=True, **kw):
+            self.notes.append(kw)
+
+        def update(self, n):
+            self.n += n
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(train, "tqdm", Bar)
+    data = types.prepare(tr, "effdist")
+    train.train_trials(cfg, data, [0], progress=True)
+    train.train_trials(cfg, data, [1], progress=True)
+    assert [b.notes[0] for b in bars] == ["compiling the training step", "starting"]
+    assert [b.n for b in bars] == [b.total for b in bars] == [64, 64]  # 4 updates of 16
+    assert all(set(b.notes[1]) == {"loss"} for b in bars)  # the loss replaced the note
+
+
 def test_training_compiles_once_per_config(tiny):
     tr, _ = tiny
     cfg = small_cfg("trex", epochs=1, train_size=64)

@@ -23,7 +23,8 @@ Storage: ``DIR/<split>.npz`` (plain arrays, read with ``allow_pickle=False``) an
 ``DIR/<split>.json`` (config, seed, versions, per-array SHA-256, shapes,
 reachability statistics, timings). Both are written to a temporary name and
 renamed; the JSON is written last, so a split counts as done only once both
-exist, and an interrupted run restarts at the first unfinished split.
+exist, and an interrupted run restarts at the first unfinished split. The folder is
+made with its first split: a run interrupted before that leaves none.
 
 Command line (without ``--out``: the cache folder ``data/<preset>-<digest>`` that the main job
 uses, which other commands read by the preset's name, ``--data quick``)::
@@ -50,6 +51,7 @@ from tqdm.auto import tqdm
 
 from slotv_jax.core import distributed
 from slotv_jax.core.defaults import LABELER_NAMES, SPLITS
+from slotv_jax.core.fileio import check_output_dir
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.data.config import DataConfig, LabelConfig
 from slotv_jax.data.storage import (
@@ -58,6 +60,7 @@ from slotv_jax.data.storage import (
     _check_dir_config,
     dataset_dir,
     has_split,
+    is_dataset_dir,
     load_split,
     save_split,
 )
@@ -307,20 +310,31 @@ def generate_dataset(
     splits: Sequence[str] = SPLITS,
     progress: bool = True,
 ) -> dict[str, Split]:
-    """Generate every split; with ``out``, write each one as it finishes and skip finished ones."""
+    """Generate every split; with ``out``, write each one as it finishes and skip finished ones.
+
+    ``out`` is checked before any work (a place that cannot be written, a folder that is not
+    a dataset, or one of another config is an error) and made only when its first split is
+    written: a run interrupted before that (Ctrl-C in the first split's minutes) leaves no
+    folder named like the dataset; one interrupted later leaves its finished splits, which
+    the next run keeps (a split is written atomically, its sidecar last).
+    """
     out = Path(out) if out is not None else None
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        _check_dir_config(out, cfg)
+        check_output_dir(out, ours=is_dataset_dir, resume=True, what="dataset folder")
+        if out.is_dir():
+            _check_dir_config(out, cfg)
     result: dict[str, Split] = {}
     scene_sets: dict[str, tuple[Scene, dict]] | None = None
-    for name in tqdm(splits, desc="splits", unit="split", disable=not progress):
+    bar = tqdm(splits, desc="splits", unit="split", disable=not progress)
+    for name in bar:
         if out is not None and has_split(out, name):
             result[name] = load_split(out, name)
             continue
-        if scene_sets is None:
+        if scene_sets is None:  # what the bar waits for: compiling IK, checking every goal
+            bar.set_postfix_str("scenes: compiling inverse kinematics, checking the goals")
             t0 = time.perf_counter()
             scene_sets = sample_scene_sets(cfg)
+            bar.set_postfix_str("")
             for _, stats in scene_sets.values():
                 stats["time_all_sets_s"] = time.perf_counter() - t0
         set_name, _, counts = _scene_set(cfg, name)
@@ -328,6 +342,7 @@ def generate_dataset(
         split = generate_split(cfg, name, scenes, progress=progress)
         split.meta["reachability"]["scenes"] = {"set": set_name, "goal_counts": counts, **stats}
         if out is not None:
+            out.mkdir(parents=True, exist_ok=True)
             split = dataclasses.replace(split, meta=save_split(out, split, cfg))
         result[name] = split
     return result

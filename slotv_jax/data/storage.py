@@ -164,8 +164,9 @@ def find_dataset(where: str | Path, cache: str | Path = DEFAULT_CACHE) -> Path:
 
     An existing folder is itself. Otherwise a preset name (``quick``, ``paper``) names the
     dataset of that preset's default config in the cache, :func:`preset_dir`
-    (``data/quick-<digest>``): the one the main job made. Anything else is an error that
-    names the command that makes it.
+    (``data/quick-<digest>``, relative to the working directory): the one the main job
+    made. Anything else is an error that names the folder looked in, how to point at the
+    dataset and the command that makes it.
 
     >>> find_dataset("quick")  # after python -m slotv_jax.experiments.table1  # doctest: +SKIP
     PosixPath('data/quick-251c48741b67b804')
@@ -179,17 +180,33 @@ def find_dataset(where: str | Path, cache: str | Path = DEFAULT_CACHE) -> Path:
         made = preset_dir(str(where), cache)
         if is_dataset_dir(made):
             return made
-        raise FileNotFoundError(
-            f"dataset {where!r}: the {where} preset's dataset is not made yet (it goes to "
-            f"{made}); run: python -m slotv_jax.data --preset {where}  (the main job, "
-            f"python -m slotv_jax.experiments.table1 --preset {where}, makes it too)"
-        )
+        raise FileNotFoundError(_no_preset_dataset(str(where), made))
     hint = ""
     if path.name in PRESETS:
         hint = f"; or give the preset name alone ({path.name}) for the dataset the main job made"
+    looked = "" if path.is_absolute() else f" ({path.absolute()})"
     raise FileNotFoundError(
-        f"{where}: no such dataset folder; run: python -m slotv_jax.data --preset quick "
+        f"{where}: no such dataset folder{looked}; run: python -m slotv_jax.data --preset quick "
         f"--out {where}{hint}"
+    )
+
+
+def _no_preset_dataset(preset: str, made: Path) -> str:
+    """The error for a preset name whose dataset is not in the cache folder ``made`` names:
+    the absolute folder looked in, how to point at the dataset, how to make it."""
+    cache = made.parent
+    where = (
+        f"{made.absolute()}"
+        if cache.is_absolute()
+        else f"{made.absolute()} (a preset name is looked up in {cache}/ of the folder the "
+        "command runs in)"
+    )
+    return (
+        f"dataset {preset!r}: the {preset} preset's dataset is not in {where}; run the command "
+        f"from the folder that holds {cache}/ (where the main job ran), or give the dataset's "
+        f"folder instead of the name (--data DIR/{cache}/{made.name}); to make it here: "
+        f"python -m slotv_jax.data --preset {preset} (the main job, python -m "
+        f"slotv_jax.experiments.table1 --preset {preset}, makes it too)"
     )
 
 

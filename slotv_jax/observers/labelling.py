@@ -20,6 +20,7 @@ from jaxtyping import Array, Bool, Float
 from tqdm.auto import tqdm
 
 from slotv_jax.core import validation
+from slotv_jax.core.progress import has_compiled
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers.labelers import (
     CHUNK_LABELS,
@@ -178,12 +179,14 @@ def label_with(
         raise ValueError(f"labels: expected a LabelConfig, got {type(labels).__name__}")
     names, (xyz, goals, goal_mask, t) = _bulk_inputs(labelers, xyz, goals, goal_mask, t, chunk_size)
     betas = {n: jnp.float32(getattr(labels, f"beta_{n}")) for n in names}  # traced
-    cam = _as_camera(labels.camera)  # a name is looked up here, not when the config is made
     chunk_size = CHUNK_LABELS // len(names) if chunk_size is None else chunk_size
     N, C = len(xyz), min(chunk_size, max(len(xyz), 1))
     out = {n: np.empty((N, G_MAX), np.float32) for n in names}
     ok = np.ones((N, len(_ERRORS)), bool)
     with tqdm(total=N, unit="traj", desc="labelling", disable=not progress) as bar:
+        if not has_compiled(_label_chunk):  # the first chunk waits for it
+            bar.set_postfix_str("compiling the labelers")
+        cam = _as_camera(labels.camera)  # a name is looked up here, not when the config is made
         for start in range(0, N, C):
             lo = min(start, N - C)  # the last chunk overlaps the one before: no padding
             rows = [a[lo : lo + C] for a in (xyz, goals, goal_mask)]
@@ -192,6 +195,7 @@ def label_with(
             for name in names:
                 out[name][lo : lo + C] = np.asarray(labels[name])
             ok[lo : lo + C, : flags.shape[-1]] = np.asarray(flags)
+            bar.set_postfix_str("", refresh=False)
             bar.update(min(C, N - start))
     if "nikolaidis" in names:
         _recheck_points(ok, xyz, cam)

@@ -286,7 +286,7 @@ def _check_camera(name: str, where: str) -> None:
     if name == WORLD:
         return
     try:
-        scene.camera(name)
+        scene.check_camera(name)  # the name alone: nothing posed, nothing compiled
     except ValueError as e:
         raise ValueError(f"{where}: unknown camera {name!r} ({e}; or {WORLD!r})") from None
 

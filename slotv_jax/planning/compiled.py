@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from slotv_jax.core import validation
+from slotv_jax.core.progress import status
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers.models import Observer
 from slotv_jax.planning.planner import (
@@ -56,9 +57,10 @@ def _check_targets(goals, goal_mask, target) -> np.ndarray:
     return t
 
 
-def _straight_problems(straight, goals, goal_mask, target, start) -> Problem:
+def _straight_problems(straight, goals, goal_mask, target, start, note=None) -> Problem:
     """Validated straight-line problems from the compiled ``straight`` (vmapped
-    :func:`straight_line`)."""
+    :func:`straight_line`); ``note(n)`` is called once the inputs passed, before ``straight``
+    runs on ``n`` problems."""
     validation.check_goals("goals", goals, goal_mask, batch_shape=(None,))
     n = int(np.shape(goals)[0])
     t = jnp.asarray(_check_targets(goals, goal_mask, target), jnp.int32)
@@ -67,6 +69,8 @@ def _straight_problems(straight, goals, goal_mask, target, start) -> Problem:
     if start is None:
         start = np.broadcast_to(kinematics.home_tcp(), (n, 3))
     validation.check_array("start", start, (n, 3))
+    if note is not None:
+        note(n)
     problems = straight(goals32, mask, t, jnp.asarray(start, jnp.float32))
     check_problems(problems)
     return problems
@@ -93,7 +97,9 @@ def make_planner(
 
     ``planner.straight_line(goals, goal_mask, target, start=None)`` gives the straight-line
     problems (batched; one compiled function for every start) and
-    ``planner.plan_problems(problems, observer=None)`` plans them.
+    ``planner.plan_problems(problems, observer=None)`` plans them. The first call with a
+    batch size compiles (a minute or two on a CPU) and says so first, in one line on
+    stderr (:func:`slotv_jax.core.progress.status`).
     """
     if not isinstance(cfg, PlannerConfig):
         raise ValueError(f"cfg: expected a PlannerConfig, got {type(cfg).__name__}")
@@ -116,14 +122,25 @@ def make_planner(
         )(problems)
     )
 
+    compiled: set[int] = set()  # batch sizes compiled (or being compiled) so far
+
+    def note(n: int) -> None:  # a compilation shows no progress: say so before it
+        if n not in compiled:
+            compiled.add(n)
+            status(f"planning: compiling the straight lines and the planner for {n} problems "
+                   f"and {len(names)} observer(s) (a minute or two on a CPU; later calls "
+                   f"with {n} problems reuse it)")  # fmt: skip
+
     def index_of(name):
         return _index_of(names, name, "observer")
 
     def plan_problems(problems: Problem, observer: str | None = None) -> PlanResult:
-        return run(problems, index_of(observer))
+        index = index_of(observer)
+        note(int(problems.goals.shape[0]))
+        return run(problems, index)
 
     def straight_lines(goals, goal_mask, target, start=None) -> Problem:
-        return _straight_problems(straight, goals, goal_mask, target, start)
+        return _straight_problems(straight, goals, goal_mask, target, start, note)
 
     def planner(goals, goal_mask, target, start=None, observer=None) -> PlanResult:
         index = index_of(observer)

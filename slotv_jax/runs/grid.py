@@ -9,6 +9,7 @@ import json
 import sys
 import time
 from collections.abc import Sequence
+from functools import partial
 from pathlib import Path
 
 import jax
@@ -134,7 +135,9 @@ def run(
         )  # fmt: skip
 
     bar = tqdm(total=len(todo), desc="cells", unit="cell", disable=not (progress and writer))
-    steps = _device_steps if n_dev > 1 else _single_device_steps
+    # one device: each cell's training bar too (several: every process compiles the same
+    # program, with no progress callback, and only process 0 shows bars)
+    steps = _device_steps if n_dev > 1 else partial(_single_device_steps, progress=progress)
     last: dict[str, float] = {}
     left = len(todo)
     for meth, units, run_step in steps(cfg, dataset, todo, vmap_trials, n_dev):
@@ -161,10 +164,13 @@ def run(
     return doc
 
 
-def _single_device_steps(cfg: RunConfig, dataset, todo, vmap_trials: bool, n_dev: int):
+def _single_device_steps(
+    cfg: RunConfig, dataset, todo, vmap_trials: bool, n_dev: int, progress: bool = False
+):
     """One device: yield (method, [(labeler, trial)], step) per trial (or, ``vmap_trials``,
-    per (labeler, method)); ``step()`` trains and evaluates, returning (accuracies per
-    split, losses, times)."""
+    per (labeler, method)); ``step()`` trains (``progress``: with the trainer's bar, which
+    also says when it compiles) and evaluates, returning (accuracies per split, losses,
+    times)."""
 
     units: list[tuple[str, str, list[int]]] = []
     for lab, meth, trial in todo:
@@ -190,7 +196,7 @@ def _single_device_steps(cfg: RunConfig, dataset, todo, vmap_trials: bool, n_dev
             t_cell = time.perf_counter()
             tdata = split_data(lab, "train")
             t_prep = time.perf_counter() - t_cell
-            state, metrics = train.train_trials(tc, tdata, trials, progress=False)
+            state, metrics = train.train_trials(tc, tdata, trials, progress=progress)
             jax.block_until_ready((state, metrics))
             t_train = time.perf_counter() - t_cell - t_prep
             # "train" is scored on the trajectories the model trained on (the first train_size).

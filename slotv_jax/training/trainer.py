@@ -73,6 +73,7 @@ from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float, Int
 from tqdm.auto import tqdm
 
+from slotv_jax.core.progress import has_compiled
 from slotv_jax.observers import models
 from slotv_jax.training import devices, evaluate
 from slotv_jax.training.config import TrainConfig
@@ -107,20 +108,30 @@ class _Progress:
         self.bar = None
         self.last = -1
 
+    def _open(self, total: int) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        self.bar = tqdm(
+            total=total * self.batch_size, desc=self.desc, unit="ex", unit_scale=True,
+            leave=False, dynamic_ncols=True, file=sys.stderr,
+        )  # fmt: skip
+        self.last = 0
+
+    def begin(self, total: int, note: str) -> None:
+        """Open the bar of a call that reports ``total`` updates before it starts: a
+        compilation and the first block report nothing, and ``note`` says what happens
+        until the first report replaces it with the loss."""
+        self._open(total)
+        self.bar.set_postfix_str(note)
+
     def __call__(self, updates, loss, *, total: int):
         u = int(np.max(np.asarray(updates)))
         if u < self.last or self.last < 0:
-            if self.bar is not None:
-                self.bar.close()
-            self.bar = tqdm(
-                total=total * self.batch_size, desc=self.desc, unit="ex", unit_scale=True,
-                leave=False, dynamic_ncols=True, file=sys.stderr,
-            )  # fmt: skip
-            self.last = 0
+            self._open(total)
         if self.bar is None or u <= self.last:
             return
-        self.bar.update((u - self.last) * self.batch_size)
         self.bar.set_postfix(loss=f"{float(np.mean(np.asarray(loss))):.4f}", refresh=False)
+        self.bar.update((u - self.last) * self.batch_size)
         self.last = u
         if u >= total:
             self.bar.close()
@@ -496,10 +507,14 @@ def train_trials(
     if val is not None and cfg.eval_every:
         ev = trainer.replicate(trainer.eval_data(trim_goals(subset(val, cfg.eval_size))))
     trainer = packed_trainer(trainer, jax.vmap(Trainer.state_key)(keys), data, range(cfg.epochs))
+    fn = _jit_trials(trainer, len(keys) > 1)
+    if trainer.progress is not None:  # the bar shows from the start, through the compilation
+        total = cfg.epochs * cfg.steps_per_epoch(data.xyz.shape[0])
+        note = "starting" if has_compiled(fn) else "compiling the training step"
+        trainer.progress.begin(total, note)
     if len(keys) == 1:  # no trial axis inside the compiled loop (XLA keeps a size-1 batch)
-        out = _jit_trials(trainer, False)(keys[0], data, ev)
-        return jax.tree.map(lambda x: x[None], out)
-    return _jit_trials(trainer, True)(keys, data, ev)
+        return jax.tree.map(lambda x: x[None], fn(keys[0], data, ev))
+    return fn(keys, data, ev)
 
 
 def precompile(

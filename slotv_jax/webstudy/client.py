@@ -182,6 +182,34 @@ class PopulationParticipant:
         return str(self.rng.choice(names, p=p))
 
 
+class Refused(ValueError):
+    """A request the server refused with a client error (4xx), with the server's own reason.
+
+    ``participant``: the external id it was sent for (``None``: none); ``status``: the HTTP
+    status; ``error``: the server's message (``{"error": ...}`` of the reply, or ``""``).
+    """
+
+    def __init__(self, participant: str | None, method: str, path: str, status: int,
+                 reason: str, error: str):  # fmt: skip
+        self.participant, self.method, self.path = participant, method, path
+        self.status, self.reason, self.error = status, reason, error
+        who = f"participant {participant}: " if participant is not None else ""
+        super().__init__(f"{who}the server refused {method} {path} ({status} {reason})"
+                         + (f": {error}" if error else ""))  # fmt: skip
+
+
+def _checked(r: httpx.Response, participant: str | None) -> httpx.Response:
+    """``r`` if it succeeded, else :class:`Refused` with the server's reason."""
+    if r.is_success:
+        return r
+    try:
+        error = r.json().get("error", "")
+    except (ValueError, AttributeError):  # not JSON (a proxy's page) or not an object
+        error = ""
+    raise Refused(participant, r.request.method, r.request.url.path, r.status_code,
+                  r.reason_phrase, str(error))  # fmt: skip
+
+
 async def _request(client: httpx.AsyncClient, method: str, url: str, deadline: float, **kw):
     """One request, retried on connection errors and 5xx until ``deadline`` (monotonic)."""
     wait = 0.05
@@ -215,9 +243,11 @@ async def run_participant(
     ``think()`` seconds pass before each answer; ``max_trials`` stops early (a participant
     who leaves); ``timeout`` bounds the whole run. Returns the result and the cookies
     (the participant's token) to go on later. Each acknowledged answer is also appended
-    to ``log`` as it comes, as (participant id, position, guess).
+    to ``log`` as it comes, as (participant id, position, guess). A request the server
+    refuses (4xx: an id that has answered already, a bad answer) raises :class:`Refused`.
     """
     deadline = time.monotonic() + timeout
+    pid = (ids or {}).get("PROLIFIC_PID")
     res = Result([], [], 0, None)
     dup = 0
     async with httpx.AsyncClient(base_url=base_url, cookies=cookies, timeout=10.0) as c:
@@ -226,27 +256,24 @@ async def run_participant(
                                json={"consent": True, "ids": ids or {}})  # fmt: skip
         else:
             r = await _request(c, "GET", "/api/state", deadline)
-        r.raise_for_status()
-        state = r.json()
+        state = _checked(r, pid).json()
         while state["stage"] == "trial" and (max_trials is None or len(res.answers) < max_trials):
             still = b""
             if media:
-                (await _request(c, "GET", state["clip"], deadline)).raise_for_status()
+                _checked(await _request(c, "GET", state["clip"], deadline), pid)
                 r = await _request(c, "GET", state["still"], deadline)
-                r.raise_for_status()
-                still = r.content
+                still = _checked(r, pid).content
             await asyncio.sleep(think())
             body = {"position": state["position"], "guess": guess(state, still),
                     "confidence": 3, "response_ms": 1000}  # fmt: skip
             t0 = time.perf_counter()
             r = await _request(c, "POST", "/api/answer", deadline, json=body)
             res.latencies.append(time.perf_counter() - t0)
-            r.raise_for_status()
-            out = r.json()
+            out = _checked(r, pid).json()
             dup += out["duplicate"]
             res.answers.append((body["position"], body["guess"]))
             if log is not None:
-                log.append(((ids or {}).get("PROLIFIC_PID"), body["position"], body["guess"]))
+                log.append((pid, body["position"], body["guess"]))
             state = out["state"]
         cookies = c.cookies
     code = state.get("code") if state["stage"] == "done" else None
@@ -270,19 +297,30 @@ async def run_crowd(
 
     A ``guess`` with a ``participant(i)`` method (:class:`PopulationGuesser`) gives
     participant i the guesser ``guess.participant(i)``; any other is shared by all.
+
+    The first error ends the crowd: the participants still running are cancelled, and the
+    error of the lowest-numbered participant that failed is raised (for example
+    :class:`Refused` for ``sim-FIRST`` when an earlier crowd used that id).
     """
     if not (isinstance(first, int) and first >= 0):
         raise ValueError(f"first: expected an integer >= 0, got {first!r}")
     per_person = hasattr(guess, "participant")
-    runs = [
-        run_participant(
+    tasks = [
+        asyncio.ensure_future(run_participant(
             base_url,
             guess.participant(i) if per_person else guess,
             ids={"PROLIFIC_PID": f"sim-{i}"},
             think=think,
             timeout=timeout,
             media=media,
-        )
+        ))
         for i in range(first, first + n)
-    ]
-    return [r for r, _ in await asyncio.gather(*runs)]
+    ]  # fmt: skip
+    await asyncio.wait(tasks, return_when=asyncio.FIRST_EXCEPTION)
+    failed = [t for t in tasks if t.done() and not t.cancelled() and t.exception()]
+    if failed:
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)  # let them end
+        raise failed[0].exception()
+    return [t.result()[0] for t in tasks]

@@ -171,9 +171,22 @@ def simulate_main(args: argparse.Namespace) -> int:
 
     crowd = (client.Crowd(lambda i: counted(guess.participant(i)))
              if hasattr(guess, "participant") else counted(guess))  # fmt: skip
-    res = asyncio.run(
-        client.run_crowd(args.url, args.participants, crowd, timeout=600, first=args.first)
-    )
+    try:
+        res = asyncio.run(
+            client.run_crowd(args.url, args.participants, crowd, timeout=600, first=args.first)
+        )
+    except client.Refused as e:
+        if e.status == 409 and e.path == "/api/start":  # an earlier crowd's id
+            last = args.first + args.participants - 1
+            raise ValueError(
+                f"--first {args.first}: participant {e.participant} already exists on the "
+                f"server ({e.status} {e.reason}: it has answered); this crowd's ids are "
+                f"sim-{args.first} ... sim-{last}: choose another --first, past the ids of "
+                "the crowds before it"
+            ) from None
+        raise ValueError(f"--url {args.url}: {e}") from None
+    except TimeoutError as e:  # the server stopped answering mid-run
+        raise ValueError(f"--url {args.url}: {e}") from None
     done = sum(r.code is not None for r in res)
     # every guess was acknowledged: a post that fails raises out of run_crowd
     print(f"{done} of {len(res)} simulated participants finished, "

@@ -128,18 +128,34 @@ class Camera:
 
 
 @functools.cache
-def _camera_cached(name: str) -> Camera:
-    m = mj_model(SCENE_XML)
-    cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, name)
-    if cam < 0:
-        names = [m.camera(i).name for i in range(m.ncam)]
-        raise ValueError(f"camera: no camera named {name!r} in {SCENE_XML.name}; have {names}")
+def _camera_poses() -> tuple[np.ndarray, np.ndarray]:
+    """Every camera of the scene model posed by ``mjx.kinematics`` + ``mjx.camlight``:
+    positions ``(ncam, 3)`` and rotations ``(ncam, 3, 3)``, in one compiled call (a second
+    or two; several on a loaded CPU) for all of them."""
 
     def pose(mx):
         d = mjx.camlight(mx, mjx.kinematics(mx, mjx.make_data(mx)))
-        return d.cam_xpos[cam], d.cam_xmat[cam].reshape(3, 3)
+        return d.cam_xpos, d.cam_xmat.reshape(-1, 3, 3)
 
-    pos, rot = host_eval(pose, m)
+    return host_eval(pose, mj_model(SCENE_XML))
+
+
+def check_camera(name: str) -> int:
+    """The index of the scene model's camera ``name`` (ValueError naming the cameras there
+    for another name); poses nothing, compiles nothing."""
+    m = mj_model(SCENE_XML)
+    cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, str(name))
+    if cam < 0:
+        names = [m.camera(i).name for i in range(m.ncam)]
+        raise ValueError(f"camera: no camera named {name!r} in {SCENE_XML.name}; have {names}")
+    return cam
+
+
+@functools.cache
+def _camera_cached(name: str) -> Camera:
+    cam = check_camera(name)
+    m = mj_model(SCENE_XML)
+    pos, rot = (a[cam] for a in _camera_poses())
     with jax.ensure_compile_time_eval():
         return Camera(
             pos=jnp.asarray(pos, jnp.float32),
@@ -150,7 +166,8 @@ def _camera_cached(name: str) -> Camera:
 
 
 def camera(name: str = "observer") -> Camera:
-    """The named camera of the scene model, posed by ``mjx.kinematics`` + ``mjx.camlight``.
+    """The named camera of the scene model, posed by ``mjx.kinematics`` + ``mjx.camlight``
+    (every camera in one compiled call, on first use).
 
     Names: ``observer`` (default), ``observer_angle``, ``observer_side``.
     """

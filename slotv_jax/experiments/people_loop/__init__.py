@@ -80,7 +80,7 @@ from slotv_jax.experiments.people_loop.config import (  # noqa: F401  (the packa
 )
 from slotv_jax.experiments.people_loop.loop import eval_keys, run_population  # noqa: F401
 from slotv_jax.observers import population as population_lib
-from slotv_jax.planning.plans import save_plans
+from slotv_jax.planning.plans import load_plans, save_plans
 
 # ------------------------------------------------------------------ the document
 
@@ -302,12 +302,17 @@ def example_plans(doc: dict) -> dict[str, np.ndarray]:
     }
 
 
-def draw_example(doc: dict, out: Path, stem: str) -> None:
+def draw_example(doc: dict, out: Path, stem: str, *, again: bool = False) -> None:
     """Write ``STEM_plans.npz`` and draw ``STEM_render.png`` from it with the render command
     (in its own process: the loop itself needs no OpenGL); without OpenGL, say so in one
-    line and go on."""
+    line and go on. A drawing beside plans equal to the document's example is kept (a
+    rerun that computed nothing: drawing it again takes 10-15 s on a CPU and gives the same
+    picture), unless ``again`` (``--report``: draw everything again)."""
     plans = out / f"{stem}_plans.npz"
-    save_plans(plans, example_plans(doc))
+    example = example_plans(doc)
+    if not again and (out / f"{stem}_render.png").is_file() and _same_plans(plans, example):
+        return
+    save_plans(plans, example)
     best = report_lib.best_family(doc, doc["populations"][0])
     cmd = [sys.executable, *report_lib.render_command(stem, out, best)[1:]]
     r = subprocess.run(cmd, capture_output=True, text=True, check=False)
@@ -318,6 +323,19 @@ def draw_example(doc: dict, out: Path, stem: str) -> None:
             f"{' '.join(report_lib.render_command(stem, out, best))}",
             file=sys.stderr,
         )
+
+
+def _same_plans(path: Path, plans: dict[str, np.ndarray]) -> bool:
+    """Whether the plans file ``path`` holds exactly ``plans`` (False if it cannot be read)."""
+    try:
+        held = load_plans(path)
+    except (OSError, ValueError):
+        return False
+    want = {k: np.asarray(v) for k, v in plans.items()}
+    return set(held) == set(want) and all(
+        held[k].dtype == v.dtype and np.array_equal(held[k], v, equal_nan=v.dtype.kind == "f")
+        for k, v in want.items()
+    )
 
 
 def population_name(spec: str) -> str:

@@ -54,7 +54,6 @@ observer is ``python -m slotv_jax.render --plans PLANS --grid`` (the README's co
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -193,9 +192,6 @@ def run(
 
     # Plans: one compiled program for every observer.
     planner = planning.make_planner(observers, cfg.planner)
-    n_obs = len(planner.observers)
-    note = f"planning: compiling one program for {n_obs} observers (a minute or two on a CPU)"
-    print(note, file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     straight = planner.straight_line(problems["goals"], problems["goal_mask"], problems["target"])
     straight = jax.device_get(straight)
