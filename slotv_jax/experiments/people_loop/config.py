@@ -136,6 +136,8 @@ class LoopConfig:
 
     def to_json(self) -> dict:
         d = dataclasses.asdict(self)
+        if PICK not in self.families:  # irrelevant without the pick: records made before it match
+            del d["pick_folds"]
         d["train"] = {f: self.train_config(f).to_dict() for f in LEARNED if f in self.families}
         return json.loads(json.dumps(d))
 
