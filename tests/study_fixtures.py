@@ -31,6 +31,7 @@ class DotRenderer:
     """Frames with the goals as grey dots and the TCP (x, y) as a red dot; H.264 clips."""
 
     fps = 10
+    timing = None  # clips at the plans' own times (a renderer's --timed setting)
 
     def frames(self, motion: stimuli.Motion, tau: float, camera: str):
         n = len(motion.labels)

@@ -412,7 +412,10 @@ def test_cameras_are_posed_in_one_compilation_and_checked_without_one(mj_cameras
     assert backend_compiles(lambda: [scene.check_camera(n) for n in mj_cameras]) == []
     with pytest.raises(ValueError, match="no camera named 'ceiling'"):
         scene.check_camera("ceiling")
-    assert len(backend_compiles(lambda: [scene.camera(n) for n in mj_cameras])) == 1
+    # the posing program compiles once for every camera (it was one `pose` per camera); the
+    # small eager ops of building the MJX model compile too, once per process, however many
+    # earlier tests in this worker already did: they are not counted
+    assert backend_compiles(lambda: [scene.camera(n) for n in mj_cameras]).count("jit(pose)") == 1
     for name, (pos, xmat) in mj_cameras.items():
         np.testing.assert_allclose(np.asarray(scene.camera(name).pos), pos, atol=CAM_TOL)
         np.testing.assert_allclose(np.asarray(scene.camera(name).rot), xmat, atol=CAM_TOL)
