@@ -216,3 +216,8 @@ def test_study_pick_scores_every_candidate_and_writes_the_pick(label_pool, tmp_p
     rec = json.loads((out / "pick.json").read_text())
     assert rec["labeler"] == "dragan" and 4.0 < rec["beta"] < 16.0
     assert rec["pick"]["heldout_nll"][0] < rec["pick"]["heldout_nll"][1]
+    # a learned candidate on a study of 3 goals (its logits have fewer slots than G_MAX)
+    out2 = tmp_path / "pick2"
+    argv2 = ["pick", str(path), "--out", str(out2), "--candidates", "dragan_archetype,dragan"]
+    assert study_main([*argv2, "--folds", "2", "--no-progress"]) == 0
+    assert "| dragan_archetype" in capsys.readouterr().out

@@ -78,7 +78,10 @@ def out_of_fold(
             else:
                 cfg = fit_config(preset, name, tr.n_rows)
                 state = train_study(cfg, tr, jax.random.key(seed * 1000 + f), progress=False)
-                lp = _log_probs(answer_logits(cfg, state.params, te)[:, :g], mask[rows])
+                z = np.full((rows.size, g), -np.inf, np.float32)
+                lg = answer_logits(cfg, state.params, te)  # the study's goal slots in use
+                z[:, : lg.shape[-1]] = lg[:, :g]
+                lp = _log_probs(z, mask[rows])
             out[j, rows] = lp
             bar.update(1)
     bar.close()
