@@ -177,3 +177,17 @@ def test_timed_stimuli_move_at_the_robot_s_speed(tmp_path):
     like = make_stimuli.SceneRenderer.like(tmp_path / "stim")
     assert like.timing == timing and like.duration is None
     like.close()
+    from slotv_jax.study import cli as study_cli
+
+    # a later round of the same plans (the README's later round, run twice) holds the same
+    # ids: they are the same motions at the robot's times (refused as "another motion" when
+    # the check compared the plans' even times with the round's), and a moved one is not
+    make_stimuli.check_ids_across_rounds(tmp_path / "stim", m, "--plans", timing)
+    moved = m._replace(xyz=m.xyz + np.float32(1e-3))
+    with pytest.raises(ValueError, match=f"trajectory '{tid}' is another motion"):
+        make_stimuli.check_ids_across_rounds(tmp_path / "stim", moved, "--plans", timing)
+    argv = ["stimuli", "--plans", plans, "--n", "1", "--taus", "0.5,1.0", "--attention", "0",
+            "--no-practice", "--next-round", str(tmp_path / "stim")]  # fmt: skip
+    assert study_cli.main(argv) == 0
+    later = stimuli.load_stimulus_set(tmp_path / "stim" / "round-1")
+    assert later.trajectories[tid] == st.trajectories[tid]

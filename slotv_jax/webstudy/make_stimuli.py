@@ -306,14 +306,29 @@ def make_set(
     )  # fmt: skip
 
 
-def check_ids_across_rounds(stimdir: str | Path, motions: Motions, what: str) -> None:
+def check_ids_across_rounds(
+    stimdir: str | Path, motions: Motions, what: str, timing: dict | None = None
+) -> None:
     """ValueError unless every id of ``motions`` that a round of ``stimdir`` holds is the
     same motion there (points and goals as its tables write them): trajectory ids are
-    global across the rounds of a study (:mod:`slotv_jax.webstudy.stimuli`)."""
-    points, goals, _ = motion_tables(motions.xyz, motions.goals, motions.goal_mask,
-                                     motions.ids, length=motions.length, t=motions.t)  # fmt: skip
-    for r in find_rounds(stimdir):
-        st = load_stimulus_set(round_dir(stimdir, r), verify=False)
+    global across the rounds of a study (:mod:`slotv_jax.webstudy.stimuli`). In a study
+    timed at a robot's speed (``timing``, the manifest's), the motions' points carry the
+    robot's times (:func:`robot_times`), as the new round's tables will."""
+    rounds = {
+        r: load_stimulus_set(round_dir(stimdir, r), verify=False) for r in find_rounds(stimdir)
+    }
+    seen = set().union(*(st.trajectories for st in rounds.values()))
+    both = [i for i, tid in enumerate(motions.ids) if tid in seen]
+    if not both:
+        return
+    ids = [motions.ids[i] for i in both]
+    t = None if motions.t is None else motions.t[both]
+    if t is None and timing is not None:
+        t = robot_times(motions.q[both], motions.length[both], ids, timing)
+    points, goals, _ = motion_tables(motions.xyz[both], motions.goals[both],
+                                     motions.goal_mask[both], ids, length=motions.length[both],
+                                     t=t)  # fmt: skip
+    for r, st in rounds.items():
         for tid in sorted(set(points) & set(st.trajectories)):
             if st.trajectories[tid] != points[tid] or st.goals.get(tid) != goals[tid]:
                 raise ValueError(
@@ -443,7 +458,8 @@ def stimuli_main(args: argparse.Namespace) -> int:
         motions, source = motions_from_study(args.study), {"kind": "study", "file": args.study}
     if r:
         flag, path = next((k, v) for k, v in inputs.items() if v is not None)
-        check_ids_across_rounds(stimdir, motions, f"{flag} {path}")
+        timing0 = load_stimulus_set(stimdir, verify=False).manifest.get("timing")
+        check_ids_across_rounds(stimdir, motions, f"{flag} {path}", timing0)
     try:
         if r:
             renderer = SceneRenderer.like(stimdir, trace=not args.no_trace)
