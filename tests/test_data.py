@@ -247,6 +247,11 @@ def test_cli_generate_into_the_cache_and_relabel(tmp_path, monkeypatch, capsys):
     np.testing.assert_array_equal(relabelled.xyz, split.xyz)
     np.testing.assert_array_equal(relabelled.labels["effdist"], split.labels["effdist"])
     assert not np.allclose(relabelled.labels["dragan"], split.labels["dragan"])
+    stamp = os.stat(Path("soft") / "goal_count_test.npz").st_mtime_ns
+    capsys.readouterr()
+    assert data_cli.main([*relabel, "--data", str(cache), "--out", "soft"]) == 0  # resumed
+    assert os.stat(Path("soft") / "goal_count_test.npz").st_mtime_ns == stamp
+    assert "goal_count_test: already relabelled in soft, kept" in capsys.readouterr().out
     # Softer labels: lower β gives higher entropy.
     ent = lambda y: -(y * np.log(np.where(y > 0, y, 1))).sum(-1).mean()  # noqa: E731
     assert ent(relabelled.labels["dragan"]) > ent(split.labels["dragan"])

@@ -140,6 +140,10 @@ def _relabel(args, label_kw: dict) -> int:
         _check_dir_config(args.out, new)  # only an earlier relabelling of the same kind
     print(XLA_CONFIG.summary(), file=sys.stderr)
     for name in args.splits:
+        if not in_place and (args.out / f"{name}.json").is_file():  # resumed: relabelled
+            load_split(args.out, name)  # whole (its checksum holds), of this config (above)
+            print(f"{name}: already relabelled in {args.out}, kept")
+            continue
         split = load_split(src, name)
         meta = {k: v for k, v in split.meta.items() if k in ("reachability", "timing_s")}
         split = relabel(dataclasses.replace(split, meta=meta), new.labels)
