@@ -299,6 +299,11 @@ def test_a_recorded_plan_at_the_robot_s_speed(tmp_path, monkeypatch, capsys):
         with pytest.raises(SystemExit):
             cli.main([*args, *fast, *extra, "--out", str(tmp_path / "x.mp4")])
         assert message in capsys.readouterr().err
+    untimed_args = [a for a in args if a != "--timed"]
+    for flag in (["--speed", "0.5"], ["--robot", "fr3"]):  # they time nothing without --timed
+        with pytest.raises(SystemExit):
+            cli.main([*untimed_args, *fast, *flag, "--out", str(tmp_path / "x.mp4")])
+        assert f"error: {flag[0]}: only with --timed" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # two planners side by side: not one motion
         cli.main([*args[:4], "--timed", *fast, "--out", str(tmp_path / "y.mp4")])
     assert "a timed clip shows one" in capsys.readouterr().err

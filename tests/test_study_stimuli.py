@@ -140,6 +140,9 @@ def test_trials_per_participant_is_written_and_an_edited_study_json_kept(
     for argv, msg in (
         ([*src, "--next-round", str(out), "--trials", "1"], "--trials: --next-round keeps"),
         ([*src, "--out", str(tmp_path / "new"), "--trials", "0"], "--trials 0: expected 1..1"),
+        ([*src, "--out", str(tmp_path / "new"), "--speed", "0.5"], "--speed: only with --timed"),
+        ([*src, "--out", str(tmp_path / "new"), "--robot", "fr3"], "--robot: only with --timed"),
+        ([*src, "--out", str(tmp_path / "new"), "--timed", "--speed", "2"], "--speed: expected"),
     ):
         with pytest.raises(SystemExit) as e:
             study_cli.main(argv)

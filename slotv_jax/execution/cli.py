@@ -39,6 +39,39 @@ from slotv_jax.planning.plans import load_plans
 EXIT_REFUSED = 1
 
 
+def add_timing_args(p: argparse.ArgumentParser, *, instead: str | None = None) -> None:
+    """The flags that time a motion for a Franka arm, spelled once for every command:
+    ``--speed`` and ``--robot``; with ``instead`` (what timing replaces, in a command that
+    may show motions untimed), also ``--timed``, and then the two apply only with it
+    (:func:`timing_from_args`)."""
+    with_timed = "with --timed: " if instead else ""
+    if instead:
+        p.add_argument("--timed", action="store_true",
+                       help="each motion at a Franka arm's speed (its published limits times "
+                       f"--speed) instead of {instead}")  # fmt: skip
+    p.add_argument("--speed", type=float, default=None if instead else DEFAULT_SPEED,
+                   help=f"{with_timed}fraction of the velocity, acceleration and jerk limits, "
+                   f"in (0, 1] (default {DEFAULT_SPEED})")  # fmt: skip
+    p.add_argument("--robot", default=None if instead else "fer", choices=sorted(ROBOTS),
+                   help=f"{with_timed}whose limits: fer (the Panda, default) or fr3")  # fmt: skip
+
+
+def timing_from_args(args: argparse.Namespace) -> TimingConfig | None:
+    """The timing :func:`add_timing_args`'s flags ask for (None: ``--timed`` left out);
+    ``cli.InputError`` naming the flag for a speed outside (0, 1], or for ``--speed`` or
+    ``--robot`` without ``--timed``."""
+    if not getattr(args, "timed", True):
+        for flag in ("speed", "robot"):
+            if getattr(args, flag) is not None:
+                raise cli.InputError(f"--{flag}: only with --timed")
+        return None
+    try:
+        speed = check_speed(DEFAULT_SPEED if args.speed is None else args.speed)
+    except ValueError as e:
+        raise cli.InputError(f"--{e}") from None
+    return TimingConfig(speed=speed, robot=args.robot or "fer")
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m slotv_jax.execution",
@@ -54,11 +87,7 @@ def _parser() -> argparse.ArgumentParser:
             "" if name == "export" else " (default: all)"), required=name == "export")  # fmt: skip
         s.add_argument("--planner", help="the planner's name" + (
             "" if name == "export" else " (default: all)"), required=name == "export")  # fmt: skip
-        s.add_argument("--speed", type=float, default=DEFAULT_SPEED,
-                       help=f"fraction of the velocity, acceleration and jerk limits, in (0, 1] "
-                       f"(default {DEFAULT_SPEED})")  # fmt: skip
-        s.add_argument("--robot", default="fer", choices=sorted(ROBOTS),
-                       help="whose limits: fer (the Panda, default) or fr3")  # fmt: skip
+        add_timing_args(s)
         if name == "export":
             s.add_argument("--format", required=True, choices=sorted(FORMATS),
                            help="csv or npz (t, q, dq, ddq) or ros (a FollowJointTrajectory "
@@ -92,10 +121,7 @@ def _rows(args, plans) -> list[tuple[int, int]]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Check every input and the output, then time, check and export (or report)."""
     args = _parser().parse_args(argv)
-    try:
-        config = TimingConfig(speed=check_speed(args.speed), robot=args.robot)
-    except ValueError as e:
-        raise cli.InputError(f"--{e}") from None
+    config = timing_from_args(args)
     if args.command == "export":
         if args.rate is not None:
             try:

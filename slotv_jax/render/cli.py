@@ -52,8 +52,8 @@ from tqdm.auto import tqdm
 from slotv_jax.answers.storage import load_study
 from slotv_jax.core import cli, fileio
 from slotv_jax.data import SPLITS, load_split
-from slotv_jax.execution import DEFAULT_SPEED, Refused, TimingConfig, time_plan
-from slotv_jax.execution.limits import ROBOTS, check_speed
+from slotv_jax.execution import Refused, TimingConfig, time_plan
+from slotv_jax.execution.cli import add_timing_args, timing_from_args
 from slotv_jax.planning.plans import load_plans
 from slotv_jax.rendering.camera import CAMERAS, FreeCamera
 from slotv_jax.rendering.compare import GAP, LAYOUTS, PALETTE, compare_frames
@@ -299,13 +299,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
     p.add_argument("--duration", type=float, default=None,
                    help="seconds of the whole motion (default 3)")  # fmt: skip
-    p.add_argument("--timed", action="store_true",
-                   help="play the motion at a Franka arm's speed (its published limits times "
-                   "--speed) instead of --duration seconds")  # fmt: skip
-    p.add_argument("--speed", type=float, default=DEFAULT_SPEED,
-                   help=f"with --timed: fraction of the limits ({DEFAULT_SPEED})")  # fmt: skip
-    p.add_argument("--robot", default="fer", choices=sorted(ROBOTS),
-                   help="with --timed: whose limits (default fer, the Panda)")  # fmt: skip
+    add_timing_args(p, instead="--duration seconds")
     p.add_argument("--hold", type=float, default=1.0, help="seconds the last frame is held")
     p.add_argument("--labels", default="letters", choices=LABEL_CHOICES, help="goal labels")
     p.add_argument("--mark-target", action="store_true", help="draw a disc under the target")
@@ -380,7 +374,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise cli.InputError("--timed: a --grid shows stills; leave --timed out")
     args.duration = 3.0 if args.duration is None else args.duration
     check_timing(args.tau, args.fps, args.duration, args.hold)
-    timing = _timing(args) if args.timed else None
+    timing = timing_from_args(args)
     camera = _camera(args)
     load = {"data": _data_items, "npz": _npz_items, "study": _study_items, "plans": _plans_items}
     items = next(f(args) for k, f in load.items() if getattr(args, k) is not None)
@@ -427,13 +421,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                 write_video(path, frames, args.fps)
     print(f"wrote {len(paths)} file(s): {paths[0]}{' ...' if len(paths) > 1 else ''}")
     return 0
-
-
-def _timing(args) -> TimingConfig:
-    try:
-        return TimingConfig(speed=check_speed(args.speed), robot=args.robot)
-    except ValueError as e:
-        raise cli.InputError(f"--{e}") from None
 
 
 def _timed(it: Item, timing: TimingConfig) -> Item:

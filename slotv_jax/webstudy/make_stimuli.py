@@ -62,6 +62,7 @@ from slotv_jax.core import validation
 from slotv_jax.core.fileio import check_not_input, check_output_dir, load_npz
 from slotv_jax.data import SPLITS, Split, load_split
 from slotv_jax.execution import DEFAULT_SPEED, Refused, TimingConfig, time_plan
+from slotv_jax.execution.cli import add_timing_args, timing_from_args
 from slotv_jax.execution.limits import SOURCE, check_speed
 from slotv_jax.planning.plans import load_plans
 from slotv_jax.rendering.overlay import LABEL_LIFT
@@ -382,11 +383,7 @@ def add_command(sub) -> None:
                    help="seconds of a whole motion, tau = 1 (3)")  # fmt: skip
     p.add_argument("--hold", type=float, default=None,
                    help="seconds the last frame stays (0.5)")  # fmt: skip
-    p.add_argument("--timed", action="store_true",
-                   help="each motion at a Franka Panda's speed (its published limits times "
-                   "--speed), not --duration seconds")  # fmt: skip
-    p.add_argument("--speed", type=float, default=None,
-                   help=f"with --timed: fraction of the limits ({DEFAULT_SPEED})")  # fmt: skip
+    add_timing_args(p, instead="--duration seconds")
     p.add_argument("--no-trace", action="store_true", help="do not draw the TCP's path")
     p.add_argument("--seed", type=int, default=0)
     dest = p.add_mutually_exclusive_group(required=True)
@@ -418,12 +415,8 @@ def stimuli_main(args: argparse.Namespace) -> int:
     if args.timed and clip["duration"] is not None:
         raise ValueError("--duration: --timed shows each motion at the robot's own speed; "
                          "leave --duration out")  # fmt: skip
-    if args.speed is not None and not args.timed:
-        raise ValueError("--speed: only with --timed")
-    try:
-        timing = robot_timing(DEFAULT_SPEED if args.speed is None else args.speed)
-    except ValueError as e:
-        raise ValueError(f"--{e}") from None
+    timed = timing_from_args(args)
+    timing = None if timed is None else robot_timing(timed.speed, timed.robot)
     inputs = {f"--{k}": getattr(args, k) for k in ("data", "npz", "plans", "study")}
     if args.next_round is not None:  # the next round's folder, with round 0's clip settings
         stimdir = Path(args.next_round)
@@ -468,7 +461,7 @@ def stimuli_main(args: argparse.Namespace) -> int:
                 size, clip["fps"] or DEFAULTS["fps"],
                 None if args.timed else clip["duration"] or DEFAULTS["duration"],
                 DEFAULTS["hold"] if args.hold is None else args.hold, trace=not args.no_trace,
-                timing=timing if args.timed else None,
+                timing=timing,
             )  # fmt: skip
     except rendering.RenderBackendError as e:
         raise ValueError(str(e)) from None  # one line: how to get OpenGL
