@@ -11,6 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 import ref_labelers as ref
+from compile_log import backend_compiles
 
 import slotv_jax  # noqa: F401  (applies the XLA CPU setting before JAX starts)
 from slotv_jax.core.defaults import BETAS_V1
@@ -388,34 +389,22 @@ def test_camera_matches_mujoco_c(name, mj_cameras):
         assert bool(ok)
 
 
-def backend_compiles(fn) -> list[str]:
-    """The names of the functions XLA compiled while ``fn()`` ran."""
-    compiled = []
-
-    def listen(event, duration, **kw):
-        if event.endswith("backend_compile_duration"):
-            compiled.append(kw.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
-        fn()
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
-    return compiled
-
-
 def test_cameras_are_posed_in_one_compilation_and_checked_without_one(mj_cameras):
     """Every named camera comes from one compiled MJX call (it was one per camera: each
     several seconds on a loaded CPU), and checking a name poses nothing."""
     scene._camera_cached.cache_clear()
     scene._camera_poses.cache_clear()
-    assert backend_compiles(lambda: [scene.check_camera(n) for n in mj_cameras]) == []
+    with backend_compiles() as compiled:
+        [scene.check_camera(n) for n in mj_cameras]
+    assert compiled == []
     with pytest.raises(ValueError, match="no camera named 'ceiling'"):
         scene.check_camera("ceiling")
     # the posing program compiles once for every camera (it was one `pose` per camera); the
     # small eager ops of building the MJX model compile too, once per process, however many
     # earlier tests in this worker already did: they are not counted
-    assert backend_compiles(lambda: [scene.camera(n) for n in mj_cameras]).count("jit(pose)") == 1
+    with backend_compiles() as compiled:
+        [scene.camera(n) for n in mj_cameras]
+    assert compiled.count("jit(pose)") == 1
     for name, (pos, xmat) in mj_cameras.items():
         np.testing.assert_allclose(np.asarray(scene.camera(name).pos), pos, atol=CAM_TOL)
         np.testing.assert_allclose(np.asarray(scene.camera(name).rot), xmat, atol=CAM_TOL)

@@ -47,6 +47,7 @@ FOUR_DEVICES = textwrap.dedent(
     from slotv_jax.training import evaluate, parallel, schedule
     from slotv_jax.training import trainer as train
     sys.path.insert(0, {tests!r})
+    from compile_log import backend_compiles
     from test_train import assert_same_run, effdist_np, probabilities, small_cfg, synthetic_split
     assert jax.device_count() == 4, jax.devices()
     split = synthetic_split(0, 320)
@@ -126,17 +127,14 @@ FOUR_DEVICES = textwrap.dedent(
     # T-REX: a full group compiled from shapes alone is the one train_group runs (CPUs pack
     # only SLOT-V updates, whose compiled function depends on the data), equal one by one.
     cfg = small_cfg("trex", epochs=1, train_size=48, hidden=(24, 8))
-    compiled = []
-    jax.monitoring.register_event_duration_secs_listener(
-        lambda event, duration, **kw: compiled.append(kw.get("fun_name"))
-        if event.endswith("backend_compile_duration") else None)
     g = train.trim_goals(data).goals.shape[1]
     mesh = schedule.unit_mesh(4, cfg.batch_size)
-    assert parallel.precompile_group(cfg, len(data.xyz), data.xyz.shape[1], g, mesh)
-    assert compiled.count("jit(train_run)") == 1
-    labels4 = np.stack([np.asarray(data.labels)] * 4)
-    state, _ = parallel.train_group(cfg, data, [0, 1, 2, 3], mesh, labels=labels4)
-    assert compiled.count("jit(train_run)") == 1, compiled  # reused
+    with backend_compiles() as compiled:
+        assert parallel.precompile_group(cfg, len(data.xyz), data.xyz.shape[1], g, mesh)
+        assert compiled.count("jit(train_run)") == 1
+        labels4 = np.stack([np.asarray(data.labels)] * 4)
+        state, _ = parallel.train_group(cfg, data, [0, 1, 2, 3], mesh, labels=labels4)
+        assert compiled.count("jit(train_run)") == 1, compiled  # reused
     check_same(cfg, state.params, sequential(cfg, [0, 1, 2, 3]))
 
     # One job per device, dispatched asynchronously, results in job order.

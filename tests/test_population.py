@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from compile_log import backend_compiles
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from study_fixtures import ServerProcess, write_dot_set
@@ -402,19 +403,10 @@ def test_a_population_is_made_and_loaded_without_posing_a_camera(tmp_path):
     """Its camera names are checked against the scene model by name: nothing is compiled
     (posing each camera for the check was 25 s of the README's population snippet on a
     loaded 2-core CPU)."""
-    compiled = []
-
-    def listen(event, duration, **kw):
-        if event.endswith("backend_compile_duration"):
-            compiled.append(kw.get("fun_name"))
-
     scene._camera_cached.cache_clear()
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
+    with backend_compiles() as compiled:
         P.save_population(P.default().replace(name="mine"), tmp_path / "p.json")
         assert P.load_population(tmp_path / "p.json").name == "mine"
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
     assert compiled == []  # (an unknown camera: test_bad_population_files_are_one_named_error)
 
 

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from compile_log import backend_compiles
 from flax import nnx
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
@@ -499,20 +500,11 @@ def test_precompile_is_reused_by_train_trials(tiny):
     cfg = small_cfg("trex", epochs=1, train_size=48, hidden=(24, 8))
     data = types.prepare(tr, "effdist")
     g = types.trim_goals(types.subset(data, 48)).goals.shape[1]
-    compiled = []
-
-    def listen(event, duration, **kw):
-        if event.endswith("backend_compile_duration"):
-            compiled.append(kw.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(listen)
-    try:
+    with backend_compiles() as compiled:
         assert train.precompile(cfg, len(data.xyz), data.xyz.shape[1], g)
         assert compiled.count("jit(train)") == 1
         state, _ = train.train_trials(cfg, data, [3], progress=False)
         assert compiled.count("jit(train)") == 1  # reused
-    finally:
-        jax.monitoring.unregister_event_duration_listener(listen)
     train._jit_trials.cache_clear()  # compile again on the spot: same parameters
     again, _ = train.train_trials(cfg, data, [3], progress=False)
     for x, y in zip(jax.tree.leaves(state.params), jax.tree.leaves(again.params), strict=True):
