@@ -144,14 +144,17 @@ class LoopConfig:
 
 def quick() -> LoopConfig:
     """CPU preset: the quick dataset and networks (64/32), 2 seeds, 12 problems, 50-point
-    plans of 30 steps."""
+    plans of 30 steps, 250 to 2,000 answers picked at random (the suite's protocol; the
+    active strategies with ``--strategies random,margin,error``)."""
     taus = (0.4, 0.7, 1.0)
     return LoopConfig(
         "quick",
         data_lib.quick(),
         "quick",
         planning.PlannerConfig(n_points=50, iters=30, taus=taus),
+        sizes=(250, 500, 1000, 2000),
         taus=taus,
+        strategies=("random",),
         subset=2000,
     )
 
@@ -159,14 +162,16 @@ def quick() -> LoopConfig:
 def paper() -> LoopConfig:
     """GPU preset: the paper's networks and dataset distribution (12,000 training motions, of
     which the pool takes 10,000, and the held-out scenes), 3 seeds, 100 problems, the
-    default planner (100 points, 50 steps)."""
+    default planner (100 points, 50 steps), 500 to 2,000 answers picked at random."""
     taus = (0.4, 0.7, 1.0)
     return LoopConfig(
         "paper",
         dataclasses.replace(data_lib.paper(), n_train=12_000, n_eval=1_000, n_new_scenes=20),
         "paper",
         planning.PlannerConfig(taus=taus),
+        sizes=(500, 1000, 2000),
         taus=taus,
+        strategies=("random",),
         pool=10000,
         subset=4000,
         problems=100,
