@@ -429,19 +429,27 @@ def suite_section(doc: dict) -> list[str]:
         "",
         "| population | "
         + " | ".join(f"pick {a:,}" for a in sizes)
-        + (" | Dragan, β fitted | Nikolaidis, β fitted |" if at else " |"),
-        "|---|" + "---|" * (len(sizes) + (2 if at else 0)),
+        + (
+            " | Dragan, β fitted | Nikolaidis, β fitted | the best single family (oracle's "
+            "choice) |"
+            if at
+            else " |"
+        ),
+        "|---|" + "---|" * (len(sizes) + (3 if at else 0)),
     ]
     for q in s["populations"]:
         cells = [_pct(s["gain"][q][a]) for a in sizes]
         if at:
             cells += [_pct(v[at]) if at in (v := _gain(doc, q, b)) else "—" for b in BASELINES]
+            single = {f: v[at] for f in FAMILY_TITLES if f != PICK if at in (v := _gain(doc, q, f))}
+            best = max(single, key=single.get) if single else None
+            cells.append(f"{FAMILY_TITLES[best]} {_pct(single[best])}" if best else "—")
         lines.append(f"| `{q}` | " + " | ".join(cells) + " |")
     for name in ("median", "worst", "mean"):
         lines.append(
             f"| **{name}** | "
             + " | ".join(_pct(s[name][a]) for a in sizes)
-            + (" | | |" if at else " |")
+            + (" | | | |" if at else " |")
         )
     missing = [q for q in population_lib.suite_specs() if q not in s["populations"]]
     if missing:
@@ -474,7 +482,7 @@ def pick_agreement(doc: dict) -> list[str]:
     """How often the pick's largest weight is the family the oracle would have chosen (the
     best single family by gain kept, per population, seed and size), and what the pooled
     pick gains or loses against that family."""
-    same, n, diff = 0, 0, []
+    same, n, diff, unweighted = 0, 0, [], 0
     for p in doc["populations"]:
         by = {}
         for r in p["rows"]:
@@ -486,6 +494,7 @@ def pick_agreement(doc: dict) -> list[str]:
             single = {f: r["gain_kept"] for f, r in rows.items() if f != PICK}
             best = max(single, key=single.get)
             same += rows[PICK]["picked"] == best
+            unweighted += rows[PICK].get("weights", {}).get(best, 0.0) < 0.01
             n += 1
             diff.append(rows[PICK]["gain_kept"] - single[best])
     if not n:
@@ -494,7 +503,9 @@ def pick_agreement(doc: dict) -> list[str]:
         f"The pick's largest weight is on the family the oracle would have chosen in "
         f"{same} of {n} runs (population × seed × size); the pool keeps "
         f"{100 * statistics.fmean(diff):+.1f} points of gain against that family on average "
-        f"(median {100 * statistics.median(diff):+.1f}, worst {100 * min(diff):+.1f}).",
+        f"(median {100 * statistics.median(diff):+.1f}, worst {100 * min(diff):+.1f}). "
+        f"In {unweighted} of those runs the pool gave that family no weight (under 0.01): the "
+        "answers alone did not show that its plans were the best.",
         "",
         "![held-out answer likelihood against the plans' gain]({stem}_fit_plan.png)",
         "",
