@@ -198,7 +198,7 @@ def tiny() -> LoopConfig:
         taus=taus,
         per_stimulus=2,
         strategies=("random", "margin"),
-        families=("mlp", "dragan_archetype", "dragan_fitted", PICK),
+        families=("mlp", "dragan_fitted", PICK),
         select_family="mlp",
         members=2,
         pool=60,
