@@ -427,7 +427,7 @@ def suite_section(doc: dict) -> list[str]:
         if at
         else "",
         "",
-        "| population | "
+        "| population | seeds | "
         + " | ".join(f"pick {a:,}" for a in sizes)
         + (
             " | Dragan, β fitted | Nikolaidis, β fitted | the best single family (oracle's "
@@ -435,10 +435,11 @@ def suite_section(doc: dict) -> list[str]:
             if at
             else " |"
         ),
-        "|---|" + "---|" * (len(sizes) + (3 if at else 0)),
+        "|---|---|" + "---|" * (len(sizes) + (3 if at else 0)),
     ]
+    seeds = {p["population"]: len(seeds_of(p)) for p in doc["populations"]}
     for q in s["populations"]:
-        cells = [_pct(s["gain"][q][a]) for a in sizes]
+        cells = [str(seeds[q])] + [_pct(s["gain"][q][a]) for a in sizes]
         if at:
             cells += [_pct(v[at]) if at in (v := _gain(doc, q, b)) else "—" for b in BASELINES]
             single = {f: v[at] for f in FAMILY_TITLES if f != PICK if at in (v := _gain(doc, q, f))}
@@ -447,7 +448,7 @@ def suite_section(doc: dict) -> list[str]:
         lines.append(f"| `{q}` | " + " | ".join(cells) + " |")
     for name in ("median", "worst", "mean"):
         lines.append(
-            f"| **{name}** | "
+            f"| **{name}** | | "
             + " | ".join(_pct(s[name][a]) for a in sizes)
             + (" | | | |" if at else " |")
         )
