@@ -47,11 +47,3 @@ def tiny_cfg() -> data.DataConfig:
 def tiny_data(tiny_cfg) -> dict[str, data.Split]:
     """All seven splits, generated and labelled (about 20 s on 2 cores, mostly compilation)."""
     return data.generate_dataset(tiny_cfg, None, progress=False)
-
-
-def pytest_collection_modifyitems(config, items):
-    """The slow tests first, in their files' order otherwise (a stable sort). xdist's
-    scheduler hands tests out in this order (after the grouped ones), so the long tests
-    start early on both workers and the short ones fill the end, instead of one long test
-    running alone at the end while the other worker waits."""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
