@@ -111,7 +111,8 @@ def test_another_seed_adds_its_rows_to_the_document(tmp_path, monkeypatch, capsy
     monkeypatch.setattr(exp, "run_population", fake_run_population)
     monkeypatch.setattr(exp.data_lib, "generate_dataset", lambda *a, **k: {})
     monkeypatch.setattr(exp.report_lib, "render", lambda *a, **k: None)
-    monkeypatch.setattr(exp, "draw_example", lambda *a, **k: None)
+    drawn = []  # whether the example was drawn again: after new rows only
+    monkeypatch.setattr(exp, "draw_example", lambda *a, again=False: drawn.append(again))
     path = tmp_path / "people_loop_tiny_results.json"
     exp.run(cfg, tmp_path, ["default"], cache=tmp_path / "data", progress=False)
     first = json.loads(path.read_text())
@@ -129,6 +130,7 @@ def test_another_seed_adds_its_rows_to_the_document(tmp_path, monkeypatch, capsy
             cache=tmp_path / "data", progress=False)  # fmt: skip
     assert calls == [[0], [1, 2]]  # every seed is there: nothing runs again, and it says so
     assert "nothing ran" in capsys.readouterr().err
+    assert drawn == [True, True, False]  # the best family may change with new rows only
     other = dataclasses.replace(cfg, problems=2)  # another config starts a new document
     exp.run(other, tmp_path, ["default"], cache=tmp_path / "data", progress=False)
     assert calls[-1] == [0] and len(json.loads(path.read_text())["populations"][0]["runs"]) == 1

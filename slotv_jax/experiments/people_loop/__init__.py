@@ -146,6 +146,7 @@ def run(
     if doc.get("config") != conf:
         doc = {"preset": cfg.preset, "config": conf, "populations": [], "summary": []}
     doc["populations"] = [p for p in doc["populations"] if not p.get("partial")]
+    summary_before = doc["summary"]  # new rows may change the best family the example shows
     parts = out / PARTS
     if jobs is None and parts.is_dir():  # a stopped spread run: its finished parts
         _merge_parts(doc, conf, parts, path)
@@ -182,7 +183,7 @@ def run(
             _run_one(cfg, doc, entries, path, spec, seeds, splits, progress)
     if jobs is None:
         report_lib.render(doc, out, stem)
-        draw_example(doc, out, stem)
+        draw_example(doc, out, stem, again=doc["summary"] != summary_before)
     return doc
 
 
@@ -307,7 +308,8 @@ def draw_example(doc: dict, out: Path, stem: str, *, again: bool = False) -> Non
     (in its own process: the loop itself needs no OpenGL); without OpenGL, say so in one
     line and go on. A drawing beside plans equal to the document's example is kept (a
     rerun that computed nothing: drawing it again takes 10-15 s on a CPU and gives the same
-    picture), unless ``again`` (``--report``: draw everything again)."""
+    picture), unless ``again`` (``--report``, or new rows: the family that keeps the most
+    gain, which the drawing shows, may have changed)."""
     plans = out / f"{stem}_plans.npz"
     example = example_plans(doc)
     if not again and (out / f"{stem}_render.png").is_file() and _same_plans(plans, example):
