@@ -20,8 +20,8 @@ from flax import nnx
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
 from slotv_jax.train import cli as train_cli
+from slotv_jax.training import checkpoint, evaluate, losses, types
 from slotv_jax.training import config as train_config
-from slotv_jax.training import evaluate, losses, types
 from slotv_jax.training import trainer as train
 
 PROB_TOL = 1e-5  # goal probabilities of two runs that differ only in summation order
@@ -670,3 +670,44 @@ def test_cli_checks_every_split_before_training(tiny_data, tiny_cfg, tmp_path, c
     err = cap.err.strip().splitlines()
     assert len(err) == 1 and "position_test" in err[0] and err[0].startswith("error:"), err
     assert "epoch" not in cap.out and not ck.exists()
+
+
+def test_cli_init_starts_from_a_checkpoint_and_refuses_another(study_file, tmp_path, capsys):
+    """train --init CKPT (SPEC §13): the run starts from the checkpoint's parameters (with
+    a learning rate of 1e-12 the fine-tuned ones stay the checkpoint's, while the same run
+    without --init ends far from them), and records where it started. Another observer,
+    method or network shape, or no checkpoint, is one line before any work."""
+    path, _ = study_file
+    base = ["--study", str(path), "--epochs", "1", "--no-progress", "--set", "hidden=8,4"]
+    start = tmp_path / "start"
+    assert train_cli.main([*base, "--method", "slotv", "--out", str(start)]) == 0
+    slow = [*base, "--method", "slotv", "--seed", "3", "--set", "learning_rate=1e-12"]
+    assert train_cli.main([*slow, "--init", str(start), "--out", str(tmp_path / "tuned")]) == 0
+    assert train_cli.main([*slow, "--out", str(tmp_path / "fresh")]) == 0
+    params = {n: jax.tree.leaves(checkpoint.restore(tmp_path / n)[1].params)
+              for n in ("start", "tuned", "fresh")}  # fmt: skip
+    for a, b in zip(params["start"], params["tuned"], strict=True):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=0, atol=1e-6)
+    gap = max(float(np.abs(np.asarray(a) - np.asarray(c)).max())
+              for a, c in zip(params["start"], params["fresh"], strict=True))  # fmt: skip
+    assert gap > 1e-2  # a random draw is far from the checkpoint's parameters
+    assert checkpoint.restore(tmp_path / "tuned")[2]["init"] == str(start)
+    capsys.readouterr()
+    for extra, message in (
+        (["--model", "dragan", "--method", "slotv"], "holds a 'mlp' observer, not the requested "
+         "'dragan'"),
+        (["--method", "trex"], "trained by 'slotv', not the requested 'trex'"),
+        (["--method", "slotv", "--set", "hidden=16,8"], "other shapes than the requested 'mlp' "
+         "observer's; the configs differ in hidden (saved [8, 4], requested [16, 8])"),
+    ):  # fmt: skip
+        out = tmp_path / "refused"
+        with pytest.raises(SystemExit) as e:
+            train_cli.main([*base, *extra, "--init", str(start), "--out", str(out)])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert e.value.code == 2 and len(err) == 1, err
+        assert err[0].startswith(f"error: --init {start}: ") and message in err[0], err
+        assert not out.exists()
+    with pytest.raises(SystemExit):
+        train_cli.main([*base, "--method", "slotv", "--init", str(tmp_path / "none"),
+                        "--out", str(tmp_path / "refused")])  # fmt: skip
+    assert "no checkpoint there" in capsys.readouterr().err

@@ -59,6 +59,10 @@ def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
         _, state, old = checkpoint.restore(out, cfg)
         meta = {**old, **meta}
         print(f"resuming from {out} after epoch {int(state.epoch)}", flush=True)
+    elif getattr(args, "init_params", None) is not None:  # fine-tuning: θ₀ from --init
+        state = study_trainer(cfg).init(jax.random.key(args.seed))
+        state = state._replace(params=args.init_params)
+        meta["init"] = str(args.init)
 
     def save(st, loss):
         print(f"epoch {int(st.epoch)}/{cfg.epochs}: loss {loss:.4f}", flush=True)

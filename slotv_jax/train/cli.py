@@ -64,6 +64,11 @@ def _parse_args(argv):
         help="override any TrainConfig field, e.g. --set hidden=256,128 --set learning_rate=0.01",
     )  # fmt: skip
     ap.add_argument(
+        "--init", metavar="CKPT",
+        help="start from this checkpoint's parameters (the same --model and --method, e.g. "
+        "trained on a dataset's labels) instead of a random draw",
+    )  # fmt: skip
+    ap.add_argument(
         "--resume", action="store_true", help="continue the checkpoint at --out if it exists"
     )
     ap.add_argument(
@@ -104,6 +109,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     )  # fmt: skip
     if args.overwrite:
         args.resume = False
+    args.init_params = None
+    if args.init is not None:
+        if args.resume and checkpoint.exists(args.out):
+            raise cli.InputError(
+                "--init: --resume continues the checkpoint at --out from its own parameters; "
+                "give one or the other"
+            )
+        fileio.check_not_input(args.out, {"--init": args.init}, replaces_dir=True)
+        try:
+            args.init_params = checkpoint.initial_params(args.init, cfg)
+        except ValueError as e:
+            raise cli.InputError(f"--init {args.init}: {e}") from None
     print(XLA_CONFIG.summary(), flush=True)
     if args.study is not None:
         return study_cli.train_main(cfg, args)
@@ -123,6 +140,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"resuming from {out} after epoch {int(state.epoch)}", flush=True)
     else:
         state, meta = trainer.init(jax.random.key(args.seed)), {}
+        if args.init_params is not None:  # fine-tuning: θ₀ from the --init checkpoint
+            state, meta = state._replace(params=args.init_params), {"init": str(args.init)}
     trainer = packed_trainer(trainer, state.key, data, range(int(state.epoch), cfg.epochs))
     print(f"devices: {trainer.mesh.size} × {trainer.platform}; "
           f"backward: {trainer.backward}; packed pairs: {trainer.packed_pairs or 'off'}; "

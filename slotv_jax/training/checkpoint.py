@@ -330,6 +330,35 @@ def restore(path: str | os.PathLike, cfg: TrainConfig | None = None):
     return use, state, doc.get("meta", {})
 
 
+def initial_params(path: str | os.PathLike, cfg: TrainConfig):
+    """The parameters of the checkpoint at ``path`` to start a run of ``cfg`` from
+    (``python -m slotv_jax.train --init CKPT``: a model trained on labels, fine-tuned on
+    answers; the optimiser, epoch and key are the new run's). ``θ₀ = θ_CKPT`` instead of a
+    random draw, the fine-tuning of Howard & Ruder (2018). ValueError naming the checkpoint
+    unless it holds the same observer (``model``) trained by the same method, with
+    parameters of the same names and shapes as ``cfg``'s."""
+    path = Path(path).absolute()
+    if not exists(path):
+        raise ValueError(f"{path}: no checkpoint there (config.json and state/ of `train --out`)")
+    saved, state, _ = restore(path)
+    if saved.model != cfg.model:
+        raise ValueError(_wrong_model(path, saved.model, cfg.model))
+    if saved.method != cfg.method:
+        raise ValueError(
+            f"checkpoint {path}: trained by {saved.method!r}, not the requested {cfg.method!r}"
+        )
+    want = _describe(_flatten(_template(cfg).params))
+    got = _describe(_flatten(state.params))
+    if want != got:
+        a, b = saved.to_dict(), cfg.to_dict()
+        diff = [f"{k} (saved {a[k]!r}, requested {b[k]!r})" for k in sorted(a) if a[k] != b.get(k)]
+        raise ValueError(
+            f"checkpoint {path}: its parameters have other shapes than the requested "
+            f"{cfg.model!r} observer's; the configs differ in " + ", ".join(diff)
+        )
+    return state.params
+
+
 def _wrong_model(path, saved: str, requested: str) -> str:
     return (
         f"checkpoint {path}: it holds a {saved!r} observer, not the requested {requested!r} "
