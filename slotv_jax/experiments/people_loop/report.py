@@ -258,9 +258,13 @@ def report(doc: dict, stem: str) -> str:
         f"Rendered from `{stem}_results.json` (`{command_line(doc)}`). Stop times τ = "
         f"{', '.join(f'{t:g}' for t in cfg['taus'])}; "
         f"{cfg['per_stimulus']} answers per asked stimulus; pool {cfg['pool']:,} training motions; "
-        f"{cfg['problems']} held-out problems; seeds {', '.join(map(str, seeds))}; active "
-        "selection asks an ensemble of "
-        f"{cfg['members']} {FAMILY_TITLES.get(cfg['select_family'])} observers.",
+        f"{cfg['problems']} held-out problems; seeds {', '.join(map(str, seeds))}"
+        + (
+            f"; active selection asks an ensemble of {cfg['members']} "
+            f"{FAMILY_TITLES.get(cfg['select_family'])} observers."
+            if set(cfg["strategies"]) != {"random"}
+            else "; the motions asked about are picked at random."
+        ),
         "",
         f"Machine: {device(env)}; Python {env.get('python')}, jax "
         f"{env.get('jax')}, flax {env.get('flax')}, optax {env.get('optax')}, mujoco "
