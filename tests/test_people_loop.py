@@ -88,6 +88,29 @@ def test_a_rerun_keeps_the_document(tiny_run):
     assert (out / "people_loop_tiny_results.json").read_bytes() == before
 
 
+@pytest.mark.slow
+def test_the_pick_by_plans_is_the_plans_the_other_fits_judge_best(tiny_run):
+    """Each run's pick by plans: every candidate's plans judged by every candidate's fit
+    (``judged_by``), each scored by the others' mean judgment, the best one's plans taken
+    as they were evaluated (re-derived from the document)."""
+    _, _, _, doc = tiny_run
+    cands = exp.tiny().candidates
+    by: dict = {}
+    for r in doc["populations"][0]["rows"]:
+        by.setdefault((r["strategy"], r["seed"], r["answers"]), {})[r["family"]] = r
+    assert by and all("pick_cross" in fams for fams in by.values())
+    for fams in by.values():
+        for f in cands:
+            assert set(fams[f]["judged_by"]) == set(cands)
+            assert all(0 < v <= 1 for v in fams[f]["judged_by"].values())
+        want = {f: np.mean([fams[f]["judged_by"][g] for g in cands if g != f]) for f in cands}
+        cross = fams["pick_cross"]
+        assert cross["cross_scores"] == pytest.approx(want, abs=2e-6)
+        assert cross["chosen"] == max(want, key=want.get)
+        for k in ("score", "gain_kept", "accuracy", "feasible"):
+            assert cross[k] == fams[cross["chosen"]][k], k
+
+
 def test_another_seed_adds_its_rows_to_the_document(tmp_path, monkeypatch, capsys):
     """A run with another seed of the same config (one GPU call per seed) keeps the rows it
     finds, runs only the seeds missing, adds their rows and records the run; the summary

@@ -21,6 +21,8 @@ from slotv_jax.experiments.people_loop import loop
 from slotv_jax.experiments.people_loop.__main__ import main
 from slotv_jax.observers import labelers
 from slotv_jax.observers import population as population_lib
+from slotv_jax.observers.common import seen_points
+from slotv_jax.planning import evaluation
 from slotv_jax.study.cli import main as study_main
 
 # ------------------------------------------------------------------ the hyper-distribution
@@ -221,3 +223,80 @@ def test_study_pick_scores_every_candidate_and_writes_the_pick(label_pool, tmp_p
     argv2 = ["pick", str(path), "--out", str(out2), "--candidates", "dragan_archetype,dragan"]
     assert study_main([*argv2, "--folds", "2", "--no-progress"]) == 0
     assert "| dragan_archetype" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------ the pick by plans
+
+
+def _paths(runs: int, problems: int, n: int, seed: int = 0):
+    """Bent paths from the home TCP to one of 3 goals: (R, P, n, 3), goals, mask, target."""
+    rng = np.random.default_rng(seed)
+    goals = np.zeros((runs, problems, 8, 3), np.float32)
+    goals[..., :3, :] = [[0.5, 0.3, 0.025], [0.5, -0.3, 0.025], [0.65, 0.0, 0.025]]
+    mask = np.broadcast_to(np.arange(8) < 3, (runs, problems, 8))
+    target = rng.integers(0, 3, (runs, problems)).astype(np.int32)
+    t = np.linspace(0, 1, n)[:, None]
+    start = np.array([0.307, 0.0, 0.487])
+    xyz = np.empty((runs, problems, n, 3), np.float32)
+    for r in range(runs):
+        for p in range(problems):
+            bend = rng.uniform([-0.1, -0.25, -0.1], [0.1, 0.25, 0.1])
+            end = goals[r, p, target[r, p]]
+            xyz[r, p] = start + (end - start) * t + bend * np.sin(np.pi * t)
+    return xyz, goals, mask, target
+
+
+def test_a_judge_gives_its_observers_p_target_at_each_stop_time(monkeypatch):
+    """loop.judge: the population's observer judges paths as the evaluation's quadrature
+    scores them (planning.evaluation.population_scorer, another code path); the loop's
+    judge of the fitted Dragan baseline is Dragan's labeler at each run's own fitted β,
+    applied to each prefix (labelers.dragan of the sliced path) and built without reading
+    the population."""
+    taus, n = (0.4, 0.7, 1.0), 20
+    xyz, goals, mask, target = _paths(2, 3, n)
+    pop = population_lib.get_population("default")
+    got = loop.judge(lambda p: population_lib.population_observer(pop), taus, n)(
+        jnp.zeros(2), xyz, goals, mask, target
+    )
+    assert got.shape == (2, 3, len(taus))
+    flat = lambda a: a.reshape((-1, *a.shape[2:]))  # noqa: E731
+    scorer = evaluation.population_scorer(pop, taus, n, 2)
+    want, _ = scorer(jax.random.split(jax.random.key(0), 6), *map(flat, (xyz, goals, mask, target)))
+    np.testing.assert_allclose(np.asarray(got).reshape(6, -1), want, atol=2e-6)
+
+    def forbidden(*a, **k):
+        raise AssertionError("the judge read the population")
+
+    for name in population_lib.__all__:
+        if callable(getattr(population_lib, name)) and name[0].islower():
+            monkeypatch.setattr(population_lib, name, forbidden)
+    cfg = dataclasses.replace(
+        exp.tiny(),
+        families=("dragan_fitted", "nikolaidis_fitted", "pick_cross"),
+        taus=taus,
+        planner=planning.PlannerConfig(n_points=n, iters=3, taus=taus),
+    )
+    betas = np.array([[4.0, 1.0], [9.0, 1.0]], np.float32)  # (runs, [dragan, nikolaidis])
+    got = np.asarray(loop.judge_for(cfg, "dragan_fitted")({"beta": betas}, xyz, goals, mask,
+                                                          target))  # fmt: skip
+    seen = seen_points(taus, n)
+    for r in range(2):
+        for p in range(3):
+            for k, s in enumerate(seen):
+                y = labelers.dragan(xyz[r, p, :s], goals[r, p], mask[r, p], beta=betas[r, 0])
+                assert got[r, p, k] == pytest.approx(float(y[target[r, p]]), abs=2e-6)
+
+
+def test_the_pick_by_plans_leaves_each_family_out_of_its_own_judgment():
+    """cross_judged by hand: family a's fit finds its own plans very legible, the other fits
+    do not; each family is scored by the mean of the others' judgments, per run."""
+    judged = {
+        "a": {"a": np.array([0.95, 0.2]), "b": np.array([0.3, 0.2]), "c": np.array([0.35, 0.2])},
+        "b": {"a": np.array([0.6, 0.2]), "b": np.array([0.5, 0.9]), "c": np.array([0.7, 0.2])},
+        "c": {"a": np.array([0.5, 0.3]), "b": np.array([0.5, 0.8]), "c": np.array([0.99, 0.1])},
+    }
+    idx, s = loop.cross_judged(judged, ["a", "b", "c"])
+    np.testing.assert_allclose(s, [[0.325, 0.65, 0.5], [0.2, 0.2, 0.55]])
+    assert idx.tolist() == [1, 2]
+    with pytest.raises(ValueError, match="candidates"):
+        loop.cross_judged(judged, ["a"])

@@ -19,7 +19,11 @@ FITTED = {"dragan_fitted": "dragan", "nikolaidis_fitted": "nikolaidis"}  # famil
 #: The researcher's pick (:mod:`slotv_jax.answers.pooling`): the log-linear pool of every
 #: other family of the run, weighted by the held-out likelihood of the answers alone.
 PICK = "pick"
-FAMILIES = (*LEARNED, *FITTED, PICK)
+#: The pick by plans: the plans of the one family that the *other* families' fits judge the
+#: most legible (:func:`slotv_jax.experiments.people_loop.loop.cross_judged`); answers alone.
+PICK_CROSS = "pick_cross"
+DERIVED = (PICK, PICK_CROSS)  # families made of the others
+FAMILIES = (*LEARNED, *FITTED, *DERIVED)
 CAMERA = "observer"  # the viewpoint of the fitted Nikolaidis baseline (the dataset's)
 
 
@@ -80,8 +84,9 @@ class LoopConfig:
             raise ValueError(
                 f"families: expected distinct names of {FAMILIES}, got {list(self.families)}"
             )
-        if PICK in self.families and len(self.candidates) < 2:
-            raise ValueError(f"families: {PICK!r} pools at least two other families")
+        for d in DERIVED:
+            if d in self.families and len(self.candidates) < 2:
+                raise ValueError(f"families: {d!r} needs at least two other families")
         if self.select_family not in LEARNED:
             raise ValueError(
                 f"select_family: expected one of {LEARNED}, got {self.select_family!r}"
@@ -115,8 +120,8 @@ class LoopConfig:
 
     @property
     def candidates(self) -> tuple[str, ...]:
-        """The families the pick pools (every family of the run but the pick)."""
-        return tuple(f for f in self.families if f != PICK)
+        """The families the picks choose from (every family of the run but the picks)."""
+        return tuple(f for f in self.families if f not in DERIVED)
 
     def train_config(self, family: str) -> train_config.TrainConfig:
         """The TrainConfig that fits ``family`` (a learned one) on answers
@@ -198,7 +203,7 @@ def tiny() -> LoopConfig:
         taus=taus,
         per_stimulus=2,
         strategies=("random", "margin"),
-        families=("mlp", "dragan_fitted", PICK),
+        families=("mlp", "dragan_fitted", PICK, PICK_CROSS),
         select_family="mlp",
         members=2,
         pool=60,

@@ -17,9 +17,16 @@ from slotv_jax import planning
 from slotv_jax.answers import pooling
 from slotv_jax.asking import selection, simulated
 from slotv_jax.core.shapes import bucket, pad_rows
-from slotv_jax.experiments.people_loop.config import CAMERA, FITTED, LEARNED, PICK, LoopConfig
+from slotv_jax.experiments.people_loop.config import (
+    CAMERA,
+    FITTED,
+    LEARNED,
+    PICK,
+    PICK_CROSS,
+    LoopConfig,
+)
 from slotv_jax.observers import population as population_lib
-from slotv_jax.observers.common import mask_logits
+from slotv_jax.observers.common import mask_logits, seen_points
 from slotv_jax.planning import evaluation
 
 # ------------------------------------------------------------------ the observers
@@ -235,6 +242,73 @@ def pick_runs(
     return np.asarray(weights, np.float32), reports
 
 
+# ------------------------------------------------------------------ the plans judged
+
+
+def judge(build, taus: Sequence[float], n_points: int):
+    """``judge(params (R, ...), xyz (R, P, T, 3), goals (R, P, 8, 3), mask (R, P, 8),
+    target (R, P)) -> (R, P, K)``: the observer ``build(params[r])`` of run r predicting
+    P(target | ξ_{0:τ}) of run r's paths at each stop time τ of ``taus`` (paths of
+    ``n_points``; :func:`slotv_jax.observers.common.seen_points`), the quantity that the
+    evaluation scores with the population's P_pop (:func:`plan_scores`). Compiled."""
+    seen = jnp.asarray(seen_points(taus, n_points))
+
+    def one_run(p, xyz, goals, mask, target):
+        obs = build(p)
+
+        def one(x, g, m, t):
+            def at(s):
+                return jax.nn.softmax(mask_logits(obs.prefix(x, g, m, s), m))[t]
+
+            return jax.vmap(at)(seen)
+
+        return jax.vmap(one)(xyz, goals, mask, target)
+
+    return jax.jit(jax.vmap(one_run))
+
+
+_JUDGES: dict = {}
+
+
+def judge_for(cfg: LoopConfig, family: str):
+    """:func:`judge` of a candidate family's fit (built as for the planner, from the
+    family's parameters alone: nothing of the population), made once per process."""
+    key = (dataclasses.replace(cfg, seeds=1, first_seed=0), family)
+    if key not in _JUDGES:
+        _JUDGES[key] = judge(_family_build(cfg, family), cfg.taus, cfg.planner.n_points)
+    return _JUDGES[key]
+
+
+def cross_judged(
+    judged: dict[str, dict[str, np.ndarray]], candidates: Sequence[str]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pick by plans. ``judged[f][g]`` (R,) is fit g's mean P(target | ξ_{0:τ}) of
+    family f's plans (over problems and stop times, :func:`judge_for`); each candidate f is
+    scored by the fits it was not planned against,
+
+        S_f = (1 / (|C| − 1)) Σ_{g ∈ C, g ≠ f} judged[f][g],
+
+    and the pick is argmax_f S_f, per run. A planner climbs wherever its own fit is too
+    optimistic, so f's own judgment of its plans is left out: a plan counts as legible
+    where fits that did not make it agree that it is (cross-validation of plans, as the
+    folds of :mod:`slotv_jax.answers.pooling` are of fits). Returns the chosen index into
+    ``candidates`` (R,) and the scores S (R, |C|).
+
+    >>> j = {"a": {"a": np.array([0.9]), "b": np.array([0.4])},
+    ...      "b": {"a": np.array([0.6]), "b": np.array([0.8])}}
+    >>> idx, s = cross_judged(j, ["a", "b"])
+    >>> idx.tolist(), s.round(2).tolist()
+    ([1], [[0.4, 0.6]])
+    """
+    c = list(candidates)
+    if len(c) < 2:
+        raise ValueError(f"candidates: expected at least two, got {c}")
+    s = np.stack(
+        [np.mean([judged[f][g] for g in c if g != f], axis=0) for f in c], axis=-1
+    )  # (R, C)
+    return np.argmax(s, axis=-1), s
+
+
 # ------------------------------------------------------------------ evaluation
 
 
@@ -282,6 +356,7 @@ def run_population(
             "select_s": 0.0,
             "pick_s": 0.0,
             "plan_s": 0.0,
+            "judge_s": 0.0,
             "eval_s": 0.0,
         },
     )
@@ -383,15 +458,28 @@ def run_population(
             example["straight"] = np.asarray(problems.q[0, 0])
         plans = {}
         for f in cfg.families:
-            plans[f] = planner.plan_problems(params, straight, family=f)
+            if f != PICK_CROSS:  # made of the others' plans
+                plans[f] = planner.plan_problems(params, straight, family=f)
         jax.block_until_ready(plans)
         timing["plan_s"] += time.perf_counter() - t0
         t0 = time.perf_counter()
+        judged: dict[str, dict[str, np.ndarray]] = {}
+        if PICK_CROSS in cfg.families:  # every candidate's plans, judged by every fit
+            for g in cfg.candidates:
+                judge_g = judge_for(cfg, g)
+                for f in cfg.candidates:
+                    p_g = judge_g(params, plans[f].xyz, problems.goals, problems.goal_mask,
+                                problems.target)  # fmt: skip
+                    judged.setdefault(f, {})[g] = np.asarray(p_g, np.float64).mean((1, 2))
+            chosen, cross = cross_judged(judged, cfg.candidates)
+        timing["judge_s"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
         lo, hi = floor["straight"]["score"], floor["oracle"]["score"]
+        n_eval = cfg.problems * len(cfg.taus) * cfg.eval_participants
+        made: dict[tuple[str, int], dict] = {}
         for f, res in plans.items():
             sc = plan_scores(scorer, keys_eval, res, problems)
             for i, (st, sd) in enumerate(runs):
-                n_eval = cfg.problems * len(cfg.taus) * cfg.eval_participants
                 acc = float(sc["correct"][i])
                 row = {
                     "population": name,
@@ -416,9 +504,24 @@ def run_population(
                         row["picked"] = rep["pick"]
                     else:
                         row["heldout_nll"] = rep["heldout_nll"][rep["candidates"].index(f)]
+                if f in judged:  # each fit's P(target) of this family's plans
+                    row["judged_by"] = {g: round(float(v[i]), 6) for g, v in judged[f].items()}
+                made[f, i] = row
                 out_rows.append(row)
             if r == len(rows) - 1:
                 example[f] = np.asarray(res.q[0, 0])
+        if judged:  # the pick by plans: the chosen family's plans, as evaluated
+            for i in range(n_r):
+                f = cfg.candidates[chosen[i]]
+                own = ("beta", "heldout_nll", "judged_by")
+                row = {k: v for k, v in made[f, i].items() if k not in own}
+                row["family"], row["chosen"] = PICK_CROSS, f
+                row["cross_scores"] = dict(
+                    zip(cfg.candidates, cross[i].round(6).tolist(), strict=True)
+                )
+                out_rows.append(row)
+            if r == len(rows) - 1:
+                example[PICK_CROSS] = example[cfg.candidates[chosen[0]]]
         timing["eval_s"] += time.perf_counter() - t0
         if on_size is not None:
             on_size(out_rows)

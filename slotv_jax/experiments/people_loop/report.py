@@ -10,7 +10,7 @@ import statistics
 from pathlib import Path
 
 from slotv_jax.core.fileio import write_text
-from slotv_jax.experiments.people_loop.config import PRESETS
+from slotv_jax.experiments.people_loop.config import DERIVED, PICK, PICK_CROSS, PRESETS
 from slotv_jax.observers import population as population_lib
 from slotv_jax.runs import figures
 from slotv_jax.runs.summary import crossing
@@ -23,6 +23,7 @@ FAMILY_TITLES = {
     "dragan_fitted": "Dragan, β fitted",
     "nikolaidis_fitted": "Nikolaidis, β fitted",
     "pick": "**pick** (answers alone)",
+    "pick_cross": "**pick by plans** (answers alone)",
 }
 FAMILY_COLORS = {
     "mlp": "tab:blue",
@@ -32,8 +33,8 @@ FAMILY_COLORS = {
     "dragan_fitted": "tab:gray",
     "nikolaidis_fitted": "tab:brown",
     "pick": "black",
+    "pick_cross": "darkorange",
 }
-PICK = "pick"
 HEADLINE = 2000  # the suite's headline: the largest size at most this many answers
 STRATEGY_STYLES = {"random": "--", "margin": "-", "error": ":"}
 BASELINES = ("dragan_fitted", "nikolaidis_fitted")
@@ -151,6 +152,7 @@ def population_section(doc: dict, pop: dict) -> list[str]:
             f"{dev} ({run['date']}; fits {t['fit_s']:.0f} s, "
             f"β fits {t['beta_s']:.0f} s, "
             + (f"pick {t['pick_s']:.0f} s, " if "pick_s" in t else "")
+            + (f"plans judged {t['judge_s']:.0f} s, " if t.get("judge_s") else "")
             + f"selection "
             f"{t['select_s']:.0f} s, planning "
             f"{t['plan_s']:.0f} s, evaluation {t['eval_s']:.0f} s, answers "
@@ -366,7 +368,7 @@ def best_family(doc: dict, pop: dict) -> str | None:
         for r in doc["summary"]
         if r["population"] == pop["population"]
         and r["answers"] == last
-        and r["family"] not in BASELINES
+        and r["family"] not in (*BASELINES, PICK_CROSS)  # PICK_CROSS: another's plans
     ]
     return max(rows, key=lambda r: r["gain_kept"])["family"] if rows else None
 
@@ -401,14 +403,15 @@ def headline_size(doc: dict) -> int | None:
     return max(within) if within else None
 
 
-def suite_summary(doc: dict, strategy: str = "random") -> dict | None:
-    """The pick over the populations (random picks): each population's gain kept at every
-    size, the median and worst at each size, and the suite's mean curve."""
+def suite_summary(doc: dict, strategy: str = "random", family: str = PICK) -> dict | None:
+    """A pick over the populations (random picks): each population's gain kept at every
+    size, the median and worst at each size, and the suite's mean curve (None if a
+    population lacks the family)."""
     pops = [p["population"] for p in doc["populations"]]
-    if not any(_gain(doc, q, PICK, strategy) for q in pops):
+    if not pops or not all(_gain(doc, q, family, strategy) for q in pops):
         return None
-    sizes = sorted(set.intersection(*(set(_gain(doc, q, PICK, strategy)) for q in pops)))
-    table = {q: _gain(doc, q, PICK, strategy) for q in pops}
+    sizes = sorted(set.intersection(*(set(_gain(doc, q, family, strategy)) for q in pops)))
+    table = {q: _gain(doc, q, family, strategy) for q in pops}
     out = {"sizes": sizes, "populations": pops, "gain": table}
     for name, fn in (("median", statistics.median), ("worst", min), ("mean", statistics.fmean)):
         out[name] = {a: fn(table[q][a] for q in pops) for a in sizes}
@@ -416,44 +419,56 @@ def suite_summary(doc: dict, strategy: str = "random") -> dict | None:
 
 
 def suite_section(doc: dict) -> list[str]:
-    """The suite: one row per population (the pick and both fitted baselines), the median,
-    the worst and the mean curve; whether more answers ever cost."""
-    s = suite_summary(doc)
-    if s is None:
+    """The suite: one row per population (the pick, the pick by plans where it ran, both
+    fitted baselines and the oracle's choice of one family), the median, the worst and the
+    mean curve; whether more answers ever cost."""
+    picks = {f: s for f in DERIVED if (s := suite_summary(doc, family=f)) is not None}
+    if PICK not in picks:
         return []
+    s = picks[PICK]
     sizes, at = s["sizes"], headline_size(doc)
+    both = PICK_CROSS in picks
     lines = [
         "## The suite: the pick on every population (random picks)",
         "",
         "Gain kept by the **pick**, the log-linear pool of the fitted families weighted by the "
-        "held-out likelihood of the answers alone (`slotv_jax.answers.pooling`); beside it the "
-        f"fitted baselines at {at:,} answers."
-        if at
-        else "",
+        "held-out likelihood of the answers alone (`slotv_jax.answers.pooling`)"
+        + (
+            ", and by the **pick by plans**, the plans of the family that the other families' "
+            "fits judge the most legible (`slotv_jax.experiments.people_loop.loop.cross_judged`)"
+            if both
+            else ""
+        )
+        + (f"; beside them the fitted baselines at {at:,} answers." if at else "."),
         "",
         "| population | seeds | "
         + " | ".join(f"pick {a:,}" for a in sizes)
+        + (" | " + " | ".join(f"by plans {a:,}" for a in sizes) if both else "")
         + (
             " | Dragan, β fitted | Nikolaidis, β fitted | the best single family (oracle's "
             "choice) |"
             if at
             else " |"
         ),
-        "|---|---|" + "---|" * (len(sizes) + (3 if at else 0)),
+        "|---|---|" + "---|" * (len(sizes) * (1 + both) + (3 if at else 0)),
     ]
     seeds = {p["population"]: len(seeds_of(p)) for p in doc["populations"]}
     for q in s["populations"]:
-        cells = [str(seeds[q])] + [_pct(s["gain"][q][a]) for a in sizes]
+        cells = [str(seeds[q])] + [_pct(p["gain"][q][a]) for p in picks.values() for a in sizes]
         if at:
             cells += [_pct(v[at]) if at in (v := _gain(doc, q, b)) else "—" for b in BASELINES]
-            single = {f: v[at] for f in FAMILY_TITLES if f != PICK if at in (v := _gain(doc, q, f))}
+            single = {
+                f: v[at]
+                for f in FAMILY_TITLES
+                if f not in DERIVED and at in (v := _gain(doc, q, f))
+            }
             best = max(single, key=single.get) if single else None
             cells.append(f"{FAMILY_TITLES[best]} {_pct(single[best])}" if best else "—")
         lines.append(f"| `{q}` | " + " | ".join(cells) + " |")
     for name in ("median", "worst", "mean"):
         lines.append(
             f"| **{name}** | | "
-            + " | ".join(_pct(s[name][a]) for a in sizes)
+            + " | ".join(_pct(p[name][a]) for p in picks.values() for a in sizes)
             + (" | | | |" if at else " |")
         )
     missing = [q for q in population_lib.suite_specs() if q not in s["populations"]]
@@ -464,85 +479,133 @@ def suite_section(doc: dict) -> list[str]:
             f"not yet run: {', '.join(f'`{q}`' for q in missing)} (the same command resumes "
             "and adds them with `--population suite`).",
         ]
-    drops = [
-        (a, b, s["mean"][a] - s["mean"][b])
-        for i, a in enumerate(sizes)
-        for b in sizes[i + 1 :]
-        if s["mean"][a] - s["mean"][b] > 0.03
-    ]
-    lines += [
-        "",
-        "More answers never cost more than 3 points of the suite's mean curve."
-        if not drops
-        else "The suite's mean curve falls by more than 3 points: "
-        + "; ".join(f"{a:,} → {b:,} answers: −{100 * d:.1f}" for a, b, d in drops)
-        + ".",
-        "",
-    ]
+    lines.append("")
+    for f, p in picks.items():
+        drops = [
+            (a, b, p["mean"][a] - p["mean"][b])
+            for i, a in enumerate(p["sizes"])
+            for b in p["sizes"][i + 1 :]
+            if p["mean"][a] - p["mean"][b] > 0.03
+        ]
+        title = FAMILY_TITLES[f].replace("**", "")
+        lines.append(
+            f"- {title}: more answers never cost more than 3 points of the suite's mean curve."
+            if not drops
+            else f"- {title}: the suite's mean curve falls by more than 3 points: "
+            + "; ".join(f"{a:,} → {b:,} answers: −{100 * d:.1f}" for a, b, d in drops)
+            + "."
+        )
+    lines.append("")
     lines += pick_agreement(doc)
     return lines
 
 
-def pick_agreement(doc: dict) -> list[str]:
-    """How often the pick's largest weight is the family the oracle would have chosen (the
-    best single family by gain kept, per population, seed and size), and what the pooled
-    pick gains or loses against that family."""
-    same, n, diff, unweighted = 0, 0, [], 0
+def _runs(doc: dict):
+    """Every (population, seed, size) of random picks: {family: row}."""
     for p in doc["populations"]:
-        by = {}
+        by: dict = {}
         for r in p["rows"]:
             if r["strategy"] == "random":
                 by.setdefault((r["seed"], r["answers"]), {})[r["family"]] = r
-        for rows in by.values():
-            if PICK not in rows or "picked" not in rows[PICK]:
+        yield from by.values()
+
+
+def pick_agreement(doc: dict) -> list[str]:
+    """How often each pick is the family the oracle would have chosen (the best single
+    family by gain kept, per population, seed and size), and what it gains or loses
+    against that family."""
+    lines = []
+    for f, chose in ((PICK, "picked"), (PICK_CROSS, "chosen")):
+        same, diff, unweighted = 0, [], 0
+        for rows in _runs(doc):
+            if f not in rows or chose not in rows[f]:
                 continue
-            single = {f: r["gain_kept"] for f, r in rows.items() if f != PICK}
+            single = {g: r["gain_kept"] for g, r in rows.items() if g not in DERIVED}
             best = max(single, key=single.get)
-            same += rows[PICK]["picked"] == best
-            unweighted += rows[PICK].get("weights", {}).get(best, 0.0) < 0.01
-            n += 1
-            diff.append(rows[PICK]["gain_kept"] - single[best])
-    if not n:
+            same += rows[f][chose] == best
+            unweighted += rows[f].get("weights", {}).get(best, 0.0) < 0.01
+            diff.append(rows[f]["gain_kept"] - single[best])
+        if not diff:
+            continue
+        cost = (
+            f"{100 * statistics.fmean(diff):+.1f} points of gain against that family on "
+            f"average (median {100 * statistics.median(diff):+.1f}, worst {100 * min(diff):+.1f})"
+        )
+        if f == PICK:
+            lines.append(
+                f"The pick's largest weight is on the family the oracle would have chosen in "
+                f"{same} of {len(diff)} runs (population × seed × size); the pool keeps {cost}. "
+                f"In {unweighted} of those runs the pool gave that family no weight (under "
+                "0.01): the answers alone did not show that its plans were the best."
+            )
+        else:
+            lines.append(
+                f"The pick by plans chose the family the oracle would have chosen in {same} of "
+                f"{len(diff)} runs; it keeps {cost}."
+            )
+        lines.append("")
+    if not lines:
         return []
     return [
-        f"The pick's largest weight is on the family the oracle would have chosen in "
-        f"{same} of {n} runs (population × seed × size); the pool keeps "
-        f"{100 * statistics.fmean(diff):+.1f} points of gain against that family on average "
-        f"(median {100 * statistics.median(diff):+.1f}, worst {100 * min(diff):+.1f}). "
-        f"In {unweighted} of those runs the pool gave that family no weight (under 0.01): the "
-        "answers alone did not show that its plans were the best.",
-        "",
+        *lines,
         "![held-out answer likelihood against the plans' gain]({stem}_fit_plan.png)",
         "",
         "*Each candidate's held-out NLL per answer (out-of-fold, by motion) against the gain "
         "its plans keep, every population, seed and size: the single fits (colours) and the "
-        "pool (black).*",
+        "pool (black)"
+        + (
+            "; right, the mean P(target) that the other families' fits give its plans (what "
+            "the pick by plans ranks by) against the same gain.*"
+            if any(PICK_CROSS in rows for rows in _runs(doc))
+            else ".*"
+        ),
         "",
     ]
 
 
+def others_judgment(row: dict) -> float | None:
+    """The mean P(target) that the other families' fits give a family's plans (the score
+    of :func:`slotv_jax.experiments.people_loop.loop.cross_judged`), None without one."""
+    j = row.get("judged_by")
+    others = [v for g, v in (j or {}).items() if g != row["family"]]
+    return statistics.fmean(others) if others else None
+
+
 def plot_fit_plan(doc: dict, path: Path) -> bool:
-    """Held-out NLL per answer against gain kept, a point per row that has one."""
+    """Held-out NLL per answer against gain kept, a point per row that has one; beside it,
+    where the plans were judged, the other fits' judgment of each family's plans against
+    their gain."""
     rows = [r for p in doc["populations"] for r in p["rows"] if "heldout_nll" in r]
     if not rows:
         return False
+    judged = [r for r in rows if others_judgment(r) is not None]
     plt = figures.pyplot()
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    for f in dict.fromkeys(r["family"] for r in rows):
-        rs = [r for r in rows if r["family"] == f]
-        ax.scatter(
-            [r["heldout_nll"] for r in rs],
-            [r["gain_kept"] for r in rs],
-            s=14 if f == PICK else 8,
-            color=FAMILY_COLORS.get(f, "k"),
-            label=FAMILY_TITLES.get(f, f).replace("**", ""),
-            alpha=0.8,
-        )
-    ax.set_xlabel("held-out NLL per answer (nats; lower fits better)")
-    ax.set_ylabel("gain kept by its plans")
-    ax.axhline(0.0, color="k", lw=0.5)
-    ax.legend(fontsize=7)
-    ax.set_title("fit against plan (simulated people)")
+    n = 2 if judged else 1
+    fig, axes = plt.subplots(1, n, figsize=(6.5 * n, 4.5), squeeze=False)
+    panels = [
+        (axes[0, 0], rows, lambda r: r["heldout_nll"], "held-out NLL per answer (nats)"),
+    ]
+    if judged:
+        xlabel = "the other fits' mean P(target) of its plans"
+        panels.append((axes[0, 1], judged, others_judgment, xlabel))
+    for ax, rs_all, x_of, xlabel in panels:
+        for f in dict.fromkeys(r["family"] for r in rs_all):
+            rs = [r for r in rs_all if r["family"] == f]
+            ax.scatter(
+                [x_of(r) for r in rs],
+                [r["gain_kept"] for r in rs],
+                s=14 if f == PICK else 8,
+                color=FAMILY_COLORS.get(f, "k"),
+                label=FAMILY_TITLES.get(f, f).replace("**", ""),
+                alpha=0.8,
+            )
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("gain kept by its plans")
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.legend(fontsize=7)
+    axes[0, 0].set_title("fit against plan (simulated people)")
+    if judged:
+        axes[0, 1].set_title("plans judged by the other fits against plan")
     fig.tight_layout()
     figures.save(fig, path, dpi=120)
     return True
