@@ -439,7 +439,11 @@ def suite_section(doc: dict) -> list[str]:
             if both
             else ""
         )
-        + (f"; beside them the fitted baselines at {at:,} answers." if at else "."),
+        + (
+            f"; beside {'them' if both else 'it'} the fitted baselines at {at:,} answers."
+            if at
+            else "."
+        ),
         "",
         "| population | seeds | "
         + " | ".join(f"pick {a:,}" for a in sizes)
