@@ -29,7 +29,11 @@ Ctrl-C (``KeyboardInterrupt``) prints one line, ``interrupted``, and exits with 
 (``@command(resumes=True)``: rerunning it keeps what it finished) says so: ``interrupted;
 rerun the same command to resume``. Nothing is left half-written: every file goes to a
 temporary name that is removed on the way out (:func:`slotv_jax.core.fileio.atomic_write`).
-A second Ctrl-C while the process exits ends it at once.
+A second Ctrl-C while the process exits ends it at once. A Ctrl-C is never lost: where a
+library's bare ``except:`` swallows the ``KeyboardInterrupt`` (JAX has a few right after a
+compilation, where a Ctrl-C pressed during a long compile surfaces), the command still
+ends as interrupted, at the latest when its work is done (:func:`keep_interrupts`); a
+second Ctrl-C stops it there and then.
 
 >>> @command
 ... def main(argv=None):
@@ -40,12 +44,14 @@ error: --in x.npz: no such file            (on stderr; SystemExit(2))
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import gc
 import os
 import signal
 import sys
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
 
 EXIT_INPUT_ERROR = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT: what a shell reports for a command ended by Ctrl-C
@@ -104,6 +110,35 @@ def interrupted(*, resumes: bool | str = False) -> None:
     raise SystemExit(EXIT_INTERRUPTED) from None
 
 
+_PENDING = threading.Event()  # a Ctrl-C that no command has answered yet
+
+
+def _on_sigint(signum, frame) -> None:
+    _PENDING.set()
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def keep_interrupts() -> Iterator[threading.Event]:
+    """While inside, SIGINT raises ``KeyboardInterrupt`` as usual and is also remembered
+    until the ``with`` block ends: yields the event that is set once one came, so that a
+    command whose Ctrl-C was swallowed on its way up still ends as interrupted. Only in
+    the main thread and where SIGINT has Python's default handler (a process started with
+    SIGINT ignored, as a shell's background job, keeps ignoring it)."""
+    ours = (
+        threading.current_thread() is threading.main_thread()
+        and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    )
+    if ours:
+        signal.signal(signal.SIGINT, _on_sigint)
+    try:
+        yield _PENDING
+    finally:
+        _PENDING.clear()
+        if ours:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def command(
     main: Callable[..., int] | None = None, *, resumes: bool | str = False
 ) -> Callable[..., int]:
@@ -116,16 +151,20 @@ def command(
 
     @functools.wraps(main)
     def wrapped(argv: Sequence[str] | None = None, *args, **kwargs) -> int:
-        try:
-            return main(argv, *args, **kwargs)
-        except KeyboardInterrupt:
-            if os.environ.get("SLOTV_JAX_TRACEBACK"):
-                raise
-        except Exception as e:
-            if not is_input_error(e) or os.environ.get("SLOTV_JAX_TRACEBACK"):
-                raise
-            fail(e)
-            raise  # unreachable: fail() exits
+        with keep_interrupts() as pending:
+            try:
+                code = main(argv, *args, **kwargs)
+                if not pending.is_set():
+                    return code
+                # a Ctrl-C came and was swallowed before it could be raised again
+            except KeyboardInterrupt:
+                if os.environ.get("SLOTV_JAX_TRACEBACK"):
+                    raise
+            except Exception as e:
+                if not is_input_error(e) or os.environ.get("SLOTV_JAX_TRACEBACK"):
+                    raise
+                fail(e)
+                raise  # unreachable: fail() exits
         # Ctrl-C, outside the except clause: the interrupt's frames are gone, so what they
         # held (progress bars, open files) is closed before the one line is printed
         gc.collect()
