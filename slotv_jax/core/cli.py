@@ -134,8 +134,8 @@ def keep_interrupts() -> Iterator[threading.Event]:
     try:
         yield _PENDING
     finally:
-        _PENDING.clear()
-        if ours:
+        if ours:  # (a command run inside another leaves the outer one's state alone)
+            _PENDING.clear()
             signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
