@@ -255,7 +255,7 @@ def test_a_judge_gives_its_observers_p_target_at_each_stop_time(monkeypatch):
     taus, n = (0.4, 0.7, 1.0), 20
     xyz, goals, mask, target = _paths(2, 3, n)
     pop = population_lib.get_population("default")
-    got = loop.judge(lambda p: population_lib.population_observer(pop), taus, n)(
+    got = loop.judge(lambda p: population_lib.population_observer(pop), taus)(
         jnp.zeros(2), xyz, goals, mask, target
     )
     assert got.shape == (2, 3, len(taus))

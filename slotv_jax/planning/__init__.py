@@ -20,6 +20,7 @@ from slotv_jax.planning.planner import (
     objective,
     plan,
     predictability_cost,
+    stop_log_probs,
     straight_line,
 )
 
@@ -40,5 +41,6 @@ __all__ = [
     "objective",
     "plan",
     "predictability_cost",
+    "stop_log_probs",
     "straight_line",
 ]

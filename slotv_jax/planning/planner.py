@@ -331,7 +331,8 @@ def predictability_cost(xyz: Float[Array, "T 3"]) -> Float[Array, ""]:
     line of length ℓ at constant speed has C = ½ ℓ², the least of any path between its ends.
 
     >>> import jax.numpy as jnp
-    >>> float(predictability_cost(jnp.linspace(jnp.zeros(3), jnp.array([0.3, 0.4, 0.0]), 11)))
+    >>> line = jnp.linspace(jnp.zeros(3), jnp.array([0.3, 0.4, 0.0]), 11)
+    >>> round(float(predictability_cost(line)), 6)
     0.125
     """
     T = xyz.shape[0]
@@ -407,12 +408,28 @@ def legibility(
             "observer: PlannerConfig.taus needs an observer with a .prefix(xyz, goals, "
             f"goal_mask, seen) attribute; {_observer_name(observer)} has none"
         )
-    seen = jnp.asarray(seen_points(cfg.taus, xyz.shape[0]), jnp.int32)
+    return jnp.mean(stop_log_probs(observer, xyz, goals, mask, target, cfg.taus))
+
+
+def stop_log_probs(
+    observer: Observer,
+    xyz: Float[Array, "T 3"],
+    goals: Float[Array, "8 3"],
+    goal_mask: Bool[Array, " 8"],
+    target: Int[Array, ""],
+    taus: Sequence[float],
+) -> Float[Array, " K"]:
+    """log P(target | ξ_{0:τ}) = log softmax(observer.prefix(xyz, goals, goal_mask, L_τ))[target]
+    over the real goals, at each stop time τ of ``taus`` (L_τ = ``seen_points(taus, T)``):
+    the terms of the prefix legibility (:func:`legibility`, their mean). Pure; the observer
+    needs ``.prefix``."""
+    mask = jnp.asarray(goal_mask).astype(bool)
+    seen = jnp.asarray(seen_points(taus, xyz.shape[0]), jnp.int32)
 
     def one(n):  # one prefix, traced over the stop times: the observer is compiled once
         return jax.nn.log_softmax(mask_logits(observer.prefix(xyz, goals, mask, n), mask))[target]
 
-    return jnp.mean(jax.vmap(one)(seen))
+    return jax.vmap(one)(seen)
 
 
 def _legibility(observer: Observer, xyz, problem: Problem, cfg: PlannerConfig) -> Array:

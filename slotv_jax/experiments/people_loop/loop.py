@@ -26,7 +26,7 @@ from slotv_jax.experiments.people_loop.config import (
     LoopConfig,
 )
 from slotv_jax.observers import population as population_lib
-from slotv_jax.observers.common import mask_logits, seen_points
+from slotv_jax.observers.common import mask_logits
 from slotv_jax.planning import evaluation
 
 # ------------------------------------------------------------------ the observers
@@ -245,24 +245,18 @@ def pick_runs(
 # ------------------------------------------------------------------ the plans judged
 
 
-def judge(build, taus: Sequence[float], n_points: int):
+def judge(build, taus: Sequence[float]):
     """``judge(params (R, ...), xyz (R, P, T, 3), goals (R, P, 8, 3), mask (R, P, 8),
     target (R, P)) -> (R, P, K)``: the observer ``build(params[r])`` of run r predicting
-    P(target | ξ_{0:τ}) of run r's paths at each stop time τ of ``taus`` (paths of
-    ``n_points``; :func:`slotv_jax.observers.common.seen_points`), the quantity that the
-    evaluation scores with the population's P_pop (:func:`plan_scores`). Compiled."""
-    seen = jnp.asarray(seen_points(taus, n_points))
+    P(target | ξ_{0:τ}) of run r's paths at each stop time τ of ``taus``
+    (:func:`slotv_jax.planning.stop_log_probs`), the quantity that the evaluation scores
+    with the population's P_pop (:func:`plan_scores`). Compiled."""
 
     def one_run(p, xyz, goals, mask, target):
         obs = build(p)
-
-        def one(x, g, m, t):
-            def at(s):
-                return jax.nn.softmax(mask_logits(obs.prefix(x, g, m, s), m))[t]
-
-            return jax.vmap(at)(seen)
-
-        return jax.vmap(one)(xyz, goals, mask, target)
+        return jax.vmap(lambda x, g, m, t: jnp.exp(planning.stop_log_probs(obs, x, g, m, t, taus)))(
+            xyz, goals, mask, target
+        )
 
     return jax.jit(jax.vmap(one_run))
 
@@ -275,7 +269,7 @@ def judge_for(cfg: LoopConfig, family: str):
     family's parameters alone: nothing of the population), made once per process."""
     key = (dataclasses.replace(cfg, seeds=1, first_seed=0), family)
     if key not in _JUDGES:
-        _JUDGES[key] = judge(_family_build(cfg, family), cfg.taus, cfg.planner.n_points)
+        _JUDGES[key] = judge(_family_build(cfg, family), cfg.taus)
     return _JUDGES[key]
 
 
@@ -511,9 +505,9 @@ def run_population(
             if r == len(rows) - 1:
                 example[f] = np.asarray(res.q[0, 0])
         if judged:  # the pick by plans: the chosen family's plans, as evaluated
+            own = ("beta", "heldout_nll", "judged_by")  # what the chosen family's row says of it
             for i in range(n_r):
                 f = cfg.candidates[chosen[i]]
-                own = ("beta", "heldout_nll", "judged_by")
                 row = {k: v for k, v in made[f, i].items() if k not in own}
                 row["family"], row["chosen"] = PICK_CROSS, f
                 row["cross_scores"] = dict(
