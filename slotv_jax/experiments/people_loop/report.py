@@ -54,6 +54,11 @@ def curves(doc: dict, population: str) -> dict[tuple[str, str], tuple[list, list
     return out
 
 
+def plain_title(family: str) -> str:
+    """A family's title without its Markdown emphasis (for a figure's legend)."""
+    return FAMILY_TITLES.get(family, family).replace("**", "")
+
+
 def _fmt(x: float | None) -> str:
     return "—" if x is None else f"{x:,.0f}"
 
@@ -334,7 +339,7 @@ def plot(doc: dict, path: Path) -> None:
                 color=FAMILY_COLORS.get(f, "k"),
                 marker="o",
                 ms=3,
-                label=f"{FAMILY_TITLES.get(f, f)}, {s}",
+                label=f"{plain_title(f)}, {s}",
             )
         ax.axhline(0.8, color="k", lw=0.5)
         ax.set_xscale("log")
@@ -491,7 +496,7 @@ def suite_section(doc: dict) -> list[str]:
             for b in p["sizes"][i + 1 :]
             if p["mean"][a] - p["mean"][b] > 0.03
         ]
-        title = FAMILY_TITLES[f].replace("**", "")
+        title = plain_title(f)
         lines.append(
             f"- {title}: more answers never cost more than 3 points of the suite's mean curve."
             if not drops
@@ -600,7 +605,7 @@ def plot_fit_plan(doc: dict, path: Path) -> bool:
                 [r["gain_kept"] for r in rs],
                 s=14 if f == PICK else 8,
                 color=FAMILY_COLORS.get(f, "k"),
-                label=FAMILY_TITLES.get(f, f).replace("**", ""),
+                label=plain_title(f),
                 alpha=0.8,
             )
         ax.set_xlabel(xlabel)
