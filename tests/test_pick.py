@@ -300,3 +300,99 @@ def test_the_pick_by_plans_leaves_each_family_out_of_its_own_judgment():
     assert idx.tolist() == [1, 2]
     with pytest.raises(ValueError, match="candidates"):
         loop.cross_judged(judged, ["a"])
+
+
+# ------------------------------------------------------------------ pre-trained families
+
+
+@dataclasses.dataclass
+class _Split:
+    """The fields of a dataset split that pre-training reads."""
+
+    xyz: np.ndarray
+    goals: np.ndarray
+    goal_mask: np.ndarray
+    labels: dict
+
+    def __len__(self):
+        return self.xyz.shape[0]
+
+
+def test_a_pretrained_family_starts_from_the_labelers_mixture_and_fine_tunes(
+    label_pool, monkeypatch
+):
+    """loop.pretrained_params trains on the mean of the labelers' label distributions (a
+    float64 NumPy mean), never reads the population, and fits the mixture better than the
+    random draw it replaces; the answers' fit then starts from it (no update: θ₀ itself)
+    with the minibatch keys of the family it starts, and moves away from it."""
+    pool, _ = label_pool
+    n = 60
+    xyz, goals, mask = (np.asarray(a)[:n] for a in (pool.xyz, pool.goals, pool.goal_mask))
+    rng = np.random.default_rng(4)
+    labels = {}
+    for name in ("dragan", "nikolaidis", "effdist", "fastapp"):  # each near the motion's goal
+        y = np.where(mask, rng.gamma(1.0, size=mask.shape), 0.0)
+        y[np.arange(n), np.arange(n) % 3] += 4.0
+        labels[name] = (y / y.sum(-1, keepdims=True)).astype(np.float32)
+    split = _Split(xyz, goals, mask, labels)
+    cfg = dataclasses.replace(
+        exp.tiny(),
+        families=("mlp", "mlp_pre", "dragan_fitted", "pick"),
+        overrides=("hidden=16,8", "epochs=40"),  # 40 updates on the 60 motions
+    )
+
+    def forbidden(*a, **k):
+        raise AssertionError("pre-training read the population")
+
+    for name in population_lib.__all__:
+        if callable(getattr(population_lib, name)) and name[0].islower():
+            monkeypatch.setattr(population_lib, name, forbidden)
+    seen = []
+    real = loop.train_lib.train_trials
+
+    def spy(tc, data, seeds, **kw):
+        seen.append(np.asarray(data.labels, np.float64))
+        return real(tc, data, seeds, **kw)
+
+    monkeypatch.setattr(loop.train_lib, "train_trials", spy)
+    loop._PRETRAINED.clear()
+    theta0 = loop.pretrained_params(cfg, "mlp_pre", split)
+    want = np.mean([labels[k].astype(np.float64) for k in sorted(labels)], axis=0)
+    np.testing.assert_allclose(seen[0], want, atol=1e-7)
+
+    tc = cfg.train_config("mlp_pre")
+    assert tc == cfg.train_config("mlp")
+    sel = selection.make_selector(tc, 1, 1)
+
+    def mixture_nll(params):
+        lp = np.asarray(
+            sel.log_probs(jax.tree.map(lambda x: x[None], params), _full_pool(split), jnp.arange(n))
+        )[0]
+        return -np.sum(np.where(mask, want * np.maximum(lp, -1e9), 0.0)) / n
+
+    fresh = jax.tree.map(lambda x: x[0], sel.init(jax.random.key(1_000)).params)
+    assert mixture_nll(theta0) < mixture_nll(fresh) - 0.05  # 40 updates: 1.09 -> 1.00
+
+    cand = np.arange(20, dtype=np.int32)[None]
+    counts = np.zeros((1, 20, 8), np.float32)
+    counts[0, :, 0] = 5.0
+    inits = {"mlp_pre": theta0}
+    same = simulated.fit_runs(tc, pool, cand, counts, 20, loop._init_keys("mlp_pre", [0]), 0, 5,
+                              theta0)  # fmt: skip
+    for a, b in zip(jax.tree.leaves(same), jax.tree.leaves(theta0), strict=True):
+        np.testing.assert_array_equal(np.asarray(a)[0], np.asarray(b))
+    assert np.array_equal(
+        jax.random.key_data(loop._init_keys("mlp_pre", [0, (1, 2)])),
+        jax.random.key_data(loop._init_keys("mlp", [0, (1, 2)])),
+    )
+    moved = loop.fit_family(cfg, "mlp_pre", pool, cand, counts, 20, [0], inits)
+    d = [np.abs(np.asarray(a)[0] - np.asarray(b)).max() for a, b in
+         zip(jax.tree.leaves(moved), jax.tree.leaves(theta0), strict=True)]  # fmt: skip
+    assert max(d) > 1e-4
+    with pytest.raises(ValueError, match="inits"):
+        loop.fit_family(cfg, "mlp_pre", pool, cand, counts, 20, [0])
+
+
+def _full_pool(split):
+    """Every motion of ``split`` seen whole (stop time 1)."""
+    return selection.make_pool(split.xyz, split.goals, split.goal_mask, (1.0,))

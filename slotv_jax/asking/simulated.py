@@ -83,12 +83,21 @@ def fit_runs(
     keys: jax.Array,
     blocks: int,
     block: int,
+    init=None,
 ):
     """A fresh one-member fit of ``tc``'s observer on each run's first ``rows`` answer rows
     (the count likelihood of :mod:`slotv_jax.answers.fitting`, prefixes included),
-    ``blocks × block`` updates from ``keys (R,)``: its parameters with a leading run axis."""
+    ``blocks × block`` updates from ``keys (R,)``: its parameters with a leading run axis.
+    ``init`` (the observer's parameters, no run axis) starts every run from θ₀ = ``init``
+    instead of a random draw, with a fresh optimiser state (fine-tuning, Howard & Ruder
+    2018); the keys still draw the minibatches."""
     sel = selection.make_selector(tc, 1, cand.shape[1])
     ens = jax.jit(jax.vmap(sel.init))(keys)
+    if init is not None:
+        params = jax.tree.map(
+            lambda a, b: jnp.broadcast_to(jnp.asarray(b, a.dtype), a.shape), ens.params, init
+        )
+        ens = ens._replace(params=params, opt_state=jax.vmap(jax.vmap(sel.base.tx.init))(params))
     ans = selection.Answers(
         jnp.asarray(cand), jnp.asarray(counts), jnp.full((cand.shape[0],), rows, jnp.int32)
     )

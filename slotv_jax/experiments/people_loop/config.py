@@ -16,6 +16,12 @@ from slotv_jax.training import config as train_config
 
 LEARNED = ("mlp", "slotv_plus", "dragan_archetype", "viewpoint_archetype")
 FITTED = {"dragan_fitted": "dragan", "nikolaidis_fitted": "nikolaidis"}  # family -> labeler
+#: Each learned family started from what the labelers know instead of a random draw: θ₀ the
+#: family's observer trained on the mixture of the dataset's labelers (the mean of their label
+#: distributions, its preset's label protocol), then fitted on the answers with the same
+#: updates (:func:`slotv_jax.experiments.people_loop.loop.pretrained_params`).
+PRETRAINED = {f"{f}_pre": f for f in LEARNED}  # family -> the family it starts
+TRAINED = (*LEARNED, *PRETRAINED)  # the families fitted by gradient steps on the answers
 #: The researcher's pick (:mod:`slotv_jax.answers.pooling`): the log-linear pool of every
 #: other family of the run, weighted by the held-out likelihood of the answers alone.
 PICK = "pick"
@@ -23,8 +29,17 @@ PICK = "pick"
 #: most legible (:func:`slotv_jax.experiments.people_loop.loop.cross_judged`); answers alone.
 PICK_CROSS = "pick_cross"
 DERIVED = (PICK, PICK_CROSS)  # families made of the others
-FAMILIES = (*LEARNED, *FITTED, *DERIVED)
+FAMILIES = (*LEARNED, *PRETRAINED, *FITTED, *DERIVED)
+#: The presets' families: the pre-trained ones are an experiment of their own (``--families``;
+#: ``experiments/people_loop_pretrain.md``).
+DEFAULT_FAMILIES = (*LEARNED, *FITTED, *DERIVED)
 CAMERA = "observer"  # the viewpoint of the fitted Nikolaidis baseline (the dataset's)
+#: How θ₀ of a pre-trained family is made (recorded in the document's config).
+PRETRAIN_RECIPE = {
+    "labels": "mean of the train split's labeler distributions (every labeler of the dataset)",
+    "protocol": "the family's TrainConfig: its train_size, epochs, batch and optimiser",
+    "seed": "1000 + the index of the family in LEARNED",
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,7 +54,7 @@ class LoopConfig:
     taus: tuple[float, ...] = (0.4, 0.7, 1.0)  # the study's stop times
     per_stimulus: int = 5  # answers (fresh participants) per asked stimulus
     strategies: tuple[str, ...] = ("random", "margin", "error")
-    families: tuple[str, ...] = FAMILIES
+    families: tuple[str, ...] = DEFAULT_FAMILIES
     select_family: str = "slotv_plus"  # the ensemble that active strategies ask
     members: int = 4  # its size E
     select_epochs: float = 2.0  # its warm-start passes over the answers per round
@@ -124,10 +139,12 @@ class LoopConfig:
         return tuple(f for f in self.families if f not in DERIVED)
 
     def train_config(self, family: str) -> train_config.TrainConfig:
-        """The TrainConfig that fits ``family`` (a learned one) on answers
-        (:func:`slotv_jax.training.config.family`; the overrides apply to the MLPs)."""
-        if family not in LEARNED:
-            raise ValueError(f"family: expected one of {LEARNED}, got {family!r}")
+        """The TrainConfig that fits ``family`` (a learned or pre-trained one) on answers
+        (:func:`slotv_jax.training.config.family`; the overrides apply to the MLPs; a
+        pre-trained family has the config of the family it starts)."""
+        if family not in TRAINED:
+            raise ValueError(f"family: expected one of {TRAINED}, got {family!r}")
+        family = PRETRAINED.get(family, family)
         cfg = train_config.family(self.train_preset, family)
         if family in ("mlp", "slotv_plus"):
             cfg = train_config.apply_overrides(cfg, self.overrides)
@@ -143,7 +160,10 @@ class LoopConfig:
         d = dataclasses.asdict(self)
         if PICK not in self.families:  # irrelevant without the pick: records made before it match
             del d["pick_folds"]
-        d["train"] = {f: self.train_config(f).to_dict() for f in LEARNED if f in self.families}
+        used = {PRETRAINED.get(f, f) for f in self.families}
+        d["train"] = {f: self.train_config(f).to_dict() for f in LEARNED if f in used}
+        if any(f in PRETRAINED for f in self.families):  # records made before it match
+            d["pretrain"] = PRETRAIN_RECIPE
         return json.loads(json.dumps(d))
 
 
@@ -162,7 +182,7 @@ def quick() -> LoopConfig:
         sizes=(250, 500, 1000, 2000),
         taus=taus,
         strategies=("random",),
-        families=tuple(f for f in FAMILIES if f != PICK_CROSS),
+        families=tuple(f for f in DEFAULT_FAMILIES if f != PICK_CROSS),
         subset=2000,
     )
 

@@ -23,11 +23,15 @@ from slotv_jax.experiments.people_loop.config import (
     LEARNED,
     PICK,
     PICK_CROSS,
+    PRETRAINED,
+    TRAINED,
     LoopConfig,
 )
 from slotv_jax.observers import population as population_lib
 from slotv_jax.observers.common import mask_logits
 from slotv_jax.planning import evaluation
+from slotv_jax.training import trainer as train_lib
+from slotv_jax.training import types as train_types
 
 # ------------------------------------------------------------------ the observers
 
@@ -135,22 +139,59 @@ def held_out_problems(cfg: LoopConfig, splits) -> dict[str, np.ndarray]:
     return {k: every[k][pick] for k in ("goals", "goal_mask", "target")}
 
 
-def fit_family(cfg: LoopConfig, family: str, pool, cand, counts, rows: int, seeds) -> dict:
+def fit_family(
+    cfg: LoopConfig, family: str, pool, cand, counts, rows: int, seeds, inits=None
+) -> dict:
     """A fresh fit of ``family`` on each run's first ``rows`` answer rows
-    (:func:`slotv_jax.asking.simulated.fit_runs`): parameters with a leading run axis."""
+    (:func:`slotv_jax.asking.simulated.fit_runs`): parameters with a leading run axis. A
+    pre-trained family starts from ``inits[family]`` (:func:`pretrained_params`) and draws
+    the same minibatches as the family it starts (a paired comparison)."""
     tc = cfg.train_config(family)
     blocks = cfg.updates(rows, tc.batch_size, cfg.epochs, cfg.min_updates) // cfg.block
+    init = None
+    if family in PRETRAINED:
+        if not inits or family not in inits:
+            raise ValueError(f"inits: expected the pre-trained parameters of {family!r}")
+        init = inits[family]
     return simulated.fit_runs(
-        tc, pool, cand, counts, rows, _init_keys(family, seeds), blocks, cfg.block
+        tc, pool, cand, counts, rows, _init_keys(family, seeds), blocks, cfg.block, init
     )
 
 
+def pretrained_params(cfg: LoopConfig, family: str, split):
+    """θ₀ of the pre-trained ``family``: the observer of the family it starts, trained on
+    the labels of the mixture of the dataset's labelers, y = (1/L) Σ_l y_l (the mean of
+    their label distributions on each motion of ``split``), by the SLOT-V cross-entropy
+    under its TrainConfig's own label protocol (train size, epochs, batch, optimiser;
+    :func:`slotv_jax.training.train_trials`), seed 1000 + the family's index. Reads the
+    labelers' labels only, never the population. Made once per process and config."""
+    base = PRETRAINED[family]
+    tc = cfg.train_config(family)
+    key = (cfg.data, tc)
+    if key not in _PRETRAINED:
+        n = tc.n_used(len(split))
+        labels = np.mean([np.asarray(split.labels[k][:n]) for k in sorted(split.labels)], 0)
+        data = train_types.make_data(
+            np.asarray(split.xyz[:n], np.float32),
+            np.asarray(split.goals[:n], np.float32),
+            np.asarray(split.goal_mask[:n], bool),
+            labels.astype(np.float32),
+        )
+        state, _ = train_lib.train_trials(tc, data, [1_000 + LEARNED.index(base)], progress=False)
+        _PRETRAINED[key] = jax.tree.map(lambda x: x[0], state.params)
+    return _PRETRAINED[key]
+
+
+_PRETRAINED: dict = {}
+
+
 def _init_keys(family: str, seeds) -> jax.Array:
-    """One key per run: from its seed (and, for a fold's fit, ``(seed, fold)``)."""
+    """One key per run: from its seed (and, for a fold's fit, ``(seed, fold)``); a
+    pre-trained family has the keys of the family it starts."""
     keys = []
     for sd in seeds:
         sd, fold = sd if isinstance(sd, tuple) else (sd, None)
-        key = jax.random.key(2_000 + 97 * sd + LEARNED.index(family))
+        key = jax.random.key(2_000 + 97 * sd + LEARNED.index(PRETRAINED.get(family, family)))
         keys.append(key if fold is None else jax.random.fold_in(key, 1 + fold))
     return jnp.stack(keys)
 
@@ -159,7 +200,7 @@ def _init_keys(family: str, seeds) -> jax.Array:
 
 
 def heldout_logp(
-    cfg: LoopConfig, pool, cand, counts, n_rows: int, run_seeds, fold: np.ndarray
+    cfg: LoopConfig, pool, cand, counts, n_rows: int, run_seeds, fold: np.ndarray, inits=None
 ) -> dict[str, np.ndarray]:
     """Each candidate family's out-of-fold log-probabilities of each run's first ``n_rows``
     answer rows (R, n_rows, G): fitted on the other folds (``fold`` (R, n_rows), by motion),
@@ -176,9 +217,9 @@ def heldout_logp(
     rows_pad = bucket(n_rows)
     out = {}
     for fam in cfg.candidates:
-        if fam in LEARNED:
+        if fam in TRAINED:
             tc = cfg.train_config(fam)
-            params = fit_family(cfg, fam, pool, cand_k, counts_k, n_rows, seeds_k)
+            params = fit_family(cfg, fam, pool, cand_k, counts_k, n_rows, seeds_k, inits)
             sel = selection.make_selector(tc, 1, 1)
             c = jnp.asarray(np.stack([pad_rows(c[:n_rows], rows_pad) for c in cand_k]))
             lp = np.asarray(_fold_scorer(sel)(params, pool, c))[:, :n_rows]  # (R·K, A, G)
@@ -216,7 +257,7 @@ def _fold_scorer(sel):
 
 
 def pick_runs(
-    cfg: LoopConfig, pool, cand, counts, n_rows: int, runs
+    cfg: LoopConfig, pool, cand, counts, n_rows: int, runs, inits=None
 ) -> tuple[np.ndarray, list[dict]]:
     """The pick of every run from its answers alone: folds by motion, out-of-fold
     predictions of every candidate (:func:`heldout_logp`), the pool's weights
@@ -230,7 +271,7 @@ def pick_runs(
             for i, sd in enumerate(run_seeds)
         ]
     )
-    logp = heldout_logp(cfg, pool, cand, counts, n_rows, run_seeds, fold)
+    logp = heldout_logp(cfg, pool, cand, counts, n_rows, run_seeds, fold, inits)
     g = counts.shape[-1]
     weights, reports = [], []
     for i in range(len(runs)):
@@ -348,6 +389,7 @@ def run_population(
             "fit_s": 0.0,
             "beta_s": 0.0,
             "select_s": 0.0,
+            "pretrain_s": 0.0,
             "pick_s": 0.0,
             "plan_s": 0.0,
             "judge_s": 0.0,
@@ -385,6 +427,10 @@ def run_population(
         ask(i, 0, np.random.default_rng([sd, 1]).choice(n_c, rows[0], replace=False))
     timing["answers_s"] += time.perf_counter() - t0
 
+    t0 = time.perf_counter()  # the pre-trained families' θ₀, from the labels alone
+    inits = {f: pretrained_params(cfg, f, splits["train"]) for f in cfg.families if f in PRETRAINED}
+    timing["pretrain_s"] += time.perf_counter() - t0
+
     active = [i for i, (st, _) in enumerate(runs) if st != "random"]
     stc = cfg.train_config(cfg.select_family)
     selector = selection.make_selector(stc, cfg.members, cap)
@@ -412,9 +458,9 @@ def run_population(
         # Learn: every family on the answers so far.
         t0 = time.perf_counter()
         params = {
-            f: fit_family(cfg, f, pool, cand, counts, n_rows, run_seeds)
+            f: fit_family(cfg, f, pool, cand, counts, n_rows, run_seeds, inits)
             for f in cfg.families
-            if f in LEARNED
+            if f in TRAINED
         }
         timing["fit_s"] += time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -434,7 +480,7 @@ def run_population(
         t0 = time.perf_counter()
         pick_reports = None
         if PICK in cfg.families:
-            w, pick_reports = pick_runs(cfg, pool, cand, counts, n_rows, runs)
+            w, pick_reports = pick_runs(cfg, pool, cand, counts, n_rows, runs, inits)
             params["pick_w"] = jnp.asarray(w)
         timing["pick_s"] += time.perf_counter() - t0
         planner = planner_for(cfg, pop, jax.tree.map(lambda a: a[0], params))

@@ -10,7 +10,13 @@ import statistics
 from pathlib import Path
 
 from slotv_jax.core.fileio import write_text
-from slotv_jax.experiments.people_loop.config import DERIVED, PICK, PICK_CROSS, PRESETS
+from slotv_jax.experiments.people_loop.config import (
+    DERIVED,
+    PICK,
+    PICK_CROSS,
+    PRESETS,
+    PRETRAINED,
+)
 from slotv_jax.observers import population as population_lib
 from slotv_jax.runs import figures
 from slotv_jax.runs.summary import crossing
@@ -25,6 +31,7 @@ FAMILY_TITLES = {
     "pick": "**pick** (answers alone)",
     "pick_cross": "**pick by plans** (answers alone)",
 }
+FAMILY_TITLES |= {f: f"{FAMILY_TITLES[b]}, pre-trained" for f, b in PRETRAINED.items()}
 FAMILY_COLORS = {
     "mlp": "tab:blue",
     "slotv_plus": "tab:red",
@@ -34,7 +41,12 @@ FAMILY_COLORS = {
     "nikolaidis_fitted": "tab:brown",
     "pick": "black",
     "pick_cross": "darkorange",
+    "mlp_pre": "tab:cyan",
+    "slotv_plus_pre": "tab:pink",
+    "dragan_archetype_pre": "yellowgreen",
+    "viewpoint_archetype_pre": "orchid",
 }
+PRETRAIN_MARGIN = 0.03  # a pre-trained family "helps" or "hurts" beyond this much gain kept
 HEADLINE = 2000  # the suite's headline: the largest size at most this many answers
 STRATEGY_STYLES = {"random": "--", "margin": "-", "error": ":"}
 BASELINES = ("dragan_fitted", "nikolaidis_fitted")
@@ -292,6 +304,7 @@ def report(doc: dict, stem: str) -> str:
         "",
     ]
     suite = [line.replace("{stem}", stem) for line in suite_section(doc)]
+    suite += pretrain_section(doc)
     body = [line for p in doc["populations"] for line in population_section(doc, p)]
     return "\n".join(head + suite + body)
 
@@ -618,3 +631,86 @@ def plot_fit_plan(doc: dict, path: Path) -> bool:
     fig.tight_layout()
     figures.save(fig, path, dpi=120)
     return True
+
+
+def _mean_nll(doc: dict, pop: str, family: str) -> dict[int, float]:
+    """The mean held-out NLL per answer of ``family``'s rows at each size (random picks)."""
+    by: dict[int, list[float]] = {}
+    for p in doc["populations"]:
+        for r in p["rows"]:
+            if (r["population"], r["family"], r["strategy"]) == (pop, family, "random"):
+                if "heldout_nll" in r:
+                    by.setdefault(r["answers"], []).append(r["heldout_nll"])
+    return {a: statistics.fmean(v) for a, v in by.items()}
+
+
+def pretrain_section(doc: dict) -> list[str]:
+    """Pre-trained against from nothing, for every learned family that ran both ways: per
+    population and size, the gain kept (random picks) both ways and the held-out NLL per
+    answer both ways where the pick computed it; then where pre-training helps or hurts by
+    more than :data:`PRETRAIN_MARGIN`."""
+    fams = doc["config"]["families"]
+    pairs = [(b, f) for f, b in PRETRAINED.items() if f in fams and b in fams]
+    if not pairs:
+        return []
+    pops = [p["population"] for p in doc["populations"]]
+    recipe = doc["config"].get("pretrain", {})
+    lines = [
+        "## Pre-trained against from nothing",
+        "",
+        "Each learned family fitted on the answers from a random draw (*from nothing*) and "
+        "from θ₀ trained on the labels of the dataset's labelers (*pre-trained*: "
+        f"{recipe.get('labels', 'the labelers')}; {recipe.get('protocol', '')}), with the same "
+        "updates and the same minibatches (`slotv_jax.experiments.people_loop.loop."
+        "pretrained_params`). Gain kept at each size, from nothing → pre-trained (the "
+        "difference in points); held-out NLL per answer (out-of-fold, the pick's) likewise "
+        "where the document has it.",
+        "",
+    ]
+    tally: dict[str, dict[str, int]] = {}
+    for base, pre in pairs:
+        lines += [f"**{FAMILY_TITLES[base]}**", ""]
+        sizes = sorted({a for q in pops for a in _gain(doc, q, base)})
+        lines += [
+            "| population | "
+            + " | ".join(f"{a:,} answers" for a in sizes)
+            + " | NLL, largest size |",
+            "|---|" + "---|" * (len(sizes) + 1),
+        ]
+        t = tally.setdefault(base, {"helps": 0, "hurts": 0, "level": 0})
+        for q in pops:
+            g0, g1 = _gain(doc, q, base), _gain(doc, q, pre)
+            cells = []
+            for a in sizes:
+                if a in g0 and a in g1:
+                    d = g1[a] - g0[a]
+                    cells.append(f"{_pct(g0[a])} → {_pct(g1[a])} ({100 * d:+.0f})")
+                    key = (
+                        "helps"
+                        if d > PRETRAIN_MARGIN
+                        else "hurts"
+                        if d < -PRETRAIN_MARGIN
+                        else "level"
+                    )
+                    t[key] += 1
+                else:
+                    cells.append("—")
+            n0, n1 = _mean_nll(doc, q, base), _mean_nll(doc, q, pre)
+            top = max(set(n0) & set(n1), default=None)
+            nll = "—" if top is None else f"{n0[top]:.3f} → {n1[top]:.3f}"
+            lines.append(f"| `{q}` | " + " | ".join(cells) + f" | {nll} |")
+        lines.append("")
+    m = f"{100 * PRETRAIN_MARGIN:.0f}"
+    lines.append(
+        f"Where pre-training helps (more than {m} points of gain kept), where it hurts (more "
+        f"than {m} points less), over population × size:"
+    )
+    lines.append("")
+    for base, t in tally.items():
+        n = sum(t.values())
+        lines.append(
+            f"- {FAMILY_TITLES[base]}: helps in {t['helps']} of {n}, hurts in {t['hurts']}, "
+            f"level in {t['level']}."
+        )
+    lines.append("")
+    return lines
