@@ -60,8 +60,7 @@ def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
         meta = {**old, **meta}
         print(f"resuming from {out} after epoch {int(state.epoch)}", flush=True)
     elif getattr(args, "init_params", None) is not None:  # fine-tuning: θ₀ from --init
-        state = study_trainer(cfg).init(jax.random.key(args.seed))
-        state = state._replace(params=args.init_params)
+        state = study_trainer(cfg).init(jax.random.key(args.seed), args.init_params)
         meta["init"] = str(args.init)
 
     def save(st, loss):

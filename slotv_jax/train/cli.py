@@ -139,9 +139,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         _, state, meta = checkpoint.restore(out, cfg)
         print(f"resuming from {out} after epoch {int(state.epoch)}", flush=True)
     else:
-        state, meta = trainer.init(jax.random.key(args.seed)), {}
-        if args.init_params is not None:  # fine-tuning: θ₀ from the --init checkpoint
-            state, meta = state._replace(params=args.init_params), {"init": str(args.init)}
+        state = trainer.init(jax.random.key(args.seed), args.init_params)  # θ₀: --init's
+        meta = {} if args.init_params is None else {"init": str(args.init)}
     trainer = packed_trainer(trainer, state.key, data, range(int(state.epoch), cfg.epochs))
     print(f"devices: {trainer.mesh.size} × {trainer.platform}; "
           f"backward: {trainer.backward}; packed pairs: {trainer.packed_pairs or 'off'}; "

@@ -212,10 +212,13 @@ class Trainer:
     def _init_keys(key: jax.Array) -> jax.Array:
         return jax.random.split(key)  # (model key, TrainState key)
 
-    def init(self, key: jax.Array) -> TrainState:
-        """Fresh parameters and optimiser state from ``key`` (pure; vmappable)."""
+    def init(self, key: jax.Array, params: nnx.State | None = None) -> TrainState:
+        """Fresh parameters and optimiser state from ``key`` (pure; vmappable). With
+        ``params`` the run starts from θ₀ = ``params`` instead (fine-tuning, Howard & Ruder
+        2018: ``train --init``), with the optimiser state of θ₀ and the key's own batches."""
         k_model, k_train = self._init_keys(key)
-        _, params = nnx.split(models.make_model(self.cfg, nnx.Rngs(params=k_model)))
+        if params is None:
+            _, params = nnx.split(models.make_model(self.cfg, nnx.Rngs(params=k_model)))
         return TrainState(params, self.tx.init(params), jnp.zeros((), jnp.int32), k_train)
 
     @staticmethod
