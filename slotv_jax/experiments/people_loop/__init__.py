@@ -181,6 +181,10 @@ def run(
     elif todo:
         for spec, seeds in todo.items():
             _run_one(cfg, doc, entries, path, spec, seeds, splits, progress)
+    if todo and jobs is None:  # the suite's order, whichever worker finished first
+        order = {name: i for i, name in enumerate(population_lib.suite_specs())}
+        doc["populations"].sort(key=lambda p: order.get(p["population"], len(order)))
+        write_text(path, json.dumps(doc, indent=1))
     if jobs is None:
         report_lib.render(doc, out, stem)
         draw_example(doc, out, stem, again=doc["summary"] != summary_before)

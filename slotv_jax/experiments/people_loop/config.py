@@ -170,9 +170,7 @@ class LoopConfig:
 def quick() -> LoopConfig:
     """CPU preset: the quick dataset and networks (64/32), 2 seeds, 12 problems, 50-point
     plans of 30 steps, 250 to 2,000 answers picked at random (the suite's protocol; the
-    active strategies with ``--strategies random,margin,error``). Every family but the
-    pick by plans, which the quick record (``experiments/people_loop.md``) was run
-    without; ``--families`` with ``pick_cross`` adds it (a new document)."""
+    active strategies with ``--strategies random,margin,error``)."""
     taus = (0.4, 0.7, 1.0)
     return LoopConfig(
         "quick",
@@ -182,7 +180,6 @@ def quick() -> LoopConfig:
         sizes=(250, 500, 1000, 2000),
         taus=taus,
         strategies=("random",),
-        families=tuple(f for f in DEFAULT_FAMILIES if f != PICK_CROSS),
         subset=2000,
     )
 
