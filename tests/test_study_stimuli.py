@@ -194,3 +194,17 @@ def test_timed_stimuli_move_at_the_robot_s_speed(tmp_path):
     assert study_cli.main(argv) == 0
     later = stimuli.load_stimulus_set(tmp_path / "stim" / "round-1")
     assert later.trajectories[tid] == st.trajectories[tid]
+
+
+def test_plans_without_tcp_paths_get_them_by_forward_kinematics(tmp_path):
+    """A plans file holding joints only (``xyz`` is optional; the people loop's example plans
+    have none): motions_from_plans computes the TCP paths by MuJoCo C's kinematics, and they
+    match the planner's own (MJX) paths of the same plans; the rows are the same."""
+    plans = "experiments/planning_paper_plans.npz"
+    z = dict(np.load(plans))
+    del z["xyz"], z["y"]
+    np.savez(tmp_path / "joints_only.npz", **z)
+    want = make_stimuli.motions_from_plans(plans)
+    got = make_stimuli.motions_from_plans(tmp_path / "joints_only.npz")
+    assert got.ids == want.ids and np.array_equal(got.q, want.q)
+    np.testing.assert_allclose(got.xyz, want.xyz, atol=2e-5)  # float32 MJX against float64 C

@@ -62,6 +62,7 @@ from slotv_jax.core import validation
 from slotv_jax.core.fileio import check_not_input, check_output_dir, load_npz
 from slotv_jax.data import SPLITS, Split, load_split
 from slotv_jax.execution import DEFAULT_SPEED, Refused, TimingConfig, time_plan
+from slotv_jax.execution import models as execution_models
 from slotv_jax.execution.cli import add_timing_args, timing_from_args
 from slotv_jax.execution.limits import SOURCE, check_speed
 from slotv_jax.planning.plans import load_plans
@@ -224,11 +225,12 @@ def motions_from_npz(path: str | Path) -> Motions:
 
 def motions_from_plans(path: str | Path) -> Motions:
     """A planning run's ``plans.npz``: every planner's plan of every problem (a planner's
-    NaN rows left out); ids ``PLANNER-PROBLEM``, one scene per problem."""
+    NaN rows left out); ids ``PLANNER-PROBLEM``, one scene per problem. A file without
+    ``xyz`` (it is optional, e.g. the people loop's example plans) gets the TCP paths of its
+    ``q`` by forward kinematics (MuJoCo C, :func:`slotv_jax.execution.models.tcp_poses`)."""
     z = load_plans(path)
-    if "xyz" not in z:  # the TCP paths go into the study's tables
-        raise ValueError(f"--plans {path}: missing arrays ['xyz']; it holds {sorted(z)}")
-    q, xyz, names = z["q"], z["xyz"], [str(s) for s in z["names"]]
+    q, names = z["q"], [str(s) for s in z["names"]]
+    xyz = z["xyz"] if "xyz" in z else _tcp_paths(q)  # the TCP paths go into the study's tables
     rows = [(k, p) for k in range(q.shape[0]) for p in range(q.shape[1])
             if np.isfinite(q[k, p]).all() and np.isfinite(xyz[k, p]).all()]  # fmt: skip
     ks, ps = np.array([r[0] for r in rows], int), np.array([r[1] for r in rows], int)
@@ -236,6 +238,15 @@ def motions_from_plans(path: str | Path) -> Motions:
                    z["goals"][ps].astype(np.float32), z["goal_mask"][ps].astype(bool),
                    [f"{names[k]}-{p}" for k, p in rows], [f"problem{p}" for p in ps],
                    z["target"][ps].astype(int), np.full(len(rows), q.shape[2]), None)  # fmt: skip
+
+
+def _tcp_paths(q: np.ndarray) -> np.ndarray:
+    """TCP paths (..., T, 3) of joint paths ``q`` (..., T, 7); NaN where ``q`` has a NaN."""
+    flat = np.asarray(q, np.float64).reshape(-1, 7)
+    ok = np.isfinite(flat).all(-1)
+    out = np.full((flat.shape[0], 3), np.nan)
+    out[ok] = execution_models.tcp_poses(flat[ok])[0]
+    return out.reshape(*np.shape(q)[:-1], 3)
 
 
 def motions_from_study(path: str | Path) -> Motions:
