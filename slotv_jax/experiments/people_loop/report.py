@@ -323,7 +323,7 @@ def command_line(doc: dict) -> str:
         suite = set(population_lib.suite_specs())
         words += [
             "--population",
-            "suite" if set(pops) <= suite and len(pops) > 2 else ",".join(pops),
+            "suite" if set(pops) == suite else ",".join(pops),
         ]
     return " ".join(words)
 
