@@ -42,7 +42,7 @@ FAMILY_COLORS = {
     "pick": "black",
     "pick_cross": "darkorange",
     "mlp_pre": "tab:cyan",
-    "slotv_plus_pre": "tab:pink",
+    "slotv_plus_pre": "goldenrod",
     "dragan_archetype_pre": "yellowgreen",
     "viewpoint_archetype_pre": "orchid",
 }
