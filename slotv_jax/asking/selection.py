@@ -481,12 +481,13 @@ class Selector:
                 f"got {int(seen.min())}..{int(seen.max())}"
             )
 
-    def init(self, key: jax.Array) -> Ensemble:
+    def init(self, key: jax.Array, params: nnx.State | None = None) -> Ensemble:
         """E fresh members (member e from ``fold_in(split(key)[0], e)``) and their bootstrap
-        weights (Poisson(1) from ``split(key)[1]``)."""
+        weights (Poisson(1) from ``split(key)[1]``). With ``params`` every member starts
+        from θ₀ = ``params`` (:meth:`slotv_jax.training.Trainer.init`)."""
         k_members, k_boot = jax.random.split(key)
         keys = jax.vmap(lambda e: jax.random.fold_in(k_members, e))(jnp.arange(self.members))
-        states = jax.vmap(self.base.init)(keys)
+        states = jax.vmap(lambda k: self.base.init(k, params))(keys)
         boot = jax.random.poisson(k_boot, 1.0, (self.members, self.capacity))
         boot = boot.astype(jnp.float32).at[0].set(1.0)
         return Ensemble(states.params, states.opt_state, boot)

@@ -92,12 +92,7 @@ def fit_runs(
     instead of a random draw, with a fresh optimiser state (fine-tuning, Howard & Ruder
     2018); the keys still draw the minibatches."""
     sel = selection.make_selector(tc, 1, cand.shape[1])
-    ens = jax.jit(jax.vmap(sel.init))(keys)
-    if init is not None:
-        params = jax.tree.map(
-            lambda a, b: jnp.broadcast_to(jnp.asarray(b, a.dtype), a.shape), ens.params, init
-        )
-        ens = ens._replace(params=params, opt_state=jax.vmap(jax.vmap(sel.base.tx.init))(params))
+    ens = jax.jit(jax.vmap(sel.init, in_axes=(0, None)))(keys, init)
     ans = selection.Answers(
         jnp.asarray(cand), jnp.asarray(counts), jnp.full((cand.shape[0],), rows, jnp.int32)
     )
