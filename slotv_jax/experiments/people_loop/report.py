@@ -42,7 +42,7 @@ FAMILY_COLORS = {
     "pick": "black",
     "pick_cross": "darkorange",
     "mlp_pre": "tab:cyan",
-    "slotv_plus_pre": "goldenrod",
+    "slotv_plus_pre": "deeppink",
     "dragan_archetype_pre": "yellowgreen",
     "viewpoint_archetype_pre": "orchid",
 }
