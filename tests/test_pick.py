@@ -6,6 +6,7 @@ the answers while never reading the population."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 
 import jax
@@ -24,6 +25,7 @@ from slotv_jax.observers import population as population_lib
 from slotv_jax.observers.common import seen_points
 from slotv_jax.planning import evaluation
 from slotv_jax.study.cli import main as study_main
+from slotv_jax.world.scene import camera as scene_camera
 
 # ------------------------------------------------------------------ the hyper-distribution
 
@@ -223,6 +225,64 @@ def test_study_pick_scores_every_candidate_and_writes_the_pick(label_pool, tmp_p
     argv2 = ["pick", str(path), "--out", str(out2), "--candidates", "dragan_archetype,dragan"]
     assert study_main([*argv2, "--folds", "2", "--no-progress"]) == 0
     assert "| dragan_archetype" in capsys.readouterr().out
+
+
+def test_study_pick_by_plans_judges_every_plan_and_writes_them(
+    label_pool, tmp_path, capsys, monkeypatch
+):
+    """``study pick --by plans``: every candidate (fitted on every answer) plans the study's
+    own scenes; the printed and recorded judgments are each fit's mean P(target | ξ up to
+    τ) of the written plans, re-derived here with the labelers themselves (float64 NumPy
+    mean, the study's τ); the pick is the best mean judgment of the other fits; a rerun by
+    likelihood with --overwrite leaves none of the earlier output behind."""
+    from slotv_jax.answers import pick as pick_lib
+    from slotv_jax.answers.crossval import fit_beta
+    from slotv_jax.planning.plans import load_plans
+
+    monkeypatch.setitem(pick_lib.PLANNERS, "quick", {"n_points": 20, "iters": 3})
+    pool, taus = label_pool
+    xyz, goals, mask = (np.asarray(a)[:60] for a in (pool.xyz, pool.goals, pool.goal_mask))
+    study = simulate_study(jax.random.key(1), xyz, goals, mask, 6, labeler="dragan", beta=8.0,
+                           taus=taus)  # fmt: skip
+    path = tmp_path / "s.npz"
+    save_study(path, study)
+    out = tmp_path / "pick"
+    argv = ["pick", str(path), "--out", str(out), "--candidates", "dragan,nikolaidis",
+            "--by", "plans", "--no-progress"]  # fmt: skip
+    with pytest.raises(SystemExit) as e:
+        study_main([*argv, "--problems", "0"])
+    assert e.value.code == 2 and "--problems" in capsys.readouterr().err
+    assert study_main(argv) == 0
+    text = capsys.readouterr().out
+    rec = json.loads((out / "pick.json").read_text())
+    rep = rec["pick"]
+    assert rep["rule"] == "plans" and rep["taus"] == list(taus) and rep["problems"] == 3
+    plans = load_plans(out / "plans.npz")
+    assert plans["names"].tolist() == ["straight", "dragan", "nikolaidis"]
+    betas = {n: fit_beta(study, n)[0] for n in ("dragan", "nikolaidis")}
+    seen = seen_points(taus, 20)
+    want = np.zeros((2, 2))
+    cam = {"camera": scene_camera("observer")}
+    for i in range(2):
+        for j, g in enumerate(("dragan", "nikolaidis")):
+            fn = functools.partial(getattr(labelers, g), **(cam if g == "nikolaidis" else {}))
+            ys = [float(fn(plans["xyz"][1 + i, p, :s], plans["goals"][p], plans["goal_mask"][p],
+                           beta=betas[g])[plans["target"][p]])
+                  for p in range(3) for s in seen]  # fmt: skip
+            want[i, j] = np.mean(np.asarray(ys, np.float64))
+    np.testing.assert_allclose(rep["judged"], want, atol=2e-5)
+    assert rep["scores"] == pytest.approx([want[0, 1], want[1, 0]], abs=2e-5)
+    assert rep["pick"] == ("dragan", "nikolaidis")[int(want[1, 0] > want[0, 1])]
+    assert rec["labeler"] == rep["pick"] and rec["beta"] == pytest.approx(betas[rep["pick"]])
+    assert f"| {rep['pick']} **(pick)** |" in text, text
+    # the plans reach each target from the home TCP
+    ends = plans["xyz"][:, np.arange(3), -1]
+    tgt = plans["goals"][np.arange(3), plans["target"]]
+    assert np.all(np.linalg.norm(ends - tgt, axis=-1) < 2e-3)
+    argv[-3:-1] = ["--by", "likelihood"]
+    assert study_main([*argv, "--overwrite"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["pick.json"]
+    assert json.loads((out / "pick.json").read_text())["pick"].get("rule") is None
 
 
 # ------------------------------------------------------------------ the pick by plans

@@ -7,25 +7,39 @@ predicting the held-out one (:func:`out_of_fold`). The log-linear pool of the ca
 (:mod:`slotv_jax.answers.pooling`) weighs them by those predictions; the candidate of the
 largest weight is the pick. The same procedure, on simulated answers, is the people loop's
 family ``pick``. Only the study's answers are read.
+
+The pick *by plans* (:func:`pick_by_plans`, ``study pick --by plans``) judges the plans
+instead: every candidate, fitted on every answer, plans the study's own scenes, each
+candidate's plans are scored by the fits of the other candidates (:func:`cross_judged`),
+and the best-judged candidate is the pick: the people loop's family ``pick_cross``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 from tqdm.auto import tqdm
 
+from slotv_jax import planning
 from slotv_jax.answers import pooling
 from slotv_jax.answers.crossval import fit_beta, labeler_probs, labeler_visible
 from slotv_jax.answers.fitting import answer_logits, train_study
 from slotv_jax.answers.format import PROB_FLOOR, Study
+from slotv_jax.planning import evaluation
+from slotv_jax.training import checkpoint
 from slotv_jax.training import config as train_config
 
 LABELERS = ("dragan", "nikolaidis")  # the hand-crafted candidates (β fitted)
 CANDIDATES = (*train_config.FAMILIES, *LABELERS)
+BY = ("likelihood", "plans")  # the two rules of ``study pick --by``
+#: The planner of the pick by plans, per training preset (the people loop's: 50 points and
+#: 30 steps on a CPU, the default planner on a GPU).
+PLANNERS = {"quick": {"n_points": 50, "iters": 30}, "paper": {}}
+MAX_TAUS = 8  # the study's distinct stop times the planner's objective takes at most
 
 
 def check_candidates(names: Sequence[str]) -> tuple[str, ...]:
@@ -140,4 +154,193 @@ def pick_table(rep: dict) -> str:
         mark = " **(pick)**" if n == rep["pick"] else ""
         lines.append(f"| {n}{mark} | {nll:.4f} | {w:.3f} |")
     lines.append(f"| pool | {rep['pool_nll']:.4f} | |")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------ the pick by plans
+
+
+def cross_judged(
+    judged: Mapping[str, Mapping[str, np.ndarray]], candidates: Sequence[str]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pick by plans. ``judged[f][g]`` (R,) is fit g's mean P(target | ξ_{0:τ}) of
+    family f's plans (over problems and stop times); each candidate f is scored by the fits
+    it was not planned against,
+
+        S_f = (1 / (|C| − 1)) Σ_{g ∈ C, g ≠ f} judged[f][g],
+
+    and the pick is argmax_f S_f, per run. A planner climbs wherever its own fit is too
+    optimistic, so f's own judgment of its plans is left out: a plan counts as legible
+    where fits that did not make it agree that it is (cross-validation of plans, as the
+    folds of :mod:`slotv_jax.answers.pooling` are of fits). Returns the chosen index into
+    ``candidates`` (R,) and the scores S (R, |C|).
+
+    >>> j = {"a": {"a": np.array([0.9]), "b": np.array([0.4])},
+    ...      "b": {"a": np.array([0.6]), "b": np.array([0.8])}}
+    >>> idx, s = cross_judged(j, ["a", "b"])
+    >>> idx.tolist(), s.round(2).tolist()
+    ([1], [[0.4, 0.6]])
+    """
+    c = list(candidates)
+    if len(c) < 2:
+        raise ValueError(f"candidates: expected at least two, got {c}")
+    s = np.stack(
+        [np.mean([judged[f][g] for g in c if g != f], axis=0) for f in c], axis=-1
+    )  # (R, C)
+    return np.argmax(s, axis=-1), s
+
+
+def study_problems(study: Study, n: int) -> dict[str, np.ndarray]:
+    """The study's own planning problems: every (scene, real goal) of its distinct goal sets
+    (in order of first appearance; :func:`slotv_jax.planning.evaluation.scene_problems`),
+    cut evenly to at most ``n``: goals (P, 8, 3), goal_mask (P, 8), target (P,)."""
+    if not (isinstance(n, int) and n >= 1):
+        raise ValueError(f"--problems: expected an int >= 1, got {n!r}")
+    first: dict[bytes, int] = {}
+    for i in range(study.n_trajectories):
+        key = np.asarray(study.goals[i][study.goal_mask[i]], np.float32).round(5).tobytes()
+        first.setdefault(key, i)
+    idx = list(first.values())
+    every = evaluation.scene_problems(
+        {"study": (study.goals[idx], study.goal_mask[idx])}, ["study"]
+    )
+    m = every["target"].size
+    keep = np.linspace(0, m - 1, min(n, m)).round().astype(int)
+    return {k: every[k][keep] for k in ("goals", "goal_mask", "target")}
+
+
+def study_taus(study: Study) -> tuple[float, ...]:
+    """The study's distinct stop times (its answers' τ), the planner's prefix objective."""
+    taus = tuple(sorted({round(float(t), 6) for t in study.answer_tau}))
+    if len(taus) > MAX_TAUS or not all(0 < t <= 1 for t in taus):
+        raise ValueError(
+            f"--by plans: expected at most {MAX_TAUS} distinct stop times in (0, 1] in the "
+            f"study's answers, got {len(taus)} ({taus[:3]}...)"
+        )
+    return taus
+
+
+def fit_candidates(
+    study: Study,
+    names: Sequence[str],
+    *,
+    preset: str = "quick",
+    seed: int = 0,
+    camera: str = "observer",
+    progress: bool = True,
+) -> dict[str, dict]:
+    """Every candidate fitted on every answer: ``{name: {"observer", and "cfg" and "state"
+    (a learned family, :func:`slotv_jax.answers.fitting.train_study`) or "beta" (a labeler,
+    :func:`slotv_jax.answers.crossval.fit_beta`)}}``."""
+    out = {}
+    for name in tqdm(names, desc="fits on every answer", disable=not progress):
+        if name in LABELERS:
+            beta, _ = fit_beta(study, name, camera=camera)
+            obs = planning.labeler_observer(name, beta=beta, camera=camera)
+            out[name] = {"observer": obs, "beta": beta}
+        else:
+            cfg = fit_config(preset, name, study.n_rows)
+            state = train_study(cfg, study, jax.random.key(seed), progress=False)
+            obs = checkpoint.make_observer(cfg, state.params)
+            out[name] = {"observer": obs, "cfg": cfg, "state": state}
+    return out
+
+
+def judge_plans(
+    observers: Mapping[str, object],
+    xyz: Mapping[str, Float[np.ndarray, "P T 3"]],
+    problems: Mapping[str, np.ndarray],
+    taus: Sequence[float],
+) -> dict[str, dict[str, float]]:
+    """``judged[f][g]``: observer g's mean P(target | ξ_{0:τ}) of f's plans ``xyz[f]``, over
+    the problems and the stop times (:func:`slotv_jax.planning.stop_log_probs`)."""
+    g_, m_, t_ = (jnp.asarray(problems[k]) for k in ("goals", "goal_mask", "target"))
+    out: dict[str, dict[str, float]] = {f: {} for f in xyz}
+    for g, obs in observers.items():
+        judge = jax.jit(
+            jax.vmap(lambda x, gl, m, t, obs=obs: planning.stop_log_probs(obs, x, gl, m, t, taus))
+        )
+        for f, x in xyz.items():
+            lp = np.asarray(judge(jnp.asarray(x), g_, m_, t_), np.float64)
+            out[f][g] = float(np.exp(lp).mean())
+    return out
+
+
+def pick_by_plans(
+    study: Study,
+    names: Sequence[str] = CANDIDATES,
+    *,
+    preset: str = "quick",
+    seed: int = 0,
+    camera: str = "observer",
+    problems: int = 12,
+    progress: bool = True,
+) -> tuple[dict, dict[str, dict], dict[str, np.ndarray]]:
+    """The pick by plans of ``study``: every candidate fitted on every answer
+    (:func:`fit_candidates`) plans the study's own problems (:func:`study_problems`, from
+    TCP(q_home), the prefix objective at the study's stop times, :data:`PLANNERS`), every
+    plan is judged by every fit (:func:`judge_plans`) and the pick is
+    :func:`cross_judged`'s. Reads the study's answers and scenes only.
+
+    Returns the report (``candidates``, ``judged`` (C, C): row f, column g, ``scores``
+    S_f, ``pick``, ``problems``, ``taus``, ``planner``), the fits, and the plans file's
+    arrays (:mod:`slotv_jax.planning.plans`: the straight line, then every candidate)."""
+    names = check_candidates(names)
+    if "nikolaidis" in names and not labeler_visible(study, camera):
+        raise ValueError(
+            f"--candidates: nikolaidis needs every point and goal in front of camera {camera!r}"
+        )
+    taus = study_taus(study)
+    prob = study_problems(study, problems)
+    cfg = planning.PlannerConfig(**PLANNERS.get(preset, {}), taus=taus)
+    fits = fit_candidates(study, names, preset=preset, seed=seed, camera=camera,
+                          progress=progress)  # fmt: skip
+    observers = {n: fits[n]["observer"] for n in names}
+    planner = planning.make_planner(observers, cfg)
+    g, m, t = (jnp.asarray(prob[k]) for k in ("goals", "goal_mask", "target"))
+    try:
+        straight = planner.straight_line(g, m, t)
+        planning.check_problems(straight)
+    except ValueError as e:
+        raise ValueError(f"--by plans: the study's scenes: {e}") from None
+    plans = {}
+    for n in tqdm(names, desc="plans", disable=not progress):
+        plans[n] = planner.plan_problems(straight, observer=n)
+    judged = judge_plans(observers, {n: np.asarray(r.xyz) for n, r in plans.items()}, prob, taus)
+    idx, s = cross_judged({f: {k: np.array([v]) for k, v in r.items()} for f, r in judged.items()},
+                          names)  # fmt: skip
+    report = {
+        "rule": "plans",
+        "candidates": list(names),
+        "judged": [[judged[f][k] for k in names] for f in names],
+        "scores": s[0].tolist(),
+        "pick": names[int(idx[0])],
+        "problems": int(prob["target"].size),
+        "taus": list(taus),
+        "planner": {"n_points": cfg.n_points, "iters": cfg.iters},
+        "preset": preset,
+        "seed": seed,
+    }
+    arrays = {
+        **prob,
+        "names": np.array(["straight", *names]),
+        "q": np.stack([np.asarray(straight.q)] + [np.asarray(plans[n].q) for n in names]),
+        "xyz": np.stack([np.asarray(straight.xyz)] + [np.asarray(plans[n].xyz) for n in names]),
+    }
+    arrays["q"], arrays["xyz"] = arrays["q"].astype(np.float32), arrays["xyz"].astype(np.float32)
+    return report, fits, arrays
+
+
+def plans_table(rep: dict) -> str:
+    """A Markdown table of :func:`pick_by_plans`'s report."""
+    lines = [
+        f"each candidate's plans of {rep['problems']} problems of the study's scenes, judged by "
+        f"every fit: mean P(target | motion up to τ) over τ = {', '.join(map(str, rep['taus']))}",
+        "",
+        "| candidate | judged by the other fits (S) | by its own fit |",
+        "|---|---|---|",
+    ]
+    for i, (n, s) in enumerate(zip(rep["candidates"], rep["scores"], strict=True)):
+        mark = " **(pick)**" if n == rep["pick"] else ""
+        lines.append(f"| {n}{mark} | {s:.4f} | {rep['judged'][i][i]:.4f} |")
     return "\n".join(lines)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import shutil
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,6 +21,7 @@ from slotv_jax.answers.storage import load_study, save_study
 from slotv_jax.answers.tables import read_tables
 from slotv_jax.core import cli, fileio, validation
 from slotv_jax.core.fileio import write_text
+from slotv_jax.planning.plans import save_plans
 from slotv_jax.study import rounds
 from slotv_jax.training import checkpoint
 from slotv_jax.training import config as train_config
@@ -119,13 +121,22 @@ def _parse_args(argv):
     cv.add_argument("--out", default=None, help="write the results as JSON here")
     cv.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     pk = sub.add_parser(
-        "pick", help="the observer to plan with, chosen by the held-out likelihood of answers"
+        "pick",
+        help="the observer to plan with, chosen by the held-out likelihood of answers "
+        "or by judging every candidate's plans",
     )
     pk.add_argument("study")
     pk.add_argument("--out", required=True, help="checkpoint folder of the pick")
     pk.add_argument("--candidates", default=",".join(pick_lib.CANDIDATES),
                     help="comma-separated families and labelers to choose from")  # fmt: skip
     pk.add_argument("--preset", default="quick", choices=tuple(train_config.PRESETS))
+    pk.add_argument("--by", default="likelihood", choices=pick_lib.BY,
+                    help="likelihood: the pool's largest weight on held-out answers; plans: "
+                    "the candidate whose plans of the study's scenes the other fits judge "
+                    "the most legible (also writes DIR/plans.npz)")  # fmt: skip
+    pk.add_argument("--problems", type=int, default=12,
+                    help="--by plans: at most this many of the study's (scene, goal) "
+                    "problems are planned")  # fmt: skip
     pk.add_argument("--folds", type=int, default=3)
     pk.add_argument("--seed", type=int, default=0)
     pk.add_argument("--condition", default=None)
@@ -141,7 +152,10 @@ def pick_main(args: argparse.Namespace) -> int:
     held-out likelihood of the study's answers (folds by motion), print the table, fit the
     pick (the pool's largest weight) on every answer and write it: a learned family as a
     checkpoint (``slotv_jax.load_observer(DIR)``; the table in its JSON config), a labeler
-    as ``DIR/pick.json`` with its fitted β (``planning.labeler_observer(name, beta=β)``)."""
+    as ``DIR/pick.json`` with its fitted β (``planning.labeler_observer(name, beta=β)``).
+    ``--by plans``: the pick by plans instead (:func:`slotv_jax.answers.pick.pick_by_plans`),
+    and ``DIR/plans.npz``, every candidate's plans of the study's scenes. The output is
+    written beside and swapped in whole (an earlier pick of ``--overwrite`` leaves nothing)."""
     validation.check_seeds("--seed", args.seed)
     names = pick_lib.check_candidates([c.strip() for c in args.candidates.split(",")])
     fileio.check_not_input(args.out, {"study": args.study})
@@ -150,24 +164,51 @@ def pick_main(args: argparse.Namespace) -> int:
         return checkpoint.exists(p) or (Path(p) / "pick.json").is_file()
 
     fileio.check_output_dir(args.out, ours=ours, overwrite=args.overwrite)
+    if not (isinstance(args.problems, int) and args.problems >= 1):
+        raise ValueError(f"--problems: expected an int >= 1, got {args.problems!r}")
     study = load_study(args.study)
     if args.condition is not None:
         study = study.select_condition(args.condition)
-    rep = pick_lib.pick_study(study, names, preset=args.preset, folds=args.folds,
-                              seed=args.seed, progress=not args.no_progress)  # fmt: skip
-    print(pick_lib.pick_table(rep), flush=True)
+    progress = not args.no_progress
+    fits, arrays = {}, None
+    if args.by == "plans":
+        rep, fits, arrays = pick_lib.pick_by_plans(
+            study, names, preset=args.preset, seed=args.seed, problems=args.problems,
+            progress=progress,
+        )  # fmt: skip
+        print(pick_lib.plans_table(rep), flush=True)
+    else:
+        rep = pick_lib.pick_study(study, names, preset=args.preset, folds=args.folds,
+                                  seed=args.seed, progress=progress)  # fmt: skip
+        print(pick_lib.pick_table(rep), flush=True)
     out, winner = Path(args.out), rep["pick"]
     meta = {"study": str(args.study), "condition": args.condition, "pick": rep}
-    if winner in pick_lib.LABELERS:
-        beta, _ = fit_beta(study, winner)
-        out.mkdir(parents=True, exist_ok=True)
-        write_text(out / "pick.json", json.dumps({**meta, "labeler": winner, "beta": beta}))
-        print(f"pick: {winner} with β = {beta:.4g} (fitted on every answer): {out / 'pick.json'}")
-        return 0
-    cfg = pick_lib.fit_config(args.preset, winner, study.n_rows)
-    state = train_study(cfg, study, jax.random.key(args.seed), progress=not args.no_progress)
-    checkpoint.save(out, cfg, state, meta=meta)
-    print(f"pick: {winner}, fitted on every answer: {out} (slotv_jax.load_observer)")
+    tmp = fileio.temp_dir_beside(out)  # the whole output, then swapped in: nothing stale
+    try:
+        if winner in pick_lib.LABELERS:
+            beta = fits[winner]["beta"] if winner in fits else fit_beta(study, winner)[0]
+            write_text(tmp / "pick.json", json.dumps({**meta, "labeler": winner, "beta": beta}))
+            said = (
+                f"pick: {winner} with β = {beta:.4g} (fitted on every answer): {out / 'pick.json'}"
+            )
+        else:
+            if winner in fits:  # the pick by plans fitted it on every answer already
+                cfg, state = fits[winner]["cfg"], fits[winner]["state"]
+            else:
+                cfg = pick_lib.fit_config(args.preset, winner, study.n_rows)
+                state = train_study(cfg, study, jax.random.key(args.seed), progress=progress)
+            checkpoint.save(tmp, cfg, state, meta=meta)
+            said = f"pick: {winner}, fitted on every answer: {out} (slotv_jax.load_observer)"
+        if arrays is not None:
+            save_plans(tmp / "plans.npz", arrays)
+        fileio.replace_dir(tmp, out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    print(said)
+    if arrays is not None:
+        print(f"plans: the straight line and every candidate's: {out / 'plans.npz'} "
+              "(study stimuli --plans, render --plans)")  # fmt: skip
     return 0
 
 

@@ -15,6 +15,7 @@ from tqdm.auto import tqdm
 
 from slotv_jax import planning
 from slotv_jax.answers import pooling
+from slotv_jax.answers.pick import cross_judged
 from slotv_jax.asking import selection, simulated
 from slotv_jax.core.shapes import bucket, pad_rows
 from slotv_jax.experiments.people_loop.config import (
@@ -312,36 +313,6 @@ def judge_for(cfg: LoopConfig, family: str):
     if key not in _JUDGES:
         _JUDGES[key] = judge(_family_build(cfg, family), cfg.taus)
     return _JUDGES[key]
-
-
-def cross_judged(
-    judged: dict[str, dict[str, np.ndarray]], candidates: Sequence[str]
-) -> tuple[np.ndarray, np.ndarray]:
-    """The pick by plans. ``judged[f][g]`` (R,) is fit g's mean P(target | ξ_{0:τ}) of
-    family f's plans (over problems and stop times, :func:`judge_for`); each candidate f is
-    scored by the fits it was not planned against,
-
-        S_f = (1 / (|C| − 1)) Σ_{g ∈ C, g ≠ f} judged[f][g],
-
-    and the pick is argmax_f S_f, per run. A planner climbs wherever its own fit is too
-    optimistic, so f's own judgment of its plans is left out: a plan counts as legible
-    where fits that did not make it agree that it is (cross-validation of plans, as the
-    folds of :mod:`slotv_jax.answers.pooling` are of fits). Returns the chosen index into
-    ``candidates`` (R,) and the scores S (R, |C|).
-
-    >>> j = {"a": {"a": np.array([0.9]), "b": np.array([0.4])},
-    ...      "b": {"a": np.array([0.6]), "b": np.array([0.8])}}
-    >>> idx, s = cross_judged(j, ["a", "b"])
-    >>> idx.tolist(), s.round(2).tolist()
-    ([1], [[0.4, 0.6]])
-    """
-    c = list(candidates)
-    if len(c) < 2:
-        raise ValueError(f"candidates: expected at least two, got {c}")
-    s = np.stack(
-        [np.mean([judged[f][g] for g in c if g != f], axis=0) for f in c], axis=-1
-    )  # (R, C)
-    return np.argmax(s, axis=-1), s
 
 
 # ------------------------------------------------------------------ evaluation
