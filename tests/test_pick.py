@@ -456,3 +456,32 @@ def test_a_pretrained_family_starts_from_the_labelers_mixture_and_fine_tunes(
 def _full_pool(split):
     """Every motion of ``split`` seen whole (stop time 1)."""
     return selection.make_pool(split.xyz, split.goals, split.goal_mask, (1.0,))
+
+
+def test_the_mixture_archetype_is_a_family_the_presets_leave_out():
+    """mixture_archetype: the distance/approach archetype's config (SLOT-V loss), a family of
+    the loop and of study pick that the presets' records leave out; the loop's observer of
+    a fit is the archetype's own masked logits of the motion seen up to each stop."""
+    from slotv_jax.answers import pick as pick_lib
+    from slotv_jax.experiments.people_loop import config as loop_config
+    from slotv_jax.observers import archetypes
+    from slotv_jax.training import config as train_config
+
+    tc = train_config.family("quick", "mixture_archetype")
+    assert (tc.model, tc.method, tc.train_size) == ("mixture", "slotv", None)
+    assert "mixture_archetype" in loop_config.FAMILIES
+    assert "mixture_archetype" not in loop_config.DEFAULT_FAMILIES
+    assert exp.quick().families == exp.paper().families == loop_config.DEFAULT_FAMILIES
+    assert pick_lib.check_candidates(["mixture_archetype", "dragan"])
+    assert "mixture_archetype" not in pick_lib.DEFAULT_CANDIDATES
+    cfg = dataclasses.replace(exp.tiny(), families=("mixture_archetype", "dragan_fitted"))
+    sel = selection.make_selector(cfg.train_config("mixture_archetype"), 1, 1)
+    params = jax.tree.map(lambda x: x[0], sel.init(jax.random.key(0)).params)
+    obs = loop._family_build(cfg, "mixture_archetype")({"mixture_archetype": params})
+    xyz, goals, mask, _ = _paths(1, 1, 20)
+    model = archetypes.DistanceApproachMixture()  # the archetype at its defaults (θ of init)
+    for seen in (8, 20):
+        got = np.asarray(obs.prefix(xyz[0, 0], goals[0, 0], mask[0, 0], seen))
+        want = np.asarray(model.prefix(xyz[0, 0], goals[0, 0], mask[0, 0], seen))
+        np.testing.assert_allclose(got[:3] - got[0], want[:3] - want[0], atol=1e-5)
+        assert np.all(np.isneginf(got[3:]))

@@ -35,6 +35,9 @@ from slotv_jax.training import config as train_config
 
 LABELERS = ("dragan", "nikolaidis")  # the hand-crafted candidates (β fitted)
 CANDIDATES = (*train_config.FAMILIES, *LABELERS)
+#: ``study pick``'s default candidates (``--candidates`` takes any of :data:`CANDIDATES`):
+#: the people loop's presets' (the mixture archetype is a candidate to name).
+DEFAULT_CANDIDATES = tuple(c for c in CANDIDATES if c != "mixture_archetype")
 BY = ("likelihood", "plans")  # the two rules of ``study pick --by``
 #: The planner of the pick by plans, per training preset (the people loop's: 50 points and
 #: 30 steps on a CPU, the default planner on a GPU).
@@ -112,7 +115,7 @@ def fit_config(preset: str, name: str, rows: int) -> train_config.TrainConfig:
 
 def pick_study(
     study: Study,
-    names: Sequence[str] = CANDIDATES,
+    names: Sequence[str] = DEFAULT_CANDIDATES,
     *,
     preset: str = "quick",
     folds: int = 3,
@@ -268,7 +271,7 @@ def judge_plans(
 
 def pick_by_plans(
     study: Study,
-    names: Sequence[str] = CANDIDATES,
+    names: Sequence[str] = DEFAULT_CANDIDATES,
     *,
     preset: str = "quick",
     seed: int = 0,

@@ -127,7 +127,7 @@ def _parse_args(argv):
     )
     pk.add_argument("study")
     pk.add_argument("--out", required=True, help="checkpoint folder of the pick")
-    pk.add_argument("--candidates", default=",".join(pick_lib.CANDIDATES),
+    pk.add_argument("--candidates", default=",".join(pick_lib.DEFAULT_CANDIDATES),
                     help="comma-separated families and labelers to choose from")  # fmt: skip
     pk.add_argument("--preset", default="quick", choices=tuple(train_config.PRESETS))
     pk.add_argument("--by", default="likelihood", choices=pick_lib.BY,

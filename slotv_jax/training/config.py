@@ -306,13 +306,13 @@ def preset(name: str, method: str, model: str = "mlp", **overrides: Any) -> Trai
 
 #: The observer families fitted on people's answers: the paper MLP, SLOT-V+ (the MLP with
 #: the start term and time weights), the Dragan and viewpoint archetypes.
-FAMILIES = ("mlp", "slotv_plus", "dragan_archetype", "viewpoint_archetype")
+FAMILIES = ("mlp", "slotv_plus", "dragan_archetype", "viewpoint_archetype", "mixture_archetype")
 
 
 def family(name: str, fam: str, **overrides: Any) -> TrainConfig:
     """Preset ``name``'s SLOT-V config of an observer family of :data:`FAMILIES`, fitted on
     answers (``train_size=None``: every answer row)."""
-    if fam in ("dragan_archetype", "viewpoint_archetype"):
+    if fam.endswith("_archetype") and fam in FAMILIES:
         return archetype(name, fam.split("_")[0], train_size=None, **overrides)
     cfg = preset(name, "slotv", train_size=None, **overrides)
     if fam == "slotv_plus":

@@ -26,6 +26,7 @@ FAMILY_TITLES = {
     "slotv_plus": "SLOT-V+",
     "dragan_archetype": "Dragan archetype",
     "viewpoint_archetype": "viewpoint archetype",
+    "mixture_archetype": "distance/approach mixture archetype",
     "dragan_fitted": "Dragan, β fitted",
     "nikolaidis_fitted": "Nikolaidis, β fitted",
     "pick": "**pick** (answers alone)",
@@ -37,6 +38,7 @@ FAMILY_COLORS = {
     "slotv_plus": "tab:red",
     "dragan_archetype": "tab:green",
     "viewpoint_archetype": "tab:purple",
+    "mixture_archetype": "tab:olive",
     "dragan_fitted": "tab:gray",
     "nikolaidis_fitted": "tab:brown",
     "pick": "black",
@@ -45,6 +47,7 @@ FAMILY_COLORS = {
     "slotv_plus_pre": "deeppink",
     "dragan_archetype_pre": "yellowgreen",
     "viewpoint_archetype_pre": "orchid",
+    "mixture_archetype_pre": "khaki",
 }
 PRETRAIN_MARGIN = 0.03  # a pre-trained family "helps" or "hurts" beyond this much gain kept
 HEADLINE = 2000  # the suite's headline: the largest size at most this many answers
