@@ -296,7 +296,7 @@ def report(res: dict, source: str) -> str:
 def plot(res: dict, path: Path) -> None:
     """Median and worst gain kept against the round's answers, beside the pick by plans."""
     plt = figures.pyplot()
-    fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    fig, ax = plt.subplots(figsize=(10.5, 4.5))
     s = res["fit_size"]
     for rule, color in (("uniform", "tab:blue"), ("halving", "tab:green")):
         e = [int(x) for x in res["curve"][rule]]
@@ -307,6 +307,7 @@ def plot(res: dict, path: Path) -> None:
     top = res["at_budget"][str(2 * s)]
     for k, color, label in (
         (PICK_CROSS, "darkorange", f"pick by plans, {2 * s:,} answers to fit"),
+        (PICK, "tab:gray", f"pick (the pool), {2 * s:,} answers to fit"),
         ("best_at_half", "k", f"the oracle's best candidate on {s:,} (ceiling)"),
     ):
         if k in top:
@@ -318,7 +319,7 @@ def plot(res: dict, path: Path) -> None:
     ax.set_xlabel(f"answers in the evaluation round (beside the {s:,} that fit the candidates)")
     ax.set_ylabel("gain kept over the populations")
     ax.set_title(f"An evaluation round of the candidates' plans ({res['preset']} preset)")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.tight_layout()
     figures.save(fig, path, dpi=120)
 
