@@ -283,6 +283,20 @@ def test_study_pick_by_plans_judges_every_plan_and_writes_them(
     assert study_main([*argv, "--overwrite"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["pick.json"]
     assert json.loads((out / "pick.json").read_text())["pick"].get("rule") is None
+    # a study whose scenes the Panda cannot reach: refused before any fit, nothing written
+    shift = np.array([2.0, 0.0, 0.0], np.float32)
+    far_goals = np.where(mask[..., None], np.add(goals, shift), 0.0).astype(np.float32)
+    far = simulate_study(jax.random.key(1), np.add(xyz, shift), far_goals, mask, 6,
+                         labeler="dragan", beta=8.0, taus=taus)  # fmt: skip
+    save_study(tmp_path / "far.npz", far)
+    monkeypatch.setattr(pick_lib, "fit_candidates", lambda *a, **k: pytest.fail("fitted"))
+    with pytest.raises(SystemExit) as e:
+        study_main(["pick", str(tmp_path / "far.npz"), "--out", str(tmp_path / "far"),
+                    "--candidates", "dragan,slotv_plus", "--by", "plans",
+                    "--no-progress"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "--by plans: the study's scenes" in err and "out of reach" in err
+    assert not (tmp_path / "far").exists()
 
 
 # ------------------------------------------------------------------ the pick by plans

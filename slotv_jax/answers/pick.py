@@ -16,6 +16,7 @@ and the best-judged candidate is the pick: the people loop's family ``pick_cross
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -296,16 +297,17 @@ def pick_by_plans(
     taus = study_taus(study)
     prob = study_problems(study, problems)
     cfg = planning.PlannerConfig(**PLANNERS.get(preset, {}), taus=taus)
+    # The problems' straight lines before any fit: an unreachable scene is refused first.
+    g, m, t = (jnp.asarray(prob[k]) for k in ("goals", "goal_mask", "target"))
+    straight = jax.jit(jax.vmap(functools.partial(planning.straight_line, cfg=cfg)))(g, m, t)
+    try:
+        planning.check_problems(straight)
+    except ValueError as e:
+        raise ValueError(f"--by plans: the study's scenes: {e}") from None
     fits = fit_candidates(study, names, preset=preset, seed=seed, camera=camera,
                           progress=progress)  # fmt: skip
     observers = {n: fits[n]["observer"] for n in names}
     planner = planning.make_planner(observers, cfg)
-    g, m, t = (jnp.asarray(prob[k]) for k in ("goals", "goal_mask", "target"))
-    try:
-        straight = planner.straight_line(g, m, t)
-        planning.check_problems(straight)
-    except ValueError as e:
-        raise ValueError(f"--by plans: the study's scenes: {e}") from None
     plans = {}
     for n in tqdm(names, desc="plans", disable=not progress):
         plans[n] = planner.plan_problems(straight, observer=n)
