@@ -198,15 +198,22 @@ def test_the_pools_observer_is_the_weighted_log_pool():
 # ------------------------------------------------------------------ python -m slotv_jax.study pick
 
 
+def _dragan_study(label_pool, seed: int, path):
+    """A study of the pool's first 60 motions answered by Dragan's observer at β = 8 (6
+    guesses each, the pool's stop times), saved to ``path``: (study, its arrays, taus)."""
+    pool, taus = label_pool
+    arrays = tuple(np.asarray(a)[:60] for a in (pool.xyz, pool.goals, pool.goal_mask))
+    study = simulate_study(jax.random.key(seed), *arrays, 6, labeler="dragan", beta=8.0,
+                           taus=taus)  # fmt: skip
+    save_study(path, study)
+    return study, arrays, taus
+
+
 def test_study_pick_scores_every_candidate_and_writes_the_pick(label_pool, tmp_path, capsys):
     """A study answered by Dragan's observer: the command prints each candidate's held-out
     NLL and weight, picks Dragan's labeler and writes its β; a bad flag is one line."""
-    pool, taus = label_pool
-    xyz, goals, mask = (np.asarray(a)[:60] for a in (pool.xyz, pool.goals, pool.goal_mask))
-    study = simulate_study(jax.random.key(0), xyz, goals, mask, 6, labeler="dragan", beta=8.0,
-                           taus=taus)  # fmt: skip
     path = tmp_path / "s.npz"
-    save_study(path, study)
+    _dragan_study(label_pool, 0, path)
     out = tmp_path / "pick"
     argv = ["pick", str(path), "--out", str(out), "--candidates", "dragan,nikolaidis,effdist"]
     with pytest.raises(SystemExit) as e:
@@ -240,12 +247,8 @@ def test_study_pick_by_plans_judges_every_plan_and_writes_them(
     from slotv_jax.planning.plans import load_plans
 
     monkeypatch.setitem(pick_lib.PLANNERS, "quick", {"n_points": 20, "iters": 3})
-    pool, taus = label_pool
-    xyz, goals, mask = (np.asarray(a)[:60] for a in (pool.xyz, pool.goals, pool.goal_mask))
-    study = simulate_study(jax.random.key(1), xyz, goals, mask, 6, labeler="dragan", beta=8.0,
-                           taus=taus)  # fmt: skip
     path = tmp_path / "s.npz"
-    save_study(path, study)
+    study, (xyz, goals, mask), taus = _dragan_study(label_pool, 1, path)
     out = tmp_path / "pick"
     argv = ["pick", str(path), "--out", str(out), "--candidates", "dragan,nikolaidis",
             "--by", "plans", "--no-progress"]  # fmt: skip

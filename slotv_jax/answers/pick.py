@@ -58,6 +58,15 @@ def check_candidates(names: Sequence[str]) -> tuple[str, ...]:
     return names
 
 
+def check_visible(study: Study, names: Sequence[str], camera: str) -> None:
+    """ValueError naming ``--candidates`` if Nikolaidis' labeler is a candidate and a point
+    or goal of ``study`` is behind ``camera`` (its image is undefined there)."""
+    if "nikolaidis" in names and not labeler_visible(study, camera):
+        raise ValueError(
+            f"--candidates: nikolaidis needs every point and goal in front of camera {camera!r}"
+        )
+
+
 def _log_probs(logits: np.ndarray, mask: np.ndarray) -> np.ndarray:
     z = np.where(mask, logits, -np.inf)
     z = z - z.max(-1, keepdims=True)
@@ -132,10 +141,7 @@ def pick_study(
         raise ValueError(
             f"--folds: expected 2 <= folds <= {study.n_trajectories} (motions), got {folds!r}"
         )
-    if "nikolaidis" in names and not labeler_visible(study, camera):
-        raise ValueError(
-            f"--candidates: nikolaidis needs every point and goal in front of camera {camera!r}"
-        )
+    check_visible(study, names, camera)
     logp, _ = out_of_fold(
         study, names, preset=preset, folds=folds, seed=seed, camera=camera, progress=progress
     )
@@ -290,10 +296,7 @@ def pick_by_plans(
     S_f, ``pick``, ``problems``, ``taus``, ``planner``), the fits, and the plans file's
     arrays (:mod:`slotv_jax.planning.plans`: the straight line, then every candidate)."""
     names = check_candidates(names)
-    if "nikolaidis" in names and not labeler_visible(study, camera):
-        raise ValueError(
-            f"--candidates: nikolaidis needs every point and goal in front of camera {camera!r}"
-        )
+    check_visible(study, names, camera)
     taus = study_taus(study)
     prob = study_problems(study, problems)
     cfg = planning.PlannerConfig(**PLANNERS.get(preset, {}), taus=taus)

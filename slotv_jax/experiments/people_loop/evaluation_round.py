@@ -345,7 +345,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     stem = f"evaluation_round_{doc.get('preset', 'quick')}"
     names = [f"{stem}.md", f"{stem}.png", f"{stem}.json"]
     fileio.check_not_input(Path(args.out) / names[2], {"results": src})
-    fileio.check_output_files(args.out, names)
+    ours = {names[2]: lambda p: fileio.is_json_object_with(p, ["budgets", "at_budget"])}
+    fileio.check_output_files(args.out, names, ours=ours, beside=names[2])
     res = analyse(doc, args.draws)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
