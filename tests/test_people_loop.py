@@ -188,8 +188,8 @@ def test_random_and_active_share_round_zero_and_its_answers(tiny_run):
 
 @pytest.mark.slow
 def test_one_compiled_planner_plans_as_the_planner_does(tiny_run):
-    """The experiment's switch over observers (the program the tiny run compiled), at the
-    oracle's index, gave the plan of planning.plan with the population observer: the
+    """The experiment's planner of the population (the program the tiny run compiled), at
+    the oracle's index, gave the plan of planning.plan with the population observer: the
     document's example problem planned again, directly (the run's own output, so no second
     compilation of the switch)."""
     _, _, _, doc = tiny_run
@@ -336,3 +336,36 @@ def test_a_bad_population_file_is_named(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "people.json" in err and "lapse" in err, err
     assert not (tmp_path / "o").exists()
+
+
+def test_workers_are_dealt_to_the_visible_gpus_in_turn(monkeypatch):
+    """More workers than GPUs share them (i mod G), the CUDA_VISIBLE_DEVICES list where it is
+    set; without a GPU no worker is given one (they share the CPU)."""
+    assert exp.worker_gpus(5, ["0", "1"]) == ["0", "1", "0", "1", "0"]
+    assert exp.worker_gpus(3, ["2"]) == ["2", "2", "2"]
+    assert exp.worker_gpus(2, []) == [None, None]
+    assert exp.visible_gpus() == []  # the tests run on the CPU backend
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    monkeypatch.setattr(jax, "local_device_count", lambda: 2)
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "3, 5")
+    assert exp.visible_gpus() == ["3", "5"]
+    monkeypatch.delenv("CUDA_VISIBLE_DEVICES")
+    assert exp.visible_gpus() == ["0", "1"]
+
+
+def test_the_command_keeps_its_compiled_programs_beside_its_datasets(monkeypatch):
+    """The entry point's compilation cache is CACHE/xla of its own --cache (the default where
+    the flag is missing or malformed); a $JAX_COMPILATION_CACHE_DIR of the user's is kept."""
+    from slotv_jax.experiments.people_loop import __main__ as cmd
+
+    assert cmd.data_cache(["--preset", "paper", "--cache", "/tmp/d"]) == Path("/tmp/d")
+    assert cmd.data_cache(["--data-cache=/tmp/e"]) == Path("/tmp/e")
+    assert cmd.data_cache(["--preset", "paper"]) == Path("data")
+    assert cmd.data_cache(["--cache"]) == Path("data")
+    set_to = []
+    monkeypatch.setattr(jax.config, "update", lambda k, v: set_to.append((k, v)))
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    assert cmd.use_compilation_cache(Path("/tmp/d/xla")) == "/tmp/d/xla"
+    assert set_to == [("jax_compilation_cache_dir", "/tmp/d/xla")]
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", "/mine")
+    assert cmd.use_compilation_cache(Path("/tmp/d/xla")) == "/mine" and len(set_to) == 1

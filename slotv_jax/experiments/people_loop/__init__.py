@@ -31,7 +31,9 @@ Protocol, per population, seed and strategy (every step the library's public pat
    target) with the prefix objective, the mean over τ of log P(target | ξ_{0:τ})
    (:class:`slotv_jax.planning.PlannerConfig` ``taus``); so does the population itself
    (the oracle: its exact P_pop); the straight line is the floor. One compiled planner
-   serves every observer (a ``lax.switch`` over families).
+   serves every family (a ``lax.switch`` over families) of every population and seed; the
+   population's own plans are compiled apart. The command keeps its compiled programs
+   in ``CACHE/xla`` (JAX's persistent compilation cache) for the next run and workers.
 4. **Evaluate.** Each plan's score is the population's mean P_pop(target | ξ_{0:τ}) over
    the study's τ, averaged over problems; beside it an evaluation study of fresh
    participants (``eval_participants`` guesses per plan and τ): accuracy with a 95 %
@@ -60,6 +62,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+import jax
 import numpy as np
 
 from slotv_jax import data as data_lib
@@ -134,7 +137,8 @@ def run(
     seeds of the same config adds its rows (one GPU call per seed at the paper preset).
 
     ``processes > 1`` spreads the (population, seed) runs over that many worker processes,
-    worker i on GPU i alone (``CUDA_VISIBLE_DEVICES=i``; on a CPU they share its cores):
+    dealt to the visible GPUs in turn (:func:`worker_gpus`: worker i on GPU i mod G, so more
+    workers than GPUs share them; on a CPU they share its cores):
     each writes its own document under ``OUT/.people_loop_parts/``, merged into the results
     document as it finishes (a stopped run's finished parts are merged by the next).
     ``jobs`` ({population: seeds}) is a worker's own share (the parent passes it, with
@@ -244,7 +248,7 @@ def _spread(cfg, out, todo: dict, processes: int, cache, progress: bool, flags) 
         shares = [{} for _ in range(min(processes, len(jobs)))]
         for j, (spec, sd) in enumerate(jobs):
             shares[j % len(shares)].setdefault(spec, []).append(sd)
-    procs = []
+    procs, gpus = [], worker_gpus(len(shares), visible_gpus())
     for i, share in enumerate(shares):
         d = out / PARTS / f"worker{i}"
         d.mkdir(parents=True, exist_ok=True)
@@ -253,7 +257,9 @@ def _spread(cfg, out, todo: dict, processes: int, cache, progress: bool, flags) 
                 "--worker-jobs", json.dumps(share)]  # fmt: skip
         if not progress:
             argv.append("--no-progress")
-        env = {**os.environ, "CUDA_VISIBLE_DEVICES": str(i)}
+        env = dict(os.environ)
+        if gpus[i] is not None:
+            env["CUDA_VISIBLE_DEVICES"] = gpus[i]
         log = open(d / "log.txt", "w")
         procs.append((subprocess.Popen(argv, env=env, stdout=log, stderr=log), log, d))
     failed = []
@@ -265,6 +271,24 @@ def _spread(cfg, out, todo: dict, processes: int, cache, progress: bool, flags) 
             failed.append(f"{d.name}: {tail[0]}")
     if failed:
         raise RuntimeError("people loop: worker(s) failed: " + "; ".join(failed))
+
+
+def visible_gpus() -> list[str]:
+    """The GPUs this process sees, as ``CUDA_VISIBLE_DEVICES`` names them (its list where
+    it is set, else 0 … G−1); empty where JAX runs on another backend."""
+    if jax.default_backend() != "gpu":
+        return []
+    n = jax.local_device_count()
+    named = [s.strip() for s in os.environ.get("CUDA_VISIBLE_DEVICES", "").split(",")]
+    named = [s for s in named if s]
+    return named[:n] if len(named) >= n else [str(i) for i in range(n)]
+
+
+def worker_gpus(processes: int, gpus: Sequence[str]) -> list[str | None]:
+    """Worker i's ``CUDA_VISIBLE_DEVICES``: ``gpus[i mod G]``, the GPUs in turn (several
+    workers a GPU when there are more workers than GPUs); None for every worker without a
+    GPU (they share the CPU's cores)."""
+    return [gpus[i % len(gpus)] if gpus else None for i in range(processes)]
 
 
 def _merge_parts(doc: dict, conf: dict, parts: Path, path: Path) -> None:

@@ -6,10 +6,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+
+import jax
 
 from slotv_jax.core import cli, fileio, validation
 from slotv_jax.core.xla import XLA_CONFIG
@@ -55,8 +58,8 @@ def parser() -> argparse.ArgumentParser:
         "--processes",
         type=int,
         default=1,
-        help="spread the (population, seed) runs over this many worker processes, worker i "
-        "on GPU i (default 1; e.g. the number of GPUs)",
+        help="spread the (population, seed) runs over this many worker processes, dealt to "
+        "the visible GPUs in turn (worker i on GPU i mod G; default 1)",
     )
     ap.add_argument("--worker-jobs", help=argparse.SUPPRESS)  # a worker's share (JSON)
     ap.add_argument("--report", action="store_true", help="only render the report again")
@@ -105,6 +108,30 @@ def config_flags(args: argparse.Namespace) -> list[str]:
         if v is not None:
             out += [f"--{flag}", str(v)]
     return out
+
+
+def use_compilation_cache(path: Path) -> str:
+    """Keep this process's compiled programs in ``path`` (JAX's persistent compilation
+    cache, ``jax_compilation_cache_dir``), so that the next process of the same program,
+    shapes and JAX version loads them instead of compiling again; where
+    ``$JAX_COMPILATION_CACHE_DIR`` is set, JAX already uses it and it is kept. Returns the
+    folder in use. Only for the command's entry point: JAX starts its cache once per
+    process, at the first compilation."""
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        return os.environ["JAX_COMPILATION_CACHE_DIR"]
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    return str(path)
+
+
+def data_cache(argv: Sequence[str]) -> Path:
+    """The ``--cache`` folder of a command line (its default where the flag is missing or
+    malformed: :func:`main` says what is wrong with it)."""
+    ap = argparse.ArgumentParser(add_help=False, exit_on_error=False)
+    ap.add_argument("--cache", "--data-cache", dest="data_cache", default="data")
+    try:
+        return Path(ap.parse_known_args(argv)[0].data_cache)
+    except argparse.ArgumentError:
+        return Path("data")
 
 
 @cli.command(resumes=True)
@@ -160,4 +187,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    # The command's compiled programs are kept beside its datasets (--cache), for the next
+    # run and for a spread run's other workers: the families' planner, the fits and the
+    # judges do not depend on the population (experiments/BENCHMARKS.md: the GPU time saved).
+    use_compilation_cache(data_cache(sys.argv[1:]) / "xla")
     sys.exit(main())

@@ -37,22 +37,28 @@ from slotv_jax.training import types as train_types
 # ------------------------------------------------------------------ the observers
 
 
-def builds(cfg: LoopConfig, pop) -> dict:
+def builds(cfg: LoopConfig) -> dict:
     """The planner's observers, each built from one run's parameters ``p`` (a dict with
     each learned family's parameters, ``beta``, the two fitted temperatures, and
-    ``pick_w``, the pick's pool weights): the population (``oracle``; ``oracle_whole``
-    scores the whole motion whatever τ, so its plan is the whole-motion objective's), then
-    each family (:func:`slotv_jax.planning.make_family_planner`'s families). The pick is the
+    ``pick_w``, the pick's pool weights): each family
+    (:func:`slotv_jax.planning.make_family_planner`'s families). The pick is the
     log-linear pool of the other families (:func:`slotv_jax.answers.pooling.pooled_logits`):
-    it reads their parameters and its weights, nothing of the population."""
-    obs = population_lib.population_observer(pop)
-    out = {"oracle": lambda p: obs, "oracle_whole": lambda p: _whole_motion(obs)}
-    for f in cfg.candidates:
-        out[f] = _family_build(cfg, f)
+    it reads their parameters and its weights, nothing of the population. Nothing here
+    depends on the population, so one compiled program plans every population's fits
+    (:func:`oracle_builds`: the population's own observers, compiled apart)."""
+    out = {f: _family_build(cfg, f) for f in cfg.candidates}
     if PICK in cfg.families:
         parts = [out[f] for f in cfg.candidates]
         out[PICK] = lambda p: _pooled([b(p) for b in parts], p["pick_w"])
     return out
+
+
+def oracle_builds(pop) -> dict:
+    """The population's observers (no parameters): ``oracle``, its exact P_pop, and
+    ``oracle_whole``, which scores the whole motion whatever τ, so its plan is the
+    whole-motion objective's."""
+    obs = population_lib.population_observer(pop)
+    return {"oracle": lambda p: obs, "oracle_whole": lambda p: _whole_motion(obs)}
 
 
 def _family_build(cfg: LoopConfig, f: str):
@@ -104,13 +110,25 @@ def _learned(sel, params):
 _PLANNERS: dict = {}
 
 
-def planner_for(cfg: LoopConfig, pop, example: dict):
+def planner_for(cfg: LoopConfig, example: dict):
     """:func:`slotv_jax.planning.make_family_planner` of :func:`builds` (``example``: one
-    run's parameters), made once per process: a second run of the same config reuses the
-    compiled program."""
-    key = (dataclasses.replace(cfg, seeds=1, first_seed=0), pop)  # seeds do not change it
+    run's parameters), made once per process and config: every population and seed of a
+    process reuses the compiled program (its compilation is most of a population's
+    planning time on a GPU: experiments/BENCHMARKS.md)."""
+    key = dataclasses.replace(cfg, seeds=1, first_seed=0)  # seeds do not change it
     if key not in _PLANNERS:
-        _PLANNERS[key] = planning.make_family_planner(builds(cfg, pop), example, cfg.planner)
+        _PLANNERS[key] = planning.make_family_planner(builds(cfg), example, cfg.planner)
+    return _PLANNERS[key]
+
+
+def oracle_planner(cfg: LoopConfig, pop):
+    """The planner of :func:`oracle_builds` (one parameter set: the population's plans are
+    the same for every run), made once per process, planner settings and population."""
+    key = (cfg.planner, pop)
+    if key not in _PLANNERS:
+        _PLANNERS[key] = planning.make_family_planner(
+            oracle_builds(pop), jnp.zeros(()), cfg.planner
+        )
     return _PLANNERS[key]
 
 
@@ -454,7 +472,7 @@ def run_population(
             w, pick_reports = pick_runs(cfg, pool, cand, counts, n_rows, runs, inits)
             params["pick_w"] = jnp.asarray(w)
         timing["pick_s"] += time.perf_counter() - t0
-        planner = planner_for(cfg, pop, jax.tree.map(lambda a: a[0], params))
+        planner = planner_for(cfg, jax.tree.map(lambda a: a[0], params))
 
         # Plan and evaluate: the floor and the oracles once, every family at every size.
         t0 = time.perf_counter()
@@ -462,8 +480,10 @@ def run_population(
             floor = {
                 "straight": plan_scores(scorer, keys_eval, straight_as_plan(problems), problems)
             }
+            oracle = oracle_planner(cfg, pop)
             for o in ("oracle", "oracle_whole"):
-                res = planner.plan_problems(params, straight, family=o)
+                res = oracle.plan_problems(jnp.zeros((1,)), straight, family=o)
+                res = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape[1:])), res)
                 floor[o] = plan_scores(scorer, keys_eval, res, problems)
                 example[o] = np.asarray(res.q[0, 0])
             example["straight"] = np.asarray(problems.q[0, 0])
