@@ -369,3 +369,18 @@ def test_the_command_keeps_its_compiled_programs_beside_its_datasets(monkeypatch
     assert set_to == [("jax_compilation_cache_dir", "/tmp/d/xla")]
     monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", "/mine")
     assert cmd.use_compilation_cache(Path("/tmp/d/xla")) == "/mine" and len(set_to) == 1
+
+
+def test_a_file_where_the_compiled_programs_go_is_left_alone(tmp_path, monkeypatch, capsys):
+    """A user's file named CACHE/xla: the cache is not used, one line says so, the file is
+    unchanged."""
+    from slotv_jax.experiments.people_loop import __main__ as cmd
+
+    mine = tmp_path / "xla"
+    mine.write_text("my notes")
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    monkeypatch.setattr(jax.config, "update", lambda k, v: pytest.fail("cache set"))
+    assert cmd.use_compilation_cache(mine) is None
+    assert mine.read_text() == "my notes"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a folder" in err[0], err

@@ -16,7 +16,6 @@ and the best-judged candidate is the pick: the people loop's family ``pick_cross
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -301,10 +300,9 @@ def pick_by_plans(
     prob = study_problems(study, problems)
     cfg = planning.PlannerConfig(**PLANNERS.get(preset, {}), taus=taus)
     # The problems' straight lines before any fit: an unreachable scene is refused first.
-    g, m, t = (jnp.asarray(prob[k]) for k in ("goals", "goal_mask", "target"))
-    straight = jax.jit(jax.vmap(functools.partial(planning.straight_line, cfg=cfg)))(g, m, t)
     try:
-        planning.check_problems(straight)
+        straight = planning.straight_lines(prob["goals"], prob["goal_mask"], prob["target"],
+                                           cfg=cfg)  # fmt: skip
     except ValueError as e:
         raise ValueError(f"--by plans: the study's scenes: {e}") from None
     fits = fit_candidates(study, names, preset=preset, seed=seed, camera=camera,

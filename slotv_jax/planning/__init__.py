@@ -5,7 +5,12 @@ and fitted families in one compiled program).
 This package re-exports the planner's public names.
 """
 
-from slotv_jax.planning.compiled import check_problems, make_family_planner, make_planner
+from slotv_jax.planning.compiled import (
+    check_problems,
+    make_family_planner,
+    make_planner,
+    straight_lines,
+)
 from slotv_jax.planning.planner import (
     MAX_RESIDUAL,
     Diagnostics,
@@ -43,4 +48,5 @@ __all__ = [
     "predictability_cost",
     "stop_log_probs",
     "straight_line",
+    "straight_lines",
 ]

@@ -18,6 +18,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Bool, Float, Int
 
 from slotv_jax.core import validation
 from slotv_jax.core.progress import status
@@ -76,6 +77,31 @@ def _straight_problems(straight, goals, goal_mask, target, start, note=None) -> 
     return problems
 
 
+@functools.cache
+def _straight_program(cfg: PlannerConfig):
+    """The compiled, vmapped :func:`straight_line` of ``cfg`` (one per process and config,
+    shared by every planner of that config)."""
+    return jax.jit(jax.vmap(functools.partial(straight_line, cfg=cfg)))
+
+
+def straight_lines(
+    goals: Float[Array, "B 8 3"],
+    goal_mask: Bool[Array, "B 8"],
+    target: Int[Array, " B"],
+    start: Float[Array, "B 3"] | None = None,
+    cfg: PlannerConfig = PlannerConfig(),
+) -> Problem:
+    """The validated straight-line problems of a batch (:func:`straight_line` of each, in
+    one compiled program): the goals and targets are checked first, then every start and
+    target must be reached within :data:`MAX_RESIDUAL` (:func:`check_problems`), else
+    ValueError. ``start`` defaults to TCP(q_home). What ``planner.straight_line`` of
+    :func:`make_planner` and :func:`make_family_planner` gives, without a planner (for a
+    caller that must refuse unreachable problems before it builds the observers)."""
+    if not isinstance(cfg, PlannerConfig):
+        raise ValueError(f"cfg: expected a PlannerConfig, got {type(cfg).__name__}")
+    return _straight_problems(_straight_program(cfg), goals, goal_mask, target, start)
+
+
 def make_planner(
     observer: Observer | Mapping[str, Observer], cfg: PlannerConfig = PlannerConfig()
 ) -> Callable[..., PlanResult]:
@@ -115,7 +141,7 @@ def make_planner(
     branches = tuple(observers.values())
     prefix = cfg.taus is not None
 
-    straight = jax.jit(jax.vmap(functools.partial(straight_line, cfg=cfg)))
+    straight = _straight_program(cfg)
     run = jax.jit(
         lambda problems, index: jax.vmap(
             lambda p: plan(_switched(index, branches, prefix), p, cfg)
@@ -245,7 +271,7 @@ def make_family_planner(
     def observer_of(index, p) -> Observer:  # every family's observer of p, switched
         return _switched(index, [b(p) for b in fns], cfg.taus is not None)
 
-    straight = jax.jit(jax.vmap(functools.partial(straight_line, cfg=cfg)))
+    straight = _straight_program(cfg)
 
     def plan_grid(params, problems: Problem, index) -> PlanResult:
         def one_set(p):

@@ -32,6 +32,16 @@ from slotv_jax.runs import command
 # ------------------------------------------------------------------ command line
 
 
+def add_cache_flag(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument(
+        "--cache",
+        "--data-cache",
+        dest="data_cache",
+        default="data",
+        help="where datasets (and, under xla/, compiled programs) are cached",
+    )
+
+
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="python -m slotv_jax.experiments.people_loop",
@@ -46,8 +56,7 @@ def parser() -> argparse.ArgumentParser:
         "population JSON files",
     )
     ap.add_argument("--out", default="experiments", help="folder of the results and report")
-    ap.add_argument("--cache", "--data-cache", dest="data_cache", default="data",
-                    help="where datasets are cached")  # fmt: skip
+    add_cache_flag(ap)
     ap.add_argument("--seeds", type=int, help="number of seeds (default: the preset's)")
     ap.add_argument("--first-seed", type=int, help="first seed (default 0)")
     ap.add_argument("--strategies", help="comma-separated (random first), e.g. random,margin")
@@ -110,15 +119,20 @@ def config_flags(args: argparse.Namespace) -> list[str]:
     return out
 
 
-def use_compilation_cache(path: Path) -> str:
+def use_compilation_cache(path: Path) -> str | None:
     """Keep this process's compiled programs in ``path`` (JAX's persistent compilation
     cache, ``jax_compilation_cache_dir``), so that the next process of the same program,
     shapes and JAX version loads them instead of compiling again; where
-    ``$JAX_COMPILATION_CACHE_DIR`` is set, JAX already uses it and it is kept. Returns the
+    ``$JAX_COMPILATION_CACHE_DIR`` is set, JAX already uses it and it is kept. A file of
+    that name is left alone and nothing is kept (one line says so; None). Returns the
     folder in use. Only for the command's entry point: JAX starts its cache once per
     process, at the first compilation."""
     if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
         return os.environ["JAX_COMPILATION_CACHE_DIR"]
+    if path.exists() and not path.is_dir():
+        print(f"people loop: {path} is not a folder; compiled programs are not kept",
+              file=sys.stderr)  # fmt: skip
+        return None
     jax.config.update("jax_compilation_cache_dir", str(path))
     return str(path)
 
@@ -127,7 +141,7 @@ def data_cache(argv: Sequence[str]) -> Path:
     """The ``--cache`` folder of a command line (its default where the flag is missing or
     malformed: :func:`main` says what is wrong with it)."""
     ap = argparse.ArgumentParser(add_help=False, exit_on_error=False)
-    ap.add_argument("--cache", "--data-cache", dest="data_cache", default="data")
+    add_cache_flag(ap)
     try:
         return Path(ap.parse_known_args(argv)[0].data_cache)
     except argparse.ArgumentError:

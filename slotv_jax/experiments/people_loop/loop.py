@@ -431,10 +431,9 @@ def run_population(
 
     # The held-out problems, their straight lines, and the planner for every observer.
     prob = held_out_problems(cfg, splits)
-    straight = jax.jit(
-        jax.vmap(lambda gl, m, t: planning.straight_line(gl, m, t, cfg=cfg.planner))
-    )(jnp.asarray(prob["goals"]), jnp.asarray(prob["goal_mask"]), jnp.asarray(prob["target"]))
-    planning.check_problems(straight)
+    straight = planning.straight_lines(
+        prob["goals"], prob["goal_mask"], prob["target"], cfg=cfg.planner
+    )
     problems = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape)), straight)
     scorer = evaluation.population_scorer(
         pop, cfg.taus, cfg.planner.n_points, cfg.eval_participants
