@@ -151,7 +151,7 @@ def test_trials_per_participant_is_written_and_an_edited_study_json_kept(
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
-def test_timed_stimuli_move_at_the_robot_s_speed(tmp_path):
+def test_timed_stimuli_move_at_the_robot_s_speed(tmp_path, monkeypatch):
     """--timed: each clip lasts as long as the Panda's motion (slotv_jax.execution) up to τ,
     the tables hold each point's time as a fraction of that duration, the manifest records
     the timing, and a later round is drawn the same way."""
@@ -191,9 +191,17 @@ def test_timed_stimuli_move_at_the_robot_s_speed(tmp_path):
         make_stimuli.check_ids_across_rounds(tmp_path / "stim", moved, "--plans", timing)
     argv = ["stimuli", "--plans", plans, "--n", "1", "--taus", "0.5,1.0", "--attention", "0",
             "--no-practice", "--next-round", str(tmp_path / "stim")]  # fmt: skip
+    timed = []  # the check's robot times serve the new round: each motion is timed once
+
+    def counting(q, cfg):
+        timed.append(len(q))
+        return execution.time_plan(q, cfg)
+
+    monkeypatch.setattr(make_stimuli, "time_plan", counting)
     assert study_cli.main(argv) == 0
     later = stimuli.load_stimulus_set(tmp_path / "stim" / "round-1")
     assert later.trajectories[tid] == st.trajectories[tid]
+    assert later.trajectories.keys() <= {tid} and len(timed) == 1, timed
 
 
 def test_plans_without_tcp_paths_get_them_by_forward_kinematics(tmp_path):

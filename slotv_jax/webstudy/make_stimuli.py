@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import argparse
 import re
+from collections.abc import Mapping
 from pathlib import Path
 from typing import NamedTuple
 
@@ -170,13 +171,24 @@ def _ik(xyz: np.ndarray, length: np.ndarray, what: str) -> np.ndarray:
     return q
 
 
-def robot_times(q: np.ndarray, length: np.ndarray, ids: list[str], timing: dict) -> np.ndarray:
+def robot_times(
+    q: np.ndarray,
+    length: np.ndarray,
+    ids: list[str],
+    timing: dict,
+    known: Mapping[str, np.ndarray] | None = None,
+) -> np.ndarray:
     """(M, T) time stamps (s) of the motions ``q`` (M, T, 7) (``length`` points each) at a
     Franka arm's speed (``timing``, :func:`robot_timing`): when the robot passes each point
-    (:func:`slotv_jax.execution.time_plan`). ValueError naming the motion if it cannot."""
+    (:func:`slotv_jax.execution.time_plan`). ValueError naming the motion if it cannot.
+    ``known`` ({id: (T,) times}) holds motions already timed the same way (a later round's
+    check, :func:`check_ids_across_rounds`): they are not timed again."""
     cfg = TimingConfig(speed=timing["speed"], robot=timing["robot"])
     t = np.zeros(q.shape[:2])
     for i in tqdm(range(len(q)), desc="timing", disable=len(q) < 20):
+        if known is not None and ids[i] in known:
+            t[i] = known[ids[i]]
+            continue
         L = int(length[i])
         try:
             traj = time_plan(q[i, :L], cfg)
@@ -275,6 +287,7 @@ def make_set(
     source: dict | None = None,
     round_: int = 0,
     trials: int | None = None,
+    known_times: Mapping[str, np.ndarray] | None = None,
 ) -> dict:
     """A stimulus set of ``n`` motions drawn at random (``seed``): each at every τ from
     every camera, ``attention`` more as attention checks, one more for practice; round
@@ -282,7 +295,8 @@ def make_set(
     ``study.json``'s ``attention_checks`` to ``attention`` (each participant gets every
     attention check) and, with ``trials``, its ``trials_per_participant`` (each
     participant's main trials; ``None``: one per motion, or what an existing
-    ``study.json`` says)."""
+    ``study.json`` says). ``known_times``: robot times already computed by id (what
+    :func:`check_ids_across_rounds` returns), not computed again."""
     if trials is not None and not 1 <= trials <= n:
         raise ValueError(f"--trials {trials}: expected 1..{n} (--n: a participant sees each "
                          "motion at most once)")  # fmt: skip
@@ -307,7 +321,7 @@ def make_set(
     t = None if motions.t is None else motions.t[pick]
     if renderer.timing is not None:  # the robot's times, before any rendering
         t = robot_times(motions.q[pick], motions.length[pick], [motions.ids[i] for i in pick],
-                        renderer.timing)  # fmt: skip
+                        renderer.timing, known=known_times)  # fmt: skip
     return write_stimulus_set(
         out, q=motions.q[pick], xyz=motions.xyz[pick], goals=motions.goals[pick],
         goal_mask=motions.goal_mask[pick], ids=[motions.ids[i] for i in pick], specs=specs,
@@ -320,23 +334,26 @@ def make_set(
 
 def check_ids_across_rounds(
     stimdir: str | Path, motions: Motions, what: str, timing: dict | None = None
-) -> None:
+) -> dict[str, np.ndarray]:
     """ValueError unless every id of ``motions`` that a round of ``stimdir`` holds is the
     same motion there (points and goals as its tables write them): trajectory ids are
     global across the rounds of a study (:mod:`slotv_jax.webstudy.stimuli`). In a study
     timed at a robot's speed (``timing``, the manifest's), the motions' points carry the
-    robot's times (:func:`robot_times`), as the new round's tables will."""
+    robot's times (:func:`robot_times`), as the new round's tables will; returns the times
+    it computed ({id: (T,) s}, for :func:`make_set`'s ``known_times``; empty if none)."""
     rounds = {
         r: load_stimulus_set(round_dir(stimdir, r), verify=False) for r in find_rounds(stimdir)
     }
     seen = set().union(*(st.trajectories for st in rounds.values()))
     both = [i for i, tid in enumerate(motions.ids) if tid in seen]
     if not both:
-        return
+        return {}
     ids = [motions.ids[i] for i in both]
+    timed = {}
     t = None if motions.t is None else motions.t[both]
     if t is None and timing is not None:
         t = robot_times(motions.q[both], motions.length[both], ids, timing)
+        timed = dict(zip(ids, t, strict=True))
     points, goals, _ = motion_tables(motions.xyz[both], motions.goals[both],
                                      motions.goal_mask[both], ids, length=motions.length[both],
                                      t=t)  # fmt: skip
@@ -347,6 +364,7 @@ def check_ids_across_rounds(
                     f"{what}: trajectory {tid!r} is another motion than the one of that id "
                     f"in round {r} of {stimdir} (ids are global across a study's rounds)"
                 )
+    return timed
 
 
 def _floats(text: str, name: str) -> tuple[float, ...]:
@@ -460,10 +478,11 @@ def stimuli_main(args: argparse.Namespace) -> int:
         motions, source = motions_from_plans(args.plans), {"kind": "plans", "file": args.plans}
     else:
         motions, source = motions_from_study(args.study), {"kind": "study", "file": args.study}
+    known = {}  # robot times the check computed: make_set does not compute them again
     if r:
         flag, path = next((k, v) for k, v in inputs.items() if v is not None)
         timing0 = load_stimulus_set(stimdir, verify=False).manifest.get("timing")
-        check_ids_across_rounds(stimdir, motions, f"{flag} {path}", timing0)
+        known = check_ids_across_rounds(stimdir, motions, f"{flag} {path}", timing0)
     try:
         if r:
             renderer = SceneRenderer.like(stimdir, trace=not args.no_trace)
@@ -481,6 +500,7 @@ def stimuli_main(args: argparse.Namespace) -> int:
             motions, folder, n=args.n, taus=taus, cameras=cameras, attention=args.attention,
             practice=not args.no_practice, seed=args.seed, renderer=renderer,
             overwrite=args.overwrite, source=source, round_=r, trials=args.trials,
+            known_times=known,
         )  # fmt: skip
     finally:
         renderer.close()
