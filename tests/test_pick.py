@@ -475,10 +475,10 @@ def _full_pool(split):
     return selection.make_pool(split.xyz, split.goals, split.goal_mask, (1.0,))
 
 
-def test_the_mixture_archetype_is_a_family_the_presets_leave_out():
+def test_the_mixture_archetype_is_a_family_of_the_presets():
     """mixture_archetype: the distance/approach archetype's config (SLOT-V loss), a family of
-    the loop and of study pick that the presets' records leave out; the loop's observer of
-    a fit is the archetype's own masked logits of the motion seen up to each stop."""
+    the loop's presets and of study pick's default candidates; the loop's observer of a fit
+    is the archetype's own masked logits of the motion seen up to each stop."""
     from slotv_jax.answers import pick as pick_lib
     from slotv_jax.experiments.people_loop import config as loop_config
     from slotv_jax.observers import archetypes
@@ -487,10 +487,14 @@ def test_the_mixture_archetype_is_a_family_the_presets_leave_out():
     tc = train_config.family("quick", "mixture_archetype")
     assert (tc.model, tc.method, tc.train_size) == ("mixture", "slotv", None)
     assert "mixture_archetype" in loop_config.FAMILIES
-    assert "mixture_archetype" not in loop_config.DEFAULT_FAMILIES
+    assert "mixture_archetype" in loop_config.DEFAULT_FAMILIES
     assert exp.quick().families == exp.paper().families == loop_config.DEFAULT_FAMILIES
     assert pick_lib.check_candidates(["mixture_archetype", "dragan"])
-    assert "mixture_archetype" not in pick_lib.DEFAULT_CANDIDATES
+    assert "mixture_archetype" in pick_lib.DEFAULT_CANDIDATES
+    # the loop's pick and study pick choose among the same observers by default
+    labelers = {f: loop_config.FITTED[f] for f in loop_config.FITTED}
+    loop_cands = [labelers.get(f, f) for f in exp.paper().candidates]
+    assert loop_cands == list(pick_lib.DEFAULT_CANDIDATES)
     cfg = dataclasses.replace(exp.tiny(), families=("mixture_archetype", "dragan_fitted"))
     sel = selection.make_selector(cfg.train_config("mixture_archetype"), 1, 1)
     params = jax.tree.map(lambda x: x[0], sel.init(jax.random.key(0)).params)

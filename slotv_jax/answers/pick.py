@@ -36,8 +36,8 @@ from slotv_jax.training import config as train_config
 LABELERS = ("dragan", "nikolaidis")  # the hand-crafted candidates (β fitted)
 CANDIDATES = (*train_config.FAMILIES, *LABELERS)
 #: ``study pick``'s default candidates (``--candidates`` takes any of :data:`CANDIDATES`):
-#: the people loop's presets' (the mixture archetype is a candidate to name).
-DEFAULT_CANDIDATES = tuple(c for c in CANDIDATES if c != "mixture_archetype")
+#: the people loop's presets'.
+DEFAULT_CANDIDATES = CANDIDATES
 BY = ("likelihood", "plans")  # the two rules of ``study pick --by``
 #: The planner of the pick by plans, per training preset (the people loop's: 50 points and
 #: 30 steps on a CPU, the default planner on a GPU).
