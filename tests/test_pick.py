@@ -74,7 +74,7 @@ def _pool_nll64(w, logp, counts, mask):
     z = np.where(mask, np.tensordot(w, lp, axes=1), -np.inf)
     z = z - z.max(-1, keepdims=True)
     logq = z - np.log(np.exp(z).sum(-1, keepdims=True))
-    return -np.sum(np.where(mask, counts * logq, 0.0)) / counts.sum()
+    return -np.sum(counts * np.where(mask, logq, 0.0)) / counts.sum()  # no 0 × (−inf)
 
 
 def test_pool_weights_are_the_maximum_likelihood_against_numpy():
