@@ -35,8 +35,8 @@ from slotv_jax.training import config as train_config
 
 LABELERS = ("dragan", "nikolaidis")  # the hand-crafted candidates (β fitted)
 CANDIDATES = (*train_config.FAMILIES, *LABELERS)
-#: ``study pick``'s default candidates (``--candidates`` takes any of :data:`CANDIDATES`):
-#: the people loop's presets'.
+#: ``study pick``'s default candidates (``--candidates`` takes a subset): every candidate,
+#: as the people loop's presets choose among every family.
 DEFAULT_CANDIDATES = CANDIDATES
 BY = ("likelihood", "plans")  # the two rules of ``study pick --by``
 #: The planner of the pick by plans, per training preset (the people loop's: 50 points and

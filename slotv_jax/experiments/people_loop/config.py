@@ -32,8 +32,9 @@ DERIVED = (PICK, PICK_CROSS)  # families made of the others
 FAMILIES = (*LEARNED, *PRETRAINED, *FITTED, *DERIVED)
 #: The presets' families: the pre-trained ones are an experiment of their own (``--families``;
 #: ``experiments/pretrain/``). The distance/approach mixture archetype joined them once the
-#: whole suite had run with it at both presets (``experiments/mixture/``: the pool's worst
-#: population rose from 68 to 80 % at the paper preset, 2,000 answers).
+#: whole suite had run with it at both presets (the records against
+#: ``experiments/history/people_loop_no_mixture/``: the pool's worst population rose from
+#: 68 to 80 % at the paper preset, 2,000 answers).
 DEFAULT_FAMILIES = (*LEARNED, *FITTED, *DERIVED)
 CAMERA = "observer"  # the viewpoint of the fitted Nikolaidis baseline (the dataset's)
 #: How θ₀ of a pre-trained family is made (recorded in the document's config).
