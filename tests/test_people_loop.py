@@ -89,7 +89,7 @@ def test_a_rerun_keeps_the_document(tiny_run):
 
 
 @pytest.mark.slow
-def test_the_pick_by_plans_is_the_plans_the_other_fits_judge_best(tiny_run):
+def test_the_pick_by_plans_and_the_pool_read_the_plans_the_other_fits_judge(tiny_run):
     """Each run's pick by plans: every candidate's plans judged by every candidate's fit
     (``judged_by``), each scored by the others' mean judgment, the best one's plans taken
     as they were evaluated (re-derived from the document)."""
@@ -109,6 +109,11 @@ def test_the_pick_by_plans_is_the_plans_the_other_fits_judge_best(tiny_run):
         assert cross["chosen"] == max(want, key=want.get)
         for k in ("score", "gain_kept", "accuracy", "feasible"):
             assert cross[k] == fams[cross["chosen"]][k], k
+        # The pool leaves out the candidate whose plans the others judge least legible.
+        pick = fams["pick"]
+        assert pick["left_out"] == min(want, key=want.get)
+        assert pick["weights"][pick["left_out"]] == 0 and sum(pick["weights"].values()) > 0
+        assert set(pick["weights_likelihood"]) == set(cands)
 
 
 def test_another_seed_adds_its_rows_to_the_document(tmp_path, monkeypatch, capsys):

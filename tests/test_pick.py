@@ -16,6 +16,7 @@ import pytest
 
 from slotv_jax import planning
 from slotv_jax.answers import pooling, save_study, simulate_study
+from slotv_jax.answers.pick import trusted
 from slotv_jax.asking import selection, simulated
 from slotv_jax.experiments import people_loop as exp
 from slotv_jax.experiments.people_loop import loop
@@ -98,6 +99,13 @@ def test_pool_weights_are_the_maximum_likelihood_against_numpy():
         assert best <= _pool_nll64(other, logp, counts, mask) + 1e-6
     assert abs(w[0] - 1 / 2.5) < 0.08  # calibration undoes the sharpening
     assert pooling.heldout_nll(logp, counts, mask, w) == pytest.approx(best, rel=1e-5)
+    # keep: the noise alone, its weight the 1-D maximum of a float64 grid; the other stays 0
+    w1 = pooling.fit_pool_weights(logp, counts, mask, keep=np.array([False, True]))
+    grid = np.linspace(0, 2, 2001)
+    nll = [_pool_nll64(np.array([0.0, v]), logp, counts, mask) for v in grid]
+    assert w1[0] == 0 and abs(w1[1] - grid[int(np.argmin(nll))]) < 2e-3
+    with pytest.raises(ValueError, match="keep"):
+        pooling.fit_pool_weights(logp, counts, mask, keep=np.array([False, False]))
 
 
 def test_folds_keep_each_motion_whole():
@@ -171,11 +179,19 @@ def test_the_pick_follows_the_answers_and_never_reads_the_population(
     for name in population_lib.__all__:
         if callable(getattr(population_lib, name)) and name[0].islower():
             monkeypatch.setattr(population_lib, name, forbidden)
-    w, reports = loop.pick_runs(cfg, pool, cand[None], counts[None], cand.size, [("random", 0)])
+    heldout = loop.pick_heldout(cfg, pool, cand[None], counts[None], cand.size,
+                                [("random", 0)])  # fmt: skip
+    w, reports = loop.pick_runs(cfg, heldout, counts[None], cand.size)
     rep = reports[0]
     assert rep["pick"] == f"{truth}_fitted", rep
     assert w.shape == (1, 2) and w[0, rep["candidates"].index(f"{truth}_fitted")] > 0.5
     assert rep["pool_nll"] <= min(rep["heldout_nll"]) + 1e-6
+    # Left out (its plans judged least legible), the family the answers favour weighs 0 and
+    # the other takes the pool: the held-out likelihood decides among the rest only.
+    keep = np.array([[n != f"{truth}_fitted" for n in rep["candidates"]]])
+    w2, reports2 = loop.pick_runs(cfg, heldout, counts[None], cand.size, keep)
+    assert w2[0, ~keep[0]] == 0 and w2[0, keep[0]] > 0
+    assert reports2[0]["pool_nll"] > rep["pool_nll"]
 
 
 def test_the_pools_observer_is_the_weighted_log_pool():
@@ -377,6 +393,10 @@ def test_the_pick_by_plans_leaves_each_family_out_of_its_own_judgment():
     assert idx.tolist() == [1, 2]
     with pytest.raises(ValueError, match="candidates"):
         loop.cross_judged(judged, ["a"])
+    # the pool's candidates: all but the least-judged one (the first of a tie)
+    assert trusted(s).tolist() == [[False, True, True], [False, True, True]]
+    with pytest.raises(ValueError, match="scores"):
+        trusted(s[:, :1])
 
 
 # ------------------------------------------------------------------ pre-trained families

@@ -199,6 +199,26 @@ def cross_judged(
     return np.argmax(s, axis=-1), s
 
 
+def trusted(scores: Float[np.ndarray, "R C"]) -> np.ndarray:
+    """The candidates the pool may weigh (:func:`slotv_jax.answers.pooling.fit_pool_weights`'s
+    ``keep``), per run: every candidate but the one whose plans the other fits judge least
+    legible, ``argmin_f S_f`` of :func:`cross_judged`'s scores (R, C). Returns (R, C) bool.
+
+    A fit the planner can exploit, sharp where the answers did not constrain it, shows it
+    in its own plans: they climb its error, and the fits that did not make them find them
+    less legible (the pick by plans' S). In the pool that fit's error is scaled by its
+    weight but still there to climb; leaving it out takes it away, whatever weight its
+    held-out likelihood earned. The held-out likelihood then weighs the rest.
+
+    >>> trusted(np.array([[0.40, 0.31, 0.38]])).tolist()
+    [[True, False, True]]
+    """
+    s = np.asarray(scores, np.float64)
+    if s.ndim != 2 or s.shape[-1] < 2:
+        raise ValueError(f"scores: expected (R, C) with C >= 2, got {s.shape}")
+    return np.arange(s.shape[-1]) != np.argmin(s, axis=-1)[:, None]
+
+
 def study_problems(study: Study, n: int) -> dict[str, np.ndarray]:
     """The study's own planning problems: every (scene, real goal) of its distinct goal sets
     (in order of first appearance; :func:`slotv_jax.planning.evaluation.scene_problems`),

@@ -99,14 +99,14 @@ def _nll(w, logp, counts, mask):
 
 
 @jax.jit
-def _fit(logp, counts, mask, w0):
+def _fit(logp, counts, mask, w0, keep):
     tx = optax.adam(0.05)
 
     def step(carry, _):
         w, state = carry
         g = jax.grad(_nll)(w, logp, counts, mask)
         upd, state = tx.update(g, state, w)
-        return (jnp.maximum(w + upd, 0.0), state), None
+        return (jnp.where(keep, jnp.maximum(w + upd, 0.0), 0.0), state), None
 
     (w, _), _ = jax.lax.scan(step, (w0, tx.init(w0)), None, length=1500)
     return w
@@ -116,15 +116,20 @@ def fit_pool_weights(
     logp: Float[np.ndarray, "F A G"],
     counts: Float[np.ndarray, "A G"],
     goal_mask: Bool[np.ndarray, "A G"],
+    keep: Bool[np.ndarray, " F"] | None = None,
 ) -> Float[np.ndarray, " F"]:
     """``w* = argmax_{w ≥ 0} Σ_a Σ_g c_ag log softmax_g(Σ_f w_f ℓ_f(a, g))`` (module doc),
     by 1,500 steps of projected Adam (step 0.05) from the best single candidate at weight 1;
-    ``logp`` the candidates' out-of-fold log-probabilities (−∞ on padded goals). Deterministic.
+    ``logp`` the candidates' out-of-fold log-probabilities (−∞ on padded goals). ``keep``
+    (F,): the candidates allowed a weight (the others' stay 0; every one by default).
+    Deterministic.
 
     >>> lp = np.log(np.array([[[0.9, 0.1]], [[0.5, 0.5]]]))  # two candidates, one row
     >>> w = fit_pool_weights(lp, np.array([[9.0, 1.0]]), np.ones((1, 2), bool))
     >>> bool(w[0] > 0.9 and w[1] < 0.1)
     True
+    >>> fit_pool_weights(lp, np.array([[9.0, 1.0]]), np.ones((1, 2), bool), [False, True])[0]
+    np.float32(0.0)
     """
     logp = np.asarray(logp, np.float32)
     counts = np.asarray(counts, np.float32)
@@ -136,11 +141,23 @@ def fit_pool_weights(
         )
     if not counts.sum() > 0:
         raise ValueError("counts: expected at least one answer")
-    single = heldout_nll(logp, counts, mask)
+    keep = _keep(keep, logp.shape[0])
+    single = np.where(keep, heldout_nll(logp, counts, mask), np.inf)
     w0 = np.zeros(logp.shape[0], np.float32)
     w0[int(np.argmin(single))] = 1.0
-    w = np.asarray(_fit(jnp.asarray(logp), jnp.asarray(counts), jnp.asarray(mask), w0))
+    w = _fit(jnp.asarray(logp), jnp.asarray(counts), jnp.asarray(mask), w0, jnp.asarray(keep))
+    w = np.asarray(w)
     return w if _nll(w, logp, counts, mask) <= _nll(w0, logp, counts, mask) else w0
+
+
+def _keep(keep, n: int) -> np.ndarray:
+    """``keep`` as a (F,) bool array with at least one True (ValueError naming it)."""
+    if keep is None:
+        return np.ones(n, bool)
+    k = np.asarray(keep)
+    if k.shape != (n,) or k.dtype != bool or not k.any():
+        raise ValueError(f"keep: expected {n} booleans, at least one True, got {keep!r}")
+    return k
 
 
 def heldout_nll(
@@ -162,12 +179,15 @@ def pick_report(
     logp: Float[np.ndarray, "F A G"],
     counts: Float[np.ndarray, "A G"],
     goal_mask: Bool[np.ndarray, "A G"],
+    keep: Bool[np.ndarray, " F"] | None = None,
 ) -> dict:
     """The pick from out-of-fold predictions: each candidate's held-out NLL per answer,
-    the pool's weights and NLL, and ``pick``, the candidate of the largest weight."""
+    the pool's weights (only ``keep``'s candidates weighted, :func:`fit_pool_weights`) and
+    NLL, ``pick`` the candidate of the largest weight, and ``best_single`` the candidate of
+    the lowest held-out NLL."""
     if len(names) != np.shape(logp)[0]:
         raise ValueError(f"names: expected {np.shape(logp)[0]} candidates, got {len(names)}")
-    w = fit_pool_weights(logp, counts, goal_mask)
+    w = fit_pool_weights(logp, counts, goal_mask, keep)
     single = heldout_nll(logp, counts, goal_mask)
     return {
         "candidates": list(names),

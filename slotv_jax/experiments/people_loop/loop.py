@@ -15,11 +15,12 @@ from tqdm.auto import tqdm
 
 from slotv_jax import planning
 from slotv_jax.answers import pooling
-from slotv_jax.answers.pick import cross_judged
+from slotv_jax.answers.pick import cross_judged, trusted
 from slotv_jax.asking import selection, simulated
 from slotv_jax.core.shapes import bucket, pad_rows
 from slotv_jax.experiments.people_loop.config import (
     CAMERA,
+    DERIVED,
     FITTED,
     LEARNED,
     PICK,
@@ -275,13 +276,12 @@ def _fold_scorer(sel):
     return _FOLD_SCORERS[sel]
 
 
-def pick_runs(
+def pick_heldout(
     cfg: LoopConfig, pool, cand, counts, n_rows: int, runs, inits=None
-) -> tuple[np.ndarray, list[dict]]:
-    """The pick of every run from its answers alone: folds by motion, out-of-fold
-    predictions of every candidate (:func:`heldout_logp`), the pool's weights
-    (:func:`slotv_jax.answers.pooling.pick_report`). Returns the weights (R, F) and each
-    run's report."""
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """What the pick reads of every run, from its answers alone: folds by motion and every
+    candidate's out-of-fold predictions (:func:`heldout_logp`). Returns each run's
+    (log p (F, n_rows, G) in the order of ``cfg.candidates``, goal mask (n_rows, G))."""
     run_seeds = [sd for _, sd in runs]
     traj = np.asarray(pool.traj)
     fold = np.stack(
@@ -292,11 +292,25 @@ def pick_runs(
     )
     logp = heldout_logp(cfg, pool, cand, counts, n_rows, run_seeds, fold, inits)
     g = counts.shape[-1]
+    return [
+        (
+            np.stack([logp[f][i] for f in cfg.candidates]),
+            np.asarray(pool.goal_mask)[traj[cand[i, :n_rows]], :g],
+        )
+        for i in range(len(runs))
+    ]
+
+
+def pick_runs(
+    cfg: LoopConfig, heldout, counts, n_rows: int, keep: np.ndarray | None = None
+) -> tuple[np.ndarray, list[dict]]:
+    """The pool of every run (:func:`slotv_jax.answers.pooling.pick_report` of
+    :func:`pick_heldout`'s predictions), weighing only ``keep``'s candidates (R, F; every
+    one by default). Returns the weights (R, F) and each run's report."""
     weights, reports = [], []
-    for i in range(len(runs)):
-        mask = np.asarray(pool.goal_mask)[traj[cand[i, :n_rows]], :g]
-        lp = np.stack([logp[f][i] for f in cfg.candidates])
-        rep = pooling.pick_report(list(cfg.candidates), lp, counts[i, :n_rows], mask)
+    for i, (lp, mask) in enumerate(heldout):
+        k = None if keep is None else keep[i]
+        rep = pooling.pick_report(list(cfg.candidates), lp, counts[i, :n_rows], mask, k)
         weights.append(rep["weights"])
         reports.append(rep)
     return np.asarray(weights, np.float32), reports
@@ -467,9 +481,10 @@ def run_population(
         timing["beta_s"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         pick_reports = None
-        if PICK in cfg.families:
-            w, pick_reports = pick_runs(cfg, pool, cand, counts, n_rows, runs, inits)
-            params["pick_w"] = jnp.asarray(w)
+        if PICK in cfg.families:  # the held-out predictions; the pool by likelihood alone
+            heldout = pick_heldout(cfg, pool, cand, counts, n_rows, runs, inits)
+            w_all, _ = pick_runs(cfg, heldout, counts, n_rows)
+            params["pick_w"] = jnp.asarray(w_all)
         timing["pick_s"] += time.perf_counter() - t0
         planner = planner_for(cfg, jax.tree.map(lambda a: a[0], params))
 
@@ -488,13 +503,13 @@ def run_population(
             example["straight"] = np.asarray(problems.q[0, 0])
         plans = {}
         for f in cfg.families:
-            if f != PICK_CROSS:  # made of the others' plans
+            if f not in DERIVED:  # made of the others' fits or plans
                 plans[f] = planner.plan_problems(params, straight, family=f)
         jax.block_until_ready(plans)
         timing["plan_s"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         judged: dict[str, dict[str, np.ndarray]] = {}
-        if PICK_CROSS in cfg.families:  # every candidate's plans, judged by every fit
+        if set(DERIVED) & set(cfg.families):  # every candidate's plans, judged by every fit
             for g in cfg.candidates:
                 judge_g = judge_for(cfg, g)
                 for f in cfg.candidates:
@@ -503,11 +518,23 @@ def run_population(
                     judged.setdefault(f, {})[g] = np.asarray(p_g, np.float64).mean((1, 2))
             chosen, cross = cross_judged(judged, cfg.candidates)
         timing["judge_s"] += time.perf_counter() - t0
+        if PICK in cfg.families:  # the pool without the least-trusted candidate, planned
+            t0 = time.perf_counter()
+            keep = trusted(cross)
+            w, pick_reports = pick_runs(cfg, heldout, counts, n_rows, keep)
+            params["pick_w"] = jnp.asarray(w)
+            timing["pick_s"] += time.perf_counter() - t0
+            t0 = time.perf_counter()
+            plans[PICK] = jax.block_until_ready(
+                planner.plan_problems(params, straight, family=PICK)
+            )
+            timing["plan_s"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         lo, hi = floor["straight"]["score"], floor["oracle"]["score"]
         n_eval = cfg.problems * len(cfg.taus) * cfg.eval_participants
         made: dict[tuple[str, int], dict] = {}
-        for f, res in plans.items():
+        for f in [f for f in cfg.families if f in plans]:
+            res = plans[f]
             sc = plan_scores(scorer, keys_eval, res, problems)
             for i, (st, sd) in enumerate(runs):
                 acc = float(sc["correct"][i])
@@ -532,6 +559,10 @@ def run_population(
                         row["heldout_nll"] = rep["pool_nll"]
                         row["weights"] = dict(zip(rep["candidates"], rep["weights"], strict=True))
                         row["picked"] = rep["pick"]
+                        row["left_out"] = cfg.candidates[int(np.flatnonzero(~keep[i])[0])]
+                        row["weights_likelihood"] = dict(
+                            zip(rep["candidates"], w_all[i].round(6).tolist(), strict=True)
+                        )
                     else:
                         row["heldout_nll"] = rep["heldout_nll"][rep["candidates"].index(f)]
                 if f in judged:  # each fit's P(target) of this family's plans
@@ -540,7 +571,7 @@ def run_population(
                 out_rows.append(row)
             if r == len(rows) - 1:
                 example[f] = np.asarray(res.q[0, 0])
-        if judged:  # the pick by plans: the chosen family's plans, as evaluated
+        if PICK_CROSS in cfg.families:  # the pick by plans: the chosen family's plans
             own = ("beta", "heldout_nll", "judged_by")  # what the chosen family's row says of it
             for i in range(n_r):
                 f = cfg.candidates[chosen[i]]
