@@ -78,6 +78,7 @@ def test_the_document_holds_spec_rows_and_its_own_numbers(tiny_run):
         assert (out / name).stat().st_size > 0, name
     text = (out / "people_loop_tiny.md").read_text()
     assert "simulated people" in text and "Population `default`" in text
+    assert "less the family whose plans" in text and "The pool left out" in text
 
 
 @pytest.mark.slow

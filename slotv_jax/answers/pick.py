@@ -5,8 +5,11 @@ the hand-crafted labelers with a fitted β) is scored by the held-out likelihood
 study's answers: K folds by motion, each candidate fitted on the other folds and
 predicting the held-out one (:func:`out_of_fold`). The log-linear pool of the candidates
 (:mod:`slotv_jax.answers.pooling`) weighs them by those predictions; the candidate of the
-largest weight is the pick. The same procedure, on simulated answers, is the people loop's
-family ``pick``. Only the study's answers are read.
+largest weight is the pick. Only the study's answers are read.
+
+The people loop's family ``pick`` plans against the pool itself, less one candidate: the
+one whose plans the other fits judge least legible (:func:`trusted`, from the judgments of
+the pick by plans below); the held-out likelihood weighs the rest.
 
 The pick *by plans* (:func:`pick_by_plans`, ``study pick --by plans``) judges the plans
 instead: every candidate, fitted on every answer, plans the study's own scenes, each

@@ -22,6 +22,13 @@ the planner seeks out whatever one fit gets wrong. So the pick is not one fit bu
    projected gradient ascent (:func:`fit_pool_weights`).
 3. **Plan against the pool** of the candidates fitted on every answer, with ``w*``.
 
+The people loop's ``pick`` first leaves one candidate out (``keep``): the one whose own
+plans the other fits judge least legible (:func:`slotv_jax.answers.pick.trusted`), then
+weighs the rest as above. The held-out likelihood cannot see the planner's side of a fit:
+at the paper preset the paper MLP's share of the weight grew from 0.06 to 0.22 between
+1,000 and 2,000 answers while its own plans kept half the gain, and its error, scaled by
+its weight, was still there for the planner to climb (``experiments/README.md``).
+
 Why this closes the gap between fit and plan: where the candidates disagree about a
 motion, the pool's P(target) is a weighted geometric mean of theirs, so a plan scores well
 only where every weighted candidate agrees; a region where one fit is wrong gains nothing.

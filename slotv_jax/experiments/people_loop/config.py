@@ -22,8 +22,10 @@ FITTED = {"dragan_fitted": "dragan", "nikolaidis_fitted": "nikolaidis"}  # famil
 #: updates (:func:`slotv_jax.experiments.people_loop.loop.pretrained_params`).
 PRETRAINED = {f"{f}_pre": f for f in LEARNED}  # family -> the family it starts
 TRAINED = (*LEARNED, *PRETRAINED)  # the families fitted by gradient steps on the answers
-#: The researcher's pick (:mod:`slotv_jax.answers.pooling`): the log-linear pool of every
-#: other family of the run, weighted by the held-out likelihood of the answers alone.
+#: The researcher's pick (:mod:`slotv_jax.answers.pooling`): the log-linear pool of the
+#: candidate families, weighted by the held-out likelihood of the answers, less the one
+#: whose plans the other fits judge least legible (:func:`slotv_jax.answers.pick.trusted`);
+#: answers alone.
 PICK = "pick"
 #: The pick by plans: the plans of the one family that the *other* families' fits judge the
 #: most legible (:func:`slotv_jax.experiments.people_loop.loop.cross_judged`); answers alone.

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import statistics
+from collections import Counter
 from pathlib import Path
 
 from slotv_jax.core.fileio import write_text
@@ -439,6 +440,12 @@ def suite_summary(doc: dict, strategy: str = "random", family: str = PICK) -> di
     return out
 
 
+def _leaves_one_out(doc: dict) -> bool:
+    """Whether the document's pick left a family out of its pool (its rows name it)."""
+    return any("left_out" in r for p in doc["populations"] for r in p["rows"]
+               if r["family"] == PICK)  # fmt: skip
+
+
 def suite_section(doc: dict) -> list[str]:
     """The suite: one row per population (the pick, the pick by plans where it ran, both
     fitted baselines and the oracle's choice of one family), the median, the worst and the
@@ -454,6 +461,12 @@ def suite_section(doc: dict) -> list[str]:
         "",
         "Gain kept by the **pick**, the log-linear pool of the fitted families weighted by the "
         "held-out likelihood of the answers alone (`slotv_jax.answers.pooling`)"
+        + (
+            ", less the family whose plans the other families' fits judge least legible "
+            "(`slotv_jax.answers.pick.trusted`)"
+            if _leaves_one_out(doc)
+            else ", every family weighed (the rule before the pick left one family out)"
+        )
         + (
             ", and by the **pick by plans**, the plans of the family that the other families' "
             "fits judge the most legible (`slotv_jax.experiments.people_loop.loop.cross_judged`)"
@@ -535,6 +548,25 @@ def _runs(doc: dict):
         yield from by.values()
 
 
+def left_out_line(doc: dict) -> str:
+    """Which families the pick's pool left out, and how often the one left out had the
+    plans of least gain among the candidates (by the population's score, which the pick
+    never reads); "" for a document whose pick weighed every family."""
+    out, worst = Counter(), 0
+    for rows in _runs(doc):
+        if PICK in rows and "left_out" in rows[PICK]:
+            single = {g: r["gain_kept"] for g, r in rows.items() if g not in DERIVED}
+            out[rows[PICK]["left_out"]] += 1
+            worst += rows[PICK]["left_out"] == min(single, key=single.get)
+    if not out:
+        return ""
+    names = ", ".join(f"{FAMILY_TITLES.get(f, f)} in {n}" for f, n in out.most_common())
+    return (
+        f" The pool left out {names} of {sum(out.values())} runs; the family left out had the"
+        f" plans of least gain among the candidates in {worst} of them."
+    )
+
+
 def pick_agreement(doc: dict) -> list[str]:
     """How often each pick is the family the oracle would have chosen (the best single
     family by gain kept, per population, seed and size), and what it gains or loses
@@ -562,6 +594,7 @@ def pick_agreement(doc: dict) -> list[str]:
                 f"{same} of {len(diff)} runs (population × seed × size); the pool keeps {cost}. "
                 f"In {unweighted} of those runs the pool gave that family no weight (under "
                 "0.01): the answers alone did not show that its plans were the best."
+                + left_out_line(doc)
             )
         else:
             lines.append(
