@@ -34,6 +34,11 @@ Protocol, per population, seed and strategy (every step the library's public pat
    serves every family (a ``lax.switch`` over families) of every population and seed; the
    population's own plans are compiled apart. The command keeps its compiled programs
    in ``CACHE/xla`` (JAX's persistent compilation cache) for the next run and workers.
+   The two picks come last, from the answers and the fits alone: every candidate's plans
+   are judged by every fit; ``pick_cross`` takes the plans the other fits judge best, and
+   ``pick`` plans against the log-linear pool of the candidates weighted by their
+   held-out likelihood, less the one whose plans the others judge least legible
+   (:mod:`slotv_jax.answers.pooling`, :func:`slotv_jax.answers.pick.trusted`).
 4. **Evaluate.** Each plan's score is the population's mean P_pop(target | ξ_{0:τ}) over
    the study's τ, averaged over problems; beside it an evaluation study of fresh
    participants (``eval_participants`` guesses per plan and τ): accuracy with a 95 %
