@@ -298,6 +298,17 @@ def test_study_pick_by_plans_judges_every_plan_and_writes_them(
     ends = plans["xyz"][:, np.arange(3), -1]
     tgt = plans["goals"][np.arange(3), plans["target"]]
     assert np.all(np.linalg.norm(ends - tgt, axis=-1) < 2e-3)
+    # --by pool: the loop's pick, the candidate of the least-judged plans left out of the
+    # pool (weight 0), the pool of the rest; its largest weight is written, with the plans
+    argv[-3:-1] = ["--by", "pool"]
+    assert study_main([*argv, "--folds", "2", "--overwrite"]) == 0
+    text = capsys.readouterr().out
+    pool = json.loads((out / "pick.json").read_text())["pick"]
+    worse = ("dragan", "nikolaidis")[int(np.argmin(rep["scores"]))]
+    assert pool["rule"] == "pool" and pool["left_out"] == worse
+    assert pool["weights"][pool["candidates"].index(worse)] == 0
+    assert pool["pick"] == rep["pick"] != worse and "(left out:" in text
+    assert sorted(p.name for p in out.iterdir()) == ["pick.json", "plans.npz"]
     argv[-3:-1] = ["--by", "likelihood"]
     assert study_main([*argv, "--overwrite"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["pick.json"]

@@ -41,7 +41,7 @@ CANDIDATES = (*train_config.FAMILIES, *LABELERS)
 #: ``study pick``'s default candidates (``--candidates`` takes a subset): every candidate,
 #: as the people loop's presets choose among every family.
 DEFAULT_CANDIDATES = CANDIDATES
-BY = ("likelihood", "plans")  # the two rules of ``study pick --by``
+BY = ("likelihood", "plans", "pool")  # the rules of ``study pick --by``
 #: The planner of the pick by plans, per training preset (the people loop's: 50 points and
 #: 30 steps on a CPU, the default planner on a GPU).
 PLANNERS = {"quick": {"n_points": 50, "iters": 30}, "paper": {}}
@@ -134,23 +134,30 @@ def pick_study(
     seed: int = 0,
     camera: str = "observer",
     progress: bool = True,
+    keep: Sequence[bool] | None = None,
 ) -> dict:
     """The pick of ``study``: :func:`out_of_fold` then
     :func:`slotv_jax.answers.pooling.pick_report` (each candidate's held-out NLL per answer,
-    the pool's weights and NLL, ``pick`` the candidate of the largest weight)."""
+    the pool's weights and NLL, ``pick`` the candidate of the largest weight); ``keep``:
+    the candidates the pool may weigh (every one by default)."""
     names = check_candidates(names)
-    if not (isinstance(folds, int) and 2 <= folds <= study.n_trajectories):
-        raise ValueError(
-            f"--folds: expected 2 <= folds <= {study.n_trajectories} (motions), got {folds!r}"
-        )
+    check_folds(study, folds)
     check_visible(study, names, camera)
     logp, _ = out_of_fold(
         study, names, preset=preset, folds=folds, seed=seed, camera=camera, progress=progress
     )
     g = study.counts.shape[-1]
     mask = study.goal_mask[study.answer_trajectory, :g]
-    rep = pooling.pick_report(list(names), logp, study.counts[:, :g], mask)
+    rep = pooling.pick_report(list(names), logp, study.counts[:, :g], mask, keep)
     return {**rep, "folds": folds, "seed": seed, "preset": preset}
+
+
+def check_folds(study: Study, folds: int) -> None:
+    """ValueError naming ``--folds`` unless 2 <= folds <= the study's motions."""
+    if not (isinstance(folds, int) and 2 <= folds <= study.n_trajectories):
+        raise ValueError(
+            f"--folds: expected 2 <= folds <= {study.n_trajectories} (motions), got {folds!r}"
+        )
 
 
 def pick_table(rep: dict) -> str:
@@ -164,6 +171,7 @@ def pick_table(rep: dict) -> str:
     ]
     for n, nll, w in zip(rep["candidates"], rep["heldout_nll"], rep["weights"], strict=True):
         mark = " **(pick)**" if n == rep["pick"] else ""
+        mark += " (left out: its plans judged least legible)" if n == rep.get("left_out") else ""
         lines.append(f"| {n}{mark} | {nll:.4f} | {w:.3f} |")
     lines.append(f"| pool | {rep['pool_nll']:.4f} | |")
     return "\n".join(lines)
@@ -373,3 +381,35 @@ def plans_table(rep: dict) -> str:
         mark = " **(pick)**" if n == rep["pick"] else ""
         lines.append(f"| {n}{mark} | {s:.4f} | {rep['judged'][i][i]:.4f} |")
     return "\n".join(lines)
+
+
+# ------------------------------------------------------------------ the pool less one
+
+
+def pick_pool(
+    study: Study,
+    names: Sequence[str] = DEFAULT_CANDIDATES,
+    *,
+    preset: str = "quick",
+    folds: int = 3,
+    seed: int = 0,
+    camera: str = "observer",
+    problems: int = 12,
+    progress: bool = True,
+) -> tuple[dict, dict[str, dict], dict[str, np.ndarray], dict]:
+    """The people loop's ``pick`` on a study, as one checkpoint: every candidate's plans
+    judged by the other fits (:func:`pick_by_plans`), the candidate of the least-judged
+    plans left out (:func:`trusted`), and the pool of the rest weighted by the held-out
+    likelihood (:func:`pick_study` with ``keep``); the pick is the pool's largest weight.
+    Reads the study's answers and scenes only. Returns the pool's report (``rule``
+    ``"pool"``, ``left_out``), the fits, the plans file's arrays and the report of the
+    plans."""
+    names = check_candidates(names)
+    check_folds(study, folds)
+    by_plans, fits, arrays = pick_by_plans(study, names, preset=preset, seed=seed, camera=camera,
+                                           problems=problems, progress=progress)  # fmt: skip
+    keep = trusted(np.asarray([by_plans["scores"]]))[0]
+    rep = pick_study(study, names, preset=preset, folds=folds, seed=seed, camera=camera,
+                     progress=progress, keep=keep.tolist())  # fmt: skip
+    rep = {**rep, "rule": "pool", "left_out": names[int(np.flatnonzero(~keep)[0])]}
+    return rep, fits, arrays, by_plans

@@ -133,9 +133,11 @@ def _parse_args(argv):
     pk.add_argument("--by", default="likelihood", choices=pick_lib.BY,
                     help="likelihood: the pool's largest weight on held-out answers; plans: "
                     "the candidate whose plans of the study's scenes the other fits judge "
-                    "the most legible (also writes DIR/plans.npz)")  # fmt: skip
+                    "the most legible (also writes DIR/plans.npz); pool: the people loop's "
+                    "pick, the pool less the candidate of the least-judged plans, its "
+                    "largest weight (also writes DIR/plans.npz)")  # fmt: skip
     pk.add_argument("--problems", type=int, default=12,
-                    help="--by plans: at most this many of the study's (scene, goal) "
+                    help="--by plans or pool: at most this many of the study's (scene, goal) "
                     "problems are planned")  # fmt: skip
     pk.add_argument("--folds", type=int, default=3)
     pk.add_argument("--seed", type=int, default=0)
@@ -154,7 +156,8 @@ def pick_main(args: argparse.Namespace) -> int:
     checkpoint (``slotv_jax.load_observer(DIR)``; the table in its JSON config), a labeler
     as ``DIR/pick.json`` with its fitted β (``planning.labeler_observer(name, beta=β)``).
     ``--by plans``: the pick by plans instead (:func:`slotv_jax.answers.pick.pick_by_plans`),
-    and ``DIR/plans.npz``, every candidate's plans of the study's scenes. The output is
+    and ``DIR/plans.npz``, every candidate's plans of the study's scenes; ``--by pool``:
+    the people loop's pick (:func:`slotv_jax.answers.pick.pick_pool`) and the plans. The output is
     written beside and swapped in whole (an earlier pick of ``--overwrite`` leaves nothing)."""
     validation.check_seeds("--seed", args.seed)
     names = pick_lib.check_candidates([c.strip() for c in args.candidates.split(",")])
@@ -177,6 +180,12 @@ def pick_main(args: argparse.Namespace) -> int:
             progress=progress,
         )  # fmt: skip
         print(pick_lib.plans_table(rep), flush=True)
+    elif args.by == "pool":
+        rep, fits, arrays, by_plans = pick_lib.pick_pool(
+            study, names, preset=args.preset, folds=args.folds, seed=args.seed,
+            problems=args.problems, progress=progress,
+        )  # fmt: skip
+        print(pick_lib.plans_table(by_plans), "", pick_lib.pick_table(rep), sep="\n", flush=True)
     else:
         rep = pick_lib.pick_study(study, names, preset=args.preset, folds=args.folds,
                                   seed=args.seed, progress=progress)  # fmt: skip
