@@ -327,6 +327,12 @@ def test_study_pick_by_plans_judges_every_plan_and_writes_them(
     err = capsys.readouterr().err
     assert e.value.code == 2 and "--by plans: the study's scenes" in err and "out of reach" in err
     assert not (tmp_path / "far").exists()
+    with pytest.raises(SystemExit) as e:  # --by pool names itself
+        study_main(["pick", str(tmp_path / "far.npz"), "--out", str(tmp_path / "far"),
+                    "--candidates", "dragan,slotv_plus", "--by", "pool", "--folds", "2",
+                    "--no-progress"])  # fmt: skip
+    assert e.value.code == 2 and "--by pool: the study's scenes" in capsys.readouterr().err
+    assert not (tmp_path / "far").exists()
 
 
 # ------------------------------------------------------------------ the pick by plans

@@ -249,12 +249,13 @@ def study_problems(study: Study, n: int) -> dict[str, np.ndarray]:
     return {k: every[k][keep] for k in ("goals", "goal_mask", "target")}
 
 
-def study_taus(study: Study) -> tuple[float, ...]:
-    """The study's distinct stop times (its answers' τ), the planner's prefix objective."""
+def study_taus(study: Study, rule: str = "plans") -> tuple[float, ...]:
+    """The study's distinct stop times (its answers' τ), the planner's prefix objective
+    (ValueError naming ``--by RULE``)."""
     taus = tuple(sorted({round(float(t), 6) for t in study.answer_tau}))
     if len(taus) > MAX_TAUS or not all(0 < t <= 1 for t in taus):
         raise ValueError(
-            f"--by plans: expected at most {MAX_TAUS} distinct stop times in (0, 1] in the "
+            f"--by {rule}: expected at most {MAX_TAUS} distinct stop times in (0, 1] in the "
             f"study's answers, got {len(taus)} ({taus[:3]}...)"
         )
     return taus
@@ -315,19 +316,20 @@ def pick_by_plans(
     camera: str = "observer",
     problems: int = 12,
     progress: bool = True,
+    rule: str = "plans",
 ) -> tuple[dict, dict[str, dict], dict[str, np.ndarray]]:
-    """The pick by plans of ``study``: every candidate fitted on every answer
-    (:func:`fit_candidates`) plans the study's own problems (:func:`study_problems`, from
-    TCP(q_home), the prefix objective at the study's stop times, :data:`PLANNERS`), every
-    plan is judged by every fit (:func:`judge_plans`) and the pick is
-    :func:`cross_judged`'s. Reads the study's answers and scenes only.
+    """The pick by plans of ``study`` (``rule``: the ``--by`` its errors name): every
+    candidate fitted on every answer (:func:`fit_candidates`) plans the study's own
+    problems (:func:`study_problems`, from TCP(q_home), the prefix objective at the study's
+    stop times, :data:`PLANNERS`), every plan is judged by every fit (:func:`judge_plans`)
+    and the pick is :func:`cross_judged`'s. Reads the study's answers and scenes only.
 
     Returns the report (``candidates``, ``judged`` (C, C): row f, column g, ``scores``
     S_f, ``pick``, ``problems``, ``taus``, ``planner``), the fits, and the plans file's
     arrays (:mod:`slotv_jax.planning.plans`: the straight line, then every candidate)."""
     names = check_candidates(names)
     check_visible(study, names, camera)
-    taus = study_taus(study)
+    taus = study_taus(study, rule)
     prob = study_problems(study, problems)
     cfg = planning.PlannerConfig(**PLANNERS.get(preset, {}), taus=taus)
     # The problems' straight lines before any fit: an unreachable scene is refused first.
@@ -335,7 +337,7 @@ def pick_by_plans(
         straight = planning.straight_lines(prob["goals"], prob["goal_mask"], prob["target"],
                                            cfg=cfg)  # fmt: skip
     except ValueError as e:
-        raise ValueError(f"--by plans: the study's scenes: {e}") from None
+        raise ValueError(f"--by {rule}: the study's scenes: {e}") from None
     fits = fit_candidates(study, names, preset=preset, seed=seed, camera=camera,
                           progress=progress)  # fmt: skip
     observers = {n: fits[n]["observer"] for n in names}
@@ -407,7 +409,8 @@ def pick_pool(
     names = check_candidates(names)
     check_folds(study, folds)
     by_plans, fits, arrays = pick_by_plans(study, names, preset=preset, seed=seed, camera=camera,
-                                           problems=problems, progress=progress)  # fmt: skip
+                                           problems=problems, progress=progress,
+                                           rule="pool")  # fmt: skip
     keep = trusted(np.asarray([by_plans["scores"]]))[0]
     rep = pick_study(study, names, preset=preset, folds=folds, seed=seed, camera=camera,
                      progress=progress, keep=keep.tolist())  # fmt: skip
