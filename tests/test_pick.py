@@ -271,6 +271,10 @@ def test_study_pick_by_plans_judges_every_plan_and_writes_them(
     with pytest.raises(SystemExit) as e:
         study_main([*argv, "--problems", "0"])
     assert e.value.code == 2 and "--problems" in capsys.readouterr().err
+    by_plans = pick_lib.pick_by_plans
+    made: list = []  # this run's fits and plans, reused by --by pool below (deterministic)
+    monkeypatch.setattr(pick_lib, "pick_by_plans", lambda *a, **k: made.append(by_plans(*a, **k))
+                        or made[-1])  # fmt: skip
     assert study_main(argv) == 0
     text = capsys.readouterr().out
     rec = json.loads((out / "pick.json").read_text())
@@ -301,7 +305,9 @@ def test_study_pick_by_plans_judges_every_plan_and_writes_them(
     # --by pool: the loop's pick, the candidate of the least-judged plans left out of the
     # pool (weight 0), the pool of the rest; its largest weight is written, with the plans
     argv[-3:-1] = ["--by", "pool"]
+    monkeypatch.setattr(pick_lib, "pick_by_plans", lambda *a, **k: made[0])
     assert study_main([*argv, "--folds", "2", "--overwrite"]) == 0
+    monkeypatch.setattr(pick_lib, "pick_by_plans", by_plans)
     text = capsys.readouterr().out
     pool = json.loads((out / "pick.json").read_text())["pick"]
     worse = ("dragan", "nikolaidis")[int(np.argmin(rep["scores"]))]
