@@ -14,6 +14,11 @@ os.environ.setdefault(
     "JAX_COMPILATION_CACHE_DIR",
     os.path.join(tempfile.gettempdir(), f"slotv_jax_tests_xla_cache_{os.getuid()}"),
 )
+# Every program is kept, not only those that compiled for a second or more (JAX's default):
+# the suite's many small programs recur across its processes. On the 2-core VM this took
+# the suite from 838 to 777 s, its tests' summed time from 1,628 to 1,512 s (one run each,
+# 2026-11-29; experiments/BENCHMARKS.md, "The test suite").
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 import pytest
 from hypothesis import HealthCheck, settings
