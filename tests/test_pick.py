@@ -15,7 +15,14 @@ import numpy as np
 import pytest
 
 from slotv_jax import planning
-from slotv_jax.answers import pooling, save_study, simulate_study
+from slotv_jax.answers import (
+    PROB_FLOOR,
+    load_pool,
+    pool_observer,
+    pooling,
+    save_study,
+    simulate_study,
+)
 from slotv_jax.answers.pick import trusted
 from slotv_jax.asking import selection, simulated
 from slotv_jax.experiments import people_loop as exp
@@ -26,6 +33,7 @@ from slotv_jax.observers import population as population_lib
 from slotv_jax.observers.common import seen_points
 from slotv_jax.planning import evaluation
 from slotv_jax.study.cli import main as study_main
+from slotv_jax.training.checkpoint import load_observer
 from slotv_jax.world.scene import camera as scene_camera
 
 # ------------------------------------------------------------------ the hyper-distribution
@@ -195,13 +203,14 @@ def test_the_pick_follows_the_answers_and_never_reads_the_population(
 
 
 def test_the_pools_observer_is_the_weighted_log_pool():
-    """The planner's pick observer: softmax of Σ w_f log p_f, against NumPy."""
+    """The planner's pick observer (the loop's and `study pick --by pool`'s): softmax of
+    Σ w_f log p_f, against NumPy."""
     goals = jnp.zeros((8, 3)).at[0].set([0.5, 0.3, 0.025]).at[1].set([0.5, -0.3, 0.025])
     mask = jnp.arange(8) < 2
     xyz = jnp.linspace(jnp.array([0.3, 0.0, 0.49]), goals[0], 30)
     obs = [planning.labeler_observer("dragan"), planning.labeler_observer("effdist")]
     w = jnp.array([0.7, 0.4])
-    pooled = loop._pooled(obs, w)
+    pooled = pool_observer(obs, w)
     got = np.asarray(jax.nn.softmax(pooled.prefix(xyz, goals, mask, 20)))
     p = [np.asarray(labelers.dragan(xyz[:20], goals, mask), np.float64)[:2],
          np.asarray(labelers.effdist(xyz[:20], goals, mask), np.float64)[:2]]  # fmt: skip
@@ -309,12 +318,29 @@ def test_study_pick_by_plans_judges_every_plan_and_writes_them(
     assert study_main([*argv, "--folds", "2", "--overwrite"]) == 0
     monkeypatch.setattr(pick_lib, "pick_by_plans", by_plans)
     text = capsys.readouterr().out
-    pool = json.loads((out / "pick.json").read_text())["pick"]
+    doc = json.loads((out / "pool.json").read_text())
+    pool = doc["meta"]["pick"]
     worse = ("dragan", "nikolaidis")[int(np.argmin(rep["scores"]))]
     assert pool["rule"] == "pool" and pool["left_out"] == worse
     assert pool["weights"][pool["candidates"].index(worse)] == 0
     assert pool["pick"] == rep["pick"] != worse and "(left out:" in text
-    assert sorted(p.name for p in out.iterdir()) == ["pick.json", "plans.npz"]
+    assert sorted(p.name for p in out.iterdir()) == ["plans.npz", "pool.json"]
+    # the pool itself is written: the kept labeler with its β fitted on every answer and
+    # its weight; loaded, its P is P_labeler^w renormalised (float64, by hand)
+    w = pool["weights"][pool["candidates"].index(rep["pick"])]
+    assert doc["members"] == [{"name": rep["pick"], "weight": w, "labeler": rep["pick"],
+                               "beta": pytest.approx(betas[rep["pick"]])}]  # fmt: skip
+    obs = load_pool(out)
+    fn = functools.partial(getattr(labelers, rep["pick"]),
+                           **(cam if rep["pick"] == "nikolaidis" else {}))  # fmt: skip
+    for p in range(3):
+        x, g, m = plans["xyz"][0, p], plans["goals"][p], plans["goal_mask"][p]
+        y = np.asarray(fn(x, g, m, beta=betas[rep["pick"]]), np.float64)
+        want_p = np.where(m, np.maximum(y, PROB_FLOOR) ** w, 0.0)
+        got = np.asarray(jax.nn.softmax(obs(jnp.asarray(x), jnp.asarray(g), jnp.asarray(m))))
+        np.testing.assert_allclose(got, want_p / want_p.sum(), atol=2e-5)
+    with pytest.raises(ValueError, match=r"a pool of observers.*load_pool"):
+        load_observer(out)
     argv[-3:-1] = ["--by", "likelihood"]
     assert study_main([*argv, "--overwrite"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["pick.json"]

@@ -46,6 +46,11 @@ from slotv_jax.answers.format import (
     Study,
     make_study,
 )
+from slotv_jax.answers.pool_file import (
+    load_pool,
+    pool_observer,
+    save_pool,
+)
 from slotv_jax.answers.simulate import (
     check_taus,
     prefix_labels,
@@ -80,13 +85,16 @@ __all__ = [
     "fit_beta",
     "labeler_probs",
     "labeler_visible",
+    "load_pool",
     "load_study",
     "make_study",
     "model_metrics",
+    "pool_observer",
     "prefix_labels",
     "prefix_scores",
     "read_tables",
     "row_metrics",
+    "save_pool",
     "save_study",
     "simulate_guesses",
     "simulate_study",

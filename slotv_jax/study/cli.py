@@ -15,6 +15,7 @@ from typing import Any
 import jax
 
 from slotv_jax.answers import pick as pick_lib
+from slotv_jax.answers import pool_file
 from slotv_jax.answers.crossval import cross_validate, cv_table, fit_beta, model_metrics
 from slotv_jax.answers.fitting import study_trainer, train_study
 from slotv_jax.answers.storage import load_study, save_study
@@ -134,8 +135,8 @@ def _parse_args(argv):
                     help="likelihood: the pool's largest weight on held-out answers; plans: "
                     "the candidate whose plans of the study's scenes the other fits judge "
                     "the most legible (also writes DIR/plans.npz); pool: the people loop's "
-                    "pick, the pool less the candidate of the least-judged plans, its "
-                    "largest weight (also writes DIR/plans.npz)")  # fmt: skip
+                    "pick, the pool less the candidate of the least-judged plans, written "
+                    "as DIR/pool.json and its members (also writes DIR/plans.npz)")  # fmt: skip
     pk.add_argument("--problems", type=int, default=12,
                     help="--by plans or pool: at most this many of the study's (scene, goal) "
                     "problems are planned")  # fmt: skip
@@ -157,14 +158,16 @@ def pick_main(args: argparse.Namespace) -> int:
     as ``DIR/pick.json`` with its fitted β (``planning.labeler_observer(name, beta=β)``).
     ``--by plans``: the pick by plans instead (:func:`slotv_jax.answers.pick.pick_by_plans`),
     and ``DIR/plans.npz``, every candidate's plans of the study's scenes; ``--by pool``:
-    the people loop's pick (:func:`slotv_jax.answers.pick.pick_pool`) and the plans. The output is
-    written beside and swapped in whole (an earlier pick of ``--overwrite`` leaves nothing)."""
+    the people loop's pick (:func:`slotv_jax.answers.pick.pick_pool`), written as the pool
+    itself (``DIR/pool.json`` and its members, :func:`slotv_jax.answers.load_pool`: the
+    observer the loop plans against), and the plans. The output is written beside and
+    swapped in whole (an earlier pick of ``--overwrite`` leaves nothing)."""
     validation.check_seeds("--seed", args.seed)
     names = pick_lib.check_candidates([c.strip() for c in args.candidates.split(",")])
     fileio.check_not_input(args.out, {"study": args.study})
 
     def ours(p):
-        return checkpoint.exists(p) or (Path(p) / "pick.json").is_file()
+        return checkpoint.exists(p) or (Path(p) / "pick.json").is_file() or pool_file.is_pool(p)
 
     fileio.check_output_dir(args.out, ours=ours, overwrite=args.overwrite)
     if not (isinstance(args.problems, int) and args.problems >= 1):
@@ -194,7 +197,15 @@ def pick_main(args: argparse.Namespace) -> int:
     meta = {"study": str(args.study), "condition": args.condition, "pick": rep}
     tmp = fileio.temp_dir_beside(out)  # the whole output, then swapped in: nothing stale
     try:
-        if winner in pick_lib.LABELERS:
+        if args.by == "pool":  # the pool itself, what the people loop plans against
+            weights = dict(zip(rep["candidates"], rep["weights"], strict=True))
+            kept = pool_file.save_pool(tmp, fits, weights, meta=meta)
+            said = (
+                "pick: the pool of "
+                + ", ".join(f"{n} (weight {weights[n]:.3g})" for n in kept)
+                + f", each fitted on every answer: {out} (slotv_jax.answers.load_pool)"
+            )
+        elif winner in pick_lib.LABELERS:
             beta = fits[winner]["beta"] if winner in fits else fit_beta(study, winner)[0]
             write_text(tmp / "pick.json", json.dumps({**meta, "labeler": winner, "beta": beta}))
             said = (

@@ -427,6 +427,11 @@ def load_observer(path: str | os.PathLike, model: str | None = None) -> models.O
     """
     if model is not None and model not in MODELS:
         raise ValueError(f"model: expected one of {MODELS} or None, got {model!r}")
+    if (Path(path) / "pool.json").is_file():  # study pick --by pool's folder
+        raise ValueError(
+            f"{path}: a pool of observers (pool.json), not one checkpoint: "
+            "load it with slotv_jax.answers.load_pool"
+        )
     cfg, state, _ = restore(path)
     if model is not None and model != cfg.model:
         raise ValueError(_wrong_model(Path(path), cfg.model, model))

@@ -16,6 +16,7 @@ from tqdm.auto import tqdm
 from slotv_jax import planning
 from slotv_jax.answers import pooling
 from slotv_jax.answers.pick import cross_judged, trusted
+from slotv_jax.answers.pool_file import pool_observer
 from slotv_jax.asking import selection, simulated
 from slotv_jax.core.shapes import bucket, pad_rows
 from slotv_jax.experiments.people_loop.config import (
@@ -43,14 +44,15 @@ def builds(cfg: LoopConfig) -> dict:
     each learned family's parameters, ``beta``, the two fitted temperatures, and
     ``pick_w``, the pick's pool weights): each family
     (:func:`slotv_jax.planning.make_family_planner`'s families). The pick is the
-    log-linear pool of the other families (:func:`slotv_jax.answers.pooling.pooled_logits`):
-    it reads their parameters and its weights, nothing of the population. Nothing here
-    depends on the population, so one compiled program plans every population's fits
+    log-linear pool of the other families (:func:`slotv_jax.answers.pool_file.pool_observer`,
+    what ``study pick --by pool`` writes): it reads their parameters and its weights,
+    nothing of the population. Nothing here depends on the population, so one compiled
+    program plans every population's fits
     (:func:`oracle_builds`: the population's own observers, compiled apart)."""
     out = {f: _family_build(cfg, f) for f in cfg.candidates}
     if PICK in cfg.families:
         parts = [out[f] for f in cfg.candidates]
-        out[PICK] = lambda p: _pooled([b(p) for b in parts], p["pick_w"])
+        out[PICK] = lambda p: pool_observer([b(p) for b in parts], p["pick_w"])
     return out
 
 
@@ -68,20 +70,6 @@ def _family_build(cfg: LoopConfig, f: str):
         return lambda p: planning.labeler_observer(FITTED[f], beta=p["beta"][j], camera=CAMERA)
     sel = selection.make_selector(cfg.train_config(f), 1, 1)
     return lambda p: _learned(sel, p[f])
-
-
-def _pooled(observers, w):
-    """The log-linear pool of ``observers`` with weights ``w`` (F,)."""
-
-    def prefix(x, g, m, s):
-        logp = jnp.stack([jax.nn.log_softmax(o.prefix(x, g, m, s)) for o in observers])
-        return pooling.pooled_logits(logp, w, m)
-
-    def whole(x, g, m):
-        return prefix(x, g, m, x.shape[0])
-
-    whole.prefix = prefix
-    return whole
 
 
 def _whole_motion(obs):

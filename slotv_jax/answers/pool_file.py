@@ -1,0 +1,191 @@
+"""The researcher's pool as a folder: the observer that the people loop's ``pick`` plans
+against, fitted on a study, for a planner (``python -m slotv_jax.study pick --by pool``).
+
+The pool is log-linear (Genest & Zidek 1986, "Combining probability distributions: a
+critique and an annotated bibliography", Statistical Science 1(1)):
+
+    P_w(g | ξ) ∝ Π_f P_f(g | ξ)^{w_f},   logits_w = Σ_f w_f log P_f(g | ξ)
+
+over the members f with weight w_f > 0, each log-probability floored at log
+:data:`~slotv_jax.answers.format.PROB_FLOOR` (:func:`slotv_jax.answers.pooling.pooled_logits`,
+the loop's own pool). The weights are those fitted on the held-out answers
+(:func:`slotv_jax.answers.pooling.fit_pool_weights`); the members are fitted on every answer.
+
+The folder::
+
+    DIR/pool.json            format, version, camera, members [{name, weight, and either
+                             checkpoint (a folder under DIR) or labeler and beta}], meta
+    DIR/members/NAME/        each learned member's checkpoint (slotv_jax.load_observer)
+
+:func:`load_pool` reads it back as one observer ``(xyz (T, 3), goals (8, 3), goal_mask (8,))
+-> logits (8,)`` with ``prefix`` (what :func:`slotv_jax.planning.make_planner` plans
+against). JSON and Orbax only: no pickle.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from slotv_jax import planning
+from slotv_jax.answers import pooling
+from slotv_jax.core import fileio
+from slotv_jax.training import checkpoint
+
+POOL_FILE = "pool.json"
+FORMAT = "slotv_jax observer pool"
+VERSION = 1
+MEMBERS_DIR = "members"
+LABELERS = ("dragan", "nikolaidis")  # the labelers a pool may hold (β fitted)
+CAMERAS = ("observer", "observer_angle", "observer_side")  # slotv_jax.world.scene.camera
+
+__all__ = ["POOL_FILE", "is_pool", "load_pool", "pool_observer", "save_pool"]
+
+
+def is_pool(path: str | os.PathLike) -> bool:
+    """True if ``path`` is a folder holding ``pool.json``."""
+    return (Path(path) / POOL_FILE).is_file()
+
+
+def pool_observer(observers: Sequence[Any], weights: Sequence[float]):
+    """The log-linear pool of ``observers`` (each with ``prefix``) with ``weights`` (F,)
+    (an array or a list, traced or not):
+    ``logits = Σ_f w_f log softmax(observer_f)`` on the real goals, −∞ on padding, for the
+    whole motion and for each prefix (``prefix(xyz, goals, goal_mask, seen)``). Pure: use it
+    under ``jit``, ``vmap`` and ``grad``."""
+    w = jnp.asarray(weights, jnp.float32)  # may be traced (the loop's fitted weights)
+    if not observers or w.shape != (len(observers),):
+        raise ValueError(
+            f"weights: expected one weight per observer ({len(observers)}), got shape {w.shape}"
+        )
+
+    def pool(logits: Sequence[Array], goal_mask: Bool[Array, " G"]) -> Float[Array, " G"]:
+        logp = jnp.stack([jax.nn.log_softmax(z) for z in logits])
+        return pooling.pooled_logits(logp, w, goal_mask)
+
+    def observer(xyz, goals, goal_mask):
+        return pool([o(xyz, goals, goal_mask) for o in observers], jnp.asarray(goal_mask, bool))
+
+    def prefix(xyz, goals, goal_mask, seen):
+        zs = [o.prefix(xyz, goals, goal_mask, seen) for o in observers]
+        return pool(zs, jnp.asarray(goal_mask, bool))
+
+    observer.prefix = prefix  # type: ignore[attr-defined]
+    observer.name = "pool"  # type: ignore[attr-defined]
+    return observer
+
+
+def save_pool(
+    out: str | os.PathLike,
+    members: Mapping[str, Mapping[str, Any]],
+    weights: Mapping[str, float],
+    *,
+    camera: str = "observer",
+    meta: Mapping[str, Any] | None = None,
+) -> list[str]:
+    """Write the pool of ``members`` (``{name: {"cfg", "state"}}`` for a learned family,
+    ``{name: {"beta"}}`` for a labeler, as :func:`slotv_jax.answers.pick.fit_candidates`
+    returns them) with ``weights`` (``{name: w}``) into the folder ``out`` (made; the
+    caller writes it beside its target and swaps it in). Members of weight 0 are left
+    out; returns the names written. ValueError if no weight is positive."""
+    kept = [n for n, w in weights.items() if float(w) > 0]
+    if not kept:
+        raise ValueError("the pool's weights are all 0: no observer to plan with")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for name in kept:
+        fit, w = members[name], float(weights[name])
+        if "beta" in fit:
+            rows.append({"name": name, "weight": w, "labeler": name, "beta": float(fit["beta"])})
+        else:
+            rel = f"{MEMBERS_DIR}/{name}"
+            checkpoint.save(out / rel, fit["cfg"], fit["state"])
+            rows.append({"name": name, "weight": w, "checkpoint": rel})
+    doc = {"format": FORMAT, "version": VERSION, "camera": camera, "members": rows,
+           "meta": dict(meta or {})}  # fmt: skip
+    fileio.write_text(out / POOL_FILE, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    return kept
+
+
+def _field(where: Path, name: str, msg: str) -> ValueError:
+    return ValueError(f"{where}: field {name!r}: {msg}")
+
+
+def load_pool(path: str | os.PathLike):
+    """The pool in folder ``path`` (:func:`save_pool`) as one observer with ``prefix``
+    (:func:`pool_observer`); ``.members`` lists ``(name, weight)``. Every field is checked
+    before any member is loaded: ValueError naming ``pool.json`` and the field."""
+    path = Path(path)
+    where = path / POOL_FILE
+    if not where.is_file():
+        raise FileNotFoundError(f"{path}: no {POOL_FILE} (not a pool of observers)")
+    doc = fileio.read_json(where)
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise _field(where, "format", f"expected {FORMAT!r}, got {_get(doc, 'format')!r}")
+    if doc.get("version") != VERSION:
+        raise _field(where, "version", f"expected {VERSION}, got {doc.get('version')!r}")
+    camera = doc.get("camera")
+    if camera not in CAMERAS:
+        raise _field(where, "camera", f"expected one of {CAMERAS}, got {camera!r}")
+    rows = doc.get("members")
+    if not isinstance(rows, list) or not rows:
+        raise _field(where, "members", "expected a non-empty list of members")
+    specs = []
+    root = path.resolve()
+    for i, r in enumerate(rows):
+        at = f"members[{i}]"
+        if not isinstance(r, dict) or not isinstance(r.get("name"), str):
+            raise _field(where, at, "expected an object with a string 'name'")
+        w = r.get("weight")
+        if (
+            isinstance(w, bool)
+            or not isinstance(w, int | float)
+            or not (math.isfinite(w) and w > 0)
+        ):
+            raise _field(where, f"{at}.weight", f"expected a finite number > 0, got {w!r}")
+        if ("checkpoint" in r) == ("labeler" in r):
+            raise _field(where, at, "expected either 'checkpoint' or 'labeler' and 'beta'")
+        if "labeler" in r:
+            if r["labeler"] not in LABELERS:
+                raise _field(where, f"{at}.labeler", f"expected one of {LABELERS}, "
+                             f"got {r['labeler']!r}")  # fmt: skip
+            b = r.get("beta")
+            if (
+                isinstance(b, bool)
+                or not isinstance(b, int | float)
+                or not (math.isfinite(b) and b > 0)
+            ):
+                raise _field(where, f"{at}.beta", f"expected a finite number > 0, got {b!r}")
+            specs.append((r["name"], float(w), ("labeler", r["labeler"], float(b))))
+        else:
+            rel = r["checkpoint"]
+            target = (path / rel).resolve() if isinstance(rel, str) else None
+            if target is None or not target.is_relative_to(root) or target == root:
+                raise _field(where, f"{at}.checkpoint",
+                             f"expected a folder inside {path}, got {rel!r}")  # fmt: skip
+            if not checkpoint.exists(target):
+                raise _field(where, f"{at}.checkpoint", f"no checkpoint at {path / rel}")
+            specs.append((r["name"], float(w), ("checkpoint", target)))
+    observers = []
+    for _, _, spec in specs:
+        if spec[0] == "labeler":
+            observers.append(planning.labeler_observer(spec[1], beta=spec[2], camera=camera))
+        else:
+            observers.append(checkpoint.load_observer(spec[1]))
+    obs = pool_observer(observers, [w for _, w, _ in specs])
+    obs.members = [(n, w) for n, w, _ in specs]  # type: ignore[attr-defined]
+    obs.meta = doc.get("meta", {})  # type: ignore[attr-defined]
+    return obs
+
+
+def _get(doc: Any, key: str) -> Any:
+    return doc.get(key) if isinstance(doc, dict) else type(doc).__name__
