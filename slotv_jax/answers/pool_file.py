@@ -120,6 +120,13 @@ def _field(where: Path, name: str, msg: str) -> ValueError:
     return ValueError(f"{where}: field {name!r}: {msg}")
 
 
+def _positive(where: Path, name: str, v: Any) -> float:
+    """``v`` as a float if it is a finite number > 0 (not a bool), else the field's error."""
+    if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and v > 0):
+        raise _field(where, name, f"expected a finite number > 0, got {v!r}")
+    return float(v)
+
+
 def load_pool(path: str | os.PathLike):
     """The pool in folder ``path`` (:func:`save_pool`) as one observer with ``prefix``
     (:func:`pool_observer`); ``.members`` lists ``(name, weight)``. Every field is checked
@@ -145,27 +152,15 @@ def load_pool(path: str | os.PathLike):
         at = f"members[{i}]"
         if not isinstance(r, dict) or not isinstance(r.get("name"), str):
             raise _field(where, at, "expected an object with a string 'name'")
-        w = r.get("weight")
-        if (
-            isinstance(w, bool)
-            or not isinstance(w, int | float)
-            or not (math.isfinite(w) and w > 0)
-        ):
-            raise _field(where, f"{at}.weight", f"expected a finite number > 0, got {w!r}")
+        w = _positive(where, f"{at}.weight", r.get("weight"))
         if ("checkpoint" in r) == ("labeler" in r):
             raise _field(where, at, "expected either 'checkpoint' or 'labeler' and 'beta'")
         if "labeler" in r:
             if r["labeler"] not in LABELERS:
                 raise _field(where, f"{at}.labeler", f"expected one of {LABELERS}, "
                              f"got {r['labeler']!r}")  # fmt: skip
-            b = r.get("beta")
-            if (
-                isinstance(b, bool)
-                or not isinstance(b, int | float)
-                or not (math.isfinite(b) and b > 0)
-            ):
-                raise _field(where, f"{at}.beta", f"expected a finite number > 0, got {b!r}")
-            specs.append((r["name"], float(w), ("labeler", r["labeler"], float(b))))
+            b = _positive(where, f"{at}.beta", r.get("beta"))
+            specs.append((r["name"], w, ("labeler", r["labeler"], b)))
         else:
             rel = r["checkpoint"]
             target = (path / rel).resolve() if isinstance(rel, str) else None
@@ -174,7 +169,7 @@ def load_pool(path: str | os.PathLike):
                              f"expected a folder inside {path}, got {rel!r}")  # fmt: skip
             if not checkpoint.exists(target):
                 raise _field(where, f"{at}.checkpoint", f"no checkpoint at {path / rel}")
-            specs.append((r["name"], float(w), ("checkpoint", target)))
+            specs.append((r["name"], w, ("checkpoint", target)))
     observers = []
     for _, _, spec in specs:
         if spec[0] == "labeler":
