@@ -163,3 +163,8 @@ def test_a_malformed_pool_is_refused_naming_the_field(tmp_path):
     with pytest.raises(ValueError, match="all 0"):
         save_pool(tmp_path / "z", {"dragan": {"beta": 1.0}}, {"dragan": 0.0})
     assert not (tmp_path / "z").exists()
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("a user's file")
+    with pytest.raises(ValueError, match="out: expected a new or empty folder"):
+        save_pool(tmp_path / "mine", {"dragan": {"beta": 1.0}}, {"dragan": 1.0})
+    assert [p.name for p in (tmp_path / "mine").iterdir()] == ["notes.txt"]

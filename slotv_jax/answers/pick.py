@@ -399,11 +399,12 @@ def pick_pool(
     problems: int = 12,
     progress: bool = True,
 ) -> tuple[dict, dict[str, dict], dict[str, np.ndarray], dict]:
-    """The people loop's ``pick`` on a study, as one checkpoint: every candidate's plans
-    judged by the other fits (:func:`pick_by_plans`), the candidate of the least-judged
-    plans left out (:func:`trusted`), and the pool of the rest weighted by the held-out
-    likelihood (:func:`pick_study` with ``keep``); the pick is the pool's largest weight.
-    Reads the study's answers and scenes only. Returns the pool's report (``rule``
+    """The people loop's ``pick`` on a study: every candidate's plans judged by the other
+    fits (:func:`pick_by_plans`), the candidate of the least-judged plans left out
+    (:func:`trusted`), and the pool of the rest weighted by the held-out likelihood
+    (:func:`pick_study` with ``keep``; ``pick`` names its largest weight); the pool is
+    written by :func:`slotv_jax.answers.pool_file.save_pool`. Reads the study's answers
+    and scenes only. Returns the pool's report (``rule``
     ``"pool"``, ``left_out``), the fits, the plans file's arrays and the report of the
     plans."""
     names = check_candidates(names)

@@ -37,15 +37,15 @@ from jaxtyping import Array, Bool, Float
 
 from slotv_jax import planning
 from slotv_jax.answers import pooling
+from slotv_jax.answers.pick import LABELERS
 from slotv_jax.core import fileio
+from slotv_jax.rendering.camera import CAMERAS
 from slotv_jax.training import checkpoint
 
 POOL_FILE = "pool.json"
 FORMAT = "slotv_jax observer pool"
 VERSION = 1
 MEMBERS_DIR = "members"
-LABELERS = ("dragan", "nikolaidis")  # the labelers a pool may hold (β fitted)
-CAMERAS = ("observer", "observer_angle", "observer_side")  # slotv_jax.world.scene.camera
 
 __all__ = ["POOL_FILE", "is_pool", "load_pool", "pool_observer", "save_pool"]
 
@@ -93,13 +93,16 @@ def save_pool(
 ) -> list[str]:
     """Write the pool of ``members`` (``{name: {"cfg", "state"}}`` for a learned family,
     ``{name: {"beta"}}`` for a labeler, as :func:`slotv_jax.answers.pick.fit_candidates`
-    returns them) with ``weights`` (``{name: w}``) into the folder ``out`` (made; the
-    caller writes it beside its target and swaps it in). Members of weight 0 are left
-    out; returns the names written. ValueError if no weight is positive."""
+    returns them) with ``weights`` (``{name: w}``) into the folder ``out``, new or empty
+    (made; the caller writes it beside its target and swaps it in). Members of weight 0
+    are left out; returns the names written. ValueError, before anything is written, if no
+    weight is positive or ``out`` holds files."""
     kept = [n for n, w in weights.items() if float(w) > 0]
     if not kept:
         raise ValueError("the pool's weights are all 0: no observer to plan with")
     out = Path(out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ValueError(f"out: expected a new or empty folder, {out} holds files")
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for name in kept:
