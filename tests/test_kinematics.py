@@ -267,6 +267,41 @@ def test_jacobians_match_autodiff_and_finite_differences():
     np.testing.assert_allclose(jac_axis, fd_axis, rtol=0, atol=JAC_FD_TOL)
 
 
+def test_fk_position_derivatives_are_the_jacobian():
+    """fk_position's derivative is the geometric Jacobian (custom JVP), so reverse mode
+    (what the planner uses) and the second derivative must match independent references:
+    float64 central differences of Franka's DH table."""
+    qs = random_configs(np.random.default_rng(SEED + 5), 8)
+
+    @jax.jit
+    def derivatives(qs):
+        def one(q):
+            rev = jax.jacrev(K.fk_position)(q)  # (3, 7): transposed JVP, J^T per output
+            # ∂²p_x/∂q²: the JVP rule differentiated again (J through MJX)
+            hess = jax.hessian(lambda q: K.fk_position(q)[0])(q)
+            return rev, hess
+
+        return jax.lax.map(one, qs)
+
+    rev, hess = (np.asarray(a, np.float64) for a in derivatives(jnp.float32(qs)))
+    fd_pos, _ = ref.finite_difference_jacobians(qs)
+    np.testing.assert_allclose(rev, fd_pos, rtol=0, atol=JAC_FD_TOL)
+    # The Hessian of x against float64 differences of the DH Jacobian's first row.
+    eps = 1e-5
+    fd_hess = np.stack(
+        [
+            (
+                ref.finite_difference_jacobians(qs + eps * np.eye(7)[j])[0][:, 0]
+                - ref.finite_difference_jacobians(qs - eps * np.eye(7)[j])[0][:, 0]
+            )
+            / (2 * eps)
+            for j in range(7)
+        ],
+        axis=1,
+    )
+    np.testing.assert_allclose(hess, fd_hess, rtol=0, atol=1e-4)
+
+
 # --------------------------------------------------------------------------- inverse kinematics
 
 

@@ -16,6 +16,13 @@ of iterations, measured side by side in one run:
   finite-difference gradient (no autodiff in NumPy), ``maxiter`` = the planner's
   iterations; started from the same straight-line joints.
 
+A second table compares the planner's path gradient (one iteration's forward kinematics
+of ``n`` paths of T waypoints and its vector-Jacobian product) two ways in the same run:
+:func:`slotv_jax.kinematics.fk_position`, whose derivative is the geometric Jacobian of
+the same MJX call (what the planner uses), against reverse-mode autodiff through
+``mjx.kinematics`` (the baseline): compilation seconds, gradients per second, and the
+largest difference between the two gradients.
+
 Printed: problems per second (best of ``--repeats`` for the JAX rows), the ratio to
 SciPy, and the quality reached (the true Dragan y_target of the plans, float64, its
 mean gain over the straight line, and the feasible fraction), so that speed is compared
@@ -161,6 +168,41 @@ def quality(xyz, straight_xyz, goals, mask, target, feasible) -> str:
 
 
 @cli.command
+def path_gradient_rows(n: int, n_points: int, repeats: int) -> list[str]:
+    """The path gradient, J(q)ᵀ ∂f/∂p over every waypoint, by ``fk_position``'s geometric
+    Jacobian against autodiff through MJX: markdown rows (compile s, gradients/s, max |Δ|)."""
+    qs = np.random.default_rng(1).uniform(kinematics.Q_MIN, kinematics.Q_MAX, (n, n_points, 7))
+    qs = jax.numpy.asarray(qs, jax.numpy.float32)
+    w = jax.numpy.linspace(0.5, 1.5, 3, dtype=jax.numpy.float32)
+    ways = {
+        "geometric Jacobian (fk_position)": kinematics.fk_position,
+        "autodiff through mjx.kinematics": lambda q: kinematics.tcp_state(q).pos,
+    }
+    rows, grads = [], {}
+    for name, fk in ways.items():
+
+        def f(q, fk=fk):  # a smooth scalar of the path's positions
+            return jax.numpy.sum(jax.numpy.sin(jax.vmap(fk)(q)) * w)
+
+        t0 = time.perf_counter()
+        g = jax.jit(jax.vmap(jax.grad(f))).lower(qs).compile()
+        compile_s = time.perf_counter() - t0
+        best = np.inf
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            grads[name] = np.asarray(jax.block_until_ready(g(qs)))
+            best = min(best, time.perf_counter() - t0)
+        rows.append((name, compile_s, n / best))
+    diff = np.abs(np.subtract(*grads.values())).max()
+    base = rows[1]
+    out = ["| path gradient | compile s | gradients/s | × autodiff (compile, rate) |",
+           "|---|---|---|---|"]  # fmt: skip
+    for name, c, r in rows:
+        out.append(f"| {name} | {c:.2f} | {r:.3g} | {base[1] / c:.1f}×, {r / base[2]:.1f}× |")
+    out.append(f"\n{n} paths of {n_points} waypoints; largest |Δ gradient| {diff:.1e} (float32)")
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.planning")
     p.add_argument("--n", type=int, default=64, help="problems of the batched call")
@@ -233,7 +275,8 @@ def main(argv=None) -> int:
     for k, v in rate.items():
         print(f"| {k} | {counts[k]} | {v:.3g} | {v / rate['SciPy L-BFGS-B']:.0f}× | {qual[k]} |")
     print(f"\ncompilation: batch of {n} {compile_batch:.1f} s, batch of 1 {compile_one:.1f} s "
-          f"(not in the rates); SciPy: {t_scipy / sn:.1f} s per problem")  # fmt: skip
+          f"(not in the rates); SciPy: {t_scipy / sn:.1f} s per problem\n")  # fmt: skip
+    print("\n".join(path_gradient_rows(n, cfg.n_points, args.repeats)))
     return 0
 
 

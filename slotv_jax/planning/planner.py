@@ -365,7 +365,7 @@ def _joints(z: Float[Array, "n 7"], q_start, q_end) -> Float[Array, "T 7"]:
 
 
 def _fk(q: Float[Array, "T 7"]) -> Float[Array, "T 3"]:
-    return jax.vmap(lambda x: kinematics.tcp_state(x).pos)(q)
+    return jax.vmap(kinematics.fk_position)(q)
 
 
 def _initial_z(q: Float[Array, "T 7"]) -> Float[Array, "n 7"]:
