@@ -304,9 +304,12 @@ def test_no_egl_library_is_one_line_before_any_context(monkeypatch, gl):
 
 
 def test_the_library_never_imports_the_renderer():
+    """Nor PyAV: a GPU server without the video stack fits, picks and plans (the answers'
+    pool once reached the renderer for its camera names, and the loop failed to import)."""
     code = (
-        "import sys, slotv_jax, slotv_jax.data, slotv_jax.planning; "
-        "print(any(m.startswith('slotv_jax.render') for m in sys.modules))"
+        "import sys, slotv_jax, slotv_jax.data, slotv_jax.planning, slotv_jax.answers, "
+        "slotv_jax.study, slotv_jax.experiments.people_loop; "
+        "print(any(m.startswith('slotv_jax.render') or m == 'av' for m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

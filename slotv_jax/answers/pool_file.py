@@ -39,8 +39,8 @@ from slotv_jax import planning
 from slotv_jax.answers import pooling
 from slotv_jax.answers.pick import LABELERS
 from slotv_jax.core import fileio
-from slotv_jax.rendering.camera import CAMERAS
 from slotv_jax.training import checkpoint
+from slotv_jax.world.scene import CAMERAS
 
 POOL_FILE = "pool.json"
 FORMAT = "slotv_jax observer pool"

@@ -32,8 +32,7 @@ from jaxtyping import Float
 
 from slotv_jax.robot import kinematics
 from slotv_jax.world import scene
-
-CAMERAS = ("observer", "observer_angle", "observer_side")  # the named cameras of scene.xml
+from slotv_jax.world.scene import CAMERAS  # the named cameras of scene.xml (re-exported)
 
 
 @dataclasses.dataclass(frozen=True)

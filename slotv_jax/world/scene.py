@@ -140,6 +140,9 @@ def _camera_poses() -> tuple[np.ndarray, np.ndarray]:
     return host_eval(pose, mj_model(SCENE_XML))
 
 
+CAMERAS = ("observer", "observer_angle", "observer_side")  # the named cameras of scene.xml
+
+
 def check_camera(name: str) -> int:
     """The index of the scene model's camera ``name`` (ValueError naming the cameras there
     for another name); poses nothing, compiles nothing."""
