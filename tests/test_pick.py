@@ -339,6 +339,15 @@ def test_study_pick_by_plans_judges_every_plan_and_writes_them(
         want_p = np.where(m, np.maximum(y, PROB_FLOOR) ** w, 0.0)
         got = np.asarray(jax.nn.softmax(obs(jnp.asarray(x), jnp.asarray(g), jnp.asarray(m))))
         np.testing.assert_allclose(got, want_p / want_p.sum(), atol=2e-5)
+    # the plans file holds the pool's own plans too: those the loaded pool plans (its
+    # planner at the study's τ), next to the candidates' plans of the run above
+    pooled = load_plans(out / "plans.npz")
+    assert pooled["names"].tolist() == ["straight", "dragan", "nikolaidis", "pool"]
+    np.testing.assert_array_equal(pooled["q"][:3], plans["q"])
+    cfg = planning.PlannerConfig(n_points=20, iters=3, taus=taus)
+    again = planning.make_planner(obs, cfg)(plans["goals"], plans["goal_mask"], plans["target"])
+    np.testing.assert_allclose(pooled["q"][3], np.asarray(again.q), rtol=0, atol=1e-5)
+    assert "and the pool's: " in text
     with pytest.raises(ValueError, match=r"a pool of observers.*load_pool"):
         load_observer(out)
     argv[-3:-1] = ["--by", "likelihood"]

@@ -405,8 +405,9 @@ def pick_pool(
     (:func:`pick_study` with ``keep``; ``pick`` names its largest weight); the pool is
     written by :func:`slotv_jax.answers.pool_file.save_pool`. Reads the study's answers
     and scenes only. Returns the pool's report (``rule``
-    ``"pool"``, ``left_out``), the fits, the plans file's arrays and the report of the
-    plans."""
+    ``"pool"``, ``left_out``), the fits, the plans file's arrays (the straight line, every
+    candidate's plans, then ``pool``: the plans made against the pool itself, what a
+    researcher runs) and the report of the plans."""
     names = check_candidates(names)
     check_folds(study, folds)
     by_plans, fits, arrays = pick_by_plans(study, names, preset=preset, seed=seed, camera=camera,
@@ -416,4 +417,17 @@ def pick_pool(
     rep = pick_study(study, names, preset=preset, folds=folds, seed=seed, camera=camera,
                      progress=progress, keep=keep.tolist())  # fmt: skip
     rep = {**rep, "rule": "pool", "left_out": names[int(np.flatnonzero(~keep)[0])]}
+    # The pool's own plans, against P_w ∝ Π_f P_f^{w_f} over the members of weight > 0.
+    kept = [i for i, w in enumerate(rep["weights"]) if w > 0]
+    pool = pooling.pool_observer(
+        [fits[names[i]]["observer"] for i in kept], [rep["weights"][i] for i in kept]
+    )
+    cfg = planning.PlannerConfig(**PLANNERS.get(preset, {}), taus=tuple(by_plans["taus"]))
+    got = planning.make_planner(pool, cfg)(arrays["goals"], arrays["goal_mask"], arrays["target"])
+    arrays = {
+        **arrays,
+        "names": np.append(arrays["names"], "pool"),
+        "q": np.concatenate([arrays["q"], np.asarray(got.q, np.float32)[None]]),
+        "xyz": np.concatenate([arrays["xyz"], np.asarray(got.xyz, np.float32)[None]]),
+    }
     return rep, fits, arrays, by_plans

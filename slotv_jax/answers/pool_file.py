@@ -27,17 +27,13 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import jax
-import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
-
 from slotv_jax import planning
-from slotv_jax.answers import pooling
 from slotv_jax.answers.pick import LABELERS
+from slotv_jax.answers.pooling import pool_observer
 from slotv_jax.core import fileio
 from slotv_jax.training import checkpoint
 from slotv_jax.world.scene import CAMERAS
@@ -53,34 +49,6 @@ __all__ = ["POOL_FILE", "is_pool", "load_pool", "pool_observer", "save_pool"]
 def is_pool(path: str | os.PathLike) -> bool:
     """True if ``path`` is a folder holding ``pool.json``."""
     return (Path(path) / POOL_FILE).is_file()
-
-
-def pool_observer(observers: Sequence[Any], weights: Sequence[float]):
-    """The log-linear pool of ``observers`` (each with ``prefix``) with ``weights`` (F,)
-    (an array or a list, traced or not):
-    ``logits = Σ_f w_f log softmax(observer_f)`` on the real goals, −∞ on padding, for the
-    whole motion and for each prefix (``prefix(xyz, goals, goal_mask, seen)``). Pure: use it
-    under ``jit``, ``vmap`` and ``grad``."""
-    w = jnp.asarray(weights, jnp.float32)  # may be traced (the loop's fitted weights)
-    if not observers or w.shape != (len(observers),):
-        raise ValueError(
-            f"weights: expected one weight per observer ({len(observers)}), got shape {w.shape}"
-        )
-
-    def pool(logits: Sequence[Array], goal_mask: Bool[Array, " G"]) -> Float[Array, " G"]:
-        logp = jnp.stack([jax.nn.log_softmax(z) for z in logits])
-        return pooling.pooled_logits(logp, w, goal_mask)
-
-    def observer(xyz, goals, goal_mask):
-        return pool([o(xyz, goals, goal_mask) for o in observers], jnp.asarray(goal_mask, bool))
-
-    def prefix(xyz, goals, goal_mask, seen):
-        zs = [o.prefix(xyz, goals, goal_mask, seen) for o in observers]
-        return pool(zs, jnp.asarray(goal_mask, bool))
-
-    observer.prefix = prefix  # type: ignore[attr-defined]
-    observer.name = "pool"  # type: ignore[attr-defined]
-    return observer
 
 
 def save_pool(

@@ -44,6 +44,7 @@ candidates' out-of-fold log-probabilities and the counts.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -58,6 +59,7 @@ __all__ = [
     "fold_of",
     "heldout_nll",
     "pick_report",
+    "pool_observer",
     "pooled_logits",
 ]
 
@@ -204,3 +206,31 @@ def pick_report(
         "pick": names[int(np.argmax(w))],
         "best_single": names[int(np.argmin(single))],
     }
+
+
+def pool_observer(observers: Sequence[Any], weights: Sequence[float]):
+    """The log-linear pool of ``observers`` (each with ``prefix``) with ``weights`` (F,)
+    (an array or a list, traced or not):
+    ``logits = Σ_f w_f log softmax(observer_f)`` on the real goals, −∞ on padding, for the
+    whole motion and for each prefix (``prefix(xyz, goals, goal_mask, seen)``). Pure: use it
+    under ``jit``, ``vmap`` and ``grad``."""
+    w = jnp.asarray(weights, jnp.float32)  # may be traced (the loop's fitted weights)
+    if not observers or w.shape != (len(observers),):
+        raise ValueError(
+            f"weights: expected one weight per observer ({len(observers)}), got shape {w.shape}"
+        )
+
+    def pool(logits: Sequence[Array], goal_mask: Bool[Array, " G"]) -> Float[Array, " G"]:
+        logp = jnp.stack([jax.nn.log_softmax(z) for z in logits])
+        return pooled_logits(logp, w, goal_mask)
+
+    def observer(xyz, goals, goal_mask):
+        return pool([o(xyz, goals, goal_mask) for o in observers], jnp.asarray(goal_mask, bool))
+
+    def prefix(xyz, goals, goal_mask, seen):
+        zs = [o.prefix(xyz, goals, goal_mask, seen) for o in observers]
+        return pool(zs, jnp.asarray(goal_mask, bool))
+
+    observer.prefix = prefix  # type: ignore[attr-defined]
+    observer.name = "pool"  # type: ignore[attr-defined]
+    return observer

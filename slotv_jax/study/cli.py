@@ -160,8 +160,9 @@ def pick_main(args: argparse.Namespace) -> int:
     and ``DIR/plans.npz``, every candidate's plans of the study's scenes; ``--by pool``:
     the people loop's pick (:func:`slotv_jax.answers.pick.pick_pool`), written as the pool
     itself (``DIR/pool.json`` and its members, :func:`slotv_jax.answers.load_pool`: the
-    observer the loop plans against), and the plans. The output is written beside and
-    swapped in whole (an earlier pick of ``--overwrite`` leaves nothing)."""
+    observer the loop plans against), and the plans, the pool's own among them. The output
+    is written beside and swapped in whole (an earlier pick of ``--overwrite`` leaves
+    nothing)."""
     validation.check_seeds("--seed", args.seed)
     names = pick_lib.check_candidates([c.strip() for c in args.candidates.split(",")])
     fileio.check_not_input(args.out, {"study": args.study})
@@ -227,7 +228,8 @@ def pick_main(args: argparse.Namespace) -> int:
             shutil.rmtree(tmp, ignore_errors=True)
     print(said)
     if arrays is not None:
-        print(f"plans: the straight line and every candidate's: {out / 'plans.npz'} "
+        whose = "every candidate's and the pool's" if args.by == "pool" else "every candidate's"
+        print(f"plans: the straight line and {whose}: {out / 'plans.npz'} "
               "(study stimuli --plans, render --plans)")  # fmt: skip
     return 0
 

@@ -16,7 +16,7 @@ from tqdm.auto import tqdm
 from slotv_jax import planning
 from slotv_jax.answers import pooling
 from slotv_jax.answers.pick import cross_judged, trusted
-from slotv_jax.answers.pool_file import pool_observer
+from slotv_jax.answers.pooling import pool_observer
 from slotv_jax.asking import selection, simulated
 from slotv_jax.core.shapes import bucket, pad_rows
 from slotv_jax.experiments.people_loop.config import (
@@ -44,7 +44,7 @@ def builds(cfg: LoopConfig) -> dict:
     each learned family's parameters, ``beta``, the two fitted temperatures, and
     ``pick_w``, the pick's pool weights): each family
     (:func:`slotv_jax.planning.make_family_planner`'s families). The pick is the
-    log-linear pool of the other families (:func:`slotv_jax.answers.pool_file.pool_observer`,
+    log-linear pool of the other families (:func:`slotv_jax.answers.pooling.pool_observer`,
     what ``study pick --by pool`` writes): it reads their parameters and its weights,
     nothing of the population. Nothing here depends on the population, so one compiled
     program plans every population's fits
