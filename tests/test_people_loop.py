@@ -239,6 +239,38 @@ def test_a_rerun_that_computes_nothing_keeps_the_example_drawing(tmp_path, monke
     assert len(drawn) == 3
 
 
+def test_report_of_a_stopped_run_leaves_out_the_population_it_stopped_in(
+    tmp_path, monkeypatch, capsys
+):
+    """A run stopped mid-population leaves that population's finished sizes in the document
+    (``partial``); --report draws the finished ones and names the stopped one, and a
+    document with nothing finished is one line, exit 2."""
+    recorded = Path(__file__).resolve().parents[1] / "experiments" / "people_loop_results.json"
+    doc = json.loads(recorded.read_text())
+    first = doc["populations"][0]
+    rows = [{**r, "population": "random:9"} for r in first["rows"] if r["answers"] == 250]
+    doc["populations"].append({"population": "random:9", "partial": True, "rows": rows})
+    (tmp_path / recorded.name).write_text(json.dumps(doc))
+
+    def render(cmd, **kw):  # stands in for python -m slotv_jax.render
+        Path(cmd[cmd.index("--out") + 1]).write_bytes(b"a picture")
+        return subprocess.CompletedProcess(cmd, 0, "", "")
+
+    monkeypatch.setattr(exp.subprocess, "run", render)
+    assert main(["--report", "--out", str(tmp_path)]) == 0
+    text = (tmp_path / "people_loop.md").read_text()
+    assert "**Stopped mid-way, not in this report:** random:9" in text
+    assert "random:9" not in text.split("**Stopped mid-way")[0]
+    doc["populations"] = doc["populations"][-1:]
+    (tmp_path / recorded.name).write_text(json.dumps(doc))
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main(["--report", "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "no finished population yet (random:9 stopped" in err
+    assert len(err.strip().splitlines()) == 1
+
+
 def test_wilson_interval_by_hand():
     # k = 8 of n = 10: p = 0.8, z = 1.96 (Wilson 1927), computed by hand
     z, n, p = 1.96, 10, 0.8

@@ -174,7 +174,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         def again(doc: dict, _command: str) -> None:
             report_lib.render(doc, out, stem)
-            draw_example(doc, out, stem, again=True)
+            draw_example(report_lib.finished(doc)[0], out, stem, again=True)
 
         return command.render_again(out, stem, is_results, again, "")
     out.mkdir(parents=True, exist_ok=True)

@@ -395,12 +395,35 @@ def best_family(doc: dict, pop: dict) -> str | None:
     return max(rows, key=lambda r: r["gain_kept"])["family"] if rows else None
 
 
+def finished(doc: dict) -> tuple[dict, list[str]]:
+    """The document without the populations a stopped run left mid-way (``partial``: the
+    sizes they finished, which the next run of the command redoes), and their names.
+    ValueError if no population has finished."""
+    stopped = [p["population"] for p in doc["populations"] if p.get("partial")]
+    done = [p for p in doc["populations"] if not p.get("partial")]
+    if not done:
+        raise ValueError(
+            "the results document holds no finished population yet "
+            f"({', '.join(stopped) or 'none'} stopped mid-way): nothing to report; run the "
+            "command again to finish it"
+        )
+    return {**doc, "populations": done}, stopped
+
+
 def render(doc: dict, out: Path, stem: str) -> None:
-    """Write ``STEM.md`` and ``STEM.png`` from the document (``STEM_render.png`` is drawn
-    from ``STEM_plans.npz`` by :func:`render_command`)."""
+    """Write ``STEM.md`` and ``STEM.png`` from the document's finished populations
+    (:func:`finished`; ``STEM_render.png`` is drawn from ``STEM_plans.npz`` by
+    :func:`render_command`)."""
+    doc, stopped = finished(doc)
     plot(doc, out / f"{stem}.png")
     plot_fit_plan(doc, out / f"{stem}_fit_plan.png")
-    write_text(out / f"{stem}.md", report(doc, stem))
+    text = report(doc, stem)
+    if stopped:
+        text += (
+            f"\n\n**Stopped mid-way, not in this report:** {', '.join(stopped)} (the document "
+            "keeps the sizes they finished; the next run of the command redoes them).\n"
+        )
+    write_text(out / f"{stem}.md", text)
 
 
 # ------------------------------------------------------------------ the suite and the pick
