@@ -363,6 +363,26 @@ def test_path_ik_is_accurate_and_continuous(paths):
     assert rate.max() <= MAX_JOINT_RATE, f"a joint moved {rate.max():.1f} rad per m of path"
 
 
+def test_ik_chain_solves_each_target_from_the_last_with_its_own_counts():
+    """solve_ik_chain: each target warm-started from the previous solution with its own
+    iteration counts, a count of 0 passing the configuration on; as the separate solves
+    (float32 rounding apart: another loop), and within reach by float64 DH."""
+    rng = np.random.default_rng(SEED + 7)
+    t = random_targets(rng)["cube"][:4].astype(np.float32)
+    soft, total = np.array([6, 0, 2, 6]), np.array([10, 0, 3, 10])
+    q = np.asarray(jax.jit(K.solve_ik_chain)(t, K.Q_HOME, soft, total))
+    np.testing.assert_array_equal(q[1], q[0])  # no step: the first solution, bit for bit
+    solve = jax.jit(K.solve_ik, static_argnums=2)
+    q0 = np.asarray(solve(t[0], np.float32(K.Q_HOME), K.IKConfig())[0])
+    q2 = np.asarray(solve(t[2], q[1], K.IKConfig(iters=2, refine_iters=1))[0])
+    q3 = np.asarray(solve(t[3], q[2], K.IKConfig())[0])
+    for got, want in ((q[0], q0), (q[2], q2), (q[3], q3)):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
+    assert_within_limits(q)
+    res = np.linalg.norm(ref.tcp_positions(q.astype(np.float64)) - t, axis=-1)
+    assert res[[0, 3]].max() <= IK_TOL, res
+
+
 # --------------------------------------------------------------------------- bad input
 
 

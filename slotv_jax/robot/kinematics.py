@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from slotv_jax.core import validation
 
@@ -302,6 +302,37 @@ def solve_path_ik(
     _, qs = jax.lax.scan(body, q0, path)
     xyz = jax.vmap(lambda q: tcp_state(q).pos)(qs)
     return PathIK(qs, xyz, jnp.linalg.norm(xyz - path, axis=-1))
+
+
+def solve_ik_chain(
+    targets: Float[Array, "K 3"],
+    q0: Float[Array, "7"],
+    soft_iters: Int[Array, " K"],
+    total_iters: Int[Array, " K"],
+    cfg: IKConfig = IKConfig(),
+) -> Float[Array, "K 7"]:
+    """IK for targets in turn, each started from the previous solution (the first from
+    ``q0``), target k with its own iteration counts: ``total_iters[k]`` damped-least-squares
+    steps (:func:`solve_ik`'s), the first ``soft_iters[k]`` of them with the null-space
+    terms. A count of 0 passes the previous configuration on unchanged. The counts may be
+    traced; the steps take ``cfg``'s gains (its own counts are not used). Returns the
+    configurations (K, 7). One loop, so the forward kinematics is traced and compiled once
+    whatever the mix of solves (the planner's straight line: the start, the path and the goal
+    in one chain). No validation (pure; batch with ``vmap``)."""
+    targets = jnp.asarray(targets)
+    q0 = jnp.asarray(q0, targets.dtype)
+
+    def body(q, x):
+        target, n_soft, n_total = x
+
+        def step(i, q):
+            return _ik_step(q, target, cfg, (i < n_soft).astype(q.dtype))
+
+        q = jax.lax.fori_loop(0, n_total, step, q)
+        return q, q
+
+    counts = (jnp.asarray(soft_iters, jnp.int32), jnp.asarray(total_iters, jnp.int32))
+    return jax.lax.scan(body, q0, (targets, *counts))[1]
 
 
 def check_ik_inputs(path, q0) -> None:
