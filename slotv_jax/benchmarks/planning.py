@@ -167,7 +167,6 @@ def quality(xyz, straight_xyz, goals, mask, target, feasible) -> str:
     )
 
 
-@cli.command
 def path_gradient_rows(n: int, n_points: int, repeats: int) -> list[str]:
     """The path gradient, J(q)ᵀ ∂f/∂p over every waypoint, by ``fk_position``'s geometric
     Jacobian against autodiff through MJX: markdown rows (compile s, gradients/s, max |Δ|)."""
@@ -203,6 +202,7 @@ def path_gradient_rows(n: int, n_points: int, repeats: int) -> list[str]:
     return out
 
 
+@cli.command
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.planning")
     p.add_argument("--n", type=int, default=64, help="problems of the batched call")
