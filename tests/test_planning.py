@@ -310,7 +310,7 @@ def test_bad_input(planner, problems):
 @pytest.mark.slow
 def test_readme_example(tmp_path, monkeypatch, tiny_data, capsys):
     """Runs the README's planning block verbatim, with a tiny observer at ckpt/dragan. Its
-    planner call compiles for a minute or two on a CPU, silent but for one line that says so
+    planner call compiles for 10–30 s on a CPU, silent but for one line that says so
     first."""
     from slotv_jax.training import checkpoint, types
     from slotv_jax.training import config as train_config

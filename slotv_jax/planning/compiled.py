@@ -124,7 +124,7 @@ def make_planner(
     ``planner.straight_line(goals, goal_mask, target, start=None)`` gives the straight-line
     problems (batched; one compiled function for every start) and
     ``planner.plan_problems(problems, observer=None)`` plans them. The first call with a
-    batch size compiles (a minute or two on a CPU) and says so first, in one line on
+    batch size compiles (10–30 s on a CPU) and says so first, in one line on
     stderr (:func:`slotv_jax.core.progress.status`).
     """
     if not isinstance(cfg, PlannerConfig):
@@ -154,7 +154,7 @@ def make_planner(
         if n not in compiled:
             compiled.add(n)
             status(f"planning: compiling the straight lines and the planner for {n} problems "
-                   f"and {len(names)} observer(s) (a minute or two on a CPU; later calls "
+                   f"and {len(names)} observer(s) (10–30 s on a CPU; later calls "
                    f"with {n} problems reuse it)")  # fmt: skip
 
     def index_of(name):
