@@ -417,8 +417,11 @@ def pick_pool(
     rep = pick_study(study, names, preset=preset, folds=folds, seed=seed, camera=camera,
                      progress=progress, keep=keep.tolist())  # fmt: skip
     rep = {**rep, "rule": "pool", "left_out": names[int(np.flatnonzero(~keep)[0])]}
-    # The pool's own plans, against P_w ∝ Π_f P_f^{w_f} over the members of weight > 0.
+    # The pool's own plans, against P_w ∝ Π_f P_f^{w_f} over the members of weight > 0
+    # (none: save_pool refuses the pool, in its own words).
     kept = [i for i, w in enumerate(rep["weights"]) if w > 0]
+    if not kept:
+        return rep, fits, arrays, by_plans
     pool = pooling.pool_observer(
         [fits[names[i]]["observer"] for i in kept], [rep["weights"][i] for i in kept]
     )

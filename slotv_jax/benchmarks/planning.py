@@ -39,6 +39,7 @@ import sys
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import slotv_jax
@@ -171,8 +172,8 @@ def path_gradient_rows(n: int, n_points: int, repeats: int) -> list[str]:
     """The path gradient, J(q)ᵀ ∂f/∂p over every waypoint, by ``fk_position``'s geometric
     Jacobian against autodiff through MJX: markdown rows (compile s, gradients/s, max |Δ|)."""
     qs = np.random.default_rng(1).uniform(kinematics.Q_MIN, kinematics.Q_MAX, (n, n_points, 7))
-    qs = jax.numpy.asarray(qs, jax.numpy.float32)
-    w = jax.numpy.linspace(0.5, 1.5, 3, dtype=jax.numpy.float32)
+    qs = jnp.asarray(qs, jnp.float32)
+    w = jnp.linspace(0.5, 1.5, 3, dtype=jnp.float32)
     ways = {
         "geometric Jacobian (fk_position)": kinematics.fk_position,
         "autodiff through mjx.kinematics": lambda q: kinematics.tcp_state(q).pos,
@@ -181,7 +182,7 @@ def path_gradient_rows(n: int, n_points: int, repeats: int) -> list[str]:
     for name, fk in ways.items():
 
         def f(q, fk=fk):  # a smooth scalar of the path's positions
-            return jax.numpy.sum(jax.numpy.sin(jax.vmap(fk)(q)) * w)
+            return jnp.sum(jnp.sin(jax.vmap(fk)(q)) * w)
 
         t0 = time.perf_counter()
         g = jax.jit(jax.vmap(jax.grad(f))).lower(qs).compile()

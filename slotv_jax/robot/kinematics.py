@@ -250,12 +250,19 @@ def _ik_step(
 _AT_LIMIT = 1e-5  # rad: a joint this close to a limit counts as sitting on it
 
 
-def _iterate(q: Float[Array, "7"], target: Float[Array, "3"], cfg: IKConfig) -> Float[Array, "7"]:
+def _iterate(
+    q: Float[Array, "7"], target: Float[Array, "3"], cfg: IKConfig, n_soft=None, n_total=None
+) -> Float[Array, "7"]:
+    """``n_total`` steps (default ``cfg.iters + cfg.refine_iters``), the first ``n_soft``
+    (default ``cfg.iters``) with the soft terms; the counts may be traced."""
+    n_soft = cfg.iters if n_soft is None else n_soft
+    n_total = cfg.iters + cfg.refine_iters if n_total is None else n_total
+
     # One loop (one trace of the kinematics): soft iterations first, then position-only ones.
     def body(i, q):
-        return _ik_step(q, target, cfg, (i < cfg.iters).astype(q.dtype))
+        return _ik_step(q, target, cfg, (i < n_soft).astype(q.dtype))
 
-    return jax.lax.fori_loop(0, cfg.iters + cfg.refine_iters, body, q)
+    return jax.lax.fori_loop(0, n_total, body, q)
 
 
 def solve_ik(
@@ -324,11 +331,7 @@ def solve_ik_chain(
 
     def body(q, x):
         target, n_soft, n_total = x
-
-        def step(i, q):
-            return _ik_step(q, target, cfg, (i < n_soft).astype(q.dtype))
-
-        q = jax.lax.fori_loop(0, n_total, step, q)
+        q = _iterate(q, target, cfg, n_soft, n_total)
         return q, q
 
     counts = (jnp.asarray(soft_iters, jnp.int32), jnp.asarray(total_iters, jnp.int32))

@@ -16,7 +16,6 @@ from tqdm.auto import tqdm
 from slotv_jax import planning
 from slotv_jax.answers import pooling
 from slotv_jax.answers.pick import cross_judged, trusted
-from slotv_jax.answers.pooling import pool_observer
 from slotv_jax.asking import selection, simulated
 from slotv_jax.core.shapes import bucket, pad_rows
 from slotv_jax.experiments.people_loop.config import (
@@ -52,7 +51,7 @@ def builds(cfg: LoopConfig) -> dict:
     out = {f: _family_build(cfg, f) for f in cfg.candidates}
     if PICK in cfg.families:
         parts = [out[f] for f in cfg.candidates]
-        out[PICK] = lambda p: pool_observer([b(p) for b in parts], p["pick_w"])
+        out[PICK] = lambda p: pooling.pool_observer([b(p) for b in parts], p["pick_w"])
     return out
 
 
