@@ -171,7 +171,6 @@ def ref_population(pop, xyz, goals, mask, L):
 def test_population_probs_match_float64_reference(pop):
     f = jax.jit(P.population_probs)
     quad = P.quadrature(pop)
-    compiled = f._cache_size()  # jit caches are per function: other tests' entries count
     for seed, n_goals, behind in [(0, 2, False), (1, 5, True), (2, 8, False), (3, 3, True)]:
         xyz, goals, mask = random_problem(seed, n_goals, behind=behind)
         for L in (2, 3, 11, 20, 21, T):
@@ -179,7 +178,24 @@ def test_population_probs_match_float64_reference(pop):
             want = ref_population(pop, xyz, goals, mask, L)
             np.testing.assert_allclose(got, want, atol=F32_ATOL, err_msg=f"{seed=} {L=}")
             assert np.all(got[~mask] == 0.0)
-    assert f._cache_size() == compiled + 1  # one compilation for every seen count
+
+
+def test_every_population_shares_one_program():
+    """P_pop and the guesses take the population as arrays of one shape: one compilation
+    for every population (and seen count), whatever its viewpoints, rules, nodes, memory."""
+    pops = [EVERYTHING, DRAGAN_MEMORY, P.default(), P.homogeneous(),
+            *(P.random_population(k) for k in range(4))]  # fmt: skip
+    assert len({(len(p.viewpoints), len(p.rules), p.memory) for p in pops}) >= 4
+    probs = jax.jit(lambda q, x, g, m, s: P.population_probs(q, x, g, m, s))
+    xyz, goals, mask = random_problem(1, 5, behind=True)
+    keys = jax.random.split(jax.random.key(0), 2)
+    x2, g2, m2 = (np.stack([a, a]) for a in (xyz.astype(np.float32), goals, mask))
+    guesses = P._guesses._cache_size()  # shared by the module: other tests' shapes count
+    for i, pop in enumerate(pops):
+        probs(P.quadrature(pop), xyz.astype(np.float32), goals, mask, 5 + i)
+        P.sample_guesses_batch(pop, keys, x2, g2, m2, np.asarray([5 + i, 9]), 13)  # 13: new
+    assert probs._cache_size() == 1
+    assert P._guesses._cache_size() == guesses + 1
 
 
 def test_unseen_viewpoint_guesses_uniformly():

@@ -27,17 +27,7 @@ from slotv_jax.core.shapes import bucket, pad_rows
 from slotv_jax.observers import population as population_lib
 from slotv_jax.training.config import TrainConfig
 
-_SAMPLERS: dict = {}
 _FITTERS: dict = {}
-
-
-def _sampler(pop: population_lib.Population, n: int):
-    key = (pop, n)
-    if key not in _SAMPLERS:
-        _SAMPLERS[key] = jax.jit(
-            jax.vmap(lambda k, x, g, m, s: population_lib.sample_guesses(pop, k, x, g, m, s, n))
-        )
-    return _SAMPLERS[key]
 
 
 def population_answers(
@@ -56,8 +46,8 @@ def population_answers(
     keys = jax.vmap(lambda c: jax.random.fold_in(jax.random.key(10_000 + seed), c))(
         jnp.asarray(cand)
     )
-    guesses = _sampler(pop, per)(
-        keys, pool.xyz[t], pool.goals[t], pool.goal_mask[t], pool.seen[jnp.asarray(cand)]
+    guesses = population_lib.sample_guesses_batch(
+        pop, keys, pool.xyz[t], pool.goals[t], pool.goal_mask[t], pool.seen[jnp.asarray(cand)], per
     )
     return np.asarray(jax.nn.one_hot(guesses[:n], pool.goals.shape[1]).sum(1), np.float32)
 

@@ -151,11 +151,13 @@ __all__ = [
     "DIRECTION_EPS",
     "MAX_NODES",
     "MEMORIES",
+    "NODE_SLOTS",
     "PRESETS",
     "RANDOM_PREFIX",
     "RULES",
     "SIGMA_LOG_MAX",
     "SUITE_DRAWS",
+    "VIEW_SLOTS",
     "WORLD",
     "Z_DRAW_MAX",
     "Participants",
@@ -169,12 +171,15 @@ __all__ = [
     "homogeneous",
     "load_population",
     "parse_random",
+    "participant_drawer",
     "participant_probs",
     "population_observer",
     "population_probs",
     "quadrature",
+    "quadrature_observer",
     "random_population",
     "sample_guesses",
+    "sample_guesses_batch",
     "save_population",
     "suite_specs",
 ]
@@ -185,6 +190,13 @@ RULES: tuple[str, ...] = ("cost_to_go", "proximity", "direction")
 MEMORIES: tuple[str, ...] = ("recency", "dragan")
 #: The viewpoint that sees the motion in world coordinates (no projection).
 WORLD = "world"
+_ALL_RULES: tuple[int, ...] = tuple(range(len(RULES)))  # every rule's evidence is computed
+#: The viewpoints a :class:`Quadrature` or :class:`Participants` holds: every camera of the
+#: scene and ``world`` (a population's own first, then ``world`` slots of weight 0).
+VIEW_SLOTS = len(scene.CAMERAS) + 1
+#: The quadrature nodes of each kind a :class:`Quadrature` holds at least (the default's):
+#: populations with fewer are padded, so that they share one compiled program.
+NODE_SLOTS = 8
 #: ε of the direction rule's cosine (in the viewpoint's unit).
 DIRECTION_EPS = 1e-4
 #: A point or real goal at camera depth ≤ this is not seen (as SPEC §4.2's labeler).
@@ -614,7 +626,8 @@ def suite_specs() -> tuple[str, ...]:
 
 @struct.dataclass
 class Viewpoints:
-    """The V viewpoints of a population, in its order."""
+    """The V viewpoints of a population, in its order, then ``world`` slots of weight 0 up
+    to :data:`VIEW_SLOTS` (:func:`quadrature`)."""
 
     pos: Float[Array, "V 3"]  # camera centres, world frame (m) (world viewpoints: unused)
     rot: Float[Array, "V 3 3"]  # world-from-camera rotations (world viewpoints: unused)
@@ -622,8 +635,11 @@ class Viewpoints:
 
 
 def _viewpoints(pop: Population) -> Viewpoints:
+    """The population's viewpoints, padded with ``world`` to :data:`VIEW_SLOTS`."""
+    names = [name for name, _ in pop.viewpoints]
+    names += [WORLD] * (VIEW_SLOTS - len(names))
     pos, rot, world = [], [], []
-    for name, _ in pop.viewpoints:
+    for name in names:
         cam = None if name == WORLD else scene.camera(name)
         pos.append(np.zeros(3) if cam is None else np.asarray(cam.pos))
         rot.append(np.eye(3) if cam is None else np.asarray(cam.rot))
@@ -758,8 +774,11 @@ def _inputs(xyz, goals, goal_mask, seen):
 @struct.dataclass
 class Quadrature:
     """The population as weighted representative participants: one per viewpoint v, rule r
-    and temperature node j (weight π_v π_r ω_j), each remembering with the mean of the
-    memory weights over the α nodes (weights ω_k). See :func:`quadrature`."""
+    (every rule of :data:`RULES`, in its order) and temperature node j (weight
+    π_v π_r ω_j), each remembering with the mean of the memory weights over the α nodes
+    (weights ω_k). See :func:`quadrature`. Every field is an array, and every population
+    has the same shapes (the viewpoints, rules and nodes it lacks padded with weight 0), so
+    that one compiled program takes any population's quadrature as an argument."""
 
     views: Viewpoints
     beta: Float[Array, "R J"]  # β₀_r · exp(σ z_j)
@@ -767,8 +786,7 @@ class Quadrature:
     alpha: Float[Array, " K"]  # α nodes (recency memory)
     alpha_weight: Float[Array, " K"]  # ω_k, summing to 1
     lapse: Float[Array, ""]
-    rules: tuple[int, ...] = struct.field(pytree_node=False)  # indices into RULES
-    memory: str = struct.field(pytree_node=False)
+    dragan: Bool[Array, ""]  # memory: True Dragan's time weights, False recency
 
 
 @functools.cache
@@ -786,21 +804,30 @@ def quadrature(pop: Population) -> Quadrature:
     function of log β and α (a softmax, a power), and 8 nodes of each put it within
     3e-6 of 64 nodes on the default population (σ = 0.5; 3e-4 at σ = 1: give a wider
     population more nodes).
+
+    The arrays are padded to one shape for every population: :data:`VIEW_SLOTS`
+    viewpoints (``world``), every rule of :data:`RULES`, at least :data:`NODE_SLOTS`
+    nodes of each kind (copies of the first), all of weight 0. A term of weight 0 adds an
+    exact 0 (its evidence is finite), so P_pop is the population's; a program that takes
+    the quadrature as an argument (:func:`quadrature_observer`) compiles once for every
+    population with at most :data:`NODE_SLOTS` nodes.
     """
     with jax.ensure_compile_time_eval():
         J = pop.beta_nodes if pop.beta_sigma_log > 0 else 1
         z, wz = np.polynomial.hermite_e.hermegauss(J)
         wz = wz / wz.sum()
-        rules = tuple(RULES.index(r) for r, _ in pop.rules)
-        centre = np.asarray([dict(pop.beta)[r] for r, _ in pop.rules])
-        p_rule = np.asarray([p for _, p in pop.rules])
-        p_view = np.asarray([p for _, p in pop.viewpoints])
+        p_view = np.zeros(VIEW_SLOTS)
+        p_view[: len(pop.viewpoints)] = [p for _, p in pop.viewpoints]
+        p_rule = np.asarray([dict(pop.rules).get(r, 0.0) for r in RULES])
+        centre = np.asarray([dict(pop.beta).get(r, 1.0) for r in RULES])
         if pop.memory == "recency" and pop.alpha_range[1] > pop.alpha_range[0]:
             x, wa = np.polynomial.legendre.leggauss(pop.alpha_nodes)
             lo, hi = pop.alpha_range
             alpha, wa = lo + (hi - lo) * (x + 1) / 2, wa / wa.sum()
         else:
             alpha, wa = np.asarray([pop.alpha_range[0] if pop.alpha_range else 0.0]), np.ones(1)
+        z, wz = _pad(z, z[0]), _pad(wz, 0.0)
+        alpha, wa = _pad(alpha, alpha[0]), _pad(wa, 0.0)
         return Quadrature(
             views=_viewpoints(pop),
             beta=jnp.asarray(centre[:, None] * np.exp(pop.beta_sigma_log * z)[None], jnp.float32),
@@ -808,9 +835,13 @@ def quadrature(pop: Population) -> Quadrature:
             alpha=jnp.asarray(alpha, jnp.float32),
             alpha_weight=jnp.asarray(wa, jnp.float32),
             lapse=jnp.float32(pop.lapse),
-            rules=rules,
-            memory=pop.memory,
+            dragan=jnp.asarray(pop.memory == "dragan"),
         )
+
+
+def _pad(x: np.ndarray, fill: float) -> np.ndarray:
+    """Quadrature nodes or weights ``x`` padded with ``fill`` to :data:`NODE_SLOTS`."""
+    return np.concatenate([x, np.full(max(NODE_SLOTS - len(x), 0), fill)])
 
 
 def population_probs(
@@ -841,11 +872,12 @@ def population_probs(
     """
     xyz, goals, mask, L, uniform = _inputs(xyz, goals, goal_mask, seen)
     T, dtype = xyz.shape[0], xyz.dtype
-    E, sees = _evidence(quad.views, xyz, goals, mask, L, quad.rules)  # (V, R, T, G), (V,)
-    if quad.memory == "dragan":
-        W = _dragan_weights(T, L, dtype)
-    else:
-        W = quad.alpha_weight.astype(dtype) @ _recency_weights(quad.alpha, T, L, dtype)
+    E, sees = _evidence(quad.views, xyz, goals, mask, L, _ALL_RULES)  # (V, R, T, G), (V,)
+    W = jnp.where(
+        quad.dragan,
+        _dragan_weights(T, L, dtype),
+        quad.alpha_weight.astype(dtype) @ _recency_weights(quad.alpha, T, L, dtype),
+    )
     y = _mixture(E, quad.beta.astype(dtype), W, mask)  # (V, R, J, G)
     y = jnp.where(sees[:, None, None, None], y, uniform)
     y = jnp.einsum("vrj,vrjg->g", quad.weight.astype(dtype), y)
@@ -853,18 +885,14 @@ def population_probs(
     return (1 - lapse) * y + lapse * uniform
 
 
-def population_observer(pop: Population) -> Callable[..., Array]:
-    """The population as an observer (the planner's contract, :mod:`slotv_jax.planning`):
-    ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``, the logits
-    ``log P_pop`` of the whole motion (−∞ on padded slots), and
+def quadrature_observer(quad: Quadrature) -> Callable[..., Array]:
+    """The population of the quadrature ``quad`` as an observer (the planner's contract,
+    :mod:`slotv_jax.planning`): ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) ->
+    logits (8,)``, the logits ``log P_pop`` of the whole motion (−∞ on padded slots), and
     ``observer.prefix(xyz, goals, goal_mask, seen) -> logits``, ``log P_pop`` of the motion
-    seen up to point ``seen`` (traced).
-
-    >>> obs = population_observer(homogeneous())
-    >>> obs.name
-    'population:homogeneous'
-    """
-    quad = quadrature(pop)
+    seen up to point ``seen`` (traced). ``quad`` may be traced: a planner whose parameters
+    are quadratures (:func:`slotv_jax.planning.make_family_planner`) plans every population
+    with one compiled program."""
 
     def prefix(xyz, goals, goal_mask, seen):
         return masked_log(population_probs(quad, xyz, goals, goal_mask, seen), goal_mask)
@@ -873,6 +901,17 @@ def population_observer(pop: Population) -> Callable[..., Array]:
         return prefix(xyz, goals, goal_mask, jnp.shape(xyz)[0])
 
     observer.prefix = prefix  # type: ignore[attr-defined]
+    return observer
+
+
+def population_observer(pop: Population) -> Callable[..., Array]:
+    """:func:`quadrature_observer` of ``pop``'s :func:`quadrature`, named.
+
+    >>> obs = population_observer(homogeneous())
+    >>> obs.name
+    'population:homogeneous'
+    """
+    observer = quadrature_observer(quadrature(pop))
     observer.name = f"population:{pop.name}"  # type: ignore[attr-defined]
     observer.population = pop  # type: ignore[attr-defined]
     return observer
@@ -883,7 +922,10 @@ def population_observer(pop: Population) -> Callable[..., Array]:
 
 @struct.dataclass
 class Participants:
-    """N participants, each with their own parameters (drawn by :func:`draw_participants`)."""
+    """N participants, each with their own parameters (drawn by :func:`draw_participants`).
+    Every field is an array, with one shape for every population (``views`` padded to
+    :data:`VIEW_SLOTS`): one compiled program guesses for any population's participants
+    (:func:`guess_goals`)."""
 
     viewpoint: Int[Array, " N"]  # index into the population's viewpoints
     rule: Int[Array, " N"]  # index into RULES
@@ -891,7 +933,7 @@ class Participants:
     alpha: Float[Array, " N"]  # recency exponent (0 under dragan memory)
     views: Viewpoints
     lapse: Float[Array, ""]  # probability of a uniform guess
-    memory: str = struct.field(pytree_node=False)
+    dragan: Bool[Array, ""]  # memory: True Dragan's time weights, False recency
 
     @property
     def size(self) -> int:
@@ -925,7 +967,7 @@ def draw_participants(pop: Population, key: jax.Array, n: int) -> Participants:
         alpha=alpha,
         views=_viewpoints(pop),
         lapse=jnp.float32(pop.lapse),
-        memory=pop.memory,
+        dragan=jnp.asarray(pop.memory == "dragan"),
     )
 
 
@@ -943,11 +985,10 @@ def participant_probs(
     """
     xyz, goals, mask, L, uniform = _inputs(xyz, goals, goal_mask, seen)
     T, dtype = xyz.shape[0], xyz.dtype
-    E, sees = _evidence(parts.views, xyz, goals, mask, L, tuple(range(len(RULES))))
-    if parts.memory == "dragan":
-        W = _dragan_weights(T, L, dtype)
-    else:
-        W = _recency_weights(parts.alpha, T, L, dtype)
+    E, sees = _evidence(parts.views, xyz, goals, mask, L, _ALL_RULES)
+    W = jnp.where(
+        parts.dragan, _dragan_weights(T, L, dtype), _recency_weights(parts.alpha, T, L, dtype)
+    )
     beta = parts.beta.astype(dtype)[:, None]
     y = _mixture(E[parts.viewpoint, parts.rule], beta, W, mask)[:, 0]  # (N, G)
     y = jnp.where(sees[parts.viewpoint][:, None], y, uniform)
@@ -1019,3 +1060,33 @@ def sample_guesses(
     """
     k_people, k_guess = jax.random.split(key)
     return guess_goals(draw_participants(pop, k_people, n), k_guess, xyz, goals, goal_mask, seen)
+
+
+@functools.cache
+def participant_drawer(pop: Population, n: int) -> Callable[[jax.Array], Participants]:
+    """``draw(keys (B,)) -> Participants`` with a leading axis B: :func:`draw_participants`
+    of ``pop``, ``n`` participants for each key, compiled (once per population and ``n``:
+    a small program of random draws)."""
+    return jax.jit(jax.vmap(lambda k: draw_participants(pop, k, n)))
+
+
+_guesses = jax.jit(jax.vmap(guess_goals))
+
+
+def sample_guesses_batch(
+    pop: Population,
+    keys: jax.Array,
+    xyz: Float[Array, "B T 3"],
+    goals: Float[Array, "B 8 3"],
+    goal_mask: Bool[Array, "B 8"],
+    seen: Int[Array, " B"],
+    n: int,
+) -> Int[Array, "B n"]:
+    """:func:`sample_guesses` for each of B paths, path b's with ``keys[b]``: the same
+    draws, with the guessing compiled once for every population. Each key is split into
+    (participants, guesses) as :func:`sample_guesses` does; the participants come from
+    :func:`participant_drawer` (a small program of ``pop``'s own) and the guesses from one
+    program shared by every population (:class:`Participants` has one shape for all)."""
+    pairs = jax.vmap(jax.random.split)(keys)  # (B, 2): k_people, k_guess of each path
+    parts = participant_drawer(pop, int(n))(pairs[:, 0])
+    return _guesses(parts, pairs[:, 1], xyz, goals, goal_mask, seen)

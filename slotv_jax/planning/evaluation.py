@@ -154,19 +154,36 @@ def population_scorer(
     """``score(keys (B,), xyz (B, T, 3), goals (B, 8, 3), mask (B, 8), target (B,)) ->
     (p (B, K), correct (B, K))``: the population's P_pop(target | ξ_{0:τ}) at each of the K
     stop times, and the fraction of ``n_eval`` fresh participants per (path, τ) who guessed
-    the target (:func:`slotv_jax.observers.population.sample_guesses`). Compiled once."""
+    the target (:func:`slotv_jax.observers.population.sample_guesses` with
+    ``split(key, K)[τ]``). The programs take the population as an argument
+    (:func:`slotv_jax.observers.population.quadrature`, ``sample_guesses_batch``): they
+    compile once for every population."""
     seen = jnp.asarray(seen_points(taus, n_points))
-    fixed = population_lib.quadrature(pop)
+    quad = population_lib.quadrature(pop)
+    k = int(seen.shape[0])
 
-    def one(key, x, g, m, tgt):
-        p = jax.vmap(lambda s: population_lib.population_probs(fixed, x, g, m, s))(seen)[:, tgt]
-        ks = jax.random.split(key, seen.shape[0])
-        guess = jax.vmap(lambda k, s: population_lib.sample_guesses(pop, k, x, g, m, s, n_eval))(
-            ks, seen
+    def score(keys, xyz, goals, mask, target):
+        p = _target_probs(quad, xyz, goals, mask, target, seen)
+        b = int(xyz.shape[0])
+        keys = jax.vmap(lambda key: jax.random.split(key, k))(keys).reshape(-1)  # (B K,)
+        each = lambda a: jnp.repeat(jnp.asarray(a), k, axis=0)  # noqa: E731
+        guess = population_lib.sample_guesses_batch(
+            pop, keys, each(xyz), each(goals), each(mask), jnp.tile(seen, b), n_eval
         )
-        return p, jnp.mean(guess == tgt, axis=-1)
+        correct = jnp.mean(guess == each(target)[:, None], axis=-1).reshape(b, k)
+        return p, correct
 
-    return jax.jit(jax.vmap(one))
+    return score
+
+
+@jax.jit
+def _target_probs(quad, xyz, goals, mask, target, seen):
+    """P_pop(target | ξ_{0:L}) (B, K) of B paths at the K ``seen`` points."""
+
+    def one(x, g, m, tgt):
+        return jax.vmap(lambda s: population_lib.population_probs(quad, x, g, m, s))(seen)[:, tgt]
+
+    return jax.vmap(one)(xyz, goals, mask, target)
 
 
 def population_scores(

@@ -32,7 +32,9 @@ Protocol, per population, seed and strategy (every step the library's public pat
    (:class:`slotv_jax.planning.PlannerConfig` ``taus``); so does the population itself
    (the oracle: its exact P_pop); the straight line is the floor. One compiled planner
    serves every family (a ``lax.switch`` over families) of every population and seed; the
-   population's own plans are compiled apart. The command keeps its compiled programs
+   population's own plans are a second program, which takes the population as arrays
+   (:func:`slotv_jax.observers.population.quadrature`), so it too serves every population,
+   as do the simulated answers and the evaluation. The command keeps its compiled programs
    in ``CACHE/xla`` (JAX's persistent compilation cache) for the next run and workers.
    The two picks come last, from the answers and the fits alone: every candidate's plans
    are judged by every fit; ``pick_cross`` takes the plans the other fits judge best, and

@@ -55,12 +55,14 @@ def builds(cfg: LoopConfig) -> dict:
     return out
 
 
-def oracle_builds(pop) -> dict:
-    """The population's observers (no parameters): ``oracle``, its exact P_pop, and
-    ``oracle_whole``, which scores the whole motion whatever τ, so its plan is the
-    whole-motion objective's."""
-    obs = population_lib.population_observer(pop)
-    return {"oracle": lambda p: obs, "oracle_whole": lambda p: _whole_motion(obs)}
+def oracle_builds() -> dict:
+    """The population's observers, built from its quadrature
+    (:func:`slotv_jax.observers.population.quadrature`, the parameters): ``oracle``, its
+    exact P_pop, and ``oracle_whole``, which scores the whole motion whatever τ, so its plan
+    is the whole-motion objective's. Every population's quadrature has one shape, so one
+    compiled program plans every population's own plans."""
+    obs = population_lib.quadrature_observer
+    return {"oracle": obs, "oracle_whole": lambda q: _whole_motion(obs(q))}
 
 
 def _family_build(cfg: LoopConfig, f: str):
@@ -109,14 +111,13 @@ def planner_for(cfg: LoopConfig, example: dict):
     return _PLANNERS[key]
 
 
-def oracle_planner(cfg: LoopConfig, pop):
-    """The planner of :func:`oracle_builds` (one parameter set: the population's plans are
-    the same for every run), made once per process, planner settings and population."""
-    key = (cfg.planner, pop)
+def oracle_planner(cfg: planning.PlannerConfig, quad):
+    """The planner of :func:`oracle_builds` for quadratures shaped as ``quad`` (one
+    parameter set a population: its plans are the same for every run), made once per
+    process, planner settings and shape: every population of a process shares it."""
+    key = (cfg, jax.tree.structure(quad), tuple(a.shape for a in jax.tree.leaves(quad)))
     if key not in _PLANNERS:
-        _PLANNERS[key] = planning.make_family_planner(
-            oracle_builds(pop), jnp.zeros(()), cfg.planner
-        )
+        _PLANNERS[key] = planning.make_family_planner(oracle_builds(), quad, cfg)
     return _PLANNERS[key]
 
 
@@ -481,9 +482,12 @@ def run_population(
             floor = {
                 "straight": plan_scores(scorer, keys_eval, straight_as_plan(problems), problems)
             }
-            oracle = oracle_planner(cfg, pop)
+            quad = population_lib.quadrature(pop)
+            oracle = oracle_planner(cfg.planner, quad)
             for o in ("oracle", "oracle_whole"):
-                res = oracle.plan_problems(jnp.zeros((1,)), straight, family=o)
+                res = oracle.plan_problems(
+                    jax.tree.map(lambda a: a[None], quad), straight, family=o
+                )
                 res = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape[1:])), res)
                 floor[o] = plan_scores(scorer, keys_eval, res, problems)
                 example[o] = np.asarray(res.q[0, 0])

@@ -36,6 +36,7 @@ from tqdm.auto import tqdm
 from slotv_jax import planning
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
+from slotv_jax.experiments.people_loop import loop
 from slotv_jax.observers import population as population_lib
 from slotv_jax.planning import evaluation
 from slotv_jax.world import scene
@@ -61,11 +62,12 @@ def screening_problems() -> dict[str, np.ndarray]:
 
 def screen_one(pop: population_lib.Population, problems: dict) -> dict:
     """The straight line's and the oracle's mean P_pop(target | ξ_{0:τ}) on ``problems``."""
-    obs = population_lib.population_observer(pop)
-    planner = planning.make_planner({"oracle": obs}, PLANNER)
+    quad = population_lib.quadrature(pop)
+    planner = loop.oracle_planner(PLANNER, quad)  # one program for every draw
     g, m, t = (jnp.asarray(problems[k]) for k in ("goals", "goal_mask", "target"))
     straight = planner.straight_line(g, m, t)
-    res = planner.plan_problems(straight)
+    res = planner.plan_problems(jax.tree.map(lambda a: a[None], quad), straight, family="oracle")
+    res = jax.tree.map(lambda a: a[0], res)
     scorer = evaluation.population_scorer(pop, TAUS, PLANNER.n_points, 1)
     keys = jax.random.split(jax.random.key(0), g.shape[0])
     lo = float(np.mean(np.asarray(scorer(keys, straight.xyz, g, m, t)[0])))
