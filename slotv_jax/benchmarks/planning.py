@@ -1,6 +1,7 @@
 """Legible-planning throughput: batched JAX against a per-problem loop and SciPy L-BFGS.
 
     python -m slotv_jax.benchmarks.planning [--n 64] [--loop-n 8] [--scipy-n 2] [--repeats 3]
+        [--populations default,homogeneous,random:0,random:1,random:2]
 
 The same problems (random scenes of 2–8 cubes, a uniform real target, start TCP(q_home)),
 the same objective (log y_target of the Dragan labeler, SPEC §4.1) and the same number
@@ -22,6 +23,12 @@ of ``n`` paths of T waypoints and its vector-Jacobian product) two ways in the s
 the same MJX call (what the planner uses), against reverse-mode autodiff through
 ``mjx.kinematics`` (the baseline): compilation seconds, gradients per second, and the
 largest difference between the two gradients.
+
+A third table (``--populations``) plans with each population's own observer (P_pop, the
+people loop's oracle) for several populations: a program per population, the quadrature
+closed over as constants (the code before efb346f), against one program that takes the
+quadrature as an argument (what the loop does now): seconds for the first population and
+the later ones, compilation included.
 
 Printed: problems per second (best of ``--repeats`` for the JAX rows), the ratio to
 SciPy, and the quality reached (the true Dragan y_target of the plans, float64, its
@@ -47,6 +54,7 @@ from slotv_jax import planning
 from slotv_jax.benchmarks._machine import cpu_model
 from slotv_jax.core import cli
 from slotv_jax.core.defaults import BETAS_V1
+from slotv_jax.observers import population as population_lib
 from slotv_jax.robot import kinematics
 from slotv_jax.world import scene
 
@@ -203,6 +211,54 @@ def path_gradient_rows(n: int, n_points: int, repeats: int) -> list[str]:
     return out
 
 
+def population_rows(goals, mask, target, cfg: planning.PlannerConfig, specs) -> list[str]:
+    """Plans with each population's own observer (P_pop at the prefix objective), the
+    people loop's oracle, two ways in the same run: a program per population (the
+    quadrature closed over as constants, as before efb346f) against one program for all
+    (the quadrature as the planner's parameters,
+    :func:`slotv_jax.experiments.people_loop.loop.oracle_planner`): markdown rows of the
+    seconds for the first and the later populations (compilation and planning) and the
+    largest difference of the plans' P_pop scores."""
+    from slotv_jax.experiments.people_loop import loop
+    from slotv_jax.planning import evaluation
+
+    cfg = planning.PlannerConfig(iters=cfg.iters, n_points=cfg.n_points, taus=(0.4, 0.7, 1.0))
+    pops = [population_lib.get_population(s) for s in specs]
+    keys = jax.random.split(jax.random.key(0), goals.shape[0])
+    straight = planning.straight_lines(goals, mask, target, cfg=cfg)  # compiled before timing
+    secs: dict[str, list[float]] = {}
+    scores: dict[str, list[float]] = {}
+    for way in ("a program per population (constants)", "one program (the quadrature an argument)"):
+        for pop in pops:
+            quad = population_lib.quadrature(pop)
+            t0 = time.perf_counter()
+            if way.startswith("one"):
+                planner = loop.oracle_planner(cfg, quad)
+                params = jax.tree.map(lambda a: a[None], quad)
+            else:  # the loop before efb346f: the observer's quadrature a constant
+                obs = population_lib.quadrature_observer(quad)
+                planner = planning.make_family_planner(lambda p, obs=obs: obs, jnp.zeros(()), cfg)
+                params = jnp.zeros((1,))
+            xyz = jax.block_until_ready(planner.plan_problems(params, straight).xyz[0])
+            secs.setdefault(way, []).append(time.perf_counter() - t0)
+            scorer = evaluation.population_scorer(pop, cfg.taus, cfg.n_points, 1)
+            p = np.asarray(scorer(keys, xyz, goals, mask, target)[0], np.float64).mean()
+            scores.setdefault(way, []).append(p)
+    base = next(iter(secs))
+    out = [f"| P_pop planner, {len(pops)} populations × {goals.shape[0]} problems | first s | "
+           "each later s | all s | × per population (all) |", "|---|---|---|---|---|"]  # fmt: skip
+    for way, t in secs.items():
+        later = f"{min(t[1:]):.1f}–{max(t[1:]):.1f}" if len(t) > 1 else "—"
+        out.append(f"| {way} | {t[0]:.1f} | {later} | {sum(t):.1f} | "
+                   f"{sum(secs[base]) / sum(t):.1f}× |")  # fmt: skip
+    diff = np.abs(np.subtract(*scores.values())).max()
+    out.append(f"\npopulations {', '.join(specs)}; compilation included, the straight lines "
+               "compiled before; largest |Δ mean P_pop(target)| of the plans "
+               f"{diff:.1e} (a local optimiser: the two programs round the gradient's sums "
+               "differently)")  # fmt: skip
+    return out
+
+
 @cli.command
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.planning")
@@ -211,9 +267,19 @@ def main(argv=None) -> int:
     p.add_argument("--scipy-n", type=int, default=2, help="problems of the SciPy baseline")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--iters", type=int, default=planning.PlannerConfig().iters)
+    p.add_argument("--populations", default="default,homogeneous,random:0,random:1,random:2",
+                   help="comma-separated populations of the P_pop table")  # fmt: skip
     args = p.parse_args(argv)
     if min(args.n, args.loop_n, args.scipy_n, args.repeats, args.iters) < 1:
         p.error("--n, --loop-n, --scipy-n, --repeats and --iters must be >= 1")
+    specs = [s for s in args.populations.split(",") if s]
+    try:
+        for s in specs:
+            population_lib.get_population(s)
+    except ValueError as e:
+        p.error(f"--populations: {e}")
+    if len(specs) < 2:
+        p.error("--populations: expected at least two (the later ones share a program)")
     import scipy
 
     cfg = planning.PlannerConfig(iters=args.iters)
@@ -278,6 +344,8 @@ def main(argv=None) -> int:
     print(f"\ncompilation: batch of {n} {compile_batch:.1f} s, batch of 1 {compile_one:.1f} s "
           f"(not in the rates); SciPy: {t_scipy / sn:.1f} s per problem\n")  # fmt: skip
     print("\n".join(path_gradient_rows(n, cfg.n_points, args.repeats)))
+    print()
+    print("\n".join(population_rows(goals[:ln], mask[:ln], target[:ln], cfg, specs)))
     return 0
 
 

@@ -97,12 +97,13 @@ deterministic, differentiable JAX function of the path (:func:`population_probs`
 observer for a planner, :func:`population_observer`), within 3e-6 of the expectation with
 the default 8 + 8 nodes (measured against 64 + 64), where the mean over a random sample of
 N participants has a standard error of up to 0.5 / √N per goal (0.016 at N = 1024). It is
-also cheaper: the default's 72 nodes share 9 evidence tables (one per viewpoint and rule)
-and one set of mean memory weights. On the planner's batch (50 paths × 3 stop times,
-T = 100, 5 goals) on the 2-core CPU, P_pop takes 6 ms and its gradient 130 ms, against
-1.6 s and 1.4 s for the mean over 1024 drawn participants. :func:`sample_guesses` draws the
-guesses of fresh participants, each with their own parameters (:func:`draw_participants`):
-their frequencies estimate the same distribution. The ``homogeneous`` population (everyone
+also cheaper: the nodes share one evidence table per viewpoint and rule and one set of
+mean memory weights. On the planner's batch (50 paths × 3 stop times, T = 100, 5 goals) on
+the 2-core CPU, P_pop takes 8 ms and its gradient 60 ms, for every population alike (the
+quadrature is padded to one shape, :func:`quadrature`; experiments/BENCHMARKS.md), against
+1.6 s and 1.4 s for the mean over 1024 drawn participants (measured when P_pop was written).
+:func:`sample_guesses` draws the guesses of fresh participants, each with their own
+parameters (:func:`draw_participants`): their frequencies estimate the same distribution. The ``homogeneous`` population (everyone
 the dataset's Dragan labeler: ``world``, ``cost_to_go`` at β = :data:`DEFAULT_BETAS`
 ``["dragan"]``, σ = 0, ``dragan`` memory, no lapse) has
 ``P_pop = labelers.dragan(xyz[:L], goals, goal_mask)``.
