@@ -103,10 +103,10 @@ the 2-core CPU, P_pop takes 8 ms and its gradient 60 ms, for every population al
 quadrature is padded to one shape, :func:`quadrature`; experiments/BENCHMARKS.md), against
 1.6 s and 1.4 s for the mean over 1024 drawn participants (measured when P_pop was written).
 :func:`sample_guesses` draws the guesses of fresh participants, each with their own
-parameters (:func:`draw_participants`): their frequencies estimate the same distribution. The ``homogeneous`` population (everyone
-the dataset's Dragan labeler: ``world``, ``cost_to_go`` at β = :data:`DEFAULT_BETAS`
-``["dragan"]``, σ = 0, ``dragan`` memory, no lapse) has
-``P_pop = labelers.dragan(xyz[:L], goals, goal_mask)``.
+parameters (:func:`draw_participants`): their frequencies estimate the same distribution.
+The ``homogeneous`` population (everyone the dataset's Dragan labeler: ``world``,
+``cost_to_go`` at β = :data:`DEFAULT_BETAS` ``["dragan"]``, σ = 0, ``dragan`` memory, no
+lapse) has ``P_pop = labelers.dragan(xyz[:L], goals, goal_mask)``.
 
 A population is a :class:`Population` (frozen; :meth:`Population.from_dict`,
 :meth:`Population.to_dict`) and a JSON file with the same fields (:func:`load_population`,
