@@ -55,6 +55,7 @@ from slotv_jax.benchmarks._machine import cpu_model
 from slotv_jax.core import cli
 from slotv_jax.core.defaults import BETAS_V1
 from slotv_jax.observers import population as population_lib
+from slotv_jax.planning import evaluation
 from slotv_jax.robot import kinematics
 from slotv_jax.world import scene
 
@@ -215,26 +216,26 @@ def population_rows(goals, mask, target, cfg: planning.PlannerConfig, specs) -> 
     """Plans with each population's own observer (P_pop at the prefix objective), the
     people loop's oracle, two ways in the same run: a program per population (the
     quadrature closed over as constants, as before efb346f) against one program for all
-    (the quadrature as the planner's parameters,
-    :func:`slotv_jax.experiments.people_loop.loop.oracle_planner`): markdown rows of the
-    seconds for the first and the later populations (compilation and planning) and the
-    largest difference of the plans' P_pop scores."""
-    from slotv_jax.experiments.people_loop import loop
-    from slotv_jax.planning import evaluation
-
+    (the quadrature as the planner's parameters, as the people loop's ``oracle_planner``):
+    markdown rows of the seconds for the first and the later populations (compilation and
+    planning) and the largest difference of the plans' P_pop scores."""
     cfg = planning.PlannerConfig(iters=cfg.iters, n_points=cfg.n_points, taus=(0.4, 0.7, 1.0))
     pops = [population_lib.get_population(s) for s in specs]
     keys = jax.random.split(jax.random.key(0), goals.shape[0])
     straight = planning.straight_lines(goals, mask, target, cfg=cfg)  # compiled before timing
+    shared = None
     secs: dict[str, list[float]] = {}
     scores: dict[str, list[float]] = {}
     for way in ("a program per population (constants)", "one program (the quadrature an argument)"):
         for pop in pops:
             quad = population_lib.quadrature(pop)
             t0 = time.perf_counter()
-            if way.startswith("one"):
-                planner = loop.oracle_planner(cfg, quad)
-                params = jax.tree.map(lambda a: a[None], quad)
+            if way.startswith("one"):  # the people loop's oracle_planner, made once
+                if shared is None:
+                    shared = planning.make_family_planner(
+                        population_lib.quadrature_observer, quad, cfg
+                    )
+                planner, params = shared, jax.tree.map(lambda a: a[None], quad)
             else:  # the loop before efb346f: the observer's quadrature a constant
                 obs = population_lib.quadrature_observer(quad)
                 planner = planning.make_family_planner(lambda p, obs=obs: obs, jnp.zeros(()), cfg)
