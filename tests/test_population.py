@@ -198,6 +198,20 @@ def test_every_population_shares_one_program():
     assert P._guesses._cache_size() == guesses + 1
 
 
+@pytest.mark.parametrize("pop", [EVERYTHING, DRAGAN_MEMORY], ids=lambda p: p.name)
+def test_batched_guesses_are_sample_guesses_path_by_path(pop):
+    """The shared program draws exactly what sample_guesses draws with each path's key (the
+    simulated answers and the evaluation rely on it: the same answers as before)."""
+    xyz, goals, mask = random_problem(2, 5, behind=True)
+    keys = jax.random.split(jax.random.key(4), 3)
+    seen = np.asarray([3, 20, T])
+    x3, g3, m3 = (np.stack([a] * 3) for a in (xyz.astype(np.float32), goals, mask))
+    got = np.asarray(P.sample_guesses_batch(pop, keys, x3, g3, m3, seen, 64))
+    want = [P.sample_guesses(pop, k, x3[0], goals, mask, int(s), 64)
+            for k, s in zip(keys, seen, strict=True)]  # fmt: skip
+    np.testing.assert_array_equal(got, np.stack(want))
+
+
 def test_unseen_viewpoint_guesses_uniformly():
     """A point behind the `observer` camera: before it is seen the camera's people judge the
     motion, after it they guess uniformly (the reference agrees above; here by hand)."""

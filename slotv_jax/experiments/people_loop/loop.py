@@ -47,7 +47,8 @@ def builds(cfg: LoopConfig) -> dict:
     what ``study pick --by pool`` writes): it reads their parameters and its weights,
     nothing of the population. Nothing here depends on the population, so one compiled
     program plans every population's fits
-    (:func:`oracle_builds`: the population's own observers, compiled apart)."""
+    (:func:`oracle_builds`: the population's own observers, a second program, which takes
+    the population's quadrature as its parameters and so serves every population too)."""
     out = {f: _family_build(cfg, f) for f in cfg.candidates}
     if PICK in cfg.families:
         parts = [out[f] for f in cfg.candidates]
