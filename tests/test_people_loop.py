@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -389,6 +390,57 @@ def test_workers_are_dealt_to_the_visible_gpus_in_turn(monkeypatch):
     assert exp.visible_gpus() == ["3", "5"]
     monkeypatch.delenv("CUDA_VISIBLE_DEVICES")
     assert exp.visible_gpus() == ["0", "1"]
+
+
+def test_a_spread_run_lets_its_processes_share_a_gpu(tmp_path, monkeypatch, capsys):
+    """Every worker of a spread run, and the command itself before its first JAX operation,
+    takes GPU memory as it needs it (XLA_PYTHON_CLIENT_PREALLOCATE=false: JAX's default
+    takes 75 % of every GPU, and on an H200 every worker beside such a parent failed),
+    unless the user said how to take it; a population's seeds stay on one worker, and more
+    workers than GPUs get one line saying that they take turns."""
+    from slotv_jax.experiments.people_loop import __main__ as cmd
+
+    started = []
+
+    class Worker:  # what subprocess.Popen would start: its command line and environment
+        returncode = 0
+
+        def __init__(self, argv, env, stdout, stderr):
+            started.append((argv, env))
+
+        def wait(self):
+            return 0
+
+    monkeypatch.setattr(exp.subprocess, "Popen", Worker)
+    monkeypatch.setattr(exp, "visible_gpus", lambda: ["0"])
+    for v in exp.GPU_MEMORY_VARS:  # set, then removed: monkeypatch restores them after
+        monkeypatch.setenv(v, "")
+        monkeypatch.delenv(v)
+    todo = {"default": [0, 1, 2], "homogeneous": [0, 1], "random:0": [0, 1]}
+    exp._spread(exp.tiny(), tmp_path, todo, 2, tmp_path / "data", False, [])
+    jobs = [json.loads(argv[argv.index("--worker-jobs") + 1]) for argv, _ in started]
+    assert jobs == [{"default": [0, 1, 2]}, {"homogeneous": [0, 1], "random:0": [0, 1]}]
+    assert [
+        (e["CUDA_VISIBLE_DEVICES"], e["XLA_PYTHON_CLIENT_PREALLOCATE"]) for _, e in started
+    ] == [
+        ("0", "false"),
+        ("0", "false"),
+    ]
+    assert "2 workers on 1 GPU(s) take turns" in capsys.readouterr().err
+    assert "XLA_PYTHON_CLIENT_PREALLOCATE" not in os.environ  # the parent's is the command's
+    monkeypatch.setenv("XLA_CLIENT_MEM_FRACTION", ".3")  # the user's choice is kept
+    started.clear()
+    exp._spread(exp.tiny(), tmp_path, todo, 2, tmp_path / "data", False, [])
+    assert [e["XLA_CLIENT_MEM_FRACTION"] for _, e in started] == [".3", ".3"]
+    assert not any("XLA_PYTHON_CLIENT_PREALLOCATE" in e for _, e in started)
+    monkeypatch.delenv("XLA_CLIENT_MEM_FRACTION")
+
+    seen = []
+    monkeypatch.setattr(cmd, "run", lambda *a, **k: seen.append(dict(os.environ)))
+    out = ["--preset", "tiny", "--no-progress", "--out"]
+    assert cmd.main([*out, str(tmp_path / "one")]) == 0
+    assert cmd.main([*out, str(tmp_path / "two"), "--processes", "2"]) == 0
+    assert [e.get("XLA_PYTHON_CLIENT_PREALLOCATE") for e in seen] == [None, "false"]
 
 
 def test_the_command_keeps_its_compiled_programs_beside_its_datasets(monkeypatch):

@@ -66,7 +66,7 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import MutableMapping, Sequence
 from pathlib import Path
 
 import jax
@@ -256,6 +256,13 @@ def _spread(cfg, out, todo: dict, processes: int, cache, progress: bool, flags) 
         for j, (spec, sd) in enumerate(jobs):
             shares[j % len(shares)].setdefault(spec, []).append(sd)
     procs, gpus = [], worker_gpus(len(shares), visible_gpus())
+    if gpus and len(shares) > len(set(gpus)):
+        print(
+            f"people loop: {len(shares)} workers on {len(set(gpus))} GPU(s) take turns on "
+            "them: four on one H200 ran the suite no faster than one process "
+            "(experiments/BENCHMARKS.md)",
+            file=sys.stderr,
+        )
     for i, share in enumerate(shares):
         d = out / PARTS / f"worker{i}"
         d.mkdir(parents=True, exist_ok=True)
@@ -264,7 +271,7 @@ def _spread(cfg, out, todo: dict, processes: int, cache, progress: bool, flags) 
                 "--worker-jobs", json.dumps(share)]  # fmt: skip
         if not progress:
             argv.append("--no-progress")
-        env = dict(os.environ)
+        env = share_gpu_memory(dict(os.environ))
         if gpus[i] is not None:
             env["CUDA_VISIBLE_DEVICES"] = gpus[i]
         log = open(d / "log.txt", "w")
@@ -278,6 +285,26 @@ def _spread(cfg, out, todo: dict, processes: int, cache, progress: bool, flags) 
             failed.append(f"{d.name}: {tail[0]}")
     if failed:
         raise RuntimeError("people loop: worker(s) failed: " + "; ".join(failed))
+
+
+GPU_MEMORY_VARS = (  # how JAX takes GPU memory (docs.jax.dev, "GPU memory allocation")
+    "XLA_PYTHON_CLIENT_PREALLOCATE",
+    "XLA_PYTHON_CLIENT_MEM_FRACTION",
+    "XLA_CLIENT_MEM_FRACTION",
+    "XLA_PYTHON_CLIENT_ALLOCATOR",
+)
+
+
+def share_gpu_memory(env: MutableMapping[str, str]) -> MutableMapping[str, str]:
+    """``env`` with ``XLA_PYTHON_CLIENT_PREALLOCATE=false`` unless it already says how JAX
+    takes GPU memory (:data:`GPU_MEMORY_VARS`, the user's choice is kept): a spread run's
+    processes take what they use. By default JAX takes 75 % of every visible GPU at its
+    first operation, so the parent (which makes the dataset) leaves its workers none: on an
+    H200 every worker then failed with ``RESOURCE_EXHAUSTED`` (experiments/BENCHMARKS.md).
+    The parent's own must be set before its first JAX operation (the command does so)."""
+    if not any(v in env for v in GPU_MEMORY_VARS):
+        env["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
+    return env
 
 
 def visible_gpus() -> list[str]:

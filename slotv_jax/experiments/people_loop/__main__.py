@@ -24,6 +24,7 @@ from slotv_jax.experiments.people_loop import (
     is_results,
     report_lib,
     run,
+    share_gpu_memory,
     stem_of,
 )
 from slotv_jax.observers import population as population_lib
@@ -151,6 +152,8 @@ def data_cache(argv: Sequence[str]) -> Path:
 @cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
     args = parser().parse_args(argv)
+    if args.processes > 1:  # before the first JAX operation, which takes the GPUs' memory
+        share_gpu_memory(os.environ)
     cfg = config_from(args)
     specs = []
     for p in (p.strip() for p in args.population.split(",")):
