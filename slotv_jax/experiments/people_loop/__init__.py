@@ -147,7 +147,9 @@ def run(
     dealt to the visible GPUs in turn (:func:`worker_gpus`: worker i on GPU i mod G, so more
     workers than GPUs share them; on a CPU they share its cores):
     each writes its own document under ``OUT/.people_loop_parts/``, merged into the results
-    document as it finishes (a stopped run's finished parts are merged by the next).
+    document as it finishes (a stopped run's finished parts are merged by the next). The
+    workers take GPU memory as they use it (:func:`share_gpu_memory`); the caller's own
+    process should too, from before its first JAX operation (the command sees to it).
     ``jobs`` ({population: seeds}) is a worker's own share (the parent passes it, with
     ``worker_flags``, the command-line flags that make the same config)."""
     stem = stem_of(cfg.preset)
