@@ -434,6 +434,13 @@ def test_a_spread_run_lets_its_processes_share_a_gpu(tmp_path, monkeypatch, caps
     assert [e["XLA_CLIENT_MEM_FRACTION"] for _, e in started] == [".3", ".3"]
     assert not any("XLA_PYTHON_CLIENT_PREALLOCATE" in e for _, e in started)
     monkeypatch.delenv("XLA_CLIENT_MEM_FRACTION")
+    monkeypatch.setattr(exp, "visible_gpus", lambda: [])  # a CPU: no GPU, nothing said of one
+    started.clear()
+    capsys.readouterr()
+    exp._spread(exp.tiny(), tmp_path, todo, 2, tmp_path / "data", False, [])
+    mine = os.environ.get("CUDA_VISIBLE_DEVICES")
+    assert [e.get("CUDA_VISIBLE_DEVICES") for _, e in started] == [mine, mine]
+    assert "GPU" not in capsys.readouterr().err
 
     seen = []
     monkeypatch.setattr(cmd, "run", lambda *a, **k: seen.append(dict(os.environ)))

@@ -258,10 +258,10 @@ def _spread(cfg, out, todo: dict, processes: int, cache, progress: bool, flags) 
         for j, (spec, sd) in enumerate(jobs):
             shares[j % len(shares)].setdefault(spec, []).append(sd)
     procs, gpus = [], worker_gpus(len(shares), visible_gpus())
-    if gpus and len(shares) > len(set(gpus)):
+    if None not in gpus and len(shares) > len(set(gpus)):  # on a CPU they share its cores
         print(
             f"people loop: {len(shares)} workers on {len(set(gpus))} GPU(s) take turns on "
-            "them: four on one H200 ran the suite no faster than one process "
+            "them: four workers on one H200 ran the suite slower than one process "
             "(experiments/BENCHMARKS.md)",
             file=sys.stderr,
         )
