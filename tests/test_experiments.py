@@ -366,7 +366,7 @@ def test_study_size_report_renders_again(tmp_path):
 def test_study_size_rerun_of_the_finished_record_changes_nothing(tmp_path, monkeypatch):
     """The recorded quick run, rerun on its defaults: every cell is there, so no dataset is
     loaded or made and the results document stays byte for byte (its machine and times);
-    the report is drawn again with the same rows."""
+    the report is drawn again with the same rows and the run's date."""
     folder = REPO / "experiments"
     for name in ("study_size.json", "study_size.md"):
         (tmp_path / name).write_bytes((folder / name).read_bytes())
@@ -383,6 +383,11 @@ def test_study_size_rerun_of_the_finished_record_changes_nothing(tmp_path, monke
     rows = [x for x in (tmp_path / "study_size.md").read_text().splitlines() if x.startswith("|")]
     recorded = [x for x in (folder / "study_size.md").read_text().splitlines() if x.startswith("|")]
     assert rows == recorded
+    dates = [
+        [x for x in (d / "study_size.md").read_text().splitlines() if x.startswith("- Date:")]
+        for d in (tmp_path, folder)
+    ]
+    assert dates[0] == dates[1] and len(dates[0]) == 1  # the run's date, not today's
     # the command that made it, less display-only flags (a rerun with them changes nothing)
     assert record.command_line("p", ["--preset", "quick", "--no-progress"]) == "p --preset quick"
 

@@ -222,6 +222,7 @@ def run(
     ):  # a finished record: kept as it is (its machine, its times), no dataset loaded
         return doc
     doc["environment"] = environment()
+    doc["date"] = record.utc_now()  # the report's date: the run's, not the rendering's
     doc["references"] = recorded_references(references)
     doc["xla"] = slotv_jax.XLA_CONFIG.summary()
     t_start = t0 = time.perf_counter()

@@ -55,7 +55,7 @@ def _parse_args(argv):
 
 def report_again(out: Path, preset: str) -> int:
     """Render ``OUT/STEM.md`` and ``.png`` again from ``OUT/STEM.json`` alone (the report's
-    date is today's)."""
+    date is the run's, from the document)."""
     stem = stem_of(preset)
 
     def render(doc: dict, cmd: str) -> None:

@@ -4,7 +4,6 @@ the figure.
 
 from __future__ import annotations
 
-import datetime
 import platform
 from pathlib import Path
 
@@ -64,7 +63,7 @@ def report(doc: dict, stem: str, command: str) -> str:
         command,
         "```",
         "",
-        f"- Date: {datetime.date.today().isoformat()}; "
+        f"- Date: {doc.get('date', 'not recorded')[:10]}; "
         f"machine: {platform.processor() or platform.machine()}"
         f", devices {env.get('devices')}; versions: "
         + ", ".join(
