@@ -319,8 +319,8 @@ def no_work(monkeypatch):
 
 def test_bad_population_inputs_are_named_before_any_work(tmp_path, capsys, no_work):
     """Nested 100,000 deep (a RecursionError traceback), values whose use overflows float32
-    (P_pop was NaN) and a directory (reported as no such file): one line naming the file
-    and the field, exit code 2."""
+    (P_pop was NaN), a directory (reported as no such file) and a name that is none of the
+    forms: one line naming the file and the field, or the forms, exit code 2."""
     deep, big, wide = (tmp_path / f"{n}.json" for n in ("deep", "big", "wide"))
     deep.write_text("[" * 100_000 + "]" * 100_000)
     pop = population_lib.default().to_dict()
@@ -332,6 +332,8 @@ def test_bad_population_inputs_are_named_before_any_work(tmp_path, capsys, no_wo
         (big, f"error: {big}: field 'beta': 'cost_to_go': expected a number in (0, "),
         (wide, f"error: {wide}: field 'beta_sigma_log': expected a number in [0, 5]"),
         (tmp_path, f"error: population {tmp_path}: is a directory; expected a population JSON"),
+        ("nosuch", "error: population: expected default, homogeneous, random:K (the K-th draw) "
+                   "or a population JSON file, got 'nosuch' (no such file)"),
     ):  # fmt: skip
         with pytest.raises(SystemExit) as e:
             main(["--preset", "tiny", "--out", str(tmp_path / "o"), "--population", str(spec)])

@@ -425,7 +425,7 @@ def test_files_round_trip_and_names(tmp_path):
     assert P.get_population("default") == P.default()
     assert P.get_population("homogeneous") == P.homogeneous()
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
-    with pytest.raises(ValueError, match="population: expected default or homogeneous or a "):
+    with pytest.raises(ValueError, match="population: expected default, homogeneous, random:K "):
         P.get_population("nobody")
 
 

@@ -479,12 +479,12 @@ def get_population(spec: str | os.PathLike) -> Population:
     if Path(spec).is_dir():
         raise ValueError(
             f"population {spec}: is a directory; expected a population JSON file (or "
-            f"{' or '.join(PRESETS)})"
+            f"{', '.join(PRESETS)} or {RANDOM_PREFIX}K)"
         )
     if not Path(spec).is_file():
         raise ValueError(
-            f"population: expected {' or '.join(PRESETS)} or a population JSON file, got "
-            f"{str(spec)!r} (no such file)"
+            f"population: expected {', '.join(PRESETS)}, {RANDOM_PREFIX}K (the K-th draw) or a "
+            f"population JSON file, got {str(spec)!r} (no such file)"
         )
     return load_population(spec)
 
