@@ -445,6 +445,27 @@ def test_written_records_hold_the_table_rows_their_results_render(stem, render):
     assert [row for row in rows if row not in lines] == []
 
 
+def test_a_people_loop_report_names_its_own_folder_and_part_of_the_suite():
+    """Written elsewhere than experiments/, the report's command and its drawing's command
+    name that folder; a run of part of the suite says which of its populations it has."""
+    from slotv_jax.experiments.people_loop import report
+
+    folder = Path(__file__).resolve().parent.parent / "experiments"
+    doc = json.loads((folder / "people_loop_results.json").read_text())
+    text = report.report(doc, "people_loop", Path("/tmp/mine"))
+    assert "--population suite --out /tmp/mine`" in text
+    assert "--plans /tmp/mine/people_loop_plans.npz" in text and "experiments/" not in text
+    assert "## The suite: the pick on every population" in text
+    one = {
+        **doc,
+        "populations": doc["populations"][:1],
+        "summary": [r for r in doc["summary"] if r["population"] == "default"],
+    }
+    text = report.report(one, "people_loop")
+    assert "## The pick on every population" in text and "The suite:" not in text
+    assert "Of the suite's 10 populations this run has 1 (not yet run: `homogeneous`, " in text
+
+
 @pytest.mark.parametrize("stem", ["people_loop", "people_loop_paper"])
 def test_people_loop_records_are_their_results_rendered(stem):
     """The people loop's recorded reports are exactly what their results render to."""

@@ -266,19 +266,23 @@ def evaluation(doc: dict, pop: dict, families, strategies) -> list[str]:
     return lines
 
 
-def report(doc: dict, stem: str) -> str:
+DEFAULT_OUT = Path("experiments")  # the command's --out default, which its line leaves out
+
+
+def report(doc: dict, stem: str, out: Path = DEFAULT_OUT) -> str:
+    """``STEM.md``'s text for a document written to ``out``: its commands name that folder."""
     cfg = doc["config"]
     env = doc["populations"][0]["runs"][-1]["environment"]
     seeds = sorted({sd for p in doc["populations"] for sd in seeds_of(p)})
     best = best_family(doc, doc["populations"][0])
-    redraw = render_command(stem, Path("experiments"), best)
+    redraw = render_command(stem, out, best)
     head = [
         f"# From people's answers to motion people read ({doc['preset']} preset)",
         "",
         "Every number here comes from **simulated people** (`slotv_jax.observers.population`), "
         "not from a study with humans: the population named in each section.",
         "",
-        f"Rendered from `{stem}_results.json` (`{command_line(doc)}`). Stop times τ = "
+        f"Rendered from `{stem}_results.json` (`{command_line(doc, out)}`). Stop times τ = "
         f"{', '.join(f'{t:g}' for t in cfg['taus'])}; "
         f"{cfg['per_stimulus']} answers per asked stimulus; pool {cfg['pool']:,} training motions; "
         f"{cfg['problems']} held-out problems; seeds {', '.join(map(str, seeds))}"
@@ -313,8 +317,9 @@ def report(doc: dict, stem: str) -> str:
     return "\n".join(head + suite + body)
 
 
-def command_line(doc: dict) -> str:
-    """The command that runs the document's config (its preset and the flags that differ)."""
+def command_line(doc: dict, out: Path = DEFAULT_OUT) -> str:
+    """The command that runs the document's config (its preset and the flags that differ)
+    and writes it to ``out``."""
     cfg, words = doc["config"], ["python -m slotv_jax.experiments.people_loop"]
     words += ["--preset", doc["preset"]]
     base = _preset_config(doc["preset"])
@@ -329,6 +334,8 @@ def command_line(doc: dict) -> str:
             "--population",
             "suite" if set(pops) == suite else ",".join(pops),
         ]
+    if Path(out) != DEFAULT_OUT:
+        words += ["--out", str(out)]
     return " ".join(words)
 
 
@@ -417,7 +424,7 @@ def render(doc: dict, out: Path, stem: str) -> None:
     doc, stopped = finished(doc)
     plot(doc, out / f"{stem}.png")
     plot_fit_plan(doc, out / f"{stem}_fit_plan.png")
-    text = report(doc, stem)
+    text = report(doc, stem, out)
     if stopped:
         text += (
             f"\n\n**Stopped mid-way, not in this report:** {', '.join(stopped)} (the document "
@@ -479,8 +486,9 @@ def suite_section(doc: dict) -> list[str]:
     s = picks[PICK]
     sizes, at = s["sizes"], headline_size(doc)
     both = PICK_CROSS in picks
+    missing = [q for q in population_lib.suite_specs() if q not in s["populations"]]
     lines = [
-        "## The suite: the pick on every population (random picks)",
+        f"## {'The pick' if missing else 'The suite: the pick'} on every population (random picks)",
         "",
         "Gain kept by the **pick**, the log-linear pool of the fitted families weighted by the "
         "held-out likelihood of the answers alone (`slotv_jax.answers.pooling`)"
@@ -532,13 +540,13 @@ def suite_section(doc: dict) -> list[str]:
             + " | ".join(_pct(p[name][a]) for p in picks.values() for a in sizes)
             + (" | | | |" if at else " |")
         )
-    missing = [q for q in population_lib.suite_specs() if q not in s["populations"]]
     if missing:
         lines += [
             "",
-            f"**The suite is not complete here:** {len(s['populations'])} population(s) ran; "
-            f"not yet run: {', '.join(f'`{q}`' for q in missing)} (the same command resumes "
-            "and adds them with `--population suite`).",
+            f"Of the suite's {len(population_lib.suite_specs())} populations this run has "
+            f"{len(population_lib.suite_specs()) - len(missing)} (not yet run: "
+            f"{', '.join(f'`{q}`' for q in missing)}); the same command with "
+            "`--population suite` resumes and adds them.",
         ]
     lines.append("")
     for f, p in picks.items():
