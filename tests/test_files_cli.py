@@ -332,6 +332,33 @@ def _sigint_state() -> str:
     return ", ".join(f"{k} SIGINT {bool(int(v, 16) & bit)}" for k, v in masks.items())
 
 
+def test_every_command_refuses_a_flag_its_parser_refuses_in_one_line(capsys, monkeypatch):
+    """A flag that argparse itself refuses (unknown, or a value not of its choices) is one
+    line ``error: ...`` naming it and exit code 2 in every command, as the project's own
+    input errors are, not argparse's usage block."""
+    import importlib
+
+    monkeypatch.delenv("SLOTV_JAX_TRACEBACK", raising=False)
+    for name in _commands():
+        main = importlib.import_module(name).main
+        with pytest.raises(SystemExit) as e:
+            main(["--no-such-flag"])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.startswith("error: ") and err.count("\n") == 1, (
+            name,
+            err,
+        )
+        assert "--help)" in err and "usage:" not in err, (name, err)
+    from slotv_jax.experiments.people_loop.__main__ import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["--preset", "huge"])
+    err = capsys.readouterr().err  # argparse quotes the choices in some Python versions
+    assert err.startswith("error: argument --preset: invalid choice: 'huge' (choose from ")
+    assert err.endswith(" (see python -m slotv_jax.experiments.people_loop --help)\n"), err
+    assert e.value.code == 2 and err.count("\n") == 1
+
+
 def test_a_swallowed_ctrl_c_still_ends_the_command_as_interrupted(capsys):
     """A SIGINT whose KeyboardInterrupt a library's bare ``except:`` swallows (JAX's compile
     path has such clauses, and a Ctrl-C pressed during a compilation surfaces right after

@@ -23,7 +23,6 @@ Wall-clock times; the load average before and after is printed (the machine may 
 
 from __future__ import annotations
 
-import argparse
 import concurrent.futures as futures
 import datetime
 import json
@@ -162,7 +161,7 @@ def run(n: int, workers: int, baseline_plans: int) -> dict:
 
 @cli.command
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.execution",
+    p = cli.ArgumentParser(prog="python -m slotv_jax.benchmarks.execution",
                                 description=__doc__)  # fmt: skip
     p.add_argument("--n", type=int, default=1000, help="plans to time and check")
     p.add_argument("--workers", type=int, default=0, help="also over this many processes")

@@ -338,7 +338,7 @@ def report(w: dict, wo: dict, wall_s: float) -> None:
 
 @cli.command
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.benchmarks.kinematics",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -31,7 +31,6 @@ random via points to one of 2–8 random cubes, 100 points, float32.
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import functools
 import os
@@ -131,7 +130,7 @@ VECTOR_WIDTH = "xla_cpu_prefer_vector_width"
 
 @cli.command
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.labeling", description=__doc__)
+    p = cli.ArgumentParser(prog="python -m slotv_jax.benchmarks.labeling", description=__doc__)
     p.add_argument("--n", type=int, default=160_000, help="trajectories for JAX")
     p.add_argument("--T", type=int, default=100, help="points per trajectory")
     p.add_argument("--numpy-n", type=int, default=1000, help="trajectories for the NumPy loop")

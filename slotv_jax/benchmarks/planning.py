@@ -38,7 +38,6 @@ at comparable results. SciPy is imported lazily (``pip install -e .[test]``).
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import os
 import platform
@@ -262,7 +261,7 @@ def population_rows(goals, mask, target, cfg: planning.PlannerConfig, specs) -> 
 
 @cli.command
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.planning")
+    p = cli.ArgumentParser(prog="python -m slotv_jax.benchmarks.planning")
     p.add_argument("--n", type=int, default=64, help="problems of the batched call")
     p.add_argument("--loop-n", type=int, default=8, help="problems of the JAX loop")
     p.add_argument("--scipy-n", type=int, default=2, help="problems of the SciPy baseline")

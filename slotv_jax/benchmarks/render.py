@@ -21,7 +21,6 @@ renderer string says what drew the pixels (Mesa's llvmpipe on a CPU, or a GPU).
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import os
@@ -135,7 +134,7 @@ def run(size=(640, 360), n_frames: int = 100, repeats: int = 3, naive: int = 5) 
 
 @cli.command
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.render", description=__doc__)
+    p = cli.ArgumentParser(prog="python -m slotv_jax.benchmarks.render", description=__doc__)
     p.add_argument("--size", default="640x360", help="frame size WxH")
     p.add_argument("--frames", type=int, default=100, help="frames of the clip")
     p.add_argument("--repeats", type=int, default=3, help="best of this many runs")

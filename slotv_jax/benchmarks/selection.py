@@ -16,7 +16,6 @@ each compiled once and then the median of ``--repeats`` calls (results waited fo
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import os
@@ -64,7 +63,7 @@ def _time(fn, *args, repeats: int) -> tuple[float, float]:
 
 @cli.command
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.selection")
+    ap = cli.ArgumentParser(prog="python -m slotv_jax.benchmarks.selection")
     ap.add_argument("--preset", default="quick", choices=("quick", "paper"))
     ap.add_argument("--pool", type=int, default=100_000)
     ap.add_argument("--members", type=int, default=4)

@@ -40,7 +40,6 @@ nothing lost or doubled and one row each.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import datetime
 import os
@@ -236,7 +235,7 @@ def kill_scenario(stim: Path, db: Path, n: int, think, max_seconds: float) -> di
 
 
 def _parse(argv):
-    ap = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.study_server",
+    ap = cli.ArgumentParser(prog="python -m slotv_jax.benchmarks.study_server",
                                  description=__doc__.splitlines()[0])  # fmt: skip
     ap.add_argument("--participants", type=int, default=100)
     ap.add_argument("--max-seconds", type=float, default=300.0, help="bound per scenario")

@@ -34,7 +34,6 @@ The data are synthetic: no dataset needs to be generated.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
 import functools
@@ -331,7 +330,7 @@ def environment() -> dict:
 
 @cli.command
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m slotv_jax.benchmarks.training")
+    ap = cli.ArgumentParser(prog="python -m slotv_jax.benchmarks.training")
     ap.add_argument("--device-run", action="store_true", help="accelerator settings + variants")
     ap.add_argument("--preset", default="paper", choices=("paper", "quick"), help="model sizes")
     ap.add_argument("--eval-size", type=int, default=None, help="trajectories per eval call")

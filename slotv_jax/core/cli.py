@@ -20,9 +20,10 @@ An *input error* — :class:`InputError`, any ``ValueError`` (the project's read
 checks raise ValueError with a message naming the argument, file, line and field;
 :class:`slotv_jax.core.fileio.OutputError` is one), or an ``OSError`` about a path the user
 gave (file not found, is a directory, permission denied, ...) — prints one line
-``error: MESSAGE`` on stderr, with no traceback, and exits with code 2, as argparse
-does for a bad flag. Anything else is a bug and keeps its traceback. Set
-``SLOTV_JAX_TRACEBACK=1`` to see the traceback of an input error too.
+``error: MESSAGE`` on stderr, with no traceback, and exits with code 2; so does a flag that
+the parser itself refuses (an unknown flag, a value not of its type or choices), when the
+parser is an :class:`ArgumentParser` of this module. Anything else is a bug and keeps its
+traceback. Set ``SLOTV_JAX_TRACEBACK=1`` to see the traceback of an input error too.
 
 Ctrl-C (``KeyboardInterrupt``) prints one line, ``interrupted``, and exits with code 130
 (128 + SIGINT, as a shell reports it), with no traceback; a command that resumes
@@ -44,6 +45,7 @@ error: --in x.npz: no such file            (on stderr; SystemExit(2))
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import functools
 import gc
@@ -57,6 +59,17 @@ EXIT_INPUT_ERROR = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT: what a shell reports for a command ended by Ctrl-C
 INTERRUPTED = "interrupted"
 INTERRUPTED_RESUMES = "interrupted; rerun the same command to resume"
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """``argparse.ArgumentParser`` whose own refusals (an unknown flag, a value not of the
+    flag's type or choices, a missing one) are one line ``error: MESSAGE (see PROG
+    --help)``, exit code 2, like every other input error, instead of the usage block;
+    ``--help`` is unchanged. Every command's parser is one (its sub-commands' too)."""
+
+    def error(self, message: str):
+        print(f"error: {message} (see {self.prog} --help)", file=sys.stderr)
+        raise SystemExit(EXIT_INPUT_ERROR)
 
 
 class InputError(ValueError):

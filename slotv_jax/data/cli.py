@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 import time
@@ -32,7 +31,7 @@ from slotv_jax.data.storage import (
 
 @cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.data",
         description="Generate the seven SLOT-V dataset splits. Without --out they go to the "
         f"cache that the main job uses, {DEFAULT_CACHE}/<preset>-<config digest>, where every "

@@ -22,7 +22,6 @@ split, pairwise agreement heatmap), each atomically.
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import itertools
 import shlex
@@ -344,7 +343,7 @@ def is_report(path: Path) -> bool:
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line: load the splits of ``--data`` and write the report to ``--out``."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.data.report",
         description="Label entropy, target agreement and labeler agreement per split.",
     )

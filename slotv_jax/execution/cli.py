@@ -73,7 +73,7 @@ def timing_from_args(args: argparse.Namespace) -> TimingConfig | None:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.execution",
         description="Time a plan for a Franka arm within its published limits, check it "
         "(joint and Cartesian limits at 1 kHz, collisions, dynamics) and export it.",

@@ -14,7 +14,6 @@ machine, versions and date) and, from it alone, ``OUT/execution.md`` and ``OUT/e
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -154,7 +153,7 @@ def _render(doc: dict, out: Path, cmd: str) -> None:
 
 @cli.command
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
+    ap = cli.ArgumentParser(
         prog=PROG, description="Time, check and export every recorded plan for a Franka arm."
     )
     ap.add_argument("--plans", nargs="+", default=list(PLANS), help="plans files")

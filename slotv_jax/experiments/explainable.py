@@ -25,7 +25,6 @@ efficiency summaries), ``OUT/explainable.md`` (the tables) and ``OUT/explainable
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
@@ -198,7 +197,7 @@ def best_archetype(summary: list[dict], labeler: str, archetypes: Sequence[str])
 
 @cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.explainable",
         description="Parametric (explainable) observers against the MLP (SPEC §10).",
     )

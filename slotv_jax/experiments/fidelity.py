@@ -50,7 +50,6 @@ The report goes to ``experiments/fidelity.md`` (and ``.png``) for the paper pres
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import shlex
@@ -330,7 +329,7 @@ def run(
 
 @cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.fidelity",
         description="Ablation of the paper's unreported dataset choices (SPEC §3, §4).",
     )

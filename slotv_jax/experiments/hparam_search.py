@@ -32,7 +32,6 @@ The summary is rendered from ``rollouts.json`` alone
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
@@ -291,7 +290,7 @@ def report_again(out: Path, also: Path | None) -> int:
 
 @cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.hparam_search",
         description="The SLOT-V paper's random hyperparameter search.",
     )

@@ -10,7 +10,6 @@ every one comes from those two files, so a recorded run can be re-rendered::
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 from collections.abc import Sequence
@@ -211,7 +210,7 @@ def write_doc(out: Path, doc: dict, path: Path) -> None:
 
 @cli.command
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.planning_report",
         description="Re-render the figures and the report of a planning run from its "
         "results.json and plans.npz.",

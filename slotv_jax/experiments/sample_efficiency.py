@@ -19,7 +19,6 @@ method needs to reach the threshold) and ``OUT/sample_efficiency.png``.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from collections.abc import Sequence
@@ -34,7 +33,7 @@ from slotv_jax.training.config import MODELS
 
 @cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.sample_efficiency",
         description="SLOT-V vs T-REX sample efficiency (the paper's Fig. 3).",
     )

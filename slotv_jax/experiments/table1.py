@@ -22,7 +22,6 @@ command resumes.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
@@ -121,7 +120,7 @@ def report(doc: dict) -> str:
 
 @cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.table1",
         description="Reproduce Table 1 of the SLOT-V paper.",
     )

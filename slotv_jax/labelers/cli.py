@@ -4,7 +4,6 @@ labels.npz``.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,7 +27,7 @@ def _savez(path, arrays: dict[str, np.ndarray]) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m slotv_jax.labelers --in trajs.npz --out labels.npz [--overwrite]``."""
 
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.labelers",
         description="Label trajectories with the four legibility labelers (SPEC §4). The input "
         ".npz holds xyz (N, T, 3), goals (N, 8, 3) or (8, 3), goal_mask (N, 8) or (8,), and "

@@ -264,7 +264,7 @@ def _plans_items(args) -> list[Item]:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.render",
         description="Render trajectories of the Panda in its scene as MP4, GIF or PNG "
         "(needs OpenGL: MUJOCO_GL=egl on a headless machine).",

@@ -20,7 +20,7 @@ def seeded_parser(prog: str, description: str, presets: Sequence[str]) -> argpar
     """The command line of an experiment run over seeds and selection strategies (the two
     active-selection experiments): preset, output and cache folders, seeds, held-out
     motions, strategies; :func:`seeded_overrides` reads it back."""
-    ap = argparse.ArgumentParser(prog=prog, description=description)
+    ap = cli.ArgumentParser(prog=prog, description=description)
     ap.add_argument("--preset", default="quick", choices=tuple(presets))
     ap.add_argument("--out", default="experiments", help="output folder (default: experiments)")
     ap.add_argument("--cache", default="data", help="dataset cache folder")

@@ -92,7 +92,7 @@ def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
 
 
 def _parse_args(argv):
-    ap = argparse.ArgumentParser(
+    ap = cli.ArgumentParser(
         prog="python -m slotv_jax.study",
         description="Study data: import answer tables, show a study file, cross-validate; "
         "run a study: render stimuli, serve them, export the answers, simulate participants, "

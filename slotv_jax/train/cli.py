@@ -14,7 +14,6 @@ Table 1 splits. It drives :mod:`slotv_jax.train`, :mod:`slotv_jax.data`,
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import functools
 import json
@@ -37,7 +36,7 @@ from slotv_jax.training.types import prepare, trim_goals
 
 
 def _parse_args(argv):
-    ap = argparse.ArgumentParser(
+    ap = cli.ArgumentParser(
         prog="python -m slotv_jax.train",
         description="Train one SLOT-V or T-REX model on a generated dataset and save a checkpoint.",
     )

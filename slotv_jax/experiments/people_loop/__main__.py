@@ -44,7 +44,7 @@ def add_cache_flag(ap: argparse.ArgumentParser) -> None:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
+    ap = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.people_loop",
         description="Simulated people's answers -> observers -> legible plans -> evaluation.",
     )

@@ -32,7 +32,6 @@ each, a two-sided 5 % test with 80 % power (normal approximation of two proporti
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import sys
@@ -326,7 +325,7 @@ def plot(res: dict, path: Path) -> None:
 
 @cli.command
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
+    ap = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.people_loop.evaluation_round",
         description=__doc__.split("\n")[0],
     )

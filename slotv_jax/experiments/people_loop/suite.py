@@ -21,7 +21,6 @@ exact; the studies' 12,000 guesses resolve about 0.01). Writes
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -134,7 +133,7 @@ def report(rows: Sequence[dict], seconds: float) -> str:
 
 @cli.command()
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
+    ap = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.people_loop.suite", description=__doc__.split("\n")[0]
     )
     ap.add_argument("--out", default="experiments", help="folder of the screen's record")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 from collections.abc import Sequence
@@ -18,7 +17,7 @@ from slotv_jax.training import config as train_config
 
 @cli.command(resumes=True)
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.planning",
         description="Plan legible motion with hand-crafted and learned observers; score it with "
         "the true labelers.",

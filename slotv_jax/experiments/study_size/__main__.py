@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
@@ -19,7 +18,7 @@ PROG = "python -m slotv_jax.experiments.study_size"
 
 
 def _parse_args(argv):
-    ap = argparse.ArgumentParser(
+    ap = cli.ArgumentParser(
         prog=PROG,
         description="Simulated studies: trajectories × participants for a learned observer.",
     )
