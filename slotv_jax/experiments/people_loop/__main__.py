@@ -56,7 +56,9 @@ def parser() -> argparse.ArgumentParser:
         "hyper-distribution), suite (default, homogeneous and the suite's draws), or "
         "population JSON files",
     )
-    ap.add_argument("--out", default="experiments", help="folder of the results and report")
+    ap.add_argument(
+        "--out", default=str(report_lib.DEFAULT_OUT), help="folder of the results and report"
+    )
     add_cache_flag(ap)
     ap.add_argument("--seeds", type=int, help="number of seeds (default: the preset's)")
     ap.add_argument("--first-seed", type=int, help="first seed (default 0)")

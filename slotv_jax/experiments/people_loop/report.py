@@ -266,7 +266,7 @@ def evaluation(doc: dict, pop: dict, families, strategies) -> list[str]:
     return lines
 
 
-DEFAULT_OUT = Path("experiments")  # the command's --out default, which its line leaves out
+DEFAULT_OUT = Path("experiments")  # the command's --out default: its line leaves it out
 
 
 def report(doc: dict, stem: str, out: Path = DEFAULT_OUT) -> str:
