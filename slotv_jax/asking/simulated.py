@@ -24,29 +24,30 @@ from slotv_jax.answers import crossval
 from slotv_jax.answers.format import PROB_FLOOR, make_study
 from slotv_jax.asking import selection
 from slotv_jax.core.shapes import bucket, pad_rows
-from slotv_jax.observers import population as population_lib
+from slotv_jax.observers import people as people_lib
 from slotv_jax.training.config import TrainConfig
 
 _FITTERS: dict = {}
 
 
 def population_answers(
-    pop: population_lib.Population,
+    pop: people_lib.People,
     seed: int,
     pool: selection.Pool,
     cand: Int[np.ndarray, " K"],
     per: int,
 ) -> Float[np.ndarray, "K G"]:
-    """Guess counts of ``per`` fresh participants of ``pop`` for each candidate stimulus:
-    candidate c's participants are drawn from ``fold_in(key(10_000 + seed), c)``
-    (:func:`slotv_jax.observers.population.sample_guesses`), whatever else is asked."""
+    """Guess counts of ``per`` fresh participants of ``pop`` (a population or a zoo
+    member, :mod:`slotv_jax.observers.people`) for each candidate stimulus: candidate c's
+    participants are drawn from ``fold_in(key(10_000 + seed), c)``
+    (:func:`slotv_jax.observers.people.guesses_batch`), whatever else is asked."""
     n = len(cand)
     cand = pad_rows(np.asarray(cand), bucket(n))  # a few compiled shapes; cut off below
     t = np.asarray(pool.traj)[cand]
     keys = jax.vmap(lambda c: jax.random.fold_in(jax.random.key(10_000 + seed), c))(
         jnp.asarray(cand)
     )
-    guesses = population_lib.sample_guesses_batch(
+    guesses = people_lib.guesses_batch(
         pop, keys, pool.xyz[t], pool.goals[t], pool.goal_mask[t], pool.seen[jnp.asarray(cand)], per
     )
     return np.asarray(jax.nn.one_hot(guesses[:n], pool.goals.shape[1]).sum(1), np.float32)

@@ -67,6 +67,7 @@ __all__ = [
     "look_at_camera",
     "person_probs",
     "sample_zoo_guesses",
+    "sample_zoo_guesses_batch",
     "zoo_names",
     "zoo_probs",
 ]
@@ -474,6 +475,27 @@ def sample_zoo_guesses(
     p = jax.vmap(lambda q: person_probs(member, q, xyz, goals, goal_mask, seen))(people)
     logits = masked_log(p, jnp.asarray(goal_mask).astype(bool)[None, :])
     return jax.random.categorical(k_guess, logits, axis=-1).astype(jnp.int32)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 6))
+def _guesses_batch(member, keys, xyz, goals, goal_mask, seen, n):
+    return jax.vmap(lambda k, x, g, m, s: sample_zoo_guesses(member, k, x, g, m, s, n))(
+        keys, xyz, goals, goal_mask, seen
+    )
+
+
+def sample_zoo_guesses_batch(
+    member: ZooMember,
+    keys: jax.Array,
+    xyz: Float[Array, "B T 3"],
+    goals: Float[Array, "B 8 3"],
+    goal_mask: Bool[Array, "B 8"],
+    seen: Int[Array, " B"],
+    n: int,
+) -> Int[Array, "B n"]:
+    """:func:`sample_zoo_guesses` for B stimuli at once (stimulus b's people drawn from
+    ``keys[b]``), compiled once per member, batch size and ``n``."""
+    return _guesses_batch(member, keys, xyz, goals, goal_mask, jnp.asarray(seen), int(n))
 
 
 def _check_member(obj, spec: str) -> ZooMember:

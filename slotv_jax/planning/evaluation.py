@@ -20,6 +20,7 @@ participants (:func:`population_scorer`, :func:`population_scores`).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 
@@ -28,7 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from slotv_jax.observers import labelers, labelling
+from slotv_jax.observers import labelers, labelling, zoo
+from slotv_jax.observers import people as people_lib
 from slotv_jax.observers import population as population_lib
 from slotv_jax.observers.common import seen_points
 
@@ -148,26 +150,28 @@ def gain_kept(mean_gain: float, oracle_gain: float) -> float | None:
     return mean_gain / oracle_gain if oracle_gain > 0 else None
 
 
-def population_scorer(
-    pop: population_lib.Population, taus: Sequence[float], n_points: int, n_eval: int
-):
+def population_scorer(pop: people_lib.People, taus: Sequence[float], n_points: int, n_eval: int):
     """``score(keys (B,), xyz (B, T, 3), goals (B, 8, 3), mask (B, 8), target (B,)) ->
     (p (B, K), correct (B, K))``: the population's P_pop(target | ξ_{0:τ}) at each of the K
     stop times, and the fraction of ``n_eval`` fresh participants per (path, τ) who guessed
     the target (:func:`slotv_jax.observers.population.sample_guesses` with
     ``split(key, K)[τ]``). The programs take the population as an argument
     (:func:`slotv_jax.observers.population.quadrature`, ``sample_guesses_batch``): they
-    compile once for every population."""
+    compile once for every population. A zoo member (:mod:`slotv_jax.observers.zoo`) is
+    scored the same way by its own P and its own people (a program per member)."""
     seen = jnp.asarray(seen_points(taus, n_points))
-    quad = population_lib.quadrature(pop)
+    if isinstance(pop, zoo.ZooMember):
+        probs = functools.partial(_zoo_target_probs, pop)
+    else:
+        probs = functools.partial(_target_probs, population_lib.quadrature(pop))
     k = int(seen.shape[0])
 
     def score(keys, xyz, goals, mask, target):
-        p = _target_probs(quad, xyz, goals, mask, target, seen)
+        p = probs(xyz, goals, mask, target, seen)
         b = int(xyz.shape[0])
         keys = jax.vmap(lambda key: jax.random.split(key, k))(keys).reshape(-1)  # (B K,)
         each = lambda a: jnp.repeat(jnp.asarray(a), k, axis=0)  # noqa: E731
-        guess = population_lib.sample_guesses_batch(
+        guess = people_lib.guesses_batch(
             pop, keys, each(xyz), each(goals), each(mask), jnp.tile(seen, b), n_eval
         )
         correct = jnp.mean(guess == each(target)[:, None], axis=-1).reshape(b, k)
@@ -182,6 +186,16 @@ def _target_probs(quad, xyz, goals, mask, target, seen):
 
     def one(x, g, m, tgt):
         return jax.vmap(lambda s: population_lib.population_probs(quad, x, g, m, s))(seen)[:, tgt]
+
+    return jax.vmap(one)(xyz, goals, mask, target)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _zoo_target_probs(member, xyz, goals, mask, target, seen):
+    """A zoo member's P(target | ξ_{0:L}) (B, K) of B paths at the K ``seen`` points."""
+
+    def one(x, g, m, tgt):
+        return jax.vmap(lambda s: zoo.zoo_probs(member, x, g, m, s))(seen)[:, tgt]
 
     return jax.vmap(one)(xyz, goals, mask, target)
 

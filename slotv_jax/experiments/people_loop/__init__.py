@@ -89,7 +89,7 @@ from slotv_jax.experiments.people_loop.config import (  # noqa: F401  (the packa
     tiny,
 )
 from slotv_jax.experiments.people_loop.loop import eval_keys, run_population  # noqa: F401
-from slotv_jax.observers import population as population_lib
+from slotv_jax.observers import people as people_lib
 from slotv_jax.planning.plans import load_plans, save_plans
 
 # ------------------------------------------------------------------ the document
@@ -195,7 +195,7 @@ def run(
         for spec, seeds in todo.items():
             _run_one(cfg, doc, entries, path, spec, seeds, splits, progress)
     if todo and jobs is None:  # the suite's order, whichever worker finished first
-        order = {name: i for i, name in enumerate(population_lib.suite_specs())}
+        order = {name: i for i, name in enumerate(people_lib.expand(["suite", "zoo"]))}
         doc["populations"].sort(key=lambda p: order.get(p["population"], len(order)))
         write_text(path, json.dumps(doc, indent=1))
     if jobs is None:
@@ -209,7 +209,8 @@ PARTS = ".people_loop_parts"  # the workers' documents of a spread run, inside -
 
 def _run_one(cfg, doc, entries, path, spec, seeds, splits, progress) -> None:
     """One population's seeds, added to ``doc`` (written after it)."""
-    pop, name = population_lib.get_population(spec), population_name(spec)
+    pop = people_lib.get_people(spec)
+    name = people_lib.people_name(spec, pop)
 
     def save_partial(rows):  # a run stopped mid-way keeps its finished sizes
         part = {"population": name, "partial": True, "rows": rows}
@@ -405,5 +406,7 @@ def _same_plans(path: Path, plans: dict[str, np.ndarray]) -> bool:
 
 
 def population_name(spec: str) -> str:
-    """``default``, ``homogeneous``, or a JSON file's stem."""
-    return spec if spec in population_lib.PRESETS else Path(spec).stem
+    """The ``population`` value of ``spec``'s rows: ``default``, ``homogeneous``,
+    ``random:K``, a JSON file's stem, or a zoo member's name
+    (:func:`slotv_jax.observers.people.people_name`)."""
+    return people_lib.people_name(spec, people_lib.get_people(spec))

@@ -27,7 +27,8 @@ from slotv_jax.experiments.people_loop import (
     share_gpu_memory,
     stem_of,
 )
-from slotv_jax.observers import population as population_lib
+from slotv_jax.observers import people as people_lib
+from slotv_jax.observers import zoo
 from slotv_jax.runs import command
 
 # ------------------------------------------------------------------ command line
@@ -53,8 +54,11 @@ def parser() -> argparse.ArgumentParser:
         "--population",
         default="default",
         help="comma-separated: default, homogeneous, random:K (the K-th draw of the "
-        "hyper-distribution), suite (default, homogeneous and the suite's draws), or "
-        "population JSON files",
+        "hyper-distribution), suite (default, homogeneous and the suite's draws), "
+        "population JSON files, a zoo member (people outside the population model: "
+        + ", ".join(zoo.zoo_names())
+        + "), zoo (every member), or module:function (your own people: a function "
+        "returning a slotv_jax.observers.zoo.ZooMember)",
     )
     ap.add_argument(
         "--out", default=str(report_lib.DEFAULT_OUT), help="folder of the results and report"
@@ -157,15 +161,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.processes > 1:  # before the first JAX operation, which takes the GPUs' memory
         share_gpu_memory(os.environ)
     cfg = config_from(args)
-    specs = []
-    for p in (p.strip() for p in args.population.split(",")):
-        for q in population_lib.suite_specs() if p == "suite" else [p] if p else []:
-            if q not in specs:
-                specs.append(q)
+    specs = people_lib.expand(args.population.split(","))
     if not specs:
         raise ValueError("--population: expected at least one population")
-    for p in specs:  # every population file is read and checked before any work
-        population_lib.get_population(p)
+    for p in specs:  # every population file and --people is read and checked before any work
+        try:
+            people_lib.get_people(p)
+        except ValueError as e:
+            raise ValueError(f"--population: {e}") from None
     if not 1 <= args.processes <= 64:
         raise ValueError(f"--processes: expected 1..64, got {args.processes}")
     out = Path(args.out)

@@ -29,7 +29,9 @@ from slotv_jax.experiments.people_loop.config import (
     TRAINED,
     LoopConfig,
 )
+from slotv_jax.observers import people as people_lib
 from slotv_jax.observers import population as population_lib
+from slotv_jax.observers import zoo
 from slotv_jax.observers.common import mask_logits
 from slotv_jax.planning import evaluation
 from slotv_jax.training import trainer as train_lib
@@ -120,6 +122,27 @@ def oracle_planner(cfg: planning.PlannerConfig, quad):
     if key not in _PLANNERS:
         _PLANNERS[key] = planning.make_family_planner(oracle_builds(), quad, cfg)
     return _PLANNERS[key]
+
+
+def oracle_plans(cfg: planning.PlannerConfig, pop, straight) -> dict:
+    """The people's own plans of the ``straight`` problems (each field ``(P, ...)``):
+    ``oracle`` (their exact P at the stop times) and ``oracle_whole`` (the whole motion).
+    A population plans through :func:`oracle_planner` (one program for every population);
+    a zoo member through :func:`slotv_jax.planning.make_planner` of the member itself (a
+    program per member, made once per process)."""
+    if isinstance(pop, zoo.ZooMember):
+        key = (cfg, pop)
+        if key not in _PLANNERS:
+            observers = {"oracle": pop, "oracle_whole": _whole_motion(pop)}
+            _PLANNERS[key] = planning.make_planner(observers, cfg)
+        return {o: _PLANNERS[key].plan_problems(straight, o) for o in ("oracle", "oracle_whole")}
+    quad = population_lib.quadrature(pop)
+    oracle = oracle_planner(cfg, quad)
+    params = jax.tree.map(lambda a: a[None], quad)
+    return {
+        o: jax.tree.map(lambda a: a[0], oracle.plan_problems(params, straight, family=o))
+        for o in ("oracle", "oracle_whole")
+    }
 
 
 # ------------------------------------------------------------------ the study
@@ -483,13 +506,8 @@ def run_population(
             floor = {
                 "straight": plan_scores(scorer, keys_eval, straight_as_plan(problems), problems)
             }
-            quad = population_lib.quadrature(pop)
-            oracle = oracle_planner(cfg.planner, quad)
-            for o in ("oracle", "oracle_whole"):
-                res = oracle.plan_problems(
-                    jax.tree.map(lambda a: a[None], quad), straight, family=o
-                )
-                res = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape[1:])), res)
+            for o, res in oracle_plans(cfg.planner, pop, straight).items():
+                res = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape)), res)
                 floor[o] = plan_scores(scorer, keys_eval, res, problems)
                 example[o] = np.asarray(res.q[0, 0])
             example["straight"] = np.asarray(problems.q[0, 0])
@@ -632,7 +650,7 @@ def run_population(
     }
     return {
         "population": name,
-        "population_config": pop.to_dict(),
+        "population_config": people_lib.people_config(pop),
         "rows": out_rows,
         "comparison": comparison,
         "example": {

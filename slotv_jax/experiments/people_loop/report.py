@@ -19,6 +19,7 @@ from slotv_jax.experiments.people_loop.config import (
     PRETRAINED,
 )
 from slotv_jax.observers import population as population_lib
+from slotv_jax.observers import zoo
 from slotv_jax.runs import figures
 from slotv_jax.runs.summary import crossing
 
@@ -329,11 +330,10 @@ def command_line(doc: dict, out: Path = DEFAULT_OUT) -> str:
             words += [f"--{k}", ",".join(map(str, v)) if isinstance(v, list) else str(v)]
     pops = [p["population"] for p in doc["populations"]]
     if pops != ["default"]:
-        suite = set(population_lib.suite_specs())
-        words += [
-            "--population",
-            "suite" if set(pops) == suite else ",".join(pops),
-        ]
+        groups = {"suite": population_lib.suite_specs(), "zoo": zoo.zoo_names()}
+        named = [g for g, members in groups.items() if set(members) <= set(pops)]
+        rest = [q for q in pops if not any(q in groups[g] for g in named)]
+        words += ["--population", ",".join([*named, *rest])]
     if Path(out) != DEFAULT_OUT:
         words += ["--out", str(out)]
     return " ".join(words)
@@ -486,7 +486,10 @@ def suite_section(doc: dict) -> list[str]:
     s = picks[PICK]
     sizes, at = s["sizes"], headline_size(doc)
     both = PICK_CROSS in picks
+    suite_pops = [q for q in s["populations"] if q in population_lib.suite_specs()]
     missing = [q for q in population_lib.suite_specs() if q not in s["populations"]]
+    if not suite_pops:  # the zoo alone (or files): nothing of the suite to miss
+        missing = []
     lines = [
         f"## {'The pick' if missing else 'The suite: the pick'} on every population (random picks)",
         "",
@@ -540,6 +543,19 @@ def suite_section(doc: dict) -> list[str]:
             + " | ".join(_pct(p[name][a]) for p in picks.values() for a in sizes)
             + (" | | | |" if at else " |")
         )
+    zoo_pops = [q for q in s["populations"] if q in zoo.zoo_names()]
+    if suite_pops and zoo_pops:  # suite ∪ zoo above; each part alone here
+        for part, members in (("suite", suite_pops), ("zoo", zoo_pops)):
+            for name, fn in (("median", statistics.median), ("worst", min)):
+                lines.append(
+                    f"| {name}, {part} alone | | "
+                    + " | ".join(
+                        _pct(fn(p["gain"][q][a] for q in members))
+                        for p in picks.values()
+                        for a in sizes
+                    )
+                    + (" | | | |" if at else " |")
+                )
     if missing:
         lines += [
             "",
