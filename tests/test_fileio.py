@@ -26,8 +26,13 @@ def test_output_dir_rule(tmp_path):
     ours = tmp_path / "ours"
     ours.mkdir()
     (ours / "marker.json").write_text("{}")
-    with pytest.raises(fileio.OutputError, match=r"--resume.*--overwrite"):
+    with pytest.raises(fileio.OutputError, match=r"--resume to continue it.*--overwrite"):
+        fileio.check_output_dir(ours, ours=_ours, resume_hint="pass --resume to continue it")
+    with pytest.raises(fileio.OutputError) as e:  # a command without --resume offers none
         fileio.check_output_dir(ours, ours=_ours)
+    assert str(e.value).endswith(
+        "pass --overwrite to replace it, or choose another --out to keep it"
+    )
     assert fileio.check_output_dir(ours, ours=_ours, resume=True) == "resume"
     assert fileio.check_output_dir(ours, ours=_ours, resume=True, overwrite=True) == "overwrite"
     f = tmp_path / "file"

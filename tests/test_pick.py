@@ -584,3 +584,88 @@ def test_the_mixture_archetype_is_a_family_of_the_presets():
         want = np.asarray(model.prefix(xyz[0, 0], goals[0, 0], mask[0, 0], seen))
         np.testing.assert_allclose(got[:3] - got[0], want[:3] - want[0], atol=1e-5)
         assert np.all(np.isneginf(got[3:]))
+
+
+# The README's CSV example of a study with time stamps (seconds): τ 0.5, 0.8, 1.0 and the
+# whole motions' 1.5, 1.2 and 2.0.
+README_TRAJECTORIES = """trajectory,t,x,y,z
+a,0.0,0.31,0.00,0.49
+a,0.5,0.40,0.12,0.30
+a,1.0,0.50,0.20,0.03
+a,1.5,0.50,0.25,0.03
+b,0.0,0.31,0.00,0.49
+b,0.4,0.45,-0.05,0.35
+b,0.8,0.55,-0.15,0.10
+b,1.2,0.55,-0.20,0.03
+c,0.0,0.31,0.00,0.49
+c,1.0,0.42,0.00,0.20
+c,2.0,0.45,0.00,0.03
+"""
+README_GOALS = """goal,x,y,z
+left,0.50,0.25,0.025
+right,0.55,-0.20,0.025
+middle,0.45,0.00,0.025
+"""
+README_ANSWERS = """trajectory,tau,guess,participant,condition
+a,0.5,left,p1,front
+a,0.5,middle,p2,front
+a,,left,p3,front
+b,0.8,right,p1,front
+b,,right,p2,front
+b,,right,p3,front
+c,1.0,middle,p1,front
+c,1.0,left,p2,front
+c,,middle,p3,front
+"""
+
+
+def test_pick_refusals_say_what_is_wrong_and_what_to_do(tmp_path, capsys, monkeypatch):
+    """On the README's study with time stamps, --by plans and --by pool name the stop times
+    outside (0, 1] (1.2, 1.5, 2 s), not the count (6, within the limit) and valid ones; more
+    than 8 stop times is said as such; an earlier pick as --out offers --overwrite or
+    another --out (pick has no --resume). All before any fit, nothing written."""
+    from slotv_jax.answers import pick as pick_lib
+    from slotv_jax.answers.tables import read_tables
+
+    files = []
+    for name, text in [("trajectories", README_TRAJECTORIES), ("goals", README_GOALS),
+                       ("answers", README_ANSWERS)]:  # fmt: skip
+        files.append(tmp_path / f"{name}.csv")
+        files[-1].write_text(text)
+    timed, _ = read_tables(*files)
+    assert sorted(set(timed.answer_tau)) == [0.5, 0.8, 1.0, 1.2, 1.5, 2.0]
+    save_study(tmp_path / "timed.npz", timed)
+    monkeypatch.setattr(pick_lib, "fit_candidates", lambda *a, **k: pytest.fail("fitted"))
+    out = tmp_path / "pick"
+    for by in ("plans", "pool"):
+        with pytest.raises(SystemExit) as e:
+            study_main(["pick", str(tmp_path / "timed.npz"), "--out", str(out), "--by", by,
+                        "--candidates", "dragan,nikolaidis", "--no-progress"])  # fmt: skip
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.count("\n") == 1, err
+        assert err.startswith(
+            f"error: --by {by}: expected the stop times τ of the study's answers in (0, 1], the "
+            "fraction of the motion seen, got 3 of its 6 outside: 1.2, 1.5, 2 (the study has "
+            "time stamps t: its τ are in their unit, not fractions of the motion)"
+        ), err
+        assert not out.exists()
+    xyz, goals, mask = _paths(1, 1, 20)[:3]
+    nine = simulate_study(jax.random.key(0), xyz[0], goals[0], mask[0], 90, labeler="dragan",
+                          beta=8.0, taus=tuple(np.arange(1, 10) / 10))  # fmt: skip
+    with pytest.raises(ValueError) as e:
+        pick_lib.study_taus(nine, "plans")
+    assert str(e.value) == (
+        "--by plans: expected at most 8 distinct stop times in the study's answers (the "
+        "planner's objective takes that many), got 9: 0.1, 0.2, 0.3, 0.4, 0.5, ... (4 more)"
+    )
+    out.mkdir()
+    (out / "pick.json").write_text("{}")  # an earlier pick
+    with pytest.raises(SystemExit) as e:
+        study_main(["pick", str(tmp_path / "timed.npz"), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "--resume" not in err, err
+    assert err == (
+        f"error: --out {out}: holds an earlier output; pass --overwrite to replace it, or "
+        "choose another --out to keep it\n"
+    )
+    assert (out / "pick.json").read_text() == "{}"

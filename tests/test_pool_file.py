@@ -6,6 +6,7 @@ naming the field before any member is loaded."""
 from __future__ import annotations
 
 import json
+import re
 
 import jax
 import jax.numpy as jnp
@@ -15,6 +16,7 @@ import pytest
 from slotv_jax import planning
 from slotv_jax.answers import PROB_FLOOR, load_pool, pool_observer, save_pool
 from slotv_jax.answers.pick import fit_config
+from slotv_jax.answers.pool_file import BETA_MAX, WEIGHT_SUM_MAX
 from slotv_jax.observers import labelers
 from slotv_jax.training import checkpoint
 from slotv_jax.training import trainer as train
@@ -134,7 +136,7 @@ def test_a_malformed_pool_is_refused_naming_the_field(tmp_path):
         ({**good, "members": []}, "field 'members': expected a non-empty list"),
         (
             {**good, "members": [{**member, "weight": -1}]},
-            r"members\[0\]\.weight': expected a finite",
+            r"members\[0\]\.weight': expected a number in",
         ),
         ({**good, "members": [{**member, "weight": True}]}, r"members\[0\]\.weight'"),
         ({**good, "members": [{**member, "beta": float("nan")}]}, "not valid JSON|beta"),
@@ -168,3 +170,42 @@ def test_a_malformed_pool_is_refused_naming_the_field(tmp_path):
     with pytest.raises(ValueError, match="out: expected a new or empty folder"):
         save_pool(tmp_path / "mine", {"dragan": {"beta": 1.0}}, {"dragan": 1.0})
     assert [p.name for p in (tmp_path / "mine").iterdir()] == ["notes.txt"]
+
+
+def test_a_pool_that_would_not_stay_finite_is_refused_at_load(tmp_path):
+    """A weight of 1e300 (finite in float64, inf in float32: every probability NaN) or a
+    labeler's β of 1e300 (its labels overflow at the first call) is refused by load_pool,
+    naming the file, the member and the field, before any member is loaded; at the bounds
+    (the weights summing to WEIGHT_SUM_MAX, β = BETA_MAX) the pool's probabilities are
+    finite."""
+    xyz, goals, mask = _problem()
+    lab = planning.labeler_observer("dragan", beta=4.0)
+    with np.errstate(over="ignore"):  # what it was: 1e300 is inf in float32
+        nan = jax.nn.softmax(pool_observer([lab], [1e300])(xyz, goals, mask))
+    assert np.isnan(np.asarray(nan)[mask]).all()
+
+    def doc(w0=0.5, w1=0.5, b0=4.0, b1=3.5):
+        return {"format": "slotv_jax observer pool", "version": 1, "camera": "observer",
+                "members": [{"name": "dragan", "weight": w0, "labeler": "dragan", "beta": b0},
+                            {"name": "nikolaidis", "weight": w1, "labeler": "nikolaidis",
+                             "beta": b1}]}  # fmt: skip
+
+    where = tmp_path / "bad" / "pool.json"
+    cases = [
+        (doc(w1=1e300), "members[1].weight': expected a number in [1.18e-38, 6.16e+36]"),
+        (doc(b1=1e300), "members[1].beta': expected a number in [1.18e-38, 3.4e+31]"),
+        (doc(w0=1e-300), "members[0].weight'"),
+        (doc(b0=1e-300), "members[0].beta'"),
+        (doc(w0=0.6 * WEIGHT_SUM_MAX, w1=0.6 * WEIGHT_SUM_MAX), "'members': the weights sum to"),
+        ({**doc(), "members": doc()["members"][:1] * 2}, "members[1].name': expected distinct"),
+        ({**doc(), "meta": [1]}, "field 'meta': expected an object"),
+    ]
+    for bad, needle in cases:
+        with pytest.raises(ValueError, match="^" + re.escape(f"{where}: field '") + ".*"):
+            load_pool(_write(tmp_path, bad))
+        with pytest.raises(ValueError, match=re.escape(needle)):
+            load_pool(_write(tmp_path, bad))
+    edge = load_pool(_write(tmp_path, doc(0.5 * WEIGHT_SUM_MAX, 0.5 * WEIGHT_SUM_MAX, BETA_MAX)))
+    for z in (edge(xyz, goals, mask), edge.prefix(xyz, goals, mask, 12)):
+        p = np.asarray(jax.nn.softmax(z))
+        assert np.isfinite(p).all() and abs(p[mask].sum() - 1) < 1e-6 and (p[~mask] == 0).all()

@@ -518,6 +518,34 @@ def test_npz_errors(small, tmp_path, edit, pieces):
         assert p in str(e.value), (p, str(e.value))
 
 
+def test_duplicate_trajectory_ids_are_refused_when_the_file_is_loaded(small, tmp_path, capsys):
+    """Two trajectories of one id (answers name trajectories by id): `study show` and
+    `study pick` refuse the file at once, naming it, the field and both rows (it passed
+    both, and `study stimuli` refused it 25 s later naming no file); ids that only collide
+    once made safe as stimulus ids are refused by `study stimuli` before its IK."""
+    from slotv_jax.webstudy import make_stimuli
+
+    ids = [f"tr{i}" for i in range(12)]
+    path = tmp_path / "dup.npz"
+    np.savez(path, **_arrays(small), trajectory_ids=np.array([*ids[:7], "tr3", *ids[8:]]))
+    with pytest.raises(ValueError) as e:
+        study.load_study(path)
+    assert str(e.value) == (
+        f"{path}, row 7, field 'trajectory_ids': 'tr3' is also the id of row 3; expected "
+        "distinct ids, one per trajectory"
+    )
+    _one_line_exit_2(["show", str(path)], capsys, str(path), "'trajectory_ids'", "row 7")
+    pick = ["pick", str(path), "--out", str(tmp_path / "pick"), "--candidates", "dragan,nikolaidis"]
+    _one_line_exit_2([*pick, "--no-progress"], capsys, str(path), "row 7")
+    assert not (tmp_path / "pick").exists()
+    safe = tmp_path / "safe.npz"
+    np.savez(safe, **_arrays(small), trajectory_ids=np.array(["a b", *ids[1:5], "a_b", *ids[6:]]))
+    assert study.load_study(safe).trajectory_ids[5] == "a_b"  # distinct in the file
+    with pytest.raises(ValueError, match=re.escape(f"--study {safe}: trajectory ids 'a b' and "
+                                                   "'a_b' are both 'a_b'")):  # fmt: skip
+        make_stimuli.motions_from_study(safe)
+
+
 def test_corrupt_file(tmp_path):
     (tmp_path / "x.npz").write_bytes(b"not a zip file")
     with pytest.raises(ValueError, match=r"x\.npz: not an \.npz file"):

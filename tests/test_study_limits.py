@@ -12,7 +12,7 @@ import time
 
 import httpx
 import pytest
-from study_fixtures import write_dot_set
+from study_fixtures import free_port, write_dot_set
 
 from slotv_jax.study import cli as study_cli
 from slotv_jax.webstudy import limits, web_cli
@@ -195,17 +195,18 @@ def test_serve_runs_under_its_limits(dot_set, tmp_path, monkeypatch, capsys):
     seen = {}
 
     class Server:
-        def run(self):
-            pass
+        def run(self, sockets=None):
+            seen["listening"] = [sock.getsockname()[1] for sock in sockets]
 
     def fake(app, host, port, bounds, **config):
         seen.update(host=host, port=port, bounds=bounds)
         return Server()
 
     monkeypatch.setattr(limits, "make_server", fake)
-    base = ["serve", "--stimuli", str(dot_set), "--db", str(tmp_path / "a.db")]
+    port = free_port()
+    base = ["serve", "--stimuli", str(dot_set), "--db", str(tmp_path / "a.db"), "--port", str(port)]
     assert study_cli.main(base) == 0
-    assert seen["bounds"] == limits.Limits()
+    assert seen["bounds"] == limits.Limits() and seen["listening"] == [port]
     flags = ["--client-timeout", "3", "--keep-alive", "2", "--max-connections", "40"]
     assert study_cli.main(base + flags) == 0
     assert seen["bounds"] == limits.Limits(3.0, 2.0, 40)

@@ -141,6 +141,38 @@ def test_repeated_submission_is_stored_once(server):
     assert c.get("/api/state").json()["position"] == nxt["position"]
 
 
+def test_a_duplicate_answer_replies_with_the_state_after_it(server):
+    """Two identical answers at once: the one whose write comes second is the duplicate,
+    and its reply must show the trial after the answered one, as the first's does (it
+    showed the answered trial again: its trial list was read before the other's write).
+    The interleaving is made deterministic: the storage lets the twin request answer
+    between this request's reading of the trials and its own write."""
+    app, service = server
+    c, state = client(app)
+    token = c.cookies.get(COOKIE)
+    body = (state["position"], state["goals"][0], 3, 850.0)
+    storage, twin = service.storage, []
+
+    class TwinFirst:  # the storage, but the first answer lets the twin's request go first
+        def __getattr__(self, name):
+            return getattr(storage, name)
+
+        def answer(self, *args):
+            if not twin:
+                twin.append(None)  # the twin's own write goes straight through
+                twin[0] = service.answer_for(token, *body)
+            return storage.answer(*args)
+
+    service.storage = TwinFirst()
+    r = c.post("/api/answer", json=dict(zip(("position", "guess", "confidence",
+                                              "response_ms"), body, strict=True)))  # fmt: skip
+    service.storage = storage
+    assert r.status_code == 200 and r.json()["duplicate"] and not twin[0]["duplicate"]
+    assert twin[0]["state"]["position"] == state["position"] + 1
+    assert r.json()["state"] == twin[0]["state"]  # the trial after the answered one
+    assert len(storage.answers()) == 1
+
+
 def test_tokens(server):
     app, service = server
     _, sa = client(app)

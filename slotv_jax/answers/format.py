@@ -263,7 +263,8 @@ def make_study(
     naming ``source``, the field and the row, on: ragged arrays that disagree, T < 2,
     NaN/inf, more than 8 or no goals, goals on one position, negative or non-integer
     counts, answers for padded goals, rows or trajectories with no answers, τ outside the
-    motion (or seeing fewer than 2 points), unknown trajectory or condition indices.
+    motion (or seeing fewer than 2 points), unknown trajectory or condition indices, and
+    ``trajectory_ids`` that repeat an id.
 
     >>> import numpy as np
     >>> xyz = np.linspace([0.3, 0.0, 0.5], [0.5, 0.2, 0.0], 50)[None]
@@ -443,6 +444,14 @@ def make_study(
             f"{w('trajectory_ids')}: expected {n} ids (one per trajectory), "
             f"got {len(trajectory_ids)}"
         )
+    first: dict[str, int] = {}
+    for i, tid in enumerate(trajectory_ids):
+        j = first.setdefault(tid, i)
+        if j != i:  # answers name trajectories by id: two of one id are one too many
+            raise ValueError(
+                f"{w('trajectory_ids', i)}: {tid!r} is also the id of row {j}; expected "
+                "distinct ids, one per trajectory"
+            )
     return Study(
         xyz=xyz,
         length=length.astype(np.int32),

@@ -253,12 +253,30 @@ def study_taus(study: Study, rule: str = "plans") -> tuple[float, ...]:
     """The study's distinct stop times (its answers' τ), the planner's prefix objective
     (ValueError naming ``--by RULE``)."""
     taus = tuple(sorted({round(float(t), 6) for t in study.answer_tau}))
-    if len(taus) > MAX_TAUS or not all(0 < t <= 1 for t in taus):
+    outside = [t for t in taus if not 0 < t <= 1]
+    if outside:
+        why = (
+            " (the study has time stamps t: its τ are in their unit, not fractions of the motion)"
+            if study.t is not None
+            else ""
+        )
         raise ValueError(
-            f"--by {rule}: expected at most {MAX_TAUS} distinct stop times in (0, 1] in the "
-            f"study's answers, got {len(taus)} ({taus[:3]}...)"
+            f"--by {rule}: expected the stop times τ of the study's answers in (0, 1], the "
+            f"fraction of the motion seen, got {len(outside)} of its {len(taus)} outside: "
+            f"{_few(outside)}{why}"
+        )
+    if len(taus) > MAX_TAUS:
+        raise ValueError(
+            f"--by {rule}: expected at most {MAX_TAUS} distinct stop times in the study's "
+            f"answers (the planner's objective takes that many), got {len(taus)}: {_few(taus)}"
         )
     return taus
+
+
+def _few(values: Sequence[float], n: int = 5) -> str:
+    """The first ``n`` values, comma-separated, and how many more."""
+    more = f", ... ({len(values) - n} more)" if len(values) > n else ""
+    return ", ".join(f"{v:g}" for v in values[:n]) + more
 
 
 def fit_candidates(

@@ -31,10 +31,14 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from slotv_jax import planning
+from slotv_jax.answers.format import PROB_FLOOR
 from slotv_jax.answers.pick import LABELERS
 from slotv_jax.answers.pooling import pool_observer
 from slotv_jax.core import fileio
+from slotv_jax.core.validation import FLOAT32_MAX
 from slotv_jax.training import checkpoint
 from slotv_jax.world.scene import CAMERAS
 
@@ -42,6 +46,22 @@ POOL_FILE = "pool.json"
 FORMAT = "slotv_jax observer pool"
 VERSION = 1
 MEMBERS_DIR = "members"
+#: The smallest weight or β a pool file may hold: float32's smallest normal number, so that a
+#: positive value stays positive (and not subnormal) in the float32 pool.
+FIELD_MIN = float(np.finfo(np.float32).tiny)
+#: The largest sum of the weights: the pooled logits ``Σ_f w_f ℓ_f`` have ``ℓ_f`` floored at
+#: log PROB_FLOOR (−27.6), so ``|logits| ≤ 27.6 · Σ_f w_f``; at most half of float32's largest
+#: value (a margin for float32 rounding) keeps every logit, and every probability, finite:
+#: Σ w ≤ 6.2e36. (A weight of 1e300 is inf in float32, and inf · 0 = NaN.)
+WEIGHT_SUM_MAX = FLOAT32_MAX / (2 * -math.log(PROB_FLOOR))
+#: The largest score a labeler member is taken to see: 1e7 (metres for dragan and effdist;
+#: image-plane units for nikolaidis, a point 10 m aside at the least depth it sees, 1e-6;
+#: metres per unit of the motion's normalised time for fastapp's approach speed, 10 m in a
+#: step of 1e-6). The bound the population model puts on its people's temperatures.
+SCORE_MAX = 1e7
+#: The largest β of a labeler member: β · score stays finite in float32 for every score up
+#: to :data:`SCORE_MAX` (3.4e31; beyond it a labeler's labels overflow).
+BETA_MAX = FLOAT32_MAX / SCORE_MAX
 
 __all__ = ["POOL_FILE", "is_pool", "load_pool", "pool_observer", "save_pool"]
 
@@ -91,17 +111,25 @@ def _field(where: Path, name: str, msg: str) -> ValueError:
     return ValueError(f"{where}: field {name!r}: {msg}")
 
 
-def _positive(where: Path, name: str, v: Any) -> float:
-    """``v`` as a float if it is a finite number > 0 (not a bool), else the field's error."""
-    if isinstance(v, bool) or not isinstance(v, int | float) or not (math.isfinite(v) and v > 0):
-        raise _field(where, name, f"expected a finite number > 0, got {v!r}")
+def _positive(where: Path, name: str, v: Any, most: float, why: str) -> float:
+    """``v`` as a float if it is a number (not a bool) in [:data:`FIELD_MIN`, ``most``], else
+    the field's error (``why``: what the upper bound keeps finite)."""
+    if isinstance(v, bool) or not isinstance(v, int | float) or not FIELD_MIN <= v <= most:
+        raise _field(
+            where,
+            name,
+            f"expected a number in [{FIELD_MIN:.3g}, {most:.3g}] ({why}), got {v!r}",
+        )
     return float(v)
 
 
 def load_pool(path: str | os.PathLike):
     """The pool in folder ``path`` (:func:`save_pool`) as one observer with ``prefix``
     (:func:`pool_observer`); ``.members`` lists ``(name, weight)``. Every field is checked
-    before any member is loaded: ValueError naming ``pool.json`` and the field."""
+    before any member is loaded: ValueError naming ``pool.json`` and the field
+    (``members[i].weight`` ...). The bounds keep the pool finite in float32: each weight and
+    β at least :data:`FIELD_MIN`, the weights' sum at most :data:`WEIGHT_SUM_MAX`, a
+    labeler's β at most :data:`BETA_MAX`; the names distinct; ``meta`` an object."""
     path = Path(path)
     where = path / POOL_FILE
     if not where.is_file():
@@ -123,14 +151,18 @@ def load_pool(path: str | os.PathLike):
         at = f"members[{i}]"
         if not isinstance(r, dict) or not isinstance(r.get("name"), str):
             raise _field(where, at, "expected an object with a string 'name'")
-        w = _positive(where, f"{at}.weight", r.get("weight"))
+        if r["name"] in {n for n, _, _ in specs}:
+            raise _field(where, f"{at}.name", f"expected distinct names, {r['name']!r} repeats")
+        why = "the pooled logits finite in float32"
+        w = _positive(where, f"{at}.weight", r.get("weight"), WEIGHT_SUM_MAX, why)
         if ("checkpoint" in r) == ("labeler" in r):
             raise _field(where, at, "expected either 'checkpoint' or 'labeler' and 'beta'")
         if "labeler" in r:
             if r["labeler"] not in LABELERS:
                 raise _field(where, f"{at}.labeler", f"expected one of {LABELERS}, "
                              f"got {r['labeler']!r}")  # fmt: skip
-            b = _positive(where, f"{at}.beta", r.get("beta"))
+            why = f"β times a score up to {SCORE_MAX:g} finite in float32"
+            b = _positive(where, f"{at}.beta", r.get("beta"), BETA_MAX, why)
             specs.append((r["name"], w, ("labeler", r["labeler"], b)))
         else:
             rel = r["checkpoint"]
@@ -141,6 +173,17 @@ def load_pool(path: str | os.PathLike):
             if not checkpoint.exists(target):
                 raise _field(where, f"{at}.checkpoint", f"no checkpoint at {path / rel}")
             specs.append((r["name"], w, ("checkpoint", target)))
+    total = math.fsum(w for _, w, _ in specs)
+    if total > WEIGHT_SUM_MAX:
+        raise _field(
+            where,
+            "members",
+            f"the weights sum to {total:.3g}, expected at most {WEIGHT_SUM_MAX:.3g} (the "
+            "pooled logits finite in float32)",
+        )
+    meta = doc.get("meta", {})
+    if not isinstance(meta, dict):
+        raise _field(where, "meta", f"expected an object, got {type(meta).__name__}")
     observers = []
     for _, _, spec in specs:
         if spec[0] == "labeler":
@@ -149,7 +192,7 @@ def load_pool(path: str | os.PathLike):
             observers.append(checkpoint.load_observer(spec[1]))
     obs = pool_observer(observers, [w for _, w, _ in specs])
     obs.members = [(n, w) for n, w, _ in specs]  # type: ignore[attr-defined]
-    obs.meta = doc.get("meta", {})  # type: ignore[attr-defined]
+    obs.meta = meta  # type: ignore[attr-defined]
     return obs
 
 

@@ -167,7 +167,7 @@ def check_output_dir(
     resume: bool = False,
     overwrite: bool = False,
     what: str = "--out",
-    resume_hint: str = "pass --resume to continue it",
+    resume_hint: str | None = None,
 ) -> Action:
     """Check, before any work, that the directory ``path`` may be written.
 
@@ -175,7 +175,9 @@ def check_output_dir(
     Returns "new" (missing or empty), "resume" (ours and ``resume``) or "overwrite" (ours
     and ``overwrite``; ``overwrite`` wins). Raises :class:`OutputError` if a file is in the
     way, a non-empty directory is not ours, ours exists without ``resume`` or
-    ``overwrite``, or nothing can be written there.
+    ``overwrite``, or nothing can be written there. ``resume_hint``: how a command that can
+    continue an earlier output says so (e.g. "pass --resume to continue it"); without it
+    the refusal offers ``--overwrite`` or another ``what``.
     """
     path = Path(path)
     if path.exists() and not path.is_dir():
@@ -192,6 +194,11 @@ def check_output_dir(
         return "overwrite"
     if resume:
         return "resume"
+    if resume_hint is None:
+        raise OutputError(
+            f"{what} {path}: holds an earlier output; pass --overwrite to replace it, or "
+            f"choose another {what} to keep it"
+        )
     raise OutputError(
         f"{what} {path}: holds an earlier output; {resume_hint}, or pass --overwrite to replace it"
     )

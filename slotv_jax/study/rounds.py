@@ -60,10 +60,9 @@ def read_answers(answers: str | Path | None = None, db: str | Path | None = None
         raise ValueError("--answers / --db: give one of them")
     if db is not None:
         db = Path(db)
-        if not db.is_file():
-            raise ValueError(f"--db {db}: no such file (the server's SQLite database)")
+        storage = connect(db, create=False)  # a missing, empty or damaged file: refused
         with tempfile.TemporaryDirectory() as tmp:
-            tabs = export_lib.tables(connect(db))
+            tabs = export_lib.tables(storage)
             for name in ("answers", "trajectories", "goals"):
                 (Path(tmp) / f"{name}.csv").write_text(tabs[name])
             if len(tabs["answers"].strip().splitlines()) < 2:

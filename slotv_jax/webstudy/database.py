@@ -78,6 +78,8 @@ CREATE TABLE IF NOT EXISTS answers (
 """
 
 
+_KEY_TABLES = {"meta", "trials", "answers"}  # a study's database has these (every version)
+
 _MIGRATIONS = {  # schema version -> the statements that take it to the next one
     1: ("ALTER TABLE participants ADD COLUMN starts INTEGER NOT NULL DEFAULT 1",),
 }
@@ -123,12 +125,79 @@ class Storage(Protocol):
     def trajectory_tables(self) -> tuple[dict[str, list], dict[str, list]]: ...
 
 
-class SQLiteStorage:
-    """:class:`Storage` on one SQLite file (WAL, one connection per thread)."""
+def check_database(path: str | Path, *, create: bool = True) -> None:
+    """Refuse a ``--db`` that is not a healthy study database, touching nothing.
 
-    def __init__(self, path: str | Path, *, sync: str = "full", busy_timeout_ms: int = 30000):
+    The file is opened read-only (``immutable`` when no ``-wal`` file beside it holds
+    changes, so SQLite writes no ``-wal``/``-shm`` file either) and SQLite's own
+    ``PRAGMA quick_check`` and schema are asked. Accepted: a study server's database, or,
+    with ``create``, a file that does not exist yet or an empty SQLite database (the study
+    tables are then created in it). Refused, with a :class:`ValueError` naming ``--db`` and
+    what the file is: a folder, a file that is not SQLite (a CSV, say), a damaged or
+    truncated database, or the database of something else (tables, but not a study's).
+
+    >>> check_database("notadb.csv")  # doctest: +SKIP
+    ValueError: --db notadb.csv: not a SQLite database (SQLite: file is not a database) ...
+    """
+    path = Path(path)
+    expected = "expected the study server's SQLite file"
+    if not path.exists():
+        if create:
+            return
+        raise ValueError(f"--db {path}: no such file ({expected})")
+    if path.is_dir():
+        raise ValueError(f"--db {path}: a folder, {expected}")
+    if not path.is_file():
+        raise ValueError(f"--db {path}: not a regular file, {expected}")
+    wal = Path(f"{path}-wal")
+    mode = "ro" if wal.exists() else "ro&immutable=1"
+    try:
+        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode={mode}", uri=True)
+        try:
+            check = [r[0] for r in con.execute("PRAGMA quick_check").fetchall()]
+            tables = {
+                r[0] for r in con.execute("SELECT name FROM sqlite_schema WHERE type = 'table'")
+            }
+        finally:
+            con.close()
+    except sqlite3.DatabaseError as e:
+        what = {
+            "SQLITE_NOTADB": "not a SQLite database",
+            "SQLITE_CORRUPT": "a damaged (e.g. truncated) SQLite database",
+        }.get(getattr(e, "sqlite_errorname", ""), "a file SQLite cannot read")
+        raise ValueError(f"--db {path}: {what} (SQLite: {e}); {expected}") from None
+    if check != ["ok"]:
+        raise ValueError(
+            f"--db {path}: a damaged SQLite database (quick_check: {check[0]}); {expected}"
+        )
+    if tables and not _KEY_TABLES <= tables:
+        raise ValueError(
+            f"--db {path}: a SQLite database of something else (tables "
+            f"{', '.join(sorted(tables)[:5])}), not a study's; {expected}"
+        )
+    if not tables and not create:
+        raise ValueError(f"--db {path}: an empty SQLite database, no study's tables; {expected}")
+
+
+class SQLiteStorage:
+    """:class:`Storage` on one SQLite file (WAL, one connection per thread).
+
+    The file is checked first (:func:`check_database`): one that is not a healthy study
+    database is refused before anything is written; ``create=False`` refuses a missing or
+    empty one too (the readers: export, ``study next``).
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        sync: str = "full",
+        busy_timeout_ms: int = 30000,
+        create: bool = True,
+    ):
         if sync not in SYNC:
             raise ValueError(f"sync: expected one of {SYNC}, got {sync!r}")
+        check_database(path, create=create)
         self.path = Path(path)
         self.sync = sync
         self.busy_timeout_ms = busy_timeout_ms
@@ -482,9 +551,10 @@ class SQLiteStorage:
         return traj, goals
 
 
-def connect(url: str | Path, *, sync: str = "full") -> Storage:
-    """The storage behind ``--db``: a SQLite file (the only backend shipped)."""
-    return SQLiteStorage(url, sync=sync)
+def connect(url: str | Path, *, sync: str = "full", create: bool = True) -> Storage:
+    """The storage behind ``--db``: a SQLite file (the only backend shipped), checked by
+    :func:`check_database` (``create=False``: it must already be a study's)."""
+    return SQLiteStorage(url, sync=sync, create=create)
 
 
 def unanswered(trials: Sequence[dict]) -> dict | None:

@@ -37,8 +37,10 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import errno
 import math
 import resource
+import socket
 
 import h11
 import uvicorn
@@ -208,6 +210,34 @@ def check_file_limit(limits: Limits) -> None:
                 f"--max-connections {limits.max_connections}: this process may open only "
                 f"{hard} files (ulimit -Hn); expected at most {hard - FD_MARGIN}"
             )
+
+
+def bind(host: str, port: int) -> socket.socket:
+    """A socket bound to ``host:port`` as uvicorn binds one (``SO_REUSEADDR``; IPv6 for a
+    host with a colon), for ``uvicorn.Server.run(sockets=[...])``: bound before the server
+    creates its database, so a port in use is refused (naming ``--port``; an address that
+    is not this machine's, ``--host``) with nothing written, and cannot be taken between
+    the check and the serving."""
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as e:
+        sock.close()
+        if e.errno == errno.EADDRINUSE:
+            raise ValueError(
+                f"--port {port}: already in use on {host} (another server?); expected a free port"
+            ) from None
+        if e.errno in (errno.EACCES, errno.EPERM):
+            raise ValueError(
+                f"--port {port}: not allowed to listen on it ({e.strerror}); expected a "
+                "port >= 1024, or the right to bind lower ones"
+            ) from None
+        raise ValueError(
+            f"--host {host}: cannot listen there ({e.strerror or e}); expected an address of "
+            "this machine"
+        ) from None
+    return sock
 
 
 def make_server(app, host: str, port: int, limits: Limits, **config) -> uvicorn.Server:

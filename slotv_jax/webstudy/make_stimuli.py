@@ -267,6 +267,15 @@ def motions_from_study(path: str | Path) -> Motions:
     st = load_study(path)
     ids = list(st.trajectory_ids) or [f"{Path(path).stem}-{i}" for i in range(st.n_trajectories)]
     ids = [re.sub(r"[^A-Za-z0-9._-]", "_", s) for s in ids]
+    first: dict[str, int] = {}
+    for i, s in enumerate(ids):  # distinct in the file (load_study), but maybe not once safe
+        j = first.setdefault(s, i)
+        if j != i:
+            raise ValueError(
+                f"--study {path}: trajectory ids {st.trajectory_ids[j]!r} and "
+                f"{st.trajectory_ids[i]!r} are both {s!r} as stimulus ids (letters, digits "
+                "and ._- only); expected ids that stay distinct"
+            )
     q = _ik(st.xyz, st.length, f"--study {path}")
     return Motions(q, st.xyz, st.goals, st.goal_mask, ids, ids, None, st.length, st.t)
 

@@ -227,7 +227,8 @@ class StudyService:
         The position must be one of the participant's trials, answered already (a repeated
         submission: the first answer stays) or the next unanswered one; the guess one of
         that trial's goals. :class:`Invalid` otherwise (:class:`Forbidden` for a trial that is
-        not theirs).
+        not theirs). The state is read after the answer is committed, so a duplicate's reply
+        names the trial after it too.
         """
         trials = self.storage.trials(participant["participant"])
         if not 0 <= position < len(trials):
@@ -241,9 +242,9 @@ class StudyService:
         stored, _ = self.storage.answer(
             participant["participant"], position, guess, confidence, response_ms
         )
-        if stored:
-            trial["guess"] = guess
-        return {"duplicate": not stored, "state": self.state(participant, trials=trials)}
+        # The reply is read after the write: ``trials`` was read before it, and a concurrent
+        # twin of this answer may have stored it (and the participant gone on) since.
+        return {"duplicate": not stored, "state": self.state(participant)}
 
     def require(self, token: str | None) -> dict:
         """The participant of a token, or :class:`Unauthorized`."""

@@ -89,27 +89,28 @@ def serve_main(args: argparse.Namespace) -> int:
         hosts = ["*"]
         print(f"note: any Host header is answered on {args.host}; pass --allowed-hosts "
               "with the name participants use", flush=True)  # fmt: skip
-    service = StudyService(stimdir, connect(db, sync=args.sync))
-    token = secrets.token_urlsafe(24)
-    app = make_app(service, token, hosts)
-    url = f"http://{args.host}:{args.port}"
-    print(f"study: {url}/  (rounds {', '.join(map(str, sorted(service.sets)))})")
-    print(f"admin: {url}/admin")
-    print(f"admin token: {token}", flush=True)
-    server = limits.make_server(app, args.host, args.port, bounds, log_level="warning",
-                                access_log=False)  # fmt: skip
+    sock = limits.bind(args.host, args.port)  # a port in use: refused before the --db is made
     try:
-        server.run()
+        service = StudyService(stimdir, connect(db, sync=args.sync))
+        token = secrets.token_urlsafe(24)
+        app = make_app(service, token, hosts)
+        url = f"http://{args.host}:{args.port}"
+        print(f"study: {url}/  (rounds {', '.join(map(str, sorted(service.sets)))})")
+        print(f"admin: {url}/admin")
+        print(f"admin token: {token}", flush=True)
+        server = limits.make_server(app, args.host, args.port, bounds, log_level="warning",
+                                    access_log=False)  # fmt: skip
+        server.run(sockets=[sock])
     except KeyboardInterrupt:  # Ctrl-C, after uvicorn's graceful shutdown (as uvicorn.run)
         pass
+    finally:
+        sock.close()
     return 0
 
 
 def export_main(args: argparse.Namespace) -> int:
     """Write the exported tables (never over earlier files without ``--overwrite``)."""
     db, out = Path(args.db), Path(args.out)
-    if not db.is_file():
-        raise ValueError(f"--db {db}: no such file")
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: expected a folder")
     if not out.parent.is_dir():
@@ -119,7 +120,7 @@ def export_main(args: argparse.Namespace) -> int:
     there = [n for n in export_lib.TABLES if (out / f"{n}.csv").exists()]
     if there and not args.overwrite:
         raise ValueError(f"--out {out}: {there[0]}.csv exists (add --overwrite to replace it)")
-    storage = connect(db)
+    storage = connect(db, create=False)  # a missing, empty or damaged file: refused
     n = export_lib.export_tables(storage, out, drop_failed_attention=args.drop_failed_attention)
     kinds = collections.Counter(a["kind"] for a in storage.answers())
     dropped = kinds["trial"] - n["answers"]  # --drop-failed-attention
