@@ -204,6 +204,7 @@ def write_round(
     if getattr(renderer, "timing", None) is not None:  # round 0 at the robot's speed: so this
         t = make_stimuli.robot_times(motions.q[rows], motions.length[rows],
                                      [motions.ids[i] for i in rows], renderer.timing)  # fmt: skip
+        renderer.check_times(t, motions.length[rows], [motions.ids[i] for i in rows])
     manifest = stimuli.write_stimulus_set(
         out, q=motions.q[rows], xyz=motions.xyz[rows], goals=motions.goals[rows],
         goal_mask=motions.goal_mask[rows], ids=[motions.ids[i] for i in rows], specs=specs,
