@@ -429,6 +429,7 @@ def test_check_clip_counts_the_frames_of_the_clip():
     assert frames_lib.check_clip((4096, 4096), fps=1, duration=n - 1, hold=0) == n
     with pytest.raises(ValueError, match=f"size 4096x4096: {n} frames of 2 panels"):
         frames_lib.check_clip((4096, 4096), fps=1, duration=n - 1, hold=0, panels=2)
+    assert frames_lib.CLIP_BOUNDS in " ".join(cli._parser().format_help().split())  # --help
 
 
 def test_side_by_side_panels_and_a_timed_motion_count_too(tmp_path, monkeypatch, capsys):

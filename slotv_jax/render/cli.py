@@ -65,8 +65,7 @@ from slotv_jax.planning.plans import load_plans
 from slotv_jax.rendering.camera import CAMERAS, FreeCamera
 from slotv_jax.rendering.compare import GAP, LAYOUTS, PALETTE, compare_frames
 from slotv_jax.rendering.frames import (
-    MAX_CLIP_BYTES,
-    MAX_CLIP_FRAMES,
+    CLIP_BOUNDS,
     MAX_FPS,
     MotionRenderer,
     RenderBackendError,
@@ -87,13 +86,6 @@ from slotv_jax.rendering.writers import (
 )
 from slotv_jax.robot import kinematics
 
-# The bounds of a clip (rendering.frames.check_clip), as --help states them.
-CLIP_BOUNDS = (
-    f"A clip has at most {MAX_CLIP_FRAMES} frames (the motion and --hold: 10 minutes at 30 "
-    f"fps), --fps at most {MAX_FPS:g}, and at most {MAX_CLIP_BYTES / 2**30:g} GiB of frames "
-    "(W x H x 3 bytes a frame, each panel's side by side): every frame is held in memory "
-    "before it is encoded."
-)
 IK_WARN = 5e-3  # metres: a TCP path the IK misses by more is reported
 LABEL_CHOICES = ("letters", "names", "none")
 

@@ -54,6 +54,12 @@ MAX_CLIP_FRAMES = 18_000  # 10 minutes at 30 fps (a study's clip lasts seconds)
 # 4 GiB of frames (side by side: every panel's): 3.5 minutes of 640x360 at 30 fps, 23 s of
 # 1920x1080; the peak is up to about 3x that (panels joined, a GIF's copy) on a 23 GB machine.
 MAX_CLIP_BYTES = 4 * 2**30
+CLIP_BOUNDS = (  # the bounds in words, for the commands' --help
+    f"A clip has at most {MAX_CLIP_FRAMES} frames (the motion and --hold: 10 minutes at 30 "
+    f"fps), --fps at most {MAX_FPS:g}, and at most {MAX_CLIP_BYTES / 2**30:g} GiB of frames "
+    "(W x H x 3 bytes a frame, each panel's side by side): every frame is held in memory "
+    "before it is encoded."
+)
 HIDDEN_Z = -10.0  # height (m) that unused cubes are moved to: below the floor, out of sight
 TRACE_PX = 3.0  # width (pixels) of the TCP trace's lines in a 360-pixel-high frame (scaled)
 TRACE_RGBA = (0.05, 0.05, 0.05, 1.0)  # the trace's colour (a dark line reads on every surface)

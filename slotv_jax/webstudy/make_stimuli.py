@@ -70,7 +70,7 @@ from slotv_jax.execution import models as execution_models
 from slotv_jax.execution.cli import add_timing_args, timing_from_args
 from slotv_jax.execution.limits import SOURCE, check_speed
 from slotv_jax.planning.plans import load_plans
-from slotv_jax.rendering.frames import MAX_CLIP_BYTES, MAX_CLIP_FRAMES, MAX_FPS, check_clip
+from slotv_jax.rendering.frames import CLIP_BOUNDS, MAX_FPS, check_clip
 from slotv_jax.rendering.overlay import LABEL_LIFT
 from slotv_jax.webstudy.stimuli import (
     MANIFEST,
@@ -421,10 +421,7 @@ def add_command(sub) -> None:
     p = sub.add_parser(
         "stimuli",
         help="render a stimulus set (clips cut at tau, stills)",
-        epilog=f"A clip has at most {MAX_CLIP_FRAMES} frames (the motion and --hold: 10 "
-        f"minutes at 30 fps), --fps at most {MAX_FPS:g}, and at most "
-        f"{MAX_CLIP_BYTES / 2**30:g} GiB of frames (W x H x 3 bytes a frame): every frame is "
-        "held in memory before it is encoded.",
+        epilog=CLIP_BOUNDS,
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--data", help="dataset folder (python -m slotv_jax.data), with --split")
@@ -443,7 +440,8 @@ def add_command(sub) -> None:
                    "every motion); study.json's trials_per_participant")  # fmt: skip
     p.add_argument("--no-practice", action="store_true", help="no practice trial")
     p.add_argument("--size", default=None, help="WIDTHxHEIGHT of the clips (480x270)")
-    p.add_argument("--fps", type=float, default=None, help="frames per second (25)")
+    p.add_argument("--fps", type=float, default=None,
+                   help=f"frames per second (25; at most {MAX_FPS:g})")  # fmt: skip
     p.add_argument("--duration", type=float, default=None,
                    help="seconds of a whole motion, tau = 1 (3)")  # fmt: skip
     p.add_argument("--hold", type=float, default=None,
