@@ -52,7 +52,8 @@ MAX_SIDE = 4096  # largest frame width or height (pixels)
 MAX_FPS = 240.0  # frames per second: the fastest common displays; more only adds frames
 MAX_CLIP_FRAMES = 18_000  # 10 minutes at 30 fps (a study's clip lasts seconds)
 # 4 GiB of frames (side by side: every panel's): 3.5 minutes of 640x360 at 30 fps, 23 s of
-# 1920x1080; the peak is up to about 3x that (panels joined, a GIF's copy) on a 23 GB machine.
+# 1920x1080. The peak can be a few times that (panels side by side are copied into one
+# array, a GIF copies its frames): still within the project's 23 GB machine.
 MAX_CLIP_BYTES = 4 * 2**30
 CLIP_BOUNDS = (  # the bounds in words, for the commands' --help
     f"A clip has at most {MAX_CLIP_FRAMES} frames (the motion and --hold: 10 minutes at 30 "
