@@ -268,3 +268,26 @@ def test_a_timed_clip_too_long_is_refused_before_any_rendering(tmp_path, monkeyp
             r.check_times(t, np.array([6, 6]), ["ok", "slow"])
     finally:
         r.close()
+
+
+def test_next_round_refuses_round_0_s_clips_past_the_bounds_before_loading(
+    tmp_path, monkeypatch, capsys
+):
+    """--next-round renders with round 0's clip settings: past the bounds (an edited
+    manifest), one line naming the folder before any motion is loaded."""
+    from study_fixtures import write_dot_set
+
+    from slotv_jax.study import cli as study_cli
+
+    write_dot_set(tmp_path / "study", n=2)
+    path = tmp_path / "study" / stimuli.MANIFEST
+    path.write_text(json.dumps({**json.loads(path.read_text()), "fps": 1e9}))
+    monkeypatch.setattr(make_stimuli, "motions_from_plans",
+                        lambda *a: pytest.fail("loaded before the check"))  # fmt: skip
+    with pytest.raises(SystemExit) as e:
+        study_cli.main(["stimuli", "--plans", "experiments/planning_paper_plans.npz", "--n", "1",
+                        "--next-round", str(tmp_path / "study")])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    want = (f"error: --next-round {tmp_path / 'study'}: round 0's clips: fps 1e+09: expected "
+            "frames per second in (0, 240]")  # fmt: skip
+    assert e.value.code == 2 and err == [want], err

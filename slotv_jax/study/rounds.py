@@ -45,7 +45,6 @@ from slotv_jax.answers.tables import read_tables
 from slotv_jax.asking import selection
 from slotv_jax.core import validation
 from slotv_jax.data import SPLITS, load_split
-from slotv_jax.rendering.frames import check_clip
 from slotv_jax.training import config as train_config
 from slotv_jax.webstudy import export as export_lib
 from slotv_jax.webstudy import make_stimuli, stimuli
@@ -257,11 +256,7 @@ def next_main(args: argparse.Namespace) -> int:
     except rendering.RenderBackendError as e:
         raise ValueError(str(e)) from None
     settings = json.loads((stimuli.round_dir(stimdir, 0) / stimuli.MANIFEST).read_text())
-    try:  # round 0's clips within their bounds (a timed one's length: once timed)
-        check_clip(settings["size"], fps=settings["fps"], duration=settings["duration"],
-                   hold=settings["hold"])  # fmt: skip
-    except ValueError as e:
-        raise ValueError(f"--stimuli {stimdir}: round 0's clips: {e}") from None
+    make_stimuli.check_round0_clips(f"--stimuli {stimdir}", settings)  # before any training
     answers = read_answers(args.answers, args.db)
     motions = make_stimuli.motions_from_split(load_split(args.data, args.split))
     cfg = train_config.preset(args.preset, "slotv", train_size=None)

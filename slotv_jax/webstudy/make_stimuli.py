@@ -93,6 +93,17 @@ def robot_timing(speed: float = DEFAULT_SPEED, robot: str = "fer") -> dict:
     return {"robot": robot, "speed": check_speed(speed), "limits": SOURCE}
 
 
+def check_round0_clips(stimdir: str | Path, manifest: dict) -> None:
+    """ValueError naming ``stimdir`` unless the clip settings of its round 0 (``manifest``)
+    are within the bounds of :func:`slotv_jax.rendering.frames.check_clip` (a later round
+    has them; a timed clip's length is checked once its motion is timed)."""
+    try:
+        check_clip(manifest["size"], fps=manifest["fps"], duration=manifest["duration"],
+                   hold=manifest["hold"])  # fmt: skip
+    except ValueError as e:
+        raise ValueError(f"{stimdir}: round 0's clips: {e}") from None
+
+
 class SceneRenderer:
     """:class:`slotv_jax.webstudy.stimuli.Renderer` on MuJoCo (one renderer, reused).
 
@@ -501,6 +512,8 @@ def stimuli_main(args: argparse.Namespace) -> int:
                              "round 0 missing; `study stimuli --out` writes one)")  # fmt: skip
         r, folder = next_round(stimdir)
         check_not_input(folder, inputs, what="--next-round", replaces_dir=True)
+        manifest0 = load_stimulus_set(stimdir, verify=False).manifest
+        check_round0_clips(f"--next-round {stimdir}", manifest0)  # before any loading
     else:
         stimdir = folder = Path(args.out)
         check_not_input(folder, inputs, replaces_dir=True)
@@ -519,7 +532,7 @@ def stimuli_main(args: argparse.Namespace) -> int:
     known = {}  # robot times the check computed: make_set does not compute them again
     if r:
         flag, path = next((k, v) for k, v in inputs.items() if v is not None)
-        timing0 = load_stimulus_set(stimdir, verify=False).manifest.get("timing")
+        timing0 = manifest0.get("timing")
         known = check_ids_across_rounds(stimdir, motions, f"{flag} {path}", timing0)
     try:
         if r:
