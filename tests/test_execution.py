@@ -452,6 +452,17 @@ def test_export_writes_or_refuses(plans_file, recorded, tmp_path, capsys):
     assert not refused.exists()
 
 
+def test_export_makes_the_missing_folder_of_out(plans_file, tmp_path, capsys):
+    """``--out DIR/x.csv`` with DIR missing: the output rule passed it (DIR's nearest
+    existing folder is writable), so DIR is made, as render and study import do; it was
+    refused after the timing and checks, naming an internal temporary file."""
+    out = tmp_path / "new" / "sub" / "m.csv"
+    code = cli.main(["export", "--plans", str(plans_file), "--planner", "good", "--problem", "1",
+                     "--format", "csv", "--out", str(out)])  # fmt: skip
+    assert code == 0 and out.is_file() and f"wrote {out}" in capsys.readouterr().out
+    assert sorted(p.name for p in out.parent.iterdir()) == ["m.csv"]  # no temporary left
+
+
 def test_check_prints_one_line_per_plan(recorded, tmp_path, capsys):
     q = recorded["q"][0, 0]
     deeper = q.copy()  # its last tenth continued twice as far down: into the table

@@ -304,6 +304,52 @@ def test_bad_input(planner, problems):
     del obs
 
 
+def test_reach_holds_every_tcp_position():
+    """kinematics.reach(): every TCP position of 20000 configurations within the joint limits
+    (MuJoCo C, float64) lies in its ball, and the ball is not loose (the farthest of them
+    within 15 % of its radius)."""
+    centre, radius = kinematics.reach()
+    m = kinematics.mj_model()
+    d = mujoco.MjData(m)
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, kinematics.TCP_SITE)
+    qs = np.random.default_rng(0).uniform(kinematics.Q_MIN, kinematics.Q_MAX, (20000, 7))
+    dist = []
+    for q in qs:
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        dist.append(np.linalg.norm(d.site_xpos[site] - centre))
+    assert max(dist) <= radius and max(dist) > 0.85 * radius, (max(dist), radius)
+
+
+def test_an_unreachable_goal_is_refused_before_anything_compiles(monkeypatch):
+    """A target or a start farther from the shoulder than the arm reaches: the planner's
+    refusal, before the straight lines (or the home TCP's constant) compile: it came after
+    30-53 s of compiling, and comes after 0.1 s."""
+    from slotv_jax.planning import compiled
+
+    def compiling(cfg):
+        def straight(*a):
+            raise AssertionError("the straight lines ran before the reach was checked")
+
+        return straight
+
+    start = np.broadcast_to(kinematics.home_tcp(), (8, 3)).copy()
+    start[2] = [0.0, 0.0, 1.6]
+    monkeypatch.setattr(compiled, "_straight_program", compiling)
+    monkeypatch.setattr(kinematics, "home_tcp", lambda: pytest.fail("MJX compiled first"))
+    goals, mask, target = sample_problems(8, seed=4)
+    far = goals.copy()
+    far[5, target[5]] = [1.6, 0.0, 0.025]  # hypot(1.6, 0.333 - 0.025) = 1.629 m away
+    planner = planning.make_planner(planning.labeler_observer("dragan"))
+    with pytest.raises(ValueError, match=r"target: problem 5 at \[1\.6, 0\.0, 0\.025\] m "
+                       r"is out of reach \(1\.629 m from the Panda's shoulder"):  # fmt: skip
+        planner(far, mask, target)
+    with pytest.raises(ValueError, match=r"target: problem 5 .* out of reach"):
+        planning.straight_lines(far, mask, target)  # what study pick and the people loop use
+    with pytest.raises(ValueError, match=r"start: problem 2 .* out of reach"):
+        planner(goals, mask, target, start=start)
+
+
 # ------------------------------------------------------------------- README
 
 

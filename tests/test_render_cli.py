@@ -381,3 +381,70 @@ def test_egl_is_chosen_without_a_display_whatever_imports_mujoco_first():
                          timeout=120)  # fmt: skip
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["egl", "True"]
+
+
+PLANS = "experiments/planning_paper_plans.npz"
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--duration", "1e9"], "--duration 1e+09: a clip of 30000000031 frames at 30 fps"),
+        (["--hold", "1e9"], "--hold 1e+09: a clip of 30000000091 frames (30000000000 of them"),
+        (["--fps", "1e9"], "--fps 1e+09: expected frames per second in (0, 240]"),
+        (["--duration", "1e4", "--size", "16x16"], "--duration 10000: a clip of 300031 frames"),
+        (["--size", "4096x4096", "--duration", "30"], "--size 4096x4096: 931 frames take 43.6 GiB"),
+    ],
+)
+def test_a_clip_too_long_or_too_fast_is_refused_before_anything_is_loaded(
+    tmp_path, monkeypatch, capsys, args, message
+):
+    """The issue's clips (a 224 GiB traceback, a machine's memory): one line naming the flag,
+    before the plans are even read; the counts are those of the frames the clip would have
+    (30 fps, 1 s held: ceil(duration * 30) + 1 + hold * 30)."""
+    monkeypatch.setattr(cli, "load_plans", lambda *a: pytest.fail("loaded before the check"))
+    monkeypatch.setattr(frames_lib.MotionRenderer, "__init__", None)
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--plans", PLANS, "--problem", "2", *args, "--out", str(tmp_path / "x.gif")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert e.value.code == 2 and len(err) == 1 and err[0] == f"error: {err[0][7:]}", err
+    assert message in err[0], err
+    assert not (tmp_path / "x.gif").exists()
+
+
+def test_check_clip_counts_the_frames_of_the_clip():
+    """check_clip's count is the length of the clip's frame times (the frames rendered), its
+    bytes every panel's, and each bound holds at its limit and fails just past it."""
+    for tau, fps, duration, hold in ((0.5, 5, 1, 0.2), (1.0, 30, 3, 1), (0.37, 24, 2.5, 0)):
+        n = len(frames_lib.frame_times(tau, fps=fps, duration=duration, hold=hold))
+        assert frames_lib.check_clip(SIZE, fps=fps, duration=duration, hold=hold, tau=tau) == n
+    top = frames_lib.MAX_CLIP_FRAMES
+    assert frames_lib.check_clip(SIZE, fps=30, duration=(top - 1) / 30, hold=0) == top
+    with pytest.raises(ValueError, match=f"duration .*: a clip of {top + 1} frames"):
+        frames_lib.check_clip(SIZE, fps=30, duration=top / 30, hold=0)
+    with pytest.raises(ValueError, match="fps 241: expected"):
+        frames_lib.check_clip(SIZE, fps=241, duration=1, hold=0)
+    side = 4096 * 4096 * 3  # bytes of one frame: 256 of them are 12 GiB, 85 are < 4 GiB
+    n = frames_lib.MAX_CLIP_BYTES // side
+    assert frames_lib.check_clip((4096, 4096), fps=1, duration=n - 1, hold=0) == n
+    with pytest.raises(ValueError, match=f"size 4096x4096: {n} frames of 2 panels"):
+        frames_lib.check_clip((4096, 4096), fps=1, duration=n - 1, hold=0, panels=2)
+    assert frames_lib.CLIP_BOUNDS in " ".join(cli._parser().format_help().split())  # --help
+
+
+def test_side_by_side_panels_and_a_timed_motion_count_too(tmp_path, monkeypatch, capsys):
+    """The bytes of 7 planners side by side (refused before the renderer opens), and the
+    length of a motion at the robot's speed, known once it is timed."""
+    monkeypatch.setattr(frames_lib.MotionRenderer, "__init__", None)
+    base = ["--plans", PLANS, "--problem", "2", "--out", str(tmp_path / "x.gif")]
+    with pytest.raises(SystemExit) as e:
+        cli.main([*base, "--size", "1920x1080", "--duration", "10"])
+    err = capsys.readouterr().err.strip().splitlines()
+    want = "error: --size 1920x1080: 331 frames of 7 panels take 13.4 GiB"
+    assert e.value.code == 2 and len(err) == 1 and err[0].startswith(want), err
+    args = cli._parser().parse_args([*base, "--timed", "--speed", "1e-4"])
+    item = cli.Item("slow", (Q1,), GOALS, MASK, 0, t=np.linspace(0, 6745.5, 10), duration=6745.5)
+    speed = execution.TimingConfig(speed=1e-4)
+    with pytest.raises(ValueError, match=r"--timed: slow lasts 6746 s at --speed 0\.0001: "
+                       r"duration 6745\.5: a clip of 202396 frames"):  # fmt: skip
+        cli._check_clip(args, (640, 360), item, speed)

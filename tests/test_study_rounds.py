@@ -129,6 +129,26 @@ def test_next_rejects_bad_input(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("error: --stimuli")
 
 
+def test_next_refuses_round_0_s_clips_past_the_bounds_before_training(
+    tmp_path, monkeypatch, capsys
+):
+    """A round 0 whose clips are past rendering.frames.check_clip's bounds (an edited
+    manifest): `study next` refuses in one line before reading the answers, not after the
+    ensemble's training."""
+    write_dot_set(tmp_path / "study", n=2)
+    path = tmp_path / "study" / stimuli.MANIFEST
+    manifest = json.loads(path.read_text())
+    path.write_text(json.dumps({**manifest, "duration": 1e9}))
+    monkeypatch.setattr(rounds, "read_answers", None)  # must not be reached
+    argv = ["next", "--stimuli", str(tmp_path / "study"), "--answers", str(tmp_path),
+            "--data", str(tmp_path)]  # fmt: skip
+    with pytest.raises(SystemExit) as e:
+        study_cli.main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    want = f"error: --stimuli {tmp_path / 'study'}: round 0's clips: duration 1e+09: a clip of "
+    assert e.value.code == 2 and len(err) == 1 and err[0].startswith(want), err
+
+
 def test_next_without_egl_refuses_before_training(tmp_path, monkeypatch, capsys):
     """Headless with no EGL library, `study next` (which renders the round last, after the
     ensemble's training) refuses in one line before reading the answers."""

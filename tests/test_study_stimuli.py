@@ -216,3 +216,78 @@ def test_plans_without_tcp_paths_get_them_by_forward_kinematics(tmp_path):
     got = make_stimuli.motions_from_plans(tmp_path / "joints_only.npz")
     assert got.ids == want.ids and np.array_equal(got.q, want.q)
     np.testing.assert_allclose(got.xyz, want.xyz, atol=2e-5)  # float32 MJX against float64 C
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--n", "0"], "--n 0: expected an integer >= 1"),
+        (["--attention", "-1"], "--attention -1: expected an integer >= 0"),
+        (["--taus", "0,2"], "--taus 0,2: expected distinct normalised times in (0, 1]"),
+        (["--duration", "1e9"], "--duration 1e+09: a clip of 25000000013 frames at 25 fps"),
+        (["--hold", "1e9"], "--hold 1e+09: a clip of "),
+        (["--fps", "1e9"], "--fps 1e+09: expected frames per second in (0, 240]"),
+        (["--size", "4096x4096", "--duration", "30"], "--size 4096x4096: 763 frames take"),
+    ],
+)
+def test_counts_and_clips_are_checked_before_any_motion_is_loaded(
+    tmp_path, monkeypatch, capsys, args, message
+):
+    """``--n 0`` (refused after 23 s of loading and IK), a clip too long or too fast (a
+    traceback after 24 s): one line naming the flag, before the source is read. (25 fps,
+    0.5 s held: ceil(duration * 25) + 1 + 12 frames, the half frame rounded to even.)"""
+    from slotv_jax.study import cli as study_cli
+
+    def loaded(*a, **k):
+        raise AssertionError("the source was loaded before the check")
+
+    for name in ("motions_from_plans", "load_split", "load_plans"):
+        monkeypatch.setattr(make_stimuli, name, loaded)
+    monkeypatch.setattr(make_stimuli.SceneRenderer, "__init__", loaded)
+    out = tmp_path / "stim"
+    with pytest.raises(SystemExit) as e:
+        study_cli.main(["stimuli", "--plans", "experiments/planning_paper_plans.npz", *args,
+                        "--out", str(out)])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert e.value.code == 2 and len(err) == 1 and err[0].startswith("error: "), err
+    assert message in err[0], err
+    assert not out.exists()
+
+
+def test_a_timed_clip_too_long_is_refused_before_any_rendering(tmp_path, monkeypatch):
+    """At a robot's speed a clip lasts as long as the motion: checked once every motion is
+    timed, before the set is rendered (ids named, with the speed)."""
+    monkeypatch.setattr(stimuli, "write_stimulus_set",
+                        lambda *a, **k: pytest.fail("rendered before the check"))  # fmt: skip
+    r = make_stimuli.SceneRenderer(SIZE, 25.0, None, 0.5, timing=make_stimuli.robot_timing(1e-3))
+    try:
+        t = np.stack([np.linspace(0, 10, 6), np.linspace(0, 900, 6)])
+        r.check_times(t[:1], np.array([6]), ["ok"])  # 10 s: 251 + 12 frames
+        with pytest.raises(ValueError, match=r"--timed: motion slow lasts 900 s at --speed "
+                           r"0\.001: duration 900: a clip of 22513 frames"):  # fmt: skip
+            r.check_times(t, np.array([6, 6]), ["ok", "slow"])
+    finally:
+        r.close()
+
+
+def test_next_round_refuses_round_0_s_clips_past_the_bounds_before_loading(
+    tmp_path, monkeypatch, capsys
+):
+    """--next-round renders with round 0's clip settings: past the bounds (an edited
+    manifest), one line naming the folder before any motion is loaded."""
+    from study_fixtures import write_dot_set
+
+    from slotv_jax.study import cli as study_cli
+
+    write_dot_set(tmp_path / "study", n=2)
+    path = tmp_path / "study" / stimuli.MANIFEST
+    path.write_text(json.dumps({**json.loads(path.read_text()), "fps": 1e9}))
+    monkeypatch.setattr(make_stimuli, "motions_from_plans",
+                        lambda *a: pytest.fail("loaded before the check"))  # fmt: skip
+    with pytest.raises(SystemExit) as e:
+        study_cli.main(["stimuli", "--plans", "experiments/planning_paper_plans.npz", "--n", "1",
+                        "--next-round", str(tmp_path / "study")])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    want = (f"error: --next-round {tmp_path / 'study'}: round 0's clips: fps 1e+09: expected "
+            "frames per second in (0, 240]")  # fmt: skip
+    assert e.value.code == 2 and err == [want], err

@@ -157,6 +157,10 @@ def _export(args, plans, row, config) -> int:
         print(f"refused: {e.refusal}", file=sys.stderr)
         return EXIT_REFUSED
     source = {"plans": args.plans.name, "planner": args.planner, "problem": p}
+    # the output rule passed --out's nearest existing folder as writable: what is missing of
+    # its folder is made, as every command that writes a file does (only now: a refused
+    # plan leaves nothing behind)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     n = write_trajectory(args.out, e.trajectory, args.format, args.rate, source)
     c, t = e.checks, e.trajectory
     near = "" if c.clearance < CLEARANCE_HORIZON else "> "

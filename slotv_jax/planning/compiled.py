@@ -5,7 +5,9 @@
 compiled once whatever the observer); :func:`make_family_planner` plans with observers
 built from parameters (the dozens of observers a study fits: one compilation for every
 parameter set, and for several families side by side). Both validate every input first
-(targets, goals, starts within IK's reach: :func:`check_problems`) and plan with
+(targets, goals, starts within IK's reach: :func:`check_problems`; one beyond the arm's
+links laid end to end, :func:`slotv_jax.robot.kinematics.reach`, before anything compiles)
+and plan with
 :func:`slotv_jax.planning.planner.plan`, the pure function of one problem.
 """
 
@@ -67,9 +69,12 @@ def _straight_problems(straight, goals, goal_mask, target, start, note=None) -> 
     t = jnp.asarray(_check_targets(goals, goal_mask, target), jnp.int32)
     goals32 = jnp.asarray(goals, jnp.float32)
     mask = jnp.asarray(goal_mask).astype(bool)
-    if start is None:
+    _check_reach("target", np.asarray(goals)[np.arange(n), np.asarray(t)])
+    if start is None:  # the home TCP, which Q_HOME reaches (its constant compiles once)
         start = np.broadcast_to(kinematics.home_tcp(), (n, 3))
-    validation.check_array("start", start, (n, 3))
+    else:
+        validation.check_array("start", start, (n, 3))
+        _check_reach("start", np.asarray(start))
     if note is not None:
         note(n)
     problems = straight(goals32, mask, t, jnp.asarray(start, jnp.float32))
@@ -299,6 +304,28 @@ def make_family_planner(
     return planner
 
 
+def _out_of_reach(name: str, i: int, pos, why: str) -> ValueError:
+    """The planner's one refusal of a start or target it cannot reach."""
+    return ValueError(
+        f"{name}: problem {i} at {np.round(np.asarray(pos, np.float64), 4).tolist()} m is "
+        f"out of reach ({why})"
+    )
+
+
+def _check_reach(name: str, pos: np.ndarray) -> None:
+    """Before anything compiles: no start or target ``pos`` (B, 3) that no configuration
+    reaches within MAX_RESIDUAL, farther than the arm's links laid end to end
+    (:func:`slotv_jax.robot.kinematics.reach`) plus MAX_RESIDUAL from its shoulder: the
+    IK residual of :func:`check_problems` would be larger than MAX_RESIDUAL for it."""
+    centre, radius = kinematics.reach()
+    dist = np.linalg.norm(np.asarray(pos, np.float64) - centre, axis=-1)
+    bad = np.flatnonzero(dist > radius + MAX_RESIDUAL)
+    if bad.size:
+        i = int(bad[0])
+        raise _out_of_reach(name, i, pos[i], f"{dist[i]:.3f} m from the Panda's shoulder, "
+                            f"which its links reach {radius:.3f} m from")  # fmt: skip
+
+
 def check_problems(problems: Problem) -> None:
     """Raise ValueError if a (batched, concrete) problem's start or target is out of reach."""
     for name, res in (("start", problems.start_residual), ("target", problems.target_residual)):
@@ -312,7 +339,5 @@ def check_problems(problems: Problem) -> None:
                 pos = where.reshape(r.size, G_MAX, 3)[
                     i, int(np.asarray(problems.target).reshape(-1)[i])
                 ]
-            raise ValueError(
-                f"{name}: problem {i} at {np.round(pos, 4).tolist()} m is out of reach "
-                f"(IK residual {r[i] * 1e3:.1f} mm > {MAX_RESIDUAL * 1e3:.0f} mm)"
-            )
+            why = f"IK residual {r[i] * 1e3:.1f} mm > {MAX_RESIDUAL * 1e3:.0f} mm"
+            raise _out_of_reach(name, i, pos, why)

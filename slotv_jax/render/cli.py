@@ -31,6 +31,13 @@ with a progress bar. One item goes to ``--out FILE``, whose suffix picks the for
 grid). Everything is checked before any rendering: an input error prints one line
 ``error: ...`` and exits with 2.
 
+A clip is bounded (:func:`slotv_jax.rendering.frames.check_clip`; every frame is held in
+memory before it is encoded): ``--fps`` at most ``MAX_FPS`` (240), at most
+``MAX_CLIP_FRAMES`` frames (18000: 10 minutes at 30 fps, the motion and ``--hold``), and at
+most ``MAX_CLIP_BYTES`` of frames (4 GiB: ``W × H × 3`` bytes a frame, every panel's side
+by side), checked before anything is loaded (a ``--timed`` clip's length once its motion
+is timed).
+
     python -m slotv_jax.render --data quick --split position_test --index 0 --out a.mp4
     python -m slotv_jax.render --plans plans.npz --problem 3 --tau 0.5 --out compare.png
     python -m slotv_jax.render --plans plans.npz --problem 3 --planner slotv --timed --out slotv.mp4
@@ -58,8 +65,11 @@ from slotv_jax.planning.plans import load_plans
 from slotv_jax.rendering.camera import CAMERAS, FreeCamera
 from slotv_jax.rendering.compare import GAP, LAYOUTS, PALETTE, compare_frames
 from slotv_jax.rendering.frames import (
+    CLIP_BOUNDS,
+    MAX_FPS,
     MotionRenderer,
     RenderBackendError,
+    check_clip,
     check_motion,
     check_size,
     check_timing,
@@ -268,6 +278,7 @@ def _parser() -> argparse.ArgumentParser:
         prog="python -m slotv_jax.render",
         description="Render trajectories of the Panda in its scene as MP4, GIF or PNG "
         "(needs OpenGL: MUJOCO_GL=egl on a headless machine).",
+        epilog=CLIP_BOUNDS,
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument(
@@ -296,7 +307,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--azimuth", type=float, default=180.0, help="free camera azimuth (deg)")
     p.add_argument("--elevation", type=float, default=-30.0, help="free camera elevation (deg)")
     p.add_argument("--size", default="640x360", help="frame size WxH (default 640x360)")
-    p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
+    p.add_argument(
+        "--fps",
+        type=float,
+        default=30.0,
+        help=f"frames per second (default 30, at most {MAX_FPS:g})",
+    )
     p.add_argument("--duration", type=float, default=None,
                    help="seconds of the whole motion (default 3)")  # fmt: skip
     add_timing_args(p, instead="--duration seconds")
@@ -374,6 +390,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise cli.InputError("--timed: a --grid shows stills; leave --timed out")
     args.duration = 3.0 if args.duration is None else args.duration
     check_timing(args.tau, args.fps, args.duration, args.hold)
+    # before any loading: the clip within its bounds (a --timed one's length comes later)
+    check_clip(size, fps=args.fps, duration=None if args.timed else args.duration,
+               hold=args.hold, tau=args.tau, prefix="--")  # fmt: skip
     timing = timing_from_args(args)
     camera = _camera(args)
     load = {"data": _data_items, "npz": _npz_items, "study": _study_items, "plans": _plans_items}
@@ -381,6 +400,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     paths = _outputs(args, items)
     if timing is not None:  # before any rendering: every motion timed, or one line why not
         items = [_timed(it, timing) for it in items]
+    if not args.grid:  # every clip within its bounds: its panels, a timed motion's length
+        for it in items:
+            _check_clip(args, size, it, timing)
     for it in items:
         for q in it.qs:
             try:
@@ -435,6 +457,21 @@ def _timed(it: Item, timing: TimingConfig) -> Item:
         raise cli.InputError(f"--timed: {it.key}: {e}") from None
     return dataclasses.replace(it, qs=(traj.path.plan_q,), t=traj.knot_times,
                                duration=traj.duration)  # fmt: skip
+
+
+def _check_clip(args, size: tuple[int, int], it: Item, timing: TimingConfig | None) -> None:
+    """``it``'s clip within the bounds of :func:`slotv_jax.rendering.frames.check_clip`."""
+    panels = len(it.qs) if args.layout == "side" else 1
+    if it.duration is None:
+        check_clip(size, fps=args.fps, duration=args.duration, hold=args.hold, tau=args.tau,
+                   panels=panels, prefix="--")  # fmt: skip
+        return
+    try:
+        check_clip(size, fps=args.fps, duration=it.duration, hold=args.hold, tau=args.tau,
+                   panels=panels)  # fmt: skip
+    except ValueError as e:
+        raise cli.InputError(f"--timed: {it.key} lasts {it.duration:.4g} s at --speed "
+                             f"{timing.speed:g}: {e}") from None  # fmt: skip
 
 
 def _frames(args, it: Item, **kw) -> np.ndarray:

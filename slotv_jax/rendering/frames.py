@@ -47,6 +47,20 @@ from slotv_jax.rendering.overlay import draw_goal_labels
 from slotv_jax.robot import kinematics
 
 MAX_SIDE = 4096  # largest frame width or height (pixels)
+# The bounds of one clip (check_clip), generous for real use and far below what exhausts a
+# machine: every frame of a clip is held in memory as uint8 before it is encoded.
+MAX_FPS = 240.0  # frames per second: the fastest common displays; more only adds frames
+MAX_CLIP_FRAMES = 18_000  # 10 minutes at 30 fps (a study's clip lasts seconds)
+# 4 GiB of frames (side by side: every panel's): 3.5 minutes of 640x360 at 30 fps, 23 s of
+# 1920x1080. The peak can be a few times that (panels side by side are copied into one
+# array, a GIF copies its frames): still within the project's 23 GB machine.
+MAX_CLIP_BYTES = 4 * 2**30
+CLIP_BOUNDS = (  # the bounds in words, for the commands' --help
+    f"A clip has at most {MAX_CLIP_FRAMES} frames (the motion and --hold: 10 minutes at 30 "
+    f"fps), --fps at most {MAX_FPS:g}, and at most {MAX_CLIP_BYTES / 2**30:g} GiB of frames "
+    "(W x H x 3 bytes a frame, each panel's side by side): every frame is held in memory "
+    "before it is encoded."
+)
 HIDDEN_Z = -10.0  # height (m) that unused cubes are moved to: below the floor, out of sight
 TRACE_PX = 3.0  # width (pixels) of the TCP trace's lines in a 360-pixel-high frame (scaled)
 TRACE_RGBA = (0.05, 0.05, 0.05, 1.0)  # the trace's colour (a dark line reads on every surface)
@@ -66,9 +80,64 @@ def frame_times(
     [0.0, 0.125, 0.25, 0.375, 0.5, 0.5, 0.5]
     """
     check_timing(tau, fps, duration, hold)
-    n = math.ceil(tau * fps * duration - 1e-9)
-    s = np.minimum(np.arange(n + 1) / (fps * duration), tau)
-    return np.concatenate([s, np.full(round(hold * fps), tau)])
+    moving, held = _frame_counts(tau, fps, duration, hold)
+    s = np.minimum(np.arange(moving) / (fps * duration), tau)
+    return np.concatenate([s, np.full(held, tau)])
+
+
+def _frame_counts(tau, fps, duration, hold) -> tuple[int, int]:
+    """The frames of a clip's motion (0 … τ) and its held frames (:func:`frame_times`)."""
+    return math.ceil(tau * fps * duration - 1e-9) + 1, round(hold * fps)
+
+
+def check_clip(
+    size: tuple[int, int],
+    *,
+    fps: float,
+    duration: float | None,
+    hold: float,
+    tau: float = 1.0,
+    panels: int = 1,
+    prefix: str = "",
+) -> int:
+    """The number of frames of a clip (:func:`frame_times`), checked against the bounds
+    before any of them is made: ``fps`` at most :data:`MAX_FPS`, at most
+    :data:`MAX_CLIP_FRAMES` frames (motion and hold), and the frames' bytes
+    (``panels · W · H · 3`` each, ``size = (W, H)`` one panel's) at most
+    :data:`MAX_CLIP_BYTES`. ``duration`` None: a clip whose length is not known yet (a
+    motion at the robot's speed), its held frames checked. ValueError naming the argument
+    (``prefix`` + its name: ``"--"`` for a command's flags) otherwise.
+
+    >>> check_clip((640, 360), fps=30, duration=3, hold=1)
+    121
+    """
+    check_timing(tau, fps, 1.0 if duration is None else duration, hold)
+    w, h = check_size(size)
+    p = prefix
+    if fps > MAX_FPS:
+        raise ValueError(f"{p}fps {fps:g}: expected frames per second in (0, {MAX_FPS:g}]")
+    moving, held = _frame_counts(tau, fps, 0.0 if duration is None else duration, hold)
+    n = moving + held
+    if n > MAX_CLIP_FRAMES:  # named: whichever of the motion and the hold has more frames
+        limit = f"expected at most {MAX_CLIP_FRAMES} (10 minutes at 30 fps)"
+        if duration is None or held > moving:
+            raise ValueError(
+                f"{p}hold {hold:g}: a clip of {n} frames ({held} of them held) at {fps:g} "
+                f"fps, {limit}"
+            )
+        raise ValueError(
+            f"{p}duration {duration:g}: a clip of {n} frames at {fps:g} fps (with {hold:g} s "
+            f"held), {limit}"
+        )
+    nbytes = n * panels * w * h * 3
+    if nbytes > MAX_CLIP_BYTES:
+        of = f" of {panels} panels" if panels > 1 else ""
+        raise ValueError(
+            f"{p}size {w}x{h}: {n} frames{of} take {nbytes / 2**30:.1f} GiB, expected at most "
+            f"{MAX_CLIP_BYTES / 2**30:g} GiB of frames: a smaller {p}size, or fewer frames "
+            f"({p}duration, {p}fps, {p}hold)"
+        )
+    return n
 
 
 def check_timing(tau, fps, duration, hold) -> None:

@@ -156,6 +156,27 @@ def home_tcp() -> np.ndarray:
     return host_eval(pos, m, np.asarray(Q_HOME, np.float32))
 
 
+@functools.cache
+def reach() -> tuple[np.ndarray, float]:
+    """A ball that holds every TCP position: its centre (3,) (m), joint 1's anchor (on the
+    base, which never moves), and its radius (m), the links laid end to end from joint
+    anchor to joint anchor and on to the TCP.
+
+    Each two consecutive anchors (and the last one and the TCP) are fixed in one link, so
+    their distance is the same in every configuration (MuJoCo C kinematics at ``Q_HOME``),
+    and by the triangle inequality no configuration puts the TCP farther from the centre
+    than their sum: a point farther than ``radius + r`` from it is missed by more than r
+    whatever the joints (what the planner refuses, checked before anything compiles).
+    """
+    m = mj_model(PANDA_XML)
+    d = mujoco.MjData(m)
+    d.qpos[:] = Q_HOME
+    mujoco.mj_kinematics(m, d)
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, TCP_SITE)
+    points = np.concatenate([d.xanchor, d.site_xpos[site][None]])  # (8, 3) along the chain
+    return points[0].copy(), float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
 def _check_q(q) -> None:
     validation.check_array("q", q, (NQ,))
 

@@ -203,6 +203,7 @@ def write_round(
     if getattr(renderer, "timing", None) is not None:  # round 0 at the robot's speed: so this
         t = make_stimuli.robot_times(motions.q[rows], motions.length[rows],
                                      [motions.ids[i] for i in rows], renderer.timing)  # fmt: skip
+        renderer.check_times(t, motions.length[rows], [motions.ids[i] for i in rows])
     manifest = stimuli.write_stimulus_set(
         out, q=motions.q[rows], xyz=motions.xyz[rows], goals=motions.goals[rows],
         goal_mask=motions.goal_mask[rows], ids=[motions.ids[i] for i in rows], specs=specs,
@@ -254,6 +255,7 @@ def next_main(args: argparse.Namespace) -> int:
     except rendering.RenderBackendError as e:
         raise ValueError(str(e)) from None
     settings = json.loads((stimuli.round_dir(stimdir, 0) / stimuli.MANIFEST).read_text())
+    make_stimuli.check_round0_clips(f"--stimuli {stimdir}", settings)  # before any training
     answers = read_answers(args.answers, args.db)
     motions = make_stimuli.motions_from_split(load_split(args.data, args.split))
     cfg = train_config.preset(args.preset, "slotv", train_size=None)

@@ -8,7 +8,10 @@ study server, which only reads sets, never imports it.
 --out STIMDIR`` draws N motions of a source at random (``--seed``), each at every τ
 from every ``--cameras`` view, plus ``--attention`` more motions as attention checks
 (τ = 1) and one practice motion; ``--size WxH``, ``--fps``, ``--duration`` (seconds of
-a whole motion) and ``--hold`` (seconds the last frame stays) shape the clips. Sources:
+a whole motion) and ``--hold`` (seconds the last frame stays) shape the clips, each within
+the bounds of :func:`slotv_jax.rendering.frames.check_clip` (``--fps`` at most 240, at most
+18000 frames: 10 minutes at 30 fps, at most 4 GiB of frames; every frame of a clip is held in
+memory before it is encoded), checked before anything is loaded. Sources:
 
 - ``--data DIR --split NAME``: a dataset split (ids ``SPLIT-INDEX``);
 - ``--plans FILE``: a planning run's ``plans.npz``, every planner's plan of every problem
@@ -67,6 +70,7 @@ from slotv_jax.execution import models as execution_models
 from slotv_jax.execution.cli import add_timing_args, timing_from_args
 from slotv_jax.execution.limits import SOURCE, check_speed
 from slotv_jax.planning.plans import load_plans
+from slotv_jax.rendering.frames import CLIP_BOUNDS, MAX_FPS, check_clip
 from slotv_jax.rendering.overlay import LABEL_LIFT
 from slotv_jax.webstudy.stimuli import (
     MANIFEST,
@@ -89,6 +93,17 @@ def robot_timing(speed: float = DEFAULT_SPEED, robot: str = "fer") -> dict:
     return {"robot": robot, "speed": check_speed(speed), "limits": SOURCE}
 
 
+def check_round0_clips(stimdir: str | Path, manifest: dict) -> None:
+    """ValueError naming ``stimdir`` unless the clip settings of its round 0 (``manifest``)
+    are within the bounds of :func:`slotv_jax.rendering.frames.check_clip` (a later round
+    has them; a timed clip's length is checked once its motion is timed)."""
+    try:
+        check_clip(manifest["size"], fps=manifest["fps"], duration=manifest["duration"],
+                   hold=manifest["hold"])  # fmt: skip
+    except ValueError as e:
+        raise ValueError(f"{stimdir}: round 0's clips: {e}") from None
+
+
 class SceneRenderer:
     """:class:`slotv_jax.webstudy.stimuli.Renderer` on MuJoCo (one renderer, reused).
 
@@ -107,6 +122,7 @@ class SceneRenderer:
     ):
         if (timing is None) == (duration is None):
             raise ValueError("duration: expected seconds of a whole motion, or a timing")
+        check_clip(size, fps=fps, duration=duration, hold=hold)  # before the GL context
         self.size, self.fps, self.duration, self.hold = tuple(size), fps, duration, hold
         self.trace, self.timing = trace, timing
         self.renderer = rendering.MotionRenderer(self.size)
@@ -118,6 +134,18 @@ class SceneRenderer:
         m = load_stimulus_set(stimdir, verify=False).manifest
         return cls(tuple(m["size"]), m["fps"], m["duration"], m["hold"], trace=trace,
                    timing=m.get("timing"))  # fmt: skip
+
+    def check_times(self, t: np.ndarray, length: np.ndarray, ids: list[str]) -> None:
+        """ValueError unless the clip of each motion at its robot times ``t`` (M, T) (s;
+        ``length`` points each, :func:`robot_times`) is within the bounds of
+        :func:`slotv_jax.rendering.frames.check_clip`: before any of them is rendered."""
+        for i, tid in enumerate(ids):
+            d = float(t[i, int(length[i]) - 1] - t[i, 0])
+            try:
+                check_clip(self.size, fps=self.fps, duration=d, hold=self.hold)
+            except ValueError as e:
+                raise ValueError(f"--timed: motion {tid} lasts {d:.4g} s at --speed "
+                                 f"{self.timing['speed']:g}: {e}") from None  # fmt: skip
 
     def frames(
         self, motion: Motion, tau: float, camera: str
@@ -280,6 +308,19 @@ def motions_from_study(path: str | Path) -> Motions:
     return Motions(q, st.xyz, st.goals, st.goal_mask, ids, ids, None, st.length, st.t)
 
 
+def check_counts(n: int, attention: int, trials: int | None) -> None:
+    """ValueError unless ``n`` ≥ 1, ``attention`` ≥ 0 and ``trials`` (None: every motion) in
+    1..n: the counts of :func:`make_set`, which need no motion (checked before any is
+    loaded)."""
+    if not (isinstance(n, int) and n >= 1):
+        raise ValueError(f"--n {n}: expected an integer >= 1 (motions shown at every tau)")
+    if not (isinstance(attention, int) and attention >= 0):
+        raise ValueError(f"--attention {attention}: expected an integer >= 0")
+    if trials is not None and not 1 <= trials <= n:
+        raise ValueError(f"--trials {trials}: expected 1..{n} (--n: a participant sees each "
+                         "motion at most once)")  # fmt: skip
+
+
 def make_set(
     motions: Motions,
     out: str | Path,
@@ -306,14 +347,12 @@ def make_set(
     participant's main trials; ``None``: one per motion, or what an existing
     ``study.json`` says). ``known_times``: robot times already computed by id (what
     :func:`check_ids_across_rounds` returns), not computed again."""
-    if trials is not None and not 1 <= trials <= n:
-        raise ValueError(f"--trials {trials}: expected 1..{n} (--n: a participant sees each "
-                         "motion at most once)")  # fmt: skip
+    check_counts(n, attention, trials)
     m = len(motions.ids)
     need = n + attention + int(practice)
-    if not 1 <= n or need > m:
+    if need > m:
         raise ValueError(
-            f"--n {n}: expected 1 <= n and n + attention + practice <= {m} (the motions)"
+            f"--n {n}: expected n + attention + practice <= {m} (the motions), got {need}"
         )
     if attention and motions.targets is None:
         raise ValueError("--attention: the source has no targets; use --attention 0")
@@ -331,6 +370,7 @@ def make_set(
     if renderer.timing is not None:  # the robot's times, before any rendering
         t = robot_times(motions.q[pick], motions.length[pick], [motions.ids[i] for i in pick],
                         renderer.timing, known=known_times)  # fmt: skip
+        renderer.check_times(t, motions.length[pick], [motions.ids[i] for i in pick])
     return write_stimulus_set(
         out, q=motions.q[pick], xyz=motions.xyz[pick], goals=motions.goals[pick],
         goal_mask=motions.goal_mask[pick], ids=[motions.ids[i] for i in pick], specs=specs,
@@ -398,7 +438,11 @@ def _size(text: str) -> tuple[int, int]:
 
 def add_command(sub) -> None:
     """Add ``stimuli`` to the study CLI's subparsers."""
-    p = sub.add_parser("stimuli", help="render a stimulus set (clips cut at tau, stills)")
+    p = sub.add_parser(
+        "stimuli",
+        help="render a stimulus set (clips cut at tau, stills)",
+        epilog=CLIP_BOUNDS,
+    )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--data", help="dataset folder (python -m slotv_jax.data), with --split")
     src.add_argument("--npz", help="trajectories in the labelers' .npz format")
@@ -416,7 +460,8 @@ def add_command(sub) -> None:
                    "every motion); study.json's trials_per_participant")  # fmt: skip
     p.add_argument("--no-practice", action="store_true", help="no practice trial")
     p.add_argument("--size", default=None, help="WIDTHxHEIGHT of the clips (480x270)")
-    p.add_argument("--fps", type=float, default=None, help="frames per second (25)")
+    p.add_argument("--fps", type=float, default=None,
+                   help=f"frames per second (25; at most {MAX_FPS:g})")  # fmt: skip
     p.add_argument("--duration", type=float, default=None,
                    help="seconds of a whole motion, tau = 1 (3)")  # fmt: skip
     p.add_argument("--hold", type=float, default=None,
@@ -443,8 +488,7 @@ def stimuli_main(args: argparse.Namespace) -> int:
     for c in cameras:
         if c not in rendering.CAMERAS:
             raise ValueError(f"--cameras {args.cameras}: {c!r} is not one of {rendering.CAMERAS}")
-    if args.attention < 0:
-        raise ValueError(f"--attention {args.attention}: expected an integer >= 0")
+    check_counts(args.n, args.attention, None if args.next_round else args.trials)
     for name in ("fps", "duration"):
         if not (clip[name] is None or clip[name] > 0):
             raise ValueError(f"--{name} {clip[name]}: expected a number > 0")
@@ -453,6 +497,11 @@ def stimuli_main(args: argparse.Namespace) -> int:
     if args.timed and clip["duration"] is not None:
         raise ValueError("--duration: --timed shows each motion at the robot's own speed; "
                          "leave --duration out")  # fmt: skip
+    fps = clip["fps"] or DEFAULTS["fps"]
+    duration = None if args.timed else clip["duration"] or DEFAULTS["duration"]
+    hold = DEFAULTS["hold"] if args.hold is None else args.hold
+    if args.next_round is None:  # the clips within their bounds, before anything is loaded
+        check_clip(size, fps=fps, duration=duration, hold=hold, prefix="--")
     timed = timing_from_args(args)
     timing = None if timed is None else robot_timing(timed.speed, timed.robot)
     inputs = {f"--{k}": getattr(args, k) for k in ("data", "npz", "plans", "study")}
@@ -472,6 +521,8 @@ def stimuli_main(args: argparse.Namespace) -> int:
                              "round 0 missing; `study stimuli --out` writes one)")  # fmt: skip
         r, folder = next_round(stimdir)
         check_not_input(folder, inputs, what="--next-round", replaces_dir=True)
+        manifest0 = load_stimulus_set(stimdir, verify=False).manifest
+        check_round0_clips(f"--next-round {stimdir}", manifest0)  # before any loading
     else:
         stimdir = folder = Path(args.out)
         check_not_input(folder, inputs, replaces_dir=True)
@@ -490,18 +541,14 @@ def stimuli_main(args: argparse.Namespace) -> int:
     known = {}  # robot times the check computed: make_set does not compute them again
     if r:
         flag, path = next((k, v) for k, v in inputs.items() if v is not None)
-        timing0 = load_stimulus_set(stimdir, verify=False).manifest.get("timing")
+        timing0 = manifest0.get("timing")
         known = check_ids_across_rounds(stimdir, motions, f"{flag} {path}", timing0)
     try:
         if r:
             renderer = SceneRenderer.like(stimdir, trace=not args.no_trace)
         else:
-            renderer = SceneRenderer(
-                size, clip["fps"] or DEFAULTS["fps"],
-                None if args.timed else clip["duration"] or DEFAULTS["duration"],
-                DEFAULTS["hold"] if args.hold is None else args.hold, trace=not args.no_trace,
-                timing=timing,
-            )  # fmt: skip
+            renderer = SceneRenderer(size, fps, duration, hold, trace=not args.no_trace,
+                                     timing=timing)  # fmt: skip
     except rendering.RenderBackendError as e:
         raise ValueError(str(e)) from None  # one line: how to get OpenGL
     try:
