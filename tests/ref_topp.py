@@ -15,8 +15,13 @@ and a joint with q′_j = 0 allows x ≤ a_j / |q″_j|. So:
   x_i = min(x_i, x_{i+1} − 2 Δs max_j(α_j x_{i+1} − β_j)), from x = 0 at both ends.
 
 The duration is Σ 2 Δs / (ṡ_i + ṡ_{i+1}). Written for the tests, sharing nothing with
-``slotv_jax.execution`` (no toppra). No jerk bound: the time-optimal duration under velocity
-and acceleration alone, a lower bound on any timing of the path within those limits.
+``slotv_jax.execution`` (no toppra). Without ``jerk`` it is the time-optimal duration under
+velocity and acceleration alone, a lower bound on any timing of the path within those limits.
+
+With ``jerk`` (j, (7,)) the path's own jerk term caps the speed too: q⃛ = q‴ ṡ³ + 3 q″ ṡ s̈
++ q′ s⃛, and x ≤ min_j (j_j / |q‴_j|)^⅔ keeps |q‴ ṡ³| ≤ j (q‴ from the differences of q″ over
+the fine grid, the larger of the two cells at each point). That is an estimate of what a
+jerk bound costs, not a bound: the other two terms can add to q‴ ṡ³ or cancel some of it.
 """
 
 from __future__ import annotations
@@ -26,9 +31,10 @@ import numpy as np
 STILL = 1e-12  # |q′_j| below this: joint j does not move along the path there
 
 
-def optimal_duration(path, length: float, v, a, n: int = 20001) -> float:
+def optimal_duration(path, length: float, v, a, n: int = 20001, jerk=None) -> float:
     """The time-optimal duration (s) of ``path`` over s in [0, ``length``] under joint velocity
-    limits ``v`` (7,) and acceleration limits ``a`` (7,), at rest at both ends; ``n`` grid points."""
+    limits ``v`` (7,) and acceleration limits ``a`` (7,), at rest at both ends; ``n`` grid points;
+    ``jerk`` (7,): the speed capped by the path's jerk term too (see the module docstring)."""
     v, a = np.asarray(v, np.float64), np.asarray(a, np.float64)
     s = np.linspace(0.0, length, n)
     ds = s[1] - s[0]
@@ -42,8 +48,15 @@ def optimal_duration(path, length: float, v, a, n: int = 20001) -> float:
         still = np.where(moving, np.inf, a / np.abs(d2))  # q′_j = 0: |q″_j| x ≤ a_j
         cap = np.minimum(cap, still.min(axis=1))
         da = alpha[:, :, None] - alpha[:, None, :]  # α_j − α_k
-        pair = np.where(da > 0, (beta[:, :, None] + beta[:, None, :]) / np.where(da > 0, da, 1), np.inf)
+        pair = np.where(
+            da > 0, (beta[:, :, None] + beta[:, None, :]) / np.where(da > 0, da, 1), np.inf
+        )
     cap = np.minimum(cap, pair.reshape(n, -1).min(axis=1))
+    if jerk is not None:
+        d3 = np.abs(np.diff(d2, axis=0)) / ds  # q‴ on each cell of the grid
+        d3 = np.maximum(np.concatenate([d3[:1], d3]), np.concatenate([d3, d3[-1:]]))
+        with np.errstate(divide="ignore"):
+            cap = np.minimum(cap, np.min((np.asarray(jerk) / d3) ** (2.0 / 3.0), axis=1))
     x = np.zeros(n)
     for i in range(n - 1):  # forward: accelerate as hard as allowed
         x[i + 1] = min(cap[i + 1], max(0.0, x[i] + 2.0 * ds * np.min(alpha[i] * x[i] + beta[i])))
