@@ -188,14 +188,16 @@ def backward_differences(x: Float[np.ndarray, "N D"], dt: float = DT, order: int
 
 class _ScaledVelocity(toppra.constraint.JointVelocityConstraint):
     """|q'_j(s) ṡ| ≤ σ(s) v_j: toppra's joint velocity constraint, its bound scaled by
-    ``self.scale`` (σ at each grid point, set before each solve)."""
+    ``self.scale`` (σ at each grid point, set before each solve), and ṡ² ≤ ``self.cap``
+    (the path's own jerk, :func:`_jerk_cap`)."""
 
     scale: np.ndarray
+    cap: np.ndarray
 
     def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
         out = list(super().compute_constraint_params(path, gridpoints, *args, **kwargs))
         xbound = np.array(out[6])
-        xbound[:, 1] *= self.scale**2
+        xbound[:, 1] = np.minimum(xbound[:, 1] * self.scale**2, self.cap)
         out[6] = xbound
         return tuple(out)
 
@@ -297,10 +299,11 @@ def _excess(path: JointPath, s: np.ndarray, lim: Limits):
     return r, window
 
 
-def _lower(scale, grid, s, ratio, power, w) -> None:
-    """Lower σ in place where samples overshoot (``ratio`` > 1): by (0.98 / ratio)^power at
-    both grid points around every sample the smoothing window mixes with them (± w)."""
-    f = np.where(ratio > 1.0, (0.98 / np.maximum(ratio, 1.0)) ** power, 1.0)
+def _lower(scale, grid, s, ratio, w) -> None:
+    """Lower σ in place where samples overshoot (``ratio`` > 1, in σ's own terms): by
+    0.98 / ratio at both grid points around every sample the smoothing window mixes with
+    them (± w)."""
+    f = np.where(ratio > 1.0, 0.98 / np.maximum(ratio, 1.0), 1.0)
     if f.min() >= 1.0:
         return
     f = np.lib.stride_tricks.sliding_window_view(np.pad(f, w, constant_values=1.0),
@@ -317,6 +320,32 @@ TORQUE_RATE_SHARE = 0.9  # of Franka's torque-rate limit the jerk may use (step 
 # recorded plans; starting 1 % under it spares a second round on 41 % of them and, the local
 # lowering then being milder, ends 0.6 % faster on average (2.705 s against 2.722 s)
 SIGMA_START = 0.99
+# of the jerk bound the path's own term q‴ ṡ³ may take in TOPP-RA's speed cap (step 1); the
+# rest is for 3 q″ ṡ s̈ and the smoothing's q′ s⃛. 0.9 measured best of 0.8, 0.9 and 1 at
+# speed 1 on the recorded plans (experiments/execution.md, "Full speed")
+PATH_JERK_SHARE = 0.9
+
+
+def _jerk_cap(path: JointPath, grid: np.ndarray, jerk: np.ndarray) -> np.ndarray:
+    """ṡ² on ``grid`` at which the path's own jerk term, q‴ ṡ³, is :data:`PATH_JERK_SHARE` of
+    ``jerk`` (7,) (step 1). The spline's q‴ is constant on each interval; a grid point takes
+    the larger of the intervals on its sides, so ṡ, which lies between its values at the
+    grid points (ṡ² is linear in s between them), keeps the cap on every interval."""
+    ks = path.knots_s
+    per = np.abs(path.spline.cspl(0.5 * (ks[:-1] + ks[1:]), 3))  # (K − 1, 7) q‴ per interval
+    right = np.clip(np.searchsorted(ks, grid, side="right") - 1, 0, len(ks) - 2)
+    left = np.clip(np.searchsorted(ks, grid, side="left") - 1, 0, len(ks) - 2)
+    d3 = np.maximum(per[right], per[left])
+    with np.errstate(divide="ignore"):
+        return np.min((PATH_JERK_SHARE * jerk / d3) ** (2.0 / 3.0), axis=1)
+
+
+def _window(path: JointPath, raw: np.ndarray, jerk: np.ndarray) -> int:
+    """The least smoothing window (samples) that keeps a full swing of the joint accelerations
+    q′ s̈ that the TOPP-RA law ``raw`` (1 kHz s) takes, −a to +a, within ``jerk`` (7,)."""
+    sdd = backward_differences(raw[:, None])[1][1 : len(raw) + 1, 0]  # s̈ ending at each sample
+    need = np.max(np.abs(path(raw, 1) * sdd[:, None]) / jerk)
+    return max(1, int(np.ceil(2.0 * need / DT - 1e-9)))
 
 
 def _torque_rate_jerk(path: JointPath, limits: Limits) -> np.ndarray:
@@ -333,23 +362,25 @@ def time_path(path: JointPath, config: TimingConfig = TimingConfig()) -> Traject
     scaled limits is found in ``config.rounds`` rounds."""
     lim = config.limits.scaled(config.speed)
     lim = dataclasses.replace(lim, dddq_max=np.minimum(lim.dddq_max, _torque_rate_jerk(path, lim)))
-    w = max(1, int(np.ceil(2.0 * np.max(lim.ddq_max / lim.dddq_max) / DT - 1e-9)))
+    w = 1  # the smoothing window: at least what each round's s̈ needs (_window), or widened
     grid = _grid(path, config.grid)
     vel, acc = _ScaledVelocity(lim.dq_max), _ScaledAcceleration(lim.ddq_max)
     scale = np.full(len(grid), SIGMA_START)
     vel.scale = acc.scale = scale  # σ: lowered in place where a round overshoots
+    vel.cap = _jerk_cap(path, grid, lim.dddq_max)
     for r in range(1, config.rounds + 1):
         raw = _sample(grid, _topp(path, grid, [vel, acc]))
+        w = max(w, _window(path, raw, lim.dddq_max))
         s = _smooth(raw, w)
         (rv, ra, rj), window = _excess(path, s, lim)
         worst = {"velocity": rv.max(), "acceleration": ra.max(), "jerk": rj.max()}
         if max(worst.values()) <= 1.0:
             return _trajectory(path, config, s, path(s), (len(raw) - 1) * DT, w,
                                float(scale.min()), r)  # fmt: skip
-        _lower(scale, grid, s, rv, 1.0, w)  # velocity ∝ σ
-        _lower(scale, grid, s, ra, 0.5, w)  # acceleration ∝ σ²
         smoothing = (rj > 1.0) & (window >= 0.5 * rj)  # jerk of the smoothing: widen it
-        _lower(scale, grid, s, np.where(smoothing, 1.0, rj), 1.0 / 3.0, w)  # the path's: ∝ σ³
+        path_jerk = np.where(smoothing, 1.0, rj)  # the path's terms: ∝ σ³
+        # velocity ∝ σ, acceleration ∝ σ², jerk ∝ σ³: one σ for all three, the least they need
+        _lower(scale, grid, s, np.maximum.reduce([rv, np.sqrt(ra), np.cbrt(path_jerk)]), w)
         if smoothing.any():
             w = int(np.ceil(1.05 * w * rj[smoothing].max()))
     name = max(worst, key=worst.get)
