@@ -9,7 +9,9 @@ The path is fixed (:mod:`slotv_jax.execution.path`); only the time law s(t) is c
        |q′_j(s) ṡ| ≤ σ(s) v_j,   |q′_j(s) s̈ + q″_j(s) ṡ²| ≤ σ(s)² a_j,   ṡ(0) = ṡ(end) = 0,
 
    with v, a the joint velocity and acceleration limits times the speed scale, and σ ≤ 1 a
-   factor per grid point that starts at 0.99 (step 3). Between grid points s̈ is constant
+   factor per grid point that starts at 0.99 (step 3); and ṡ is capped where the path's own
+   jerk term would exceed 0.9 of the jerk bound j (step 2): |q‴_j(s)| ṡ³ ≤ 0.9 j_j (the
+   spline's q‴ is constant on each interval). Between grid points s̈ is constant
    (toppra's ``ParametrizeConstAccel``); this module samples that law at 1 kHz.
 2. **Jerk.** TOPP-RA's s̈ jumps (bang-bang), so the joint jerk is unbounded. The sampled
    s(t) is averaged over a sliding window of w samples (at rest before the start and after
@@ -19,14 +21,18 @@ The path is fixed (:mod:`slotv_jax.execution.path`); only the time law s(t) is c
    torque rate binds: following the motion takes τ = M(q) q̈ + …, so τ̇_i ≈ Σ_j M_ij q⃛_j,
    and j_i = 0.9 τ̇_max,i / max_q Σ_j |M_ij| (M at the plan's configurations; 180–320 rad/s³
    on joints 1–4 of the Panda) keeps Franka's torque-rate limit (1000 N m/s) with 10 % for
-   gravity, Coriolis and feedback. The window starts at w₀ = ⌈2 max_i(a_i / j_i) / Δt⌉
-   samples: the least that keeps a full swing of acceleration, −a_i to +a_i, within j_i.
+   gravity, Coriolis and feedback. The window is at least ⌈2 max_{i,t} |q′_i s̈| / j_i / Δt⌉
+   samples for the s̈ TOPP-RA takes: the least that keeps a full swing of those
+   accelerations within j_i.
 3. **Verify, and adjust.** The backward differences of the 1 kHz samples (as the robot takes
    them) must stay within the scaled velocity and acceleration limits and the jerk bound.
    Averaging near a sharp bend and TOPP-RA's discretisation can overshoot; then σ is lowered
-   where it did, over the stretch the window mixes: by 0.98/r for a velocity r times its
-   limit, (0.98/r)^½ for an acceleration, (0.98/r)^⅓ for a jerk of the path's own terms
-   (q‴ ṡ³ + 3 q″ ṡ s̈); a jerk mostly of the smoothing's term (q′ s⃛) widens the window
+   where it did, over the stretch the window mixes, once per round by 0.98/r with r the
+   largest of the velocity's ratio to its limit, the acceleration's square root and the
+   cube root of a jerk of the path's own terms (q‴ ṡ³ + 3 q″ ṡ s̈): slowing the motion by σ
+   scales them by σ, σ² and σ³, so the least of the three factors corrects all three (their
+   product, lowering σ for each limit in turn, made full-speed timings up to 2.4 times the
+   time-optimal duration). A jerk mostly of the smoothing's term (q′ s⃛) widens the window
    instead (w ← ⌈1.05 r w⌉). The timing is computed again, at most ``rounds`` times, then the
    plan is refused.
 4. **The path as planned.** The TCP at every 1 kHz sample must lie within ``deviation``
