@@ -9,7 +9,9 @@ The path is fixed (:mod:`slotv_jax.execution.path`); only the time law s(t) is c
        |q′_j(s) ṡ| ≤ σ(s) v_j,   |q′_j(s) s̈ + q″_j(s) ṡ²| ≤ σ(s)² a_j,   ṡ(0) = ṡ(end) = 0,
 
    with v, a the joint velocity and acceleration limits times the speed scale, and σ ≤ 1 a
-   factor per grid point that starts at 0.99 (step 3). Between grid points s̈ is constant
+   factor per grid point that starts at 0.99 (step 3); and ṡ is capped where the path's own
+   jerk term would exceed 0.9 of the jerk bound j (step 2): |q‴_j(s)| ṡ³ ≤ 0.9 j_j (the
+   spline's q‴ is constant on each interval). Between grid points s̈ is constant
    (toppra's ``ParametrizeConstAccel``); this module samples that law at 1 kHz.
 2. **Jerk.** TOPP-RA's s̈ jumps (bang-bang), so the joint jerk is unbounded. The sampled
    s(t) is averaged over a sliding window of w samples (at rest before the start and after
@@ -19,14 +21,18 @@ The path is fixed (:mod:`slotv_jax.execution.path`); only the time law s(t) is c
    torque rate binds: following the motion takes τ = M(q) q̈ + …, so τ̇_i ≈ Σ_j M_ij q⃛_j,
    and j_i = 0.9 τ̇_max,i / max_q Σ_j |M_ij| (M at the plan's configurations; 180–320 rad/s³
    on joints 1–4 of the Panda) keeps Franka's torque-rate limit (1000 N m/s) with 10 % for
-   gravity, Coriolis and feedback. The window starts at w₀ = ⌈2 max_i(a_i / j_i) / Δt⌉
-   samples: the least that keeps a full swing of acceleration, −a_i to +a_i, within j_i.
+   gravity, Coriolis and feedback. The window is at least ⌈2 max_{i,t} |q′_i s̈| / j_i / Δt⌉
+   samples for the s̈ TOPP-RA takes: the least that keeps a full swing of those
+   accelerations within j_i.
 3. **Verify, and adjust.** The backward differences of the 1 kHz samples (as the robot takes
    them) must stay within the scaled velocity and acceleration limits and the jerk bound.
    Averaging near a sharp bend and TOPP-RA's discretisation can overshoot; then σ is lowered
-   where it did, over the stretch the window mixes: by 0.98/r for a velocity r times its
-   limit, (0.98/r)^½ for an acceleration, (0.98/r)^⅓ for a jerk of the path's own terms
-   (q‴ ṡ³ + 3 q″ ṡ s̈); a jerk mostly of the smoothing's term (q′ s⃛) widens the window
+   where it did, over the stretch the window mixes, once per round by 0.98/r with r the
+   largest of the velocity's ratio to its limit, the acceleration's square root and the
+   cube root of a jerk of the path's own terms (q‴ ṡ³ + 3 q″ ṡ s̈): slowing the motion by σ
+   scales them by σ, σ² and σ³, so the least of the three factors corrects all three (their
+   product, lowering σ for each limit in turn, made full-speed timings up to 2.4 times the
+   time-optimal duration). A jerk mostly of the smoothing's term (q′ s⃛) widens the window
    instead (w ← ⌈1.05 r w⌉). The timing is computed again, at most ``rounds`` times, then the
    plan is refused.
 4. **The path as planned.** The TCP at every 1 kHz sample must lie within ``deviation``
@@ -188,14 +194,16 @@ def backward_differences(x: Float[np.ndarray, "N D"], dt: float = DT, order: int
 
 class _ScaledVelocity(toppra.constraint.JointVelocityConstraint):
     """|q'_j(s) ṡ| ≤ σ(s) v_j: toppra's joint velocity constraint, its bound scaled by
-    ``self.scale`` (σ at each grid point, set before each solve)."""
+    ``self.scale`` (σ at each grid point, set before each solve), and ṡ² ≤ ``self.cap``
+    (the path's own jerk, :func:`_jerk_cap`)."""
 
     scale: np.ndarray
+    cap: np.ndarray
 
     def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
         out = list(super().compute_constraint_params(path, gridpoints, *args, **kwargs))
         xbound = np.array(out[6])
-        xbound[:, 1] *= self.scale**2
+        xbound[:, 1] = np.minimum(xbound[:, 1] * self.scale**2, self.cap)
         out[6] = xbound
         return tuple(out)
 
@@ -297,10 +305,11 @@ def _excess(path: JointPath, s: np.ndarray, lim: Limits):
     return r, window
 
 
-def _lower(scale, grid, s, ratio, power, w) -> None:
-    """Lower σ in place where samples overshoot (``ratio`` > 1): by (0.98 / ratio)^power at
-    both grid points around every sample the smoothing window mixes with them (± w)."""
-    f = np.where(ratio > 1.0, (0.98 / np.maximum(ratio, 1.0)) ** power, 1.0)
+def _lower(scale, grid, s, ratio, w) -> None:
+    """Lower σ in place where samples overshoot (``ratio`` > 1, in σ's own terms): by
+    0.98 / ratio at both grid points around every sample the smoothing window mixes with
+    them (± w)."""
+    f = np.where(ratio > 1.0, 0.98 / np.maximum(ratio, 1.0), 1.0)
     if f.min() >= 1.0:
         return
     f = np.lib.stride_tricks.sliding_window_view(np.pad(f, w, constant_values=1.0),
@@ -317,6 +326,32 @@ TORQUE_RATE_SHARE = 0.9  # of Franka's torque-rate limit the jerk may use (step 
 # recorded plans; starting 1 % under it spares a second round on 41 % of them and, the local
 # lowering then being milder, ends 0.6 % faster on average (2.705 s against 2.722 s)
 SIGMA_START = 0.99
+# of the jerk bound the path's own term q‴ ṡ³ may take in TOPP-RA's speed cap (step 1); the
+# rest is for 3 q″ ṡ s̈ and the smoothing's q′ s⃛. 0.9 measured best of 0.8, 0.9 and 1 at
+# speed 1 on the recorded plans (experiments/execution.md, "Full speed")
+PATH_JERK_SHARE = 0.9
+
+
+def _jerk_cap(path: JointPath, grid: np.ndarray, jerk: np.ndarray) -> np.ndarray:
+    """ṡ² on ``grid`` at which the path's own jerk term, q‴ ṡ³, is :data:`PATH_JERK_SHARE` of
+    ``jerk`` (7,) (step 1). The spline's q‴ is constant on each interval; a grid point takes
+    the larger of the intervals on its sides, so ṡ, which lies between its values at the
+    grid points (ṡ² is linear in s between them), keeps the cap on every interval."""
+    ks = path.knots_s
+    per = np.abs(path.spline.cspl(0.5 * (ks[:-1] + ks[1:]), 3))  # (K − 1, 7) q‴ per interval
+    right = np.clip(np.searchsorted(ks, grid, side="right") - 1, 0, len(ks) - 2)
+    left = np.clip(np.searchsorted(ks, grid, side="left") - 1, 0, len(ks) - 2)
+    d3 = np.maximum(per[right], per[left])
+    with np.errstate(divide="ignore"):
+        return np.min((PATH_JERK_SHARE * jerk / d3) ** (2.0 / 3.0), axis=1)
+
+
+def _window(path: JointPath, raw: np.ndarray, jerk: np.ndarray) -> int:
+    """The least smoothing window (samples) that keeps a full swing of the joint accelerations
+    q′ s̈ that the TOPP-RA law ``raw`` (1 kHz s) takes, −a to +a, within ``jerk`` (7,)."""
+    sdd = backward_differences(raw[:, None])[1][1 : len(raw) + 1, 0]  # s̈ ending at each sample
+    need = np.max(np.abs(path(raw, 1) * sdd[:, None]) / jerk)
+    return max(1, int(np.ceil(2.0 * need / DT - 1e-9)))
 
 
 def _torque_rate_jerk(path: JointPath, limits: Limits) -> np.ndarray:
@@ -333,23 +368,25 @@ def time_path(path: JointPath, config: TimingConfig = TimingConfig()) -> Traject
     scaled limits is found in ``config.rounds`` rounds."""
     lim = config.limits.scaled(config.speed)
     lim = dataclasses.replace(lim, dddq_max=np.minimum(lim.dddq_max, _torque_rate_jerk(path, lim)))
-    w = max(1, int(np.ceil(2.0 * np.max(lim.ddq_max / lim.dddq_max) / DT - 1e-9)))
+    w = 1  # the smoothing window: at least what each round's s̈ needs (_window), or widened
     grid = _grid(path, config.grid)
     vel, acc = _ScaledVelocity(lim.dq_max), _ScaledAcceleration(lim.ddq_max)
     scale = np.full(len(grid), SIGMA_START)
     vel.scale = acc.scale = scale  # σ: lowered in place where a round overshoots
+    vel.cap = _jerk_cap(path, grid, lim.dddq_max)
     for r in range(1, config.rounds + 1):
         raw = _sample(grid, _topp(path, grid, [vel, acc]))
+        w = max(w, _window(path, raw, lim.dddq_max))
         s = _smooth(raw, w)
         (rv, ra, rj), window = _excess(path, s, lim)
         worst = {"velocity": rv.max(), "acceleration": ra.max(), "jerk": rj.max()}
         if max(worst.values()) <= 1.0:
             return _trajectory(path, config, s, path(s), (len(raw) - 1) * DT, w,
                                float(scale.min()), r)  # fmt: skip
-        _lower(scale, grid, s, rv, 1.0, w)  # velocity ∝ σ
-        _lower(scale, grid, s, ra, 0.5, w)  # acceleration ∝ σ²
         smoothing = (rj > 1.0) & (window >= 0.5 * rj)  # jerk of the smoothing: widen it
-        _lower(scale, grid, s, np.where(smoothing, 1.0, rj), 1.0 / 3.0, w)  # the path's: ∝ σ³
+        path_jerk = np.where(smoothing, 1.0, rj)  # the path's terms: ∝ σ³
+        # velocity ∝ σ, acceleration ∝ σ², jerk ∝ σ³: one σ for all three, the least they need
+        _lower(scale, grid, s, np.maximum.reduce([rv, np.sqrt(ra), np.cbrt(path_jerk)]), w)
         if smoothing.any():
             w = int(np.ceil(1.05 * w * rj[smoothing].max()))
     name = max(worst, key=worst.get)
