@@ -53,7 +53,7 @@ def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
         )
         cfg = dataclasses.replace(cfg, batch_size=fit)
     print(study.summary(), flush=True)
-    print(f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)
+    print(f"config: {json.dumps(cfg.used_dict(), sort_keys=True)}", flush=True)
     out = Path(args.out)
     meta: dict[str, Any] = {"study": str(args.study), "condition": args.condition,
                             "seed": args.seed}  # fmt: skip
