@@ -148,8 +148,9 @@ def test_a_study_file_through_ik_with_goal_names(tmp_path):
         ),
         (
             ["--data", "data/quick"],
-            "data/quick: no such dataset folder (TMP/data/quick); run: python -m "
-            "slotv_jax.data --preset quick --out data/quick",
+            "data/quick: no such dataset folder (TMP/data/quick); give the preset name alone "
+            "(quick) for the dataset the main job made; to make a dataset in this folder, run: "
+            "python -m slotv_jax.data --preset quick --out data/quick",
         ),
         (
             ["--data", "quick"],
