@@ -13,6 +13,7 @@ import pytest
 from slotv_jax import data
 from slotv_jax.data import cli as data_cli
 from slotv_jax.data import generate
+from slotv_jax.data import report as data_report
 from slotv_jax.world.trajectories import TrajectoryConfig
 
 GOAL_COUNTS = {
@@ -297,6 +298,26 @@ def test_a_preset_name_reads_the_cached_dataset(tiny_data, tmp_path, monkeypatch
     assert os.stat(home / "position_test.npz").st_mtime_ns == stamp  # not regenerated
     (tmp_path / "quick").mkdir()  # a folder of that name is what it names
     assert data.find_dataset("quick") == tmp_path.joinpath("quick").relative_to(tmp_path)
+
+
+def test_a_misspelt_preset_names_the_presets_and_the_closest(tmp_path, monkeypatch, capsys):
+    """`--data qiuck` (no such folder): the folder is missing, the presets are named and the
+    closest one suggested; a name close to none names the presets without a guess."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("SLOTV_JAX_TRACEBACK", raising=False)  # the command's own one line
+    with pytest.raises(SystemExit) as e:
+        data_report.main(["--data", "qiuck"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: qiuck: no such dataset folder ("), err
+    assert "the presets: quick, paper; did you mean quick?" in err
+    assert "paper" in err.split("did you mean")[0]  # every preset, not only the closest
+    with pytest.raises(FileNotFoundError) as e:
+        data.find_dataset("papr")
+    assert "did you mean paper?" in str(e.value)
+    with pytest.raises(FileNotFoundError) as e:
+        data.find_dataset("zzzz")
+    assert "the presets: quick, paper" in str(e.value) and "did you mean" not in str(e.value)
 
 
 def test_the_splits_bar_says_what_it_waits_for_first(tiny_cfg, monkeypatch):

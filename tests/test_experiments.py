@@ -474,3 +474,31 @@ def test_people_loop_records_are_their_results_rendered(stem):
     folder = Path(__file__).resolve().parent.parent / "experiments"
     doc = json.loads((folder / f"{stem}_results.json").read_text())
     assert report.report(doc, stem) == (folder / f"{stem}.md").read_text()
+
+
+def test_the_main_job_says_what_good_looks_like_on_the_quick_preset(tmp_path, monkeypatch, capsys):
+    """Under the quick table the main job prints one line: what good looks like (the
+    record's ranges) and this run's own, here the recorded run's: its Δ ranges and SLOT-V
+    above T-REX in 16 of 16 pairs, read back from the recorded Markdown table, not from
+    the code's paper values. The paper preset has no such line."""
+    import re
+
+    root = Path(__file__).resolve().parent.parent / "experiments"
+    doc = json.loads((root / "table1_quick_results.json").read_text())
+    monkeypatch.setattr(table1, "run", lambda *a, **k: doc)
+    assert table1.main(["--out", str(tmp_path / "t1")]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if "good looks like" in ln]
+    assert len(lines) == 1
+    rows = [ln.split(" | ") for ln in (root / "table1_quick.md").read_text().splitlines()
+            if re.match(r"\| [A-Za-z]* \| [a-z ]+ \| \d", ln)]  # fmt: skip
+    assert len(rows) == 16
+    slotv, trex = [float(r[4]) for r in rows], [float(r[7].rstrip(" |")) for r in rows]
+    above = sum(float(r[2].split()[0]) > float(r[5].split()[0]) for r in rows)
+    want = (
+        f"this run: SLOT-V Δ {min(slotv):+.3f} to {max(slotv):+.3f}, T-REX Δ "
+        f"{min(trex):+.3f} to {max(trex):+.3f}, SLOT-V above T-REX in {above} of 16 pairs"
+    )
+    assert want in lines[0] and "SLOT-V 0.01-0.19 below the paper in every cell" in lines[0]
+    assert -0.19 <= round(min(slotv), 2) and round(max(slotv), 2) <= -0.01  # the record's claim
+    paper = json.loads((root / "table1_paper_results.json").read_text())
+    assert table1.expectation(paper) is None

@@ -326,3 +326,31 @@ def test_third_party_imports_are_declared_dependencies():
                 if not {norm(d) for d in dists.get(top, [])} & declared:
                     missing.setdefault(top, set()).add(name)
     assert not missing, f"imported at module level but not a dependency: {missing}"
+
+
+PUBLIC_NAMES = """
+import sys
+import slotv_jax
+print(sorted(dir(slotv_jax)))
+print("slotv_jax.training.checkpoint" in sys.modules)
+"""
+
+
+def test_dir_lists_exactly_the_public_names_and_keeps_the_import_lazy():
+    """A fresh ``import slotv_jax``: ``dir`` (what completion and ``help()`` read) is the
+    package's ``__all__``, ``load_observer`` in it and no helper or layer module
+    (``XlaConfig``, ``choose_mujoco_gl``, ``core``), and listing it imports no
+    checkpoint code (0.8-1.4 s against 17-18 s with it, measured on the loaded 2-core CPU);
+    every listed name is an attribute, the lazy one the checkpoint's own function."""
+    import slotv_jax
+    from slotv_jax.training import checkpoint
+
+    r = subprocess.run([sys.executable, "-c", PUBLIC_NAMES], capture_output=True, text=True,
+                       check=False, timeout=300)  # fmt: skip
+    assert r.returncode == 0, r.stderr[-3000:]
+    listed, loaded = r.stdout.splitlines()
+    assert listed == str(["XLA_CONFIG", "__version__", "load_observer"])
+    assert loaded == "False"
+    assert sorted(dir(slotv_jax)) == sorted(slotv_jax.__all__)
+    assert slotv_jax.load_observer is checkpoint.load_observer
+    assert all(hasattr(slotv_jax, n) for n in slotv_jax.__all__)

@@ -483,3 +483,28 @@ def test_a_file_where_the_compiled_programs_go_is_left_alone(tmp_path, monkeypat
     assert mine.read_text() == "my notes"
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not a folder" in err[0], err
+
+
+def test_the_loop_figure_keeps_every_line_apart_and_labels_the_0_8_line():
+    """The recorded people loop's figure, redrawn from its results: in every panel each line
+    has its own (colour, dashes, marker), the picks lie under SLOT-V's line, the 0.8 line
+    is labelled, and the one figure legend names every line of every panel."""
+    from slotv_jax.experiments.people_loop import report as report_lib
+
+    root = Path(__file__).resolve().parent.parent / "experiments"
+    doc = report_lib.finished(json.loads((root / "people_loop_results.json").read_text()))[0]
+    fig = report_lib.figure(doc)
+    (legend,) = fig.legends
+    named = {t.get_text() for t in legend.get_texts()}
+    panels = [ax for ax in fig.axes if ax.get_visible() and ax.axison]
+    assert len(panels) == len(doc["populations"])
+    for ax in panels:
+        lines = ax.get_lines()
+        styles = [(ln.get_color(), ln.get_linestyle(), ln.get_marker(), ln.get_linewidth())
+                  for ln in lines]  # fmt: skip
+        assert len(set(styles)) == len(styles)
+        assert {ln.get_label() for ln in lines} <= named
+        good = [ln for ln in lines if list(ln.get_ydata()) == [0.8, 0.8]]
+        assert len(good) == 1 and "0.8" in good[0].get_label()
+        z = {ln.get_label().split(",")[0]: ln.get_zorder() for ln in lines}
+        assert z["pick (answers alone)"] < z["SLOT-V (paper MLP)"]

@@ -669,3 +669,39 @@ def test_pick_refusals_say_what_is_wrong_and_what_to_do(tmp_path, capsys, monkey
         "choose another --out to keep it\n"
     )
     assert (out / "pick.json").read_text() == "{}"
+
+
+def test_study_pick_says_which_planner_its_preset_plans_with(tmp_path, capsys, monkeypatch):
+    """``study pick --by plans|pool`` starts with one line naming the preset's planner
+    (points and iterations, those of PlannerConfig under PLANNERS[preset]) and the other
+    preset's, before any work; ``--help`` names them; the pick by likelihood plans nothing."""
+    from slotv_jax.answers import pick as pick_lib
+    from slotv_jax.study import cli as study_cli
+
+    class Started(Exception):
+        pass
+
+    def started(*a, **k):
+        raise Started
+
+    monkeypatch.setattr(study_cli, "load_study", lambda path: None)
+    for fn in ("pick_by_plans", "pick_pool", "pick_study"):
+        monkeypatch.setattr(pick_lib, fn, started)
+    quick = planning.PlannerConfig(**pick_lib.PLANNERS["quick"])
+    paper = planning.PlannerConfig()
+    assert (quick.n_points, quick.iters) == (50, 30) and (paper.n_points, paper.iters) == (100, 50)
+    for by in ("plans", "pool", "likelihood"):
+        with pytest.raises(Started):
+            study_main(["pick", "s.npz", "--out", str(tmp_path / by), "--by", by])
+        lines = capsys.readouterr().out.splitlines()
+        if by == "likelihood":
+            assert not any("iterations" in ln for ln in lines)
+            continue
+        assert lines == [
+            "planner: 50 points, 30 iterations per plan (the quick preset's; "
+            "--preset paper: 100 points, 50 iterations)"
+        ]
+    with pytest.raises(SystemExit):
+        study_main(["pick", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "quick 50 points, 30 iterations per plan; paper 100 points, 50 iterations" in text

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -254,3 +255,31 @@ def test_every_reader_of_a_bad_plans_file_names_it_before_any_work(case, tmp_pat
         want = f"error: --plans {path}: {msg}"
         assert e.value.code == 2 and err.startswith(want) and err.count("\n") == 1, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plans.npz"]  # nothing written
+
+
+def test_the_scenes_figure_keeps_plans_apart_and_its_legends_off_the_axes():
+    """The recorded planning run's scenes, redrawn from its plans and results: in every panel
+    each planner's line has its own (colour, dashes), the oracle's lies wide beneath the
+    others (a learned plan equal to it no longer hides it), and every legend sits outside
+    its axes, on neither ticks nor goals."""
+    from slotv_jax.experiments import planning_report
+
+    root = Path(__file__).resolve().parent.parent / "experiments"
+    with np.load(root / "planning_plans.npz", allow_pickle=False) as f:
+        pl = {k: f[k] for k in f.files}
+    doc = json.loads((root / "planning_results.json").read_text())
+    fig = planning_report.scenes_figure(pl, doc, 3)
+    fig.canvas.draw()
+    panels = [ax for ax in fig.axes if ax.get_legend() is not None]
+    assert len(panels) == 3 * len(planning_report.families(doc))
+    for ax in panels:
+        lines = [ln for ln in ax.get_lines() if ln.get_label() and ln.get_label()[0] != "_"]
+        assert len(lines) == len(pl["names"])
+        styles = [(ln.get_color(), str(ln.get_linestyle()), ln.get_linewidth()) for ln in lines]
+        assert len(set(styles)) == len(styles)
+        oracle = next(ln for ln in lines if "(oracle)" in ln.get_label())
+        assert all(oracle.get_zorder() < ln.get_zorder() for ln in lines if ln is not oracle)
+        assert all(oracle.get_linewidth() > ln.get_linewidth() for ln in lines if ln is not oracle)
+        box, inner = ax.get_legend().get_window_extent(), ax.get_window_extent()
+        ticks = ax.xaxis.get_tightbbox()  # the x ticks, their labels and the axis label
+        assert not box.overlaps(inner) and box.y1 <= ticks.y0 + 1, (box, inner, ticks)

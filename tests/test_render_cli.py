@@ -148,8 +148,9 @@ def test_a_study_file_through_ik_with_goal_names(tmp_path):
         ),
         (
             ["--data", "data/quick"],
-            "data/quick: no such dataset folder (TMP/data/quick); run: python -m "
-            "slotv_jax.data --preset quick --out data/quick",
+            "data/quick: no such dataset folder (TMP/data/quick); give the preset name alone "
+            "(quick) for the dataset the main job made; to make a dataset in this folder, run: "
+            "python -m slotv_jax.data --preset quick --out data/quick",
         ),
         (
             ["--data", "quick"],
@@ -448,3 +449,27 @@ def test_side_by_side_panels_and_a_timed_motion_count_too(tmp_path, monkeypatch,
     with pytest.raises(ValueError, match=r"--timed: slow lasts 6746 s at --speed 0\.0001: "
                        r"duration 6745\.5: a clip of 202396 frames"):  # fmt: skip
         cli._check_clip(args, (640, 360), item, speed)
+
+
+def test_seven_planners_lie_in_a_grid_with_the_target_marked(tmp_path):
+    """Every planner of a plans file side by side: seven panels in rows of three (not one
+    row seven panels wide), the empty cells white, and the target marked without being
+    asked (the same picture as with --mark-target)."""
+    names = ["straight", "oracle", "slotv", "trex", "slotv_plus", "trex_plus", "archetype"]
+    plans = tmp_path / "plans.npz"
+    np.savez(plans, goals=GOALS[None], goal_mask=MASK[None], target=np.array([2]),
+             family=np.array(["dragan"]), names=np.array(names),
+             q=np.stack([(Q1 if k % 2 else Q2)[None] for k in range(7)]),
+             xyz=np.zeros((7, 1, 10, 3), np.float32))  # fmt: skip
+    out, marked = tmp_path / "all.png", tmp_path / "marked.png"
+    assert cli.main(["--plans", str(plans), "--problem", "0", "--out", str(out), *FAST]) == 0
+    args = ["--plans", str(plans), "--problem", "0", "--mark-target", "--out", str(marked)]
+    assert cli.main([*args, *FAST]) == 0
+    img = render.read_video(out)[0][:, :, :3]
+    panel = render.read_video(tmp_path / "all.png")[0].shape
+    assert compare.side_columns(7) == 3
+    assert img.shape[1] == 3 * SIZE[0] + 2 * compare.GAP
+    h = (img.shape[0] - 2 * compare.GAP) / 3  # three rows of equal height
+    assert h == int(h) and h > SIZE[1], panel
+    assert (img[-int(h) :, -SIZE[0] :] == 255).all()  # the two cells after the seventh: white
+    np.testing.assert_array_equal(img, render.read_video(marked)[0][:, :, :3])

@@ -627,6 +627,15 @@ def test_cli_trains_every_model_on_a_study(study_file, tmp_path, capsys, model, 
     assert train_cli.main(argv) == 0
     printed = capsys.readouterr().out
     assert "epoch 2/2" in printed and "NLL per answer" in printed
+    # the printed config names only what this model and its optimiser read; the stored one all
+    shown = json.loads(next(ln for ln in printed.splitlines() if ln.startswith("config: "))[8:])
+    stored = json.loads((out / "config.json").read_text())["config"]
+    assert set(stored) == {f.name for f in dataclasses.fields(train_config.TrainConfig)}
+    unused = {"adam": {"rho", "momentum"}, "rmsprop": {"b1", "b2"}}[stored["optimizer"]]
+    if model != "mlp":  # an archetype has no network
+        unused |= {"hidden", "activation", "start_term", "time_weight", "compute_dtype"}
+    assert set(shown) == set(stored) - unused
+    assert all(shown[k] == stored[k] for k in shown)
     meta = json.loads((out / "config.json").read_text())["meta"]
     obs = slotv_jax.load_observer(out, model=model)
     tr = study.answer_trajectory

@@ -388,6 +388,19 @@ def pick_by_plans(
     return report, fits, arrays
 
 
+def planner_words(preset: str) -> str:
+    """The planner of :data:`PLANNERS` ``[preset]`` in words, "50 points, 30 iterations"."""
+    cfg = planning.PlannerConfig(**PLANNERS[preset])
+    return f"{cfg.n_points} points, {cfg.iters} iterations"
+
+
+def planner_line(preset: str) -> str:
+    """The line ``study pick --by plans|pool`` starts with: the planner ``preset`` plans
+    with, and how to change it (another preset's planner)."""
+    others = "; ".join(f"--preset {p}: {planner_words(p)}" for p in PLANNERS if p != preset)
+    return f"planner: {planner_words(preset)} per plan (the {preset} preset's; {others})"
+
+
 def plans_table(rep: dict) -> str:
     """A Markdown table of :func:`pick_by_plans`'s report."""
     lines = [

@@ -5,6 +5,7 @@ written atomically, read back with their checksums verified.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import hashlib
 import json
 import zipfile
@@ -165,8 +166,8 @@ def find_dataset(where: str | Path, cache: str | Path = DEFAULT_CACHE) -> Path:
     An existing folder is itself. Otherwise a preset name (``quick``, ``paper``) names the
     dataset of that preset's default config in the cache, :func:`preset_dir`
     (``data/quick-<digest>``, relative to the working directory): the one the main job
-    made. Anything else is an error that names the folder looked in, how to point at the
-    dataset and the command that makes it.
+    made. Anything else is an error that names the folder looked in, the presets (the
+    closest one if ``where`` looks like a misspelt one) and the command that makes it.
 
     >>> find_dataset("quick")  # after python -m slotv_jax.experiments.table1  # doctest: +SKIP
     PosixPath('data/quick-251c48741b67b804')
@@ -181,13 +182,17 @@ def find_dataset(where: str | Path, cache: str | Path = DEFAULT_CACHE) -> Path:
         if is_dataset_dir(made):
             return made
         raise FileNotFoundError(_no_preset_dataset(str(where), made))
-    hint = ""
-    if path.name in PRESETS:
-        hint = f"; or give the preset name alone ({path.name}) for the dataset the main job made"
     looked = "" if path.is_absolute() else f" ({path.absolute()})"
+    presets = ", ".join(PRESETS)
+    if path.name in PRESETS:
+        hint = f"; give the preset name alone ({path.name}) for the dataset the main job made"
+    elif close := difflib.get_close_matches(path.name, PRESETS, n=1):
+        hint = f", nor a preset name (the presets: {presets}; did you mean {close[0]}?)"
+    else:
+        hint = f", nor a preset name (the presets: {presets}, the datasets the main job makes)"
     raise FileNotFoundError(
-        f"{where}: no such dataset folder{looked}; run: python -m slotv_jax.data --preset quick "
-        f"--out {where}{hint}"
+        f"{where}: no such dataset folder{looked}{hint}; to make a dataset in this folder, "
+        f"run: python -m slotv_jax.data --preset quick --out {where}"
     )
 
 

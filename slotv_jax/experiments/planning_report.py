@@ -31,6 +31,11 @@ TITLES = {"straight": "straight line", "dragan": "Dragan (oracle)",
           "archetype": "SLOT-V loss, archetype"}  # fmt: skip
 _COLOURS = {"straight": "0.4", "oracle": "C3", "slotv": "C0", "trex": "C2",
             "slotv_plus": "C9", "trex_plus": "C8", "archetype": "C1"}  # fmt: skip
+# Dashes per planner in the scenes, so that plans on top of each other stay apart; the
+# oracle is drawn wide and pale beneath the rest (a learned plan often equals it).
+_DASHES = {"straight": (0, (5, 2)), "oracle": "-", "slotv": "-", "trex": (0, (3, 1.5)),
+           "slotv_plus": (0, (1, 1)), "trex_plus": (0, (6, 1.5, 1, 1.5)),
+           "archetype": (0, (2, 2))}  # fmt: skip
 FIGURES = ("scenes.png", "bars.png")
 
 
@@ -59,41 +64,7 @@ def render(out: Path, n_examples: int = 3) -> None:
         pl = {k: f[k] for k in f.files}
     doc = json.loads((out / "results.json").read_text())
     fams = families(doc)
-    cam = camera(doc["config"]["data"]["labels"]["camera"])
-    cam64 = jax.tree.map(lambda a: np.asarray(a, np.float64), cam)
-    names = [str(n) for n in pl["names"]]
-    per_family = len(pl["target"]) // len(fams)
-    shown = np.linspace(0, per_family - 1, min(n_examples, per_family)).round().astype(int)
-    fig, axes = plt.subplots(len(shown), len(fams), figsize=(11, 4.2 * len(shown)), squeeze=False)
-    home = np.asarray(home_tcp(), np.float64)[None]
-    for row, j in enumerate(shown):
-        for col, family in enumerate(fams):
-            ax, p = axes[row, col], col * per_family + j
-            view = (lambda a: a[..., :2]) if col == 0 else (lambda a: project(a, cam64)[0])
-            g, m, t = pl["goals"][p].astype(np.float64), pl["goal_mask"][p], int(pl["target"][p])
-            for k, name in enumerate(names):
-                if np.isnan(pl["xyz"][k, p]).any():
-                    continue
-                ax.plot(*view(pl["xyz"][k, p].astype(np.float64)).T, color=_COLOURS[name],
-                        lw=1.6, ls="--" if name == "straight" else "-",
-                        label=f"{TITLES[family if name == 'oracle' else name]}: "
-                        f"y = {pl['y'][k, p, t]:.2f}")  # fmt: skip
-            gp, y = view(g[m]), pl["y"][names.index("oracle"), p][m]
-            sc = ax.scatter(gp[:, 0], gp[:, 1], c=y, cmap="viridis", vmin=0, vmax=1, s=120,
-                            marker="s", edgecolors="k", zorder=3)  # fmt: skip
-            k = int(np.flatnonzero(m).tolist().index(t))
-            ax.scatter(gp[k, 0], gp[k, 1], marker="*", s=260, c="w", edgecolors="k", zorder=4)
-            ax.plot(*view(home)[0], "ko", ms=5)
-            if col == 0:
-                title = f"{pl['split'][p]} scene {int(pl['scene'][p])}: top view, {family}"
-                ax.set(xlabel="x (m)", ylabel="y (m)", aspect="equal", title=title)
-            else:
-                ax.set(xlabel="u (image plane)", ylabel="v", aspect="equal",
-                       title=f"observer camera view, {family}")  # fmt: skip
-            ax.legend(fontsize=7, loc="best", framealpha=0.6)
-            fig.colorbar(sc, ax=ax, shrink=0.7, label="true y of the oracle plan")
-    fig.tight_layout()
-    figure_style.save(fig, out / "scenes.png", dpi=90)
+    figure_style.save(scenes_figure(pl, doc, n_examples), out / "scenes.png", dpi=90)
 
     fig, axes = plt.subplots(1, len(fams), figsize=(10, 3.8), sharey=True, squeeze=False)
     for ax, family in zip(axes[0], fams, strict=True):
@@ -109,6 +80,53 @@ def render(out: Path, n_examples: int = 3) -> None:
         plt.setp(ax.get_xticklabels(), ha="right", rotation_mode="anchor")
     fig.tight_layout()
     figure_style.save(fig, out / "bars.png", dpi=100)
+
+
+def scenes_figure(pl: dict, doc: dict, n_examples: int = 3):
+    """The figure of ``scenes.png`` from the plans ``pl`` (``plans.npz``'s arrays) and the
+    results ``doc``: a row per example problem, the top view for the first family and the
+    observer camera's view for the others; each planner its own colour and dashes, the
+    oracle wide and pale beneath the rest, the legends below the axes."""
+    plt = figure_style.pyplot()
+    fams = families(doc)
+    cam = camera(doc["config"]["data"]["labels"]["camera"])
+    cam64 = jax.tree.map(lambda a: np.asarray(a, np.float64), cam)
+    names = [str(n) for n in pl["names"]]
+    per_family = len(pl["target"]) // len(fams)
+    shown = np.linspace(0, per_family - 1, min(n_examples, per_family)).round().astype(int)
+    fig, axes = plt.subplots(len(shown), len(fams), figsize=(11, 6.0 * len(shown)), squeeze=False)
+    home = np.asarray(home_tcp(), np.float64)[None]
+    for row, j in enumerate(shown):
+        for col, family in enumerate(fams):
+            ax, p = axes[row, col], col * per_family + j
+            view = (lambda a: a[..., :2]) if col == 0 else (lambda a: project(a, cam64)[0])
+            g, m, t = pl["goals"][p].astype(np.float64), pl["goal_mask"][p], int(pl["target"][p])
+            for k, name in enumerate(names):
+                if np.isnan(pl["xyz"][k, p]).any():
+                    continue
+                oracle = name == "oracle"
+                ax.plot(*view(pl["xyz"][k, p].astype(np.float64)).T, color=_COLOURS[name],
+                        lw=5.0 if oracle else 1.6, alpha=0.4 if oracle else 1.0,
+                        ls=_DASHES[name], zorder=1 if oracle else 2,
+                        label=f"{TITLES[family if name == 'oracle' else name]}: "
+                        f"y = {pl['y'][k, p, t]:.2f}")  # fmt: skip
+            gp, y = view(g[m]), pl["y"][names.index("oracle"), p][m]
+            sc = ax.scatter(gp[:, 0], gp[:, 1], c=y, cmap="viridis", vmin=0, vmax=1, s=120,
+                            marker="s", edgecolors="k", zorder=3)  # fmt: skip
+            k = int(np.flatnonzero(m).tolist().index(t))
+            ax.scatter(gp[k, 0], gp[k, 1], marker="*", s=260, c="w", edgecolors="k", zorder=4)
+            ax.plot(*view(home)[0], "ko", ms=5)
+            if col == 0:
+                title = f"{pl['split'][p]} scene {int(pl['scene'][p])}: top view, {family}"
+                ax.set(xlabel="x (m)", ylabel="y (m)", aspect="equal", title=title)
+            else:
+                ax.set(xlabel="u (image plane)", ylabel="v", aspect="equal",
+                       title=f"observer camera view, {family}")  # fmt: skip
+            # below the axes: inside, it covered ticks and goals
+            ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
+            fig.colorbar(sc, ax=ax, shrink=0.7, label="true y of the oracle plan")
+    fig.tight_layout()
+    return fig
 
 
 def report(doc: dict, figures: str = "") -> str:

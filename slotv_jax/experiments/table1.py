@@ -74,6 +74,41 @@ def render_table(summary: list[dict]) -> str:
     return "\n".join(lines)
 
 
+#: What good looks like on the quick preset: its networks (64, 32), trained for 3 epochs of
+#: 8,000 trajectories (2 trials), sit below the paper's. The record
+#: (experiments/table1_quick.md): SLOT-V's Δ from −0.193 to −0.012 in every cell, T-REX's
+#: from −0.185 to +0.073 (EffDist above the paper), SLOT-V above T-REX in all 16 pairs.
+QUICK_GOOD = (
+    "SLOT-V 0.01-0.19 below the paper in every cell, T-REX from 0.19 below to 0.07 above, "
+    "SLOT-V above T-REX in every (labeler, split) pair"
+)
+
+
+def expectation(doc: dict) -> str | None:
+    """The line the main job prints under the quick preset's table: what good looks like
+    (:data:`QUICK_GOOD`, the record's) and this run's own ranges of Δ and count of pairs
+    where SLOT-V is above T-REX; ``None`` for another preset or an archetype's run."""
+    model = doc["config"].get("train", {}).get("slotv", {}).get("model", "mlp")
+    if doc["preset"] != "quick" or model != "mlp" or not doc["summary"]:
+        return None
+    by = {(s["labeler"], s["method"], s["split"]): s["mean"] for s in doc["summary"]}
+    runs = []
+    for meth, title in zip(METHODS, ("SLOT-V", "T-REX"), strict=True):
+        delta = [m - PAPER_TABLE[k][0] for k, m in by.items() if k[1] == meth]
+        if delta:
+            runs.append(f"{title} Δ {min(delta):+.3f} to {max(delta):+.3f}")
+    pairs = [(lab, split) for lab, meth, split in by if meth == "slotv"
+             and (lab, "trex", split) in by]  # fmt: skip
+    if pairs:
+        above = sum(by[(lab, "slotv", sp)] > by[(lab, "trex", sp)] for lab, sp in pairs)
+        runs.append(f"SLOT-V above T-REX in {above} of {len(pairs)} pairs")
+    return (
+        f"what good looks like on the quick preset (small networks trained briefly; "
+        f"experiments/table1_quick.md): {QUICK_GOOD}; this run: {', '.join(runs)}; the "
+        "paper's values need --preset paper"
+    )
+
+
 def run(cfg: RunConfig, out: Path, **kw) -> dict:
     """Run (or resume) Table 1: the grid of trained cells of ``cfg`` (:func:`slotv_jax.runs.
     grid.run`, which takes the keywords ``kw``), then ``OUT/table1.md`` rendered from the
@@ -222,6 +257,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     print()
     print(render_table(doc["summary"]))
+    if (good := expectation(doc)) is not None:
+        print(good)
     print(
         f"\n{len(doc['cells'])} cell results in {out / 'results.json'}; table in "
         f"{out / 'table1.md'}; this run took {time.perf_counter() - t0:.0f} s"

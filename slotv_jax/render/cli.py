@@ -318,7 +318,9 @@ def _parser() -> argparse.ArgumentParser:
     add_timing_args(p, instead="--duration seconds")
     p.add_argument("--hold", type=float, default=1.0, help="seconds the last frame is held")
     p.add_argument("--labels", default="letters", choices=LABEL_CHOICES, help="goal labels")
-    p.add_argument("--mark-target", action="store_true", help="draw a disc under the target")
+    p.add_argument(
+        "--mark-target", action="store_true", help="draw a disc under the target (--plans: always)"
+    )
     p.add_argument("--no-trace", action="store_true", help="do not draw the TCP's path")
     p.add_argument("--shadows", action="store_true", help="render shadows (slower on a CPU)")
     p.add_argument("--sheet", type=int, help="with a .png: N frames in a grid, not the last")
@@ -427,14 +429,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             still = {**kw, "fps": 1.0 / args.tau, "duration": 1.0, "hold": 0.0}
             rows = []
             for it in tqdm(items, disable=args.quiet, unit="row"):
-                last = _frames(args, it, **still, target=it.target, renderer=renderer)[-1]
+                last = _frames(args, it, **still, target=it.target, renderer=renderer,
+                               cols=len(it.qs))[-1]  # fmt: skip
                 rows.append(np.concatenate([title(last, it.caption), last]))
             gap = np.full((GAP, rows[0].shape[1], 3), 255, np.uint8)
             write_png(paths[0], np.concatenate([x for r in rows for x in (r, gap)][:-1]))
             print(f"wrote {paths[0]} ({len(items)} problems x {len(items[0].qs)} planners)")
             return 0
         for it, path in tqdm(list(zip(items, paths, strict=True)), disable=args.quiet, unit="clip"):
-            target = it.target if args.mark_target and it.target >= 0 else None
+            # plans are of a target: marked always (a planner's name says nothing of it)
+            marked = args.mark_target or args.plans is not None
+            target = it.target if marked and it.target >= 0 else None
             frames = _frames(args, it, **kw, target=target, renderer=renderer)
             if path.suffix == ".png" and args.sheet:
                 write_png(path, contact_sheet(frames, args.sheet, cols=min(args.sheet, 4)))
@@ -480,6 +485,7 @@ def _frames(args, it: Item, **kw) -> np.ndarray:
         kw["duration"] = it.duration
     kw |= {"labels": _labels(args, it), "show_labels": args.labels != "none"}
     if len(it.qs) == 1 and not it.names:
+        kw.pop("cols", None)  # a --grid row of one motion: one panel anyway
         return motion_frames(it.qs[0], it.goals, it.goal_mask, t=it.t, **kw)
     ts = None if it.t is None else [it.t]  # a timed plan: one motion, its own times
     return compare_frames(it.qs, it.goals, it.goal_mask, names=it.names, rgbas=it.rgbas, ts=ts,

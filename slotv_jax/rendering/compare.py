@@ -13,6 +13,7 @@ with a legend of the colours above.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -66,6 +67,7 @@ def compare_frames(
     trace: bool = True,
     shadows: bool = False,
     renderer: MotionRenderer | None = None,
+    cols: int | None = None,
 ) -> UInt8[np.ndarray, "F H W 3"]:
     """Frames of several motions of one scene on one clock (see the module docstring).
 
@@ -73,8 +75,8 @@ def compare_frames(
     ``rgbas`` colour the motions' traces and names (default: :data:`PALETTE` in order);
     ``ts`` are the motions' sample times (any unit, normalised per motion, as ``t`` of
     :func:`slotv_jax.render.motion_frames`; None: evenly spaced); the other arguments as in
-    :func:`slotv_jax.render.motion_frames`. Side by side the
-    frames are ``n · W + (n − 1) · GAP`` wide, with a title bar on top.
+    :func:`slotv_jax.render.motion_frames`. Side by side the panels, each with a title bar
+    on top, lie in rows of ``cols`` panels (None: :func:`side_columns`), GAP pixels apart.
     """
     if len(qs) < 1 or len(qs) > len(PALETTE):
         raise ValueError(f"qs: expected 1..{len(PALETTE)} motions, got {len(qs)}")
@@ -128,5 +130,25 @@ def compare_frames(
     for o, n, c in zip(out, names, colours, strict=True):
         bar = title(o[0], n, colour=c)
         panels.append(np.concatenate([np.broadcast_to(bar, (len(s), *bar.shape)), o], axis=1))
-        panels.append(np.full((*panels[-1].shape[:2], GAP, 3), 255, np.uint8))
-    return np.ascontiguousarray(np.concatenate(panels[:-1], axis=2))
+    if cols is None:
+        cols = side_columns(len(panels))
+    elif not (isinstance(cols, int) and cols >= 1):
+        raise ValueError(f"cols: expected an int >= 1 or None, got {cols!r}")
+    blank = np.full_like(panels[0], 255)
+    panels += [blank] * (-len(panels) % cols)  # the last row filled with white
+    rows = [_joined(panels[i : i + cols], axis=2) for i in range(0, len(panels), cols)]
+    return np.ascontiguousarray(_joined(rows, axis=1))
+
+
+def _joined(parts: list[np.ndarray], axis: int) -> np.ndarray:
+    """``parts`` (F, H, W, 3) joined along ``axis`` (1: rows, 2: columns), GAP white pixels
+    between each two."""
+    gap = np.full_like(np.take(parts[0], range(GAP), axis=axis), 255)
+    return np.concatenate([x for part in parts for x in (gap, part)][1:], axis=axis)
+
+
+def side_columns(n: int) -> int:
+    """Panels per row of ``n`` motions side by side: one row up to three, else a grid of
+    ⌈√n⌉ columns, at most four (seven planners at 640 × 360: 3 columns, 3 rows, not one
+    row of 4516 × 392 pixels)."""
+    return n if n <= 3 else min(4, math.ceil(math.sqrt(n)))

@@ -53,7 +53,7 @@ def train_main(cfg: TrainConfig, args: argparse.Namespace) -> int:
         )
         cfg = dataclasses.replace(cfg, batch_size=fit)
     print(study.summary(), flush=True)
-    print(f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)
+    print(f"config: {json.dumps(cfg.used_dict(), sort_keys=True)}", flush=True)
     out = Path(args.out)
     meta: dict[str, Any] = {"study": str(args.study), "condition": args.condition,
                             "seed": args.seed}  # fmt: skip
@@ -130,7 +130,12 @@ def _parse_args(argv):
     pk.add_argument("--out", required=True, help="checkpoint folder of the pick")
     pk.add_argument("--candidates", default=",".join(pick_lib.DEFAULT_CANDIDATES),
                     help="comma-separated families and labelers to choose from")  # fmt: skip
-    pk.add_argument("--preset", default="quick", choices=tuple(train_config.PRESETS))
+    pk.add_argument(
+        "--preset", default="quick", choices=tuple(train_config.PRESETS),
+        help="the candidates' training and, for --by plans or pool, the planner: "
+        + "; ".join(f"{p} {pick_lib.planner_words(p)} per plan" for p in pick_lib.PLANNERS)
+        + " (default: quick)",
+    )  # fmt: skip
     pk.add_argument("--by", default="likelihood", choices=pick_lib.BY,
                     help="likelihood: the pool's largest weight on held-out answers; plans: "
                     "the candidate whose plans of the study's scenes the other fits judge "
@@ -173,6 +178,8 @@ def pick_main(args: argparse.Namespace) -> int:
     fileio.check_output_dir(args.out, ours=ours, overwrite=args.overwrite)
     if not (isinstance(args.problems, int) and args.problems >= 1):
         raise ValueError(f"--problems: expected an int >= 1, got {args.problems!r}")
+    if args.by != "likelihood":  # what the plans are made with, before the work
+        print(pick_lib.planner_line(args.preset), flush=True)
     study = load_study(args.study)
     if args.condition is not None:
         study = study.select_condition(args.condition)

@@ -143,7 +143,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     trainer = packed_trainer(trainer, state.key, data, range(int(state.epoch), cfg.epochs))
     print(f"devices: {trainer.mesh.size} × {trainer.platform}; "
           f"backward: {trainer.backward}; packed pairs: {trainer.packed_pairs or 'off'}; "
-          f"config: {json.dumps(cfg.to_dict(), sort_keys=True)}", flush=True)  # fmt: skip
+          f"config: {json.dumps(cfg.used_dict(), sort_keys=True)}", flush=True)  # fmt: skip
     run_epoch = jax.jit(functools.partial(trainer.run, epochs=1), donate_argnums=0)
     data = trainer.replicate(data)
     state = trainer.replicate(state)

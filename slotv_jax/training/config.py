@@ -36,6 +36,10 @@ MODELS = ("mlp", "dragan", "viewpoint", "mixture")
 # hidden[0] when the evaluation chunk is sized (a handful of values per pair).
 ARCHETYPE_WIDTH = 8
 OPTIMIZERS = ("rmsprop", "adam")
+# What each optimiser never reads (the other's hyperparameters), and the fields only the
+# MLP reads (an archetype has no network): TrainConfig.used_dict leaves them out.
+UNUSED_BY_OPTIMIZER = {"rmsprop": ("b1", "b2"), "adam": ("rho", "momentum")}
+MLP_ONLY = ("hidden", "activation", "start_term", "time_weight", "compute_dtype")
 COMPUTE_DTYPES = ("float32", "bfloat16")
 # Hidden activations of the MLP: "relu" is the paper's (SPEC §5); "softplus" makes V smooth,
 # which legible planning needs (slotv_jax.observers.models, experiments/planning_paper.md).
@@ -197,6 +201,16 @@ class TrainConfig:
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True)
+
+    def used_dict(self) -> dict[str, Any]:
+        """:meth:`to_dict` less the fields this run never reads, for printing: an archetype's
+        has no network (``hidden``, ``activation``, ``start_term``, ``time_weight``,
+        ``compute_dtype``), and each optimiser drops the other's hyperparameters (Adam
+        ``rho`` and ``momentum``, RMSprop ``b1`` and ``b2``)."""
+        unused = set(UNUSED_BY_OPTIMIZER[self.optimizer])
+        if self.model != "mlp":
+            unused |= set(MLP_ONLY)
+        return {k: v for k, v in self.to_dict().items() if k not in unused}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> TrainConfig:

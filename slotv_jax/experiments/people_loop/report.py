@@ -54,6 +54,16 @@ FAMILY_COLORS = {
 PRETRAIN_MARGIN = 0.03  # a pre-trained family "helps" or "hurts" beyond this much gain kept
 HEADLINE = 2000  # the suite's headline: the largest size at most this many answers
 STRATEGY_STYLES = {"random": "--", "margin": "-", "error": ":"}
+# A marker per family, so that lines of near colours or on top of each other stay apart;
+# the picks (drawn from the candidates, often on one of them) are wide and pale under the
+# rest, so the candidate they equal shows through them.
+FAMILY_MARKERS = {
+    "mlp": "o", "slotv_plus": "s", "dragan_archetype": "^", "viewpoint_archetype": "v",
+    "mixture_archetype": "D", "dragan_fitted": "x", "nikolaidis_fitted": "+",
+    "pick": "*", "pick_cross": "P",
+}  # fmt: skip
+UNDER = {"pick": 4.0, "pick_cross": 3.0}  # line widths of the picks, drawn under the rest
+GOOD_GAIN = 0.8  # the gain kept that the report's crossing columns count the answers to
 BASELINES = ("dragan_fitted", "nikolaidis_fitted")
 RENDER_TAU = 0.5
 
@@ -346,26 +356,35 @@ def _preset_config(preset: str) -> dict | None:
 
 def plot(doc: dict, path: Path) -> None:
     """The gain kept against answers, one panel per population, a line per family and
-    strategy."""
+    strategy (:func:`figure`), written to ``path``."""
+    figures.save(figure(doc), path, dpi=120)
+
+
+def figure(doc: dict):
+    """:func:`plot`'s figure: a line per (family, strategy), each its own colour, marker and
+    dashes, the picks wide and pale beneath the candidates; the 0.8 line labelled; one
+    legend for every panel, below them."""
     plt = figures.pyplot()
     pops = [p["population"] for p in doc["populations"]]
     cols = min(len(pops), 4)
     rows = math.ceil(len(pops) / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(6.5 * cols, 4.2 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(6.5 * cols, 4.2 * rows + 1.2), squeeze=False)
     for ax in axes.flat[len(pops) :]:
         ax.set_axis_off()
+    handles: dict[str, object] = {}
     for ax, name in zip(axes.flat, pops, strict=False):
         for (f, s), (a, g) in curves(doc, name).items():
-            ax.plot(
-                a,
-                g,
-                STRATEGY_STYLES.get(s, "-."),
-                color=FAMILY_COLORS.get(f, "k"),
-                marker="o",
-                ms=3,
+            under = f in UNDER
+            (line,) = ax.plot(
+                a, g, STRATEGY_STYLES.get(s, "-."), color=FAMILY_COLORS.get(f, "k"),
+                marker=FAMILY_MARKERS.get(f, "o"), ms=9 if under else 4,
+                lw=UNDER.get(f, 1.2), alpha=0.45 if under else 1.0, zorder=1 if under else 3,
                 label=f"{plain_title(f)}, {s}",
-            )
-        ax.axhline(0.8, color="k", lw=0.5)
+            )  # fmt: skip
+            handles.setdefault(line.get_label(), line)
+        good = ax.axhline(GOOD_GAIN, color="k", lw=0.8, ls=(0, (1, 3)), zorder=0,
+                          label=f"{GOOD_GAIN} of the oracle's gain")  # fmt: skip
+        handles.setdefault(good.get_label(), good)
         ax.set_xscale("log")
         sizes = sorted({r["answers"] for r in doc["summary"] if r["population"] == name})
         ax.set_xticks(sizes, [f"{a:,}" for a in sizes])
@@ -373,9 +392,10 @@ def plot(doc: dict, path: Path) -> None:
         ax.set_xlabel("answers")
         ax.set_ylabel("gain kept (plan − straight) / (oracle − straight)")
         ax.set_title(f"population: {name} (simulated people)")
-        ax.legend(fontsize=6, ncol=2)
-    fig.tight_layout()
-    figures.save(fig, path, dpi=120)
+    fig.legend(handles.values(), handles.keys(), loc="lower center",
+               ncol=min(len(handles), 4), fontsize=9, frameon=False)  # fmt: skip
+    fig.tight_layout(rect=(0, 1.1 / fig.get_figheight(), 1, 1))
+    return fig
 
 
 def render_command(stem: str, out: Path, best: str | None) -> list[str]:
