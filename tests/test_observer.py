@@ -89,6 +89,7 @@ def test_nothing_is_set_on_a_function_after_the_fact():
     assert not hits, "\n".join(hits)
 
 
+@pytest.mark.slow
 def test_stacked_observers_score_and_plan_in_one_vmap():
     """The parameters of three fitted observers of one family, stacked through the public
     type (``jax.tree.map(jnp.stack, ...)`` over the observers themselves), vmapped through
@@ -159,6 +160,7 @@ class MyDragan:
         return masked_log(y, goal_mask)
 
 
+@pytest.mark.slow
 def test_the_planner_takes_a_users_own_observer():
     """A plain class and a plain function with a ``prefix`` attribute are observers to the
     planner (``ObserverLike``) and plan what the library's labeler observer of the same
