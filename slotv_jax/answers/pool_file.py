@@ -125,11 +125,12 @@ def _positive(where: Path, name: str, v: Any, most: float, why: str) -> float:
 
 def load_pool(path: str | os.PathLike):
     """The pool in folder ``path`` (:func:`save_pool`) as one observer with ``prefix``
-    (:func:`pool_observer`); ``.members`` lists ``(name, weight)``. Every field is checked
-    before any member is loaded: ValueError naming ``pool.json`` and the field
-    (``members[i].weight`` ...). The bounds keep the pool finite in float32: each weight and
-    β at least :data:`FIELD_MIN`, the weights' sum at most :data:`WEIGHT_SUM_MAX`, a
-    labeler's β at most :data:`BETA_MAX`; the names distinct; ``meta`` an object."""
+    (:func:`pool_observer`): its ``config`` holds the members' names, its
+    ``params["weights"]`` their weights. Every field is checked before any member is
+    loaded: ValueError naming ``pool.json`` and the field (``members[i].weight`` ...).
+    The bounds keep the pool finite in float32: each weight and β at least
+    :data:`FIELD_MIN`, the weights' sum at most :data:`WEIGHT_SUM_MAX`, a labeler's β at
+    most :data:`BETA_MAX`; the names distinct; ``meta`` an object."""
     path = Path(path)
     where = path / POOL_FILE
     if not where.is_file():
@@ -190,10 +191,7 @@ def load_pool(path: str | os.PathLike):
             observers.append(planning.labeler_observer(spec[1], beta=spec[2], camera=camera))
         else:
             observers.append(checkpoint.load_observer(spec[1]))
-    obs = pool_observer(observers, [w for _, w, _ in specs])
-    obs.members = [(n, w) for n, w, _ in specs]  # type: ignore[attr-defined]
-    obs.meta = meta  # type: ignore[attr-defined]
-    return obs
+    return pool_observer(observers, [w for _, w, _ in specs], [n for n, _, _ in specs])
 
 
 def _get(doc: Any, key: str) -> Any:

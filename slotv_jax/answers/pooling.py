@@ -53,6 +53,7 @@ import optax
 from jaxtyping import Array, Bool, Float, Int
 
 from slotv_jax.answers.format import PROB_FLOOR
+from slotv_jax.observers.observer import Observer
 
 __all__ = [
     "fit_pool_weights",
@@ -208,29 +209,47 @@ def pick_report(
     }
 
 
-def pool_observer(observers: Sequence[Any], weights: Sequence[float]):
+def _pool(logits: Sequence[Array], w, goal_mask: Bool[Array, " G"]) -> Float[Array, " G"]:
+    logp = jnp.stack([jax.nn.log_softmax(z) for z in logits])
+    return pooled_logits(logp, w, goal_mask)
+
+
+def _pool_logits(names, params, xyz, goals, goal_mask) -> Float[Array, " G"]:
+    zs = [o(xyz, goals, goal_mask) for o in params["members"]]
+    return _pool(zs, params["weights"], jnp.asarray(goal_mask, bool))
+
+
+def _pool_prefix(names, params, xyz, goals, goal_mask, seen) -> Float[Array, " G"]:
+    zs = [o.prefix(xyz, goals, goal_mask, seen) for o in params["members"]]
+    return _pool(zs, params["weights"], jnp.asarray(goal_mask, bool))
+
+
+def pool_observer(
+    observers: Sequence[Any], weights: Sequence[float], names: Sequence[str] | None = None
+) -> Observer:
     """The log-linear pool of ``observers`` (each with ``prefix``) with ``weights`` (F,)
     (an array or a list, traced or not):
     ``logits = Σ_f w_f log softmax(observer_f)`` on the real goals, −∞ on padding, for the
     whole motion and for each prefix (``prefix(xyz, goals, goal_mask, seen)``). Pure: use it
-    under ``jit``, ``vmap`` and ``grad``."""
+    under ``jit``, ``vmap`` and ``grad``.
+
+    An :class:`~slotv_jax.observers.observer.Observer` named "pool" whose ``params`` are
+    ``{"members": the observers, "weights": w (F,) float32}`` (the members' own
+    parameters are its leaves where they are the library's observers) and whose
+    ``config`` is the members' ``names`` (default: each observer's ``name``, or "")."""
     w = jnp.asarray(weights, jnp.float32)  # may be traced (the loop's fitted weights)
     if not observers or w.shape != (len(observers),):
         raise ValueError(
             f"weights: expected one weight per observer ({len(observers)}), got shape {w.shape}"
         )
-
-    def pool(logits: Sequence[Array], goal_mask: Bool[Array, " G"]) -> Float[Array, " G"]:
-        logp = jnp.stack([jax.nn.log_softmax(z) for z in logits])
-        return pooled_logits(logp, w, goal_mask)
-
-    def observer(xyz, goals, goal_mask):
-        return pool([o(xyz, goals, goal_mask) for o in observers], jnp.asarray(goal_mask, bool))
-
-    def prefix(xyz, goals, goal_mask, seen):
-        zs = [o.prefix(xyz, goals, goal_mask, seen) for o in observers]
-        return pool(zs, jnp.asarray(goal_mask, bool))
-
-    observer.prefix = prefix  # type: ignore[attr-defined]
-    observer.name = "pool"  # type: ignore[attr-defined]
-    return observer
+    if names is None:
+        names = [getattr(o, "name", "") for o in observers]
+    if len(names) != len(observers):
+        raise ValueError(f"names: expected one name per observer ({len(observers)}), got {names}")
+    return Observer(
+        logits_fn=_pool_logits,
+        prefix_fn=_pool_prefix,
+        params={"members": tuple(observers), "weights": w},
+        config=tuple(str(n) for n in names),
+        name="pool",
+    )

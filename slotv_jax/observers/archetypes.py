@@ -1,15 +1,20 @@
 """The archetype registry and the distance/approach mixture: :data:`ARCHETYPES` names the three
 parametric observers of :mod:`slotv_jax.observers.parametric` that ``TrainConfig.model``
-selects.
+selects, and :func:`archetype_observer`, an archetype as the library's
+:class:`~slotv_jax.observers.observer.Observer`.
 """
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
+from flax import nnx
 from jaxtyping import Array, Float, Int
 
 from slotv_jax.observers import common
+from slotv_jax.observers.observer import Observer, check_observer_inputs, check_seen
 from slotv_jax.observers.parametric import (
     LearnableDragan,
     LearnableViewpoint,
@@ -157,3 +162,53 @@ def make_archetype(name: str, **init) -> _Archetype:
     if name not in ARCHETYPES:
         raise ValueError(f"model: expected one of {tuple(ARCHETYPES)}, got {name!r}")
     return ARCHETYPES[name](**init)
+
+
+@functools.cache
+def _graphdef(name: str) -> nnx.GraphDef:
+    return nnx.split(make_archetype(name))[0]
+
+
+def _archetype_model(name: str, params) -> _Archetype:
+    return nnx.merge(_graphdef(name), params)
+
+
+def _archetype_logits(
+    name: str, params, xyz: Float[Array, "T 3"], goals, goal_mask
+) -> Float[Array, " 8"]:
+    check_observer_inputs(xyz, goals, goal_mask)
+    model = _archetype_model(name, params)
+    return model(jnp.asarray(xyz), jnp.asarray(goals), jnp.asarray(goal_mask, bool))
+
+
+def _archetype_prefix(
+    name: str, params, xyz: Float[Array, "T 3"], goals, goal_mask, seen
+) -> Float[Array, " 8"]:
+    check_observer_inputs(xyz, goals, goal_mask)
+    check_seen(seen, jnp.shape(xyz)[0])
+    model = _archetype_model(name, params)
+    return model.prefix(
+        jnp.asarray(xyz), jnp.asarray(goals), jnp.asarray(goal_mask, bool), jnp.asarray(seen)
+    )
+
+
+def archetype_observer(name: str, **init) -> Observer:
+    """The archetype called ``name`` at its default (or ``init``) parameters as an
+    :class:`~slotv_jax.observers.observer.Observer`: ``config`` is ``name``, ``params`` the
+    archetype's ``nnx`` parameters (its pytree leaves, on their unconstrained scales), and
+    ``describe()``/``parameters()`` the archetype's. Inputs are checked as
+    :func:`slotv_jax.load_observer`'s are.
+
+    >>> obs = archetype_observer("mixture", beta_effdist=15.0)
+    >>> round(obs.parameters()["effdist_share"], 2)
+    0.75
+    """
+    params = nnx.split(make_archetype(name, **init))[1]
+    return Observer(
+        logits_fn=_archetype_logits,
+        prefix_fn=_archetype_prefix,
+        params=params,
+        config=name,
+        name=name,
+        model_fn=_archetype_model,
+    )

@@ -44,18 +44,21 @@ from __future__ import annotations
 import functools
 import itertools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
-from slotv_jax.core import validation
-from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers import archetypes, common, parametric
 from slotv_jax.observers.common import mask_logits as mask_logits
+
+# the observer type, its protocol and its input checks (their home: observers/observer.py)
+from slotv_jax.observers.observer import Observer as Observer
+from slotv_jax.observers.observer import ObserverLike as ObserverLike
+from slotv_jax.observers.observer import check_observer_inputs as check_observer_inputs
+from slotv_jax.observers.observer import check_seen as check_seen
 
 _DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 BACKWARDS = ("autodiff", "fused", "recompute")  # see GoalRelativeMLP.grid
@@ -492,14 +495,6 @@ class TRex(_ScoreNetwork):
 
 
 Model = SlotV | TRex
-#: An observer, everywhere in the public API: a pure function from a trajectory ``xyz``
-#: (T, 3), goals (8, 3) and a goal mask (8,) to logits (8,) over the goals, padded slots
-#: −∞ (SPEC §9). :func:`slotv_jax.load_observer` returns one; a labeler with its β and
-#: camera bound is one; the planner takes one. :data:`Model` is the network behind a
-#: learned observer. Every observer the library hands out also carries
-#: ``observer.prefix(xyz, goals, goal_mask, seen) -> logits (8,)``: its logits for the
-#: motion seen up to its first ``seen`` points (traced; :mod:`slotv_jax.observers.prefix`).
-Observer = Callable[[Array, Array, Array], Array]
 
 
 def make_model(cfg, rngs: nnx.Rngs | jax.Array | int) -> Model:
@@ -529,35 +524,6 @@ def graphdef(cfg) -> nnx.GraphDef:
     """The ``nnx`` graph definition of :func:`make_model`'s model for ``cfg`` (no parameters
     are allocated): ``nnx.merge(graphdef(cfg), params)`` rebuilds the model."""
     return nnx.split(nnx.eval_shape(lambda: make_model(cfg, nnx.Rngs(0))))[0]
-
-
-def check_observer_inputs(xyz, goals, goal_mask, *, batch_shape: tuple[int, ...] = ()) -> None:
-    """Boundary checks for one trajectory (or a batch): shapes, finiteness, a real goal.
-
-    ``xyz`` is (..., T, 3) with T ≥ 2, ``goals`` (..., 8, 3), ``goal_mask`` (..., 8) with
-    at least one real goal. Value checks run only on concrete arrays.
-    """
-    validation.check_array("xyz", xyz, (*batch_shape, None, 3))
-    if jnp.shape(xyz)[-2] < 2:
-        raise ValueError(f"xyz: expected at least 2 trajectory points, got shape {jnp.shape(xyz)}")
-    validation.check_array("goals", goals, (*batch_shape, G_MAX, 3))
-    validation.check_goal_mask("goal_mask", goal_mask, batch_shape=batch_shape)
-
-
-def check_seen(seen, n_points: int, *, batch_shape: tuple[int, ...] = ()) -> None:
-    """Boundary check of a prefix length: ``seen`` is an integer of shape ``batch_shape``
-    with 2 ≤ seen ≤ ``n_points`` (values checked only when concrete)."""
-    if jnp.shape(seen) != tuple(batch_shape):
-        raise ValueError(f"seen: expected shape {tuple(batch_shape)}, got {jnp.shape(seen)}")
-    if not jnp.issubdtype(jnp.result_type(seen), jnp.integer) or isinstance(seen, bool):
-        raise ValueError(f"seen: expected an integer count of points, got {seen!r}")
-    if validation.is_concrete(seen):  # NumPy: jnp would trace a Python int inside jit
-        v = np.asarray(seen)
-        if not bool(np.all((v >= 2) & (v <= n_points))):
-            raise ValueError(
-                f"seen: expected 2 <= seen <= {n_points} (the trajectory's points), got "
-                f"{v.tolist()}"
-            )
 
 
 def sample_trex_pairs(

@@ -144,6 +144,7 @@ from slotv_jax.core import fileio
 from slotv_jax.core.defaults import DEFAULT_BETAS
 from slotv_jax.core.validation import FLOAT32_MAX
 from slotv_jax.observers.common import masked_log, pairwise_distances, sums, time_weights
+from slotv_jax.observers.observer import Observer
 from slotv_jax.world import scene
 
 __all__ = [
@@ -886,36 +887,42 @@ def population_probs(
     return (1 - lapse) * y + lapse * uniform
 
 
-def quadrature_observer(quad: Quadrature) -> Callable[..., Array]:
+def _population_prefix(
+    config, quad: Quadrature, xyz: Float[Array, "T 3"], goals, goal_mask, seen
+) -> Float[Array, " 8"]:
+    return masked_log(population_probs(quad, xyz, goals, goal_mask, seen), goal_mask)
+
+
+def _population_logits(
+    config, quad: Quadrature, xyz: Float[Array, "T 3"], goals, goal_mask
+) -> Float[Array, " 8"]:
+    return _population_prefix(config, quad, xyz, goals, goal_mask, jnp.shape(xyz)[0])
+
+
+def quadrature_observer(quad: Quadrature) -> Observer:
     """The population of the quadrature ``quad`` as an observer (the planner's contract,
     :mod:`slotv_jax.planning`): ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) ->
     logits (8,)``, the logits ``log P_pop`` of the whole motion (−∞ on padded slots), and
     ``observer.prefix(xyz, goals, goal_mask, seen) -> logits``, ``log P_pop`` of the motion
-    seen up to point ``seen`` (traced). ``quad`` may be traced: a planner whose parameters
+    seen up to point ``seen`` (traced). An :class:`~slotv_jax.observers.observer.Observer`
+    whose ``params`` are ``quad``: ``quad`` may be traced, so a planner whose parameters
     are quadratures (:func:`slotv_jax.planning.make_family_planner`) plans every population
     with one compiled program."""
-
-    def prefix(xyz, goals, goal_mask, seen):
-        return masked_log(population_probs(quad, xyz, goals, goal_mask, seen), goal_mask)
-
-    def observer(xyz, goals, goal_mask):
-        return prefix(xyz, goals, goal_mask, jnp.shape(xyz)[0])
-
-    observer.prefix = prefix  # type: ignore[attr-defined]
-    return observer
+    return Observer(
+        logits_fn=_population_logits, prefix_fn=_population_prefix, params=quad, name="population"
+    )
 
 
-def population_observer(pop: Population) -> Callable[..., Array]:
-    """:func:`quadrature_observer` of ``pop``'s :func:`quadrature`, named.
+def population_observer(pop: Population) -> Observer:
+    """:func:`quadrature_observer` of ``pop``'s :func:`quadrature`, named, with ``pop`` its
+    ``config``.
 
     >>> obs = population_observer(homogeneous())
     >>> obs.name
     'population:homogeneous'
     """
     observer = quadrature_observer(quadrature(pop))
-    observer.name = f"population:{pop.name}"  # type: ignore[attr-defined]
-    observer.population = pop  # type: ignore[attr-defined]
-    return observer
+    return observer.replace(config=pop, name=f"population:{pop.name}")
 
 
 # ------------------------------------------------------------------ participants

@@ -13,6 +13,7 @@ and plan with
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
@@ -25,7 +26,7 @@ from jaxtyping import Array, Bool, Float, Int
 from slotv_jax.core import validation
 from slotv_jax.core.progress import status
 from slotv_jax.core.validation import G_MAX
-from slotv_jax.observers.models import Observer
+from slotv_jax.observers.observer import Observer, ObserverLike
 from slotv_jax.planning.planner import (
     MAX_RESIDUAL,
     PlannerConfig,
@@ -37,7 +38,13 @@ from slotv_jax.planning.planner import (
 )
 from slotv_jax.robot import kinematics
 
-__all__ = ["check_problems", "make_family_planner", "make_planner"]
+__all__ = [
+    "FamilyPlanner",
+    "Planner",
+    "check_problems",
+    "make_family_planner",
+    "make_planner",
+]
 
 
 def _check_targets(goals, goal_mask, target) -> np.ndarray:
@@ -108,8 +115,8 @@ def straight_lines(
 
 
 def make_planner(
-    observer: Observer | Mapping[str, Observer], cfg: PlannerConfig = PlannerConfig()
-) -> Callable[..., PlanResult]:
+    observer: ObserverLike | Mapping[str, ObserverLike], cfg: PlannerConfig = PlannerConfig()
+) -> Planner:
     """A validated, compiled, batched planner for one observer or a set of named observers.
 
     Returns ``planner(goals (B, 8, 3), goal_mask (B, 8), target (B,), start=None,
@@ -144,61 +151,79 @@ def make_planner(
             raise ValueError(f"observer {name!r}: {e}") from None
     names = tuple(observers)
     branches = tuple(observers.values())
-    prefix = cfg.taus is not None
 
-    straight = _straight_program(cfg)
     run = jax.jit(
-        lambda problems, index: jax.vmap(
-            lambda p: plan(_switched(index, branches, prefix), p, cfg)
-        )(problems)
+        lambda problems, index: jax.vmap(lambda p: plan(_switched(index, branches), p, cfg))(
+            problems
+        )
     )
+    return Planner(names, cfg, run, _straight_program(cfg))
 
-    compiled: set[int] = set()  # batch sizes compiled (or being compiled) so far
 
-    def note(n: int) -> None:  # a compilation shows no progress: say so before it
-        if n not in compiled:
-            compiled.add(n)
+@dataclasses.dataclass(frozen=True, eq=False)
+class Planner:
+    """The planner of :func:`make_planner`: ``planner(goals (B, 8, 3), goal_mask (B, 8),
+    target (B,), start=None, observer=None) -> PlanResult``, its straight lines and its
+    plans of given problems. Compiled once per batch size, for every observer."""
+
+    observers: tuple[str, ...]  # the observers' names, in the order of the switch
+    config: PlannerConfig
+    _run: Callable[[Problem, jax.Array], PlanResult] = dataclasses.field(repr=False)
+    _straight: Callable[..., Problem] = dataclasses.field(repr=False)
+    # batch sizes compiled (or being compiled) so far
+    _compiled: set[int] = dataclasses.field(default_factory=set, repr=False)
+
+    def _note(self, n: int) -> None:  # a compilation shows no progress: say so before it
+        if n not in self._compiled:
+            self._compiled.add(n)
             status(f"planning: compiling the straight lines and the planner for {n} problems "
-                   f"and {len(names)} observer(s) (10–30 s on a CPU; later calls "
+                   f"and {len(self.observers)} observer(s) (10–30 s on a CPU; later calls "
                    f"with {n} problems reuse it)")  # fmt: skip
 
-    def index_of(name):
-        return _index_of(names, name, "observer")
+    def plan_problems(self, problems: Problem, observer: str | None = None) -> PlanResult:
+        """Plan ``problems`` (of :meth:`straight_line`) with the observer named ``observer``
+        (None: the first)."""
+        index = _index_of(self.observers, observer, "observer")
+        self._note(int(problems.goals.shape[0]))
+        return self._run(problems, index)
 
-    def plan_problems(problems: Problem, observer: str | None = None) -> PlanResult:
-        index = index_of(observer)
-        note(int(problems.goals.shape[0]))
-        return run(problems, index)
+    def straight_line(
+        self,
+        goals: Float[Array, "B 8 3"],
+        goal_mask: Bool[Array, "B 8"],
+        target: Int[Array, " B"],
+        start: Float[Array, "B 3"] | None = None,
+    ) -> Problem:
+        """The validated straight-line problems of a batch (:func:`straight_lines`)."""
+        return _straight_problems(self._straight, goals, goal_mask, target, start, self._note)
 
-    def straight_lines(goals, goal_mask, target, start=None) -> Problem:
-        return _straight_problems(straight, goals, goal_mask, target, start, note)
-
-    def planner(goals, goal_mask, target, start=None, observer=None) -> PlanResult:
-        index = index_of(observer)
-        problems = straight_lines(goals, goal_mask, target, start)
-        return run(problems, index)
-
-    planner.plan_problems = plan_problems  # type: ignore[attr-defined]
-    planner.straight_line = straight_lines  # type: ignore[attr-defined]
-    planner.observers = names  # type: ignore[attr-defined]
-    planner.config = cfg  # type: ignore[attr-defined]
-    return planner
+    def __call__(
+        self,
+        goals: Float[Array, "B 8 3"],
+        goal_mask: Bool[Array, "B 8"],
+        target: Int[Array, " B"],
+        start: Float[Array, "B 3"] | None = None,
+        observer: str | None = None,
+    ) -> PlanResult:
+        """Every problem planned with the observer named ``observer`` (None: the first)."""
+        index = _index_of(self.observers, observer, "observer")
+        return self._run(self.straight_line(goals, goal_mask, target, start), index)
 
 
-def _switched(index: jax.Array, observers: Sequence[Observer], prefix: bool) -> Observer:
-    """The observer ``observers[index]``, and its ``prefix`` with ``prefix``: a
-    ``lax.switch`` on an unbatched index, so one program holds them all."""
+def _switch_logits(observers, index, xyz, g, m):
+    return jax.lax.switch(index, observers, xyz, g, m)
+
+
+def _switch_prefix(observers, index, xyz, g, m, n):
+    return jax.lax.switch(index, tuple(o.prefix for o in observers), xyz, g, m, n)
+
+
+def _switched(index: jax.Array, observers: Sequence[ObserverLike]) -> ObserverLike:
+    """The observer ``observers[index]`` (and its ``prefix``): a ``lax.switch`` on an
+    unbatched index, so one program holds them all."""
     if len(observers) == 1:
         return observers[0]
-    observers = tuple(observers)
-
-    def obs(xyz, g, m):
-        return jax.lax.switch(index, observers, xyz, g, m)
-
-    if prefix:
-        prefixes = tuple(o.prefix for o in observers)
-        obs.prefix = lambda xyz, g, m, n: jax.lax.switch(index, prefixes, xyz, g, m, n)
-    return obs
+    return Observer(_switch_logits, _switch_prefix, params=index, config=tuple(observers))
 
 
 def _index_of(names: Sequence[str], name: str | None, what: str) -> jax.Array:
@@ -211,10 +236,10 @@ def _index_of(names: Sequence[str], name: str | None, what: str) -> jax.Array:
 
 
 def make_family_planner(
-    build: Callable[[Any], Observer] | Mapping[str, Callable[[Any], Observer]],
+    build: Callable[[Any], ObserverLike] | Mapping[str, Callable[[Any], ObserverLike]],
     example: Any,
     cfg: PlannerConfig = PlannerConfig(),
-) -> Callable[..., PlanResult]:
+) -> FamilyPlanner:
     """A validated planner for many observers of one family in one compiled program.
 
     ``build(params) -> observer`` makes the observer of one parameter set (any pytree of
@@ -273,10 +298,8 @@ def make_family_planner(
             raise ValueError(f"{what}: it does not accept traced parameters ({e})") from e
     names, fns = tuple(builds), tuple(builds.values())
 
-    def observer_of(index, p) -> Observer:  # every family's observer of p, switched
-        return _switched(index, [b(p) for b in fns], cfg.taus is not None)
-
-    straight = _straight_program(cfg)
+    def observer_of(index, p) -> ObserverLike:  # every family's observer of p, switched
+        return _switched(index, [b(p) for b in fns])
 
     def plan_grid(params, problems: Problem, index) -> PlanResult:
         def one_set(p):
@@ -285,23 +308,47 @@ def make_family_planner(
 
         return jax.vmap(one_set)(params)
 
-    run = jax.jit(plan_grid)
+    return FamilyPlanner(names, cfg, jax.jit(plan_grid), _straight_program(cfg))
 
-    def plan_problems(params, problems: Problem, family: str | None = None) -> PlanResult:
-        return run(params, problems, _index_of(names, family, "family"))
 
-    def straight_lines(goals, goal_mask, target, start=None) -> Problem:
-        return _straight_problems(straight, goals, goal_mask, target, start)
+@dataclasses.dataclass(frozen=True, eq=False)
+class FamilyPlanner:
+    """The planner of :func:`make_family_planner`: ``planner(params, goals (B, 8, 3),
+    goal_mask (B, 8), target (B,), start=None, family=None) -> PlanResult`` with leading
+    axes (F, B), its straight lines and its plans of given problems."""
 
-    def planner(params, goals, goal_mask, target, start=None, family=None) -> PlanResult:
-        index = _index_of(names, family, "family")
-        return run(params, straight_lines(goals, goal_mask, target, start), index)
+    families: tuple[str, ...]  # the families' names, in the order of the switch
+    config: PlannerConfig
+    _run: Callable[[Any, Problem, jax.Array], PlanResult] = dataclasses.field(repr=False)
+    _straight: Callable[..., Problem] = dataclasses.field(repr=False)
 
-    planner.plan_problems = plan_problems  # type: ignore[attr-defined]
-    planner.straight_line = straight_lines  # type: ignore[attr-defined]
-    planner.families = names  # type: ignore[attr-defined]
-    planner.config = cfg  # type: ignore[attr-defined]
-    return planner
+    def plan_problems(self, params, problems: Problem, family: str | None = None) -> PlanResult:
+        """Plan ``problems`` (of :meth:`straight_line`) with every parameter set of
+        ``params`` (stacked on the leading axis) of the family named ``family``."""
+        return self._run(params, problems, _index_of(self.families, family, "family"))
+
+    def straight_line(
+        self,
+        goals: Float[Array, "B 8 3"],
+        goal_mask: Bool[Array, "B 8"],
+        target: Int[Array, " B"],
+        start: Float[Array, "B 3"] | None = None,
+    ) -> Problem:
+        """The validated straight-line problems of a batch (:func:`straight_lines`)."""
+        return _straight_problems(self._straight, goals, goal_mask, target, start)
+
+    def __call__(
+        self,
+        params,
+        goals: Float[Array, "B 8 3"],
+        goal_mask: Bool[Array, "B 8"],
+        target: Int[Array, " B"],
+        start: Float[Array, "B 3"] | None = None,
+        family: str | None = None,
+    ) -> PlanResult:
+        """Every problem planned with every parameter set of ``params`` of ``family``."""
+        index = _index_of(self.families, family, "family")
+        return self._run(params, self.straight_line(goals, goal_mask, target, start), index)
 
 
 def _out_of_reach(name: str, i: int, pos, why: str) -> ValueError:

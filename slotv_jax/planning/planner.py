@@ -15,7 +15,9 @@ of the target given the motion seen so far,
     L_τ = seen_points(τ, T)    (the first L_τ of the T waypoints, t_i = i/(T − 1) ≤ τ),
 
 for any observer with a ``prefix(xyz, goals, goal_mask, seen) -> logits (8,)`` attribute
-(every observer the library hands out: labelers, networks, archetypes). ``taus=None``
+(:class:`slotv_jax.observers.observer.ObserverLike`: a user's own class or function, and
+every :class:`~slotv_jax.observers.observer.Observer` the library hands out: labelers,
+networks, archetypes, populations, pools). ``taus=None``
 (the default) keeps the whole-motion objective log P(target | ξ).
 It bounds the loss of efficiency as Dragan & Srinivasa do ("Generating Legible
 Motion", RSS 2013): a trust region on the predictability cost,
@@ -82,7 +84,6 @@ program):
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Sequence
 from numbers import Real
 from typing import NamedTuple
@@ -96,7 +97,12 @@ from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.observers import labelers
 from slotv_jax.observers.common import mask_logits, masked_log, seen_points
-from slotv_jax.observers.models import Observer, check_observer_inputs, check_seen
+from slotv_jax.observers.observer import (
+    Observer,
+    ObserverLike,
+    check_observer_inputs,
+    check_seen,
+)
 from slotv_jax.observers.prefix import prefix_labels
 from slotv_jax.robot import kinematics
 from slotv_jax.world.scene import camera as scene_camera
@@ -228,6 +234,27 @@ class PlanResult(NamedTuple):
 # ------------------------------------------------------------------- observers
 
 
+def _labeler_logits(
+    config: tuple[str, str], beta, xyz: Float[Array, "T 3"], goals, goal_mask
+) -> Float[Array, " 8"]:
+    name, camera = config
+    kw = {"beta": beta}
+    if name == "nikolaidis":
+        kw["camera"] = scene_camera(camera)
+    return masked_log(labelers.LABELERS[name](xyz, goals, goal_mask, **kw), goal_mask)
+
+
+def _labeler_prefix(
+    config: tuple[str, str], beta, xyz: Float[Array, "T 3"], goals, goal_mask, seen
+) -> Float[Array, " 8"]:
+    name, camera = config
+    check_observer_inputs(xyz, goals, goal_mask)
+    check_seen(seen, jnp.shape(xyz)[0])
+    cam = scene_camera(camera) if name == "nikolaidis" else None
+    y = prefix_labels(name, xyz, goals, goal_mask, seen, beta=beta, camera=cam)
+    return masked_log(y, goal_mask)
+
+
 def labeler_observer(name: str, *, beta: float | None = None, camera: str = "observer") -> Observer:
     """A hand-crafted labeler as an observer: ``logits = log y`` (−∞ on padded slots).
 
@@ -235,7 +262,9 @@ def labeler_observer(name: str, *, beta: float | None = None, camera: str = "obs
     log softmax(logits)[target] is log y_target. ``name`` is one of dragan, nikolaidis,
     effdist, fastapp (SPEC §4); ``beta`` defaults to the SPEC's (it may be traced: build
     the observer inside a jitted function of β to plan for many β with one compilation);
-    ``camera`` is the Nikolaidis viewpoint.
+    ``camera`` is the Nikolaidis viewpoint. An :class:`~slotv_jax.observers.observer.Observer`
+    whose ``params`` is β and whose ``config`` is ``(name, camera)``: ``grad`` and ``vmap``
+    take it whole.
 
     The observer's ``prefix(xyz, goals, goal_mask, seen) -> logits (8,)`` is the labeler
     of the motion seen up to its first ``seen`` points, ``log labeler(xyz[:seen])`` at the
@@ -250,24 +279,15 @@ def labeler_observer(name: str, *, beta: float | None = None, camera: str = "obs
         raise ValueError(f"name: expected one of {labelers.LABELER_NAMES}, got {name!r}")
     beta = labelers.DEFAULT_BETAS[name] if beta is None else beta
     validation.check_positive("beta", beta)
-    fn = labelers.LABELERS[name]
-    kw = {"beta": beta}
     if name == "nikolaidis":
-        fn = functools.partial(fn, camera=scene_camera(camera))
-
-    def observer(xyz, goals, goal_mask):
-        return masked_log(fn(xyz, goals, goal_mask, **kw), goal_mask)
-
-    def prefix(xyz, goals, goal_mask, seen):
-        check_observer_inputs(xyz, goals, goal_mask)
-        check_seen(seen, jnp.shape(xyz)[0])
-        y = prefix_labels(name, xyz, goals, goal_mask, seen, beta=beta, camera=cam)
-        return masked_log(y, goal_mask)
-
-    cam = scene_camera(camera) if name == "nikolaidis" else None
-    observer.name = name  # type: ignore[attr-defined]
-    observer.prefix = prefix  # type: ignore[attr-defined]
-    return observer
+        scene_camera(camera)  # an unknown camera fails here, not at the first call
+    return Observer(
+        logits_fn=_labeler_logits,
+        prefix_fn=_labeler_prefix,
+        params=beta,
+        config=(name, str(camera)),
+        name=name,
+    )
 
 
 def _observer_name(observer) -> str:
@@ -275,7 +295,7 @@ def _observer_name(observer) -> str:
     return repr(name) if name else type(observer).__name__
 
 
-def check_observer(observer: Observer, n_points: int = 100, *, prefix: bool = False) -> None:
+def check_observer(observer: ObserverLike, n_points: int = 100, *, prefix: bool = False) -> None:
     """Raise ValueError unless ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,))``
     returns one float logit per goal slot, shape (8,) (checked abstractly, no compute).
     With ``prefix``, ``observer.prefix(xyz, goals, goal_mask, seen)`` (``seen`` an int32
@@ -374,7 +394,7 @@ def _initial_z(q: Float[Array, "T 7"]) -> Float[Array, "n 7"]:
 
 
 def legibility(
-    observer: Observer,
+    observer: ObserverLike,
     xyz: Float[Array, "T 3"],
     goals: Float[Array, "8 3"],
     goal_mask: Bool[Array, " 8"],
@@ -412,7 +432,7 @@ def legibility(
 
 
 def stop_log_probs(
-    observer: Observer,
+    observer: ObserverLike,
     xyz: Float[Array, "T 3"],
     goals: Float[Array, "8 3"],
     goal_mask: Bool[Array, " 8"],
@@ -432,7 +452,7 @@ def stop_log_probs(
     return jax.vmap(one)(seen)
 
 
-def _legibility(observer: Observer, xyz, problem: Problem, cfg: PlannerConfig) -> Array:
+def _legibility(observer: ObserverLike, xyz, problem: Problem, cfg: PlannerConfig) -> Array:
     return legibility(observer, xyz, problem.goals, problem.goal_mask, problem.target, cfg)
 
 
@@ -453,7 +473,7 @@ def _clearance(xyz, problem: Problem, cfg: PlannerConfig) -> Float[Array, ""]:
 
 
 def objective(
-    observer: Observer, problem: Problem, z: Float[Array, "n 7"], cfg: PlannerConfig
+    observer: ObserverLike, problem: Problem, z: Float[Array, "n 7"], cfg: PlannerConfig
 ) -> Float[Array, ""]:
     """The function the planner ascends: log P(target | ξ(z)) (with ``cfg.taus``: its mean
     over the prefixes) minus the clearance penalty.
@@ -526,7 +546,9 @@ def straight_line(
 # ------------------------------------------------------------------- planner
 
 
-def plan(observer: Observer, problem: Problem, cfg: PlannerConfig = PlannerConfig()) -> PlanResult:
+def plan(
+    observer: ObserverLike, problem: Problem, cfg: PlannerConfig = PlannerConfig()
+) -> PlanResult:
     """Plan the most legible motion to ``problem.target`` within the trust region (pure).
 
     Ascends :func:`objective` from the straight line with ``cfg.iters`` covariant

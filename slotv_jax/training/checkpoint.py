@@ -366,60 +366,77 @@ def _wrong_model(path, saved: str, requested: str) -> str:
     )
 
 
+def _learned_logits(
+    cfg: TrainConfig,
+    params,
+    xyz: Float[Array, "T 3"],
+    goals: Float[Array, "8 3"],
+    goal_mask: Bool[Array, " 8"],
+) -> Float[Array, " 8"]:
+    models.check_observer_inputs(xyz, goals, goal_mask)
+    model = nnx.merge(models.graphdef(cfg), params)
+    return model(jnp.asarray(xyz), jnp.asarray(goals), jnp.asarray(goal_mask, bool))
+
+
+def _learned_prefix(
+    cfg: TrainConfig,
+    params,
+    xyz: Float[Array, "T 3"],
+    goals: Float[Array, "8 3"],
+    goal_mask: Bool[Array, " 8"],
+    seen: Int[Array, ""],
+) -> Float[Array, " 8"]:
+    models.check_observer_inputs(xyz, goals, goal_mask)
+    models.check_seen(seen, jnp.shape(xyz)[0])
+    model = nnx.merge(models.graphdef(cfg), params)
+    return model.prefix(
+        jnp.asarray(xyz), jnp.asarray(goals), jnp.asarray(goal_mask, bool), jnp.asarray(seen)
+    )
+
+
+def _learned_model(cfg: TrainConfig, params):
+    return nnx.merge(models.graphdef(cfg), params)
+
+
 def make_observer(cfg: TrainConfig, params) -> models.Observer:
-    """The pure function ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
+    """The observer ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``
+    of ``cfg``'s model at ``params``: an :class:`slotv_jax.observers.observer.Observer`
+    whose ``config`` is ``cfg`` and whose ``params`` are ``params`` (its pytree leaves).
 
     SLOT-V: s_k = (1/T) Σ_i V(p_i, g_k); T-REX: R_k = Σ_i r(p_i, g_k) (with the config's options,
     :class:`slotv_jax.observers.models.SlotV`); padded slots −∞. Shapes are checked on every call;
     values (NaN, an empty mask) on concrete inputs. Works under ``jit``, ``vmap`` and ``grad``
-    (w.r.t. ``xyz`` or ``goals``). The function carries its ``config`` and ``params``, and
-    ``prefix(xyz, goals, goal_mask, seen) -> logits (8,)``: the logits of the motion seen up
-    to its first ``seen`` points (2 ≤ seen ≤ T, may be traced), what training on answers
-    fits (:func:`slotv_jax.answers.fitting.prefix_logits`).
+    (w.r.t. ``xyz``, ``goals`` or the observer's parameters). ``prefix(xyz, goals, goal_mask,
+    seen) -> logits (8,)`` gives the logits of the motion seen up to its first ``seen``
+    points (2 ≤ seen ≤ T, may be traced), what training on answers fits
+    (:func:`slotv_jax.answers.fitting.prefix_logits`). An archetype's observer also has
+    ``describe()`` and ``parameters()`` (its fitted values); ``model()`` is the network or
+    archetype itself.
 
     ``params`` may be traced: build the observer inside a jitted function of the parameters
     to plan or score with many fitted observers of one config in one compiled program
-    (:func:`slotv_jax.planning.make_family_planner`).
+    (:func:`slotv_jax.planning.make_family_planner`), or stack the observers of one config
+    and ``vmap`` over them.
     """
-    abstract = nnx.eval_shape(lambda: models.make_model(cfg, nnx.Rngs(0)))
-    graphdef, _ = nnx.split(abstract)
-
-    def observer(
-        xyz: Float[Array, "T 3"], goals: Float[Array, "8 3"], goal_mask: Bool[Array, "8"]
-    ) -> Float[Array, "8"]:
-        models.check_observer_inputs(xyz, goals, goal_mask)
-        model = nnx.merge(graphdef, params)
-        return model(jnp.asarray(xyz), jnp.asarray(goals), jnp.asarray(goal_mask, bool))
-
-    def prefix(
-        xyz: Float[Array, "T 3"],
-        goals: Float[Array, "8 3"],
-        goal_mask: Bool[Array, "8"],
-        seen: Int[Array, ""],
-    ) -> Float[Array, "8"]:
-        models.check_observer_inputs(xyz, goals, goal_mask)
-        models.check_seen(seen, jnp.shape(xyz)[0])
-        model = nnx.merge(graphdef, params)
-        return model.prefix(
-            jnp.asarray(xyz), jnp.asarray(goals), jnp.asarray(goal_mask, bool), jnp.asarray(seen)
-        )
-
-    observer.prefix = prefix  # type: ignore[attr-defined]
-    observer.config = cfg  # type: ignore[attr-defined]
-    observer.params = params  # type: ignore[attr-defined]
-    if cfg.model != "mlp":  # an archetype explains itself: its fitted parameters
-        fitted = nnx.merge(graphdef, params)
-        observer.describe = fitted.describe  # type: ignore[attr-defined]
-        observer.parameters = fitted.parameters  # type: ignore[attr-defined]
-    return observer
+    name = cfg.method if cfg.model == "mlp" else cfg.model
+    return models.Observer(
+        logits_fn=_learned_logits,
+        prefix_fn=_learned_prefix,
+        params=params,
+        config=cfg,
+        name=name,
+        model_fn=_learned_model,
+    )
 
 
 def load_observer(path: str | os.PathLike, model: str | None = None) -> models.Observer:
     """Load a checkpoint as ``observer(xyz (T, 3), goals (8, 3), goal_mask (8,)) -> logits (8,)``.
 
     The logits are SLOT-V's observer scores (softmax gives P(goal | trajectory)) or
-    T-REX's per-goal returns; padded goals are −∞. The function is pure: use it under
-    ``jit``, ``vmap`` (batch the arguments) and ``grad`` with respect to ``xyz``.
+    T-REX's per-goal returns; padded goals are −∞. The observer is pure: use it under
+    ``jit``, ``vmap`` (batch the arguments) and ``grad`` with respect to ``xyz``; it is an
+    :class:`slotv_jax.observers.observer.Observer` (:func:`make_observer`), a pytree of
+    its parameters, so ``jit``, ``vmap`` and ``grad`` also take the observer itself.
 
     ``model`` (optional: "mlp", "dragan", "viewpoint", "mixture") is the observer the
     caller expects; a checkpoint of another one raises ValueError. An archetype's

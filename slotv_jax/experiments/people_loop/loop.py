@@ -33,6 +33,7 @@ from slotv_jax.observers import people as people_lib
 from slotv_jax.observers import population as population_lib
 from slotv_jax.observers import zoo
 from slotv_jax.observers.common import mask_logits
+from slotv_jax.observers.observer import Observer
 from slotv_jax.planning import evaluation
 from slotv_jax.training import trainer as train_lib
 from slotv_jax.training import types as train_types
@@ -78,26 +79,29 @@ def _family_build(cfg: LoopConfig, f: str):
 
 def _whole_motion(obs):
     """``obs`` scoring the whole motion at every stop time."""
+    return Observer(_whole_logits, _whole_prefix, params=obs, name="whole motion")
 
-    def whole(x, g, m):
-        return obs(x, g, m)
 
-    whole.prefix = lambda x, g, m, s: obs(x, g, m)
-    return whole
+def _whole_logits(_, obs, x, g, m):
+    return obs(x, g, m)
+
+
+def _whole_prefix(_, obs, x, g, m, s):
+    return obs(x, g, m)
 
 
 def _learned(sel, params):
     """The observer of a fitted family as active selection scores it
     (:func:`slotv_jax.asking.selection.candidate_scores` of the prefix, masked)."""
+    return Observer(_learned_logits, _learned_prefix, params=params, config=sel)
 
-    def prefix(x, g, m, s):
-        return mask_logits(selection.candidate_scores(sel.base.model(params), x, g, m, s), m)
 
-    def whole(x, g, m):
-        return prefix(x, g, m, x.shape[0])
+def _learned_prefix(sel, params, x, g, m, s):
+    return mask_logits(selection.candidate_scores(sel.base.model(params), x, g, m, s), m)
 
-    whole.prefix = prefix
-    return whole
+
+def _learned_logits(sel, params, x, g, m):
+    return _learned_prefix(sel, params, x, g, m, x.shape[0])
 
 
 _PLANNERS: dict = {}
