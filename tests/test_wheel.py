@@ -97,3 +97,14 @@ def test_wheel_runs_table1_tiny_from_another_folder(venv, tiny_cfg, tiny_data, t
     assert sorted(c["split"] for c in doc["cells"]) == sorted(TEST_SPLITS)
     assert all(0.0 <= c["accuracy"] <= 1.0 for c in doc["cells"])
     assert (tmp_path / "out" / "table1.md").is_file()
+
+
+@pytest.mark.slow
+def test_wheel_carries_the_licence_and_the_links(venv):
+    (info,) = venv.glob("slotv_jax-*.dist-info")
+    assert (info / "licenses" / "LICENSE").read_text() == (REPO / "LICENSE").read_text()
+    meta = (info / "METADATA").read_text()
+    assert "License-Expression: Apache-2.0" in meta
+    urls = {line.split(": ", 1)[1].split(",")[0] for line in meta.splitlines()
+            if line.startswith("Project-URL: ")}  # fmt: skip
+    assert {"Homepage", "Documentation", "Repository", "Issues", "Paper"} <= urls
