@@ -38,6 +38,7 @@ from slotv_jax.core.environment import environment
 from slotv_jax.experiments.people_loop import loop
 from slotv_jax.observers import population as population_lib
 from slotv_jax.planning import evaluation
+from slotv_jax.runs import command
 from slotv_jax.world import scene
 
 MIN_GAIN = 0.05  # the rule (module docstring)
@@ -136,7 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.people_loop.suite", description=__doc__.split("\n")[0]
     )
-    ap.add_argument("--out", default="experiments", help="folder of the screen's record")
+    ap.add_argument("--out", default=str(command.DEFAULT_OUT), help="folder of the screen's record")
     ap.add_argument("--limit", type=int, default=40, help="draws screened at most")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
