@@ -35,7 +35,7 @@ COMMANDS = {
 }
 
 
-class FirstWrite(BaseException):  # noqa: N818 (not an error: where a command would start)
+class FirstWrite(BaseException):
     """Raised where a command would first create a folder: its outputs are resolved."""
 
 
