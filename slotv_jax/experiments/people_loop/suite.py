@@ -15,7 +15,7 @@ measure, by this rule, fixed before any people-loop result on a draw was seen:
 0.05 is about half the default population's gain in the quick loop (0.47 − 0.35 at the
 paper preset) and ten times the evaluation's resolution at the paper preset (P_pop is
 exact; the studies' 12,000 guesses resolve about 0.01). Writes
-``experiments/population_suite.md`` and ``population_suite.json``;
+``OUT/population_suite.md`` and ``population_suite.json`` (``--out experiments``: the record);
 :data:`slotv_jax.observers.population.SUITE_DRAWS` holds the draws it chose.
 """
 
