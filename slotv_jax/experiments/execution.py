@@ -161,7 +161,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help=f"fraction of the velocity, acceleration and jerk limits (default "
                     f"{DEFAULT_SPEED})")  # fmt: skip
     ap.add_argument("--robot", default="fer", choices=sorted(ROBOTS))
-    ap.add_argument("--out", type=Path, default=Path("experiments"), help="output folder")
+    ap.add_argument("--out", type=Path, default=command.DEFAULT_OUT, help="output folder")
     ap.add_argument("--report", action="store_true",
                     help=f"only render {STEM}.md and {STEM}.png again from {RESULTS}")  # fmt: skip
     ap.add_argument("--no-progress", action="store_true")

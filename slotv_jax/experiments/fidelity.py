@@ -44,8 +44,8 @@ is written.
     python -m slotv_jax.experiments.fidelity --settings via=1 via=3-5 # a subset
     python -m slotv_jax.experiments.fidelity --report-only --out DIR  # re-render
 
-The report goes to ``experiments/fidelity.md`` (and ``.png``) for the paper preset and to
-``OUT/fidelity.md`` otherwise; ``--doc`` chooses another path.
+The report goes to ``OUT/fidelity.md`` (and ``.png``); ``--doc`` chooses another path
+(``--doc experiments/fidelity.md`` rewrites the record).
 """
 
 from __future__ import annotations
@@ -367,9 +367,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     out = args.out or Path("runs") / f"fidelity_{args.preset}"
     fileio.check_output_dir(out, ours=fileio.is_results_dir, resume=True)  # a rerun resumes
-    doc_path = args.doc or (
-        Path("experiments") / "fidelity.md" if args.preset == "paper" else out / "fidelity.md"
-    )
+    doc_path = args.doc or out / "fidelity.md"
     fileio.check_output_files(doc_path.parent, [doc_path.name], what="--doc")
     t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)

@@ -45,7 +45,9 @@ with contextlib.redirect_stdout(io.StringIO()):
     # mujoco.mjx prints a notice when the optional warp backend is absent.
     from mujoco import mjx
 
-ASSETS_DIR = Path(__file__).resolve().parents[2] / "franka_assets"
+#: The robot's MJCF files, inside the package so that a wheel carries them: in the repository
+#: ``slotv_jax/franka_assets`` is a link to the top-level ``franka_assets/``, their source.
+ASSETS_DIR = Path(__file__).resolve().parents[1] / "franka_assets"
 PANDA_XML = ASSETS_DIR / "panda.xml"
 SCENE_XML = ASSETS_DIR / "scene.xml"
 TCP_SITE = "tcp"

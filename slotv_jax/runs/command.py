@@ -15,6 +15,10 @@ from slotv_jax.core import cli, fileio, validation
 from slotv_jax.runs import record
 from slotv_jax.training import config as train_config
 
+#: The folder every command writes to by default (git ignores it). The recorded documents in
+#: ``experiments/`` are rewritten only by a command whose ``--out`` names that folder.
+DEFAULT_OUT = Path("runs")
+
 
 def seeded_parser(prog: str, description: str, presets: Sequence[str]) -> argparse.ArgumentParser:
     """The command line of an experiment run over seeds and selection strategies (the two
@@ -22,7 +26,9 @@ def seeded_parser(prog: str, description: str, presets: Sequence[str]) -> argpar
     motions, strategies; :func:`seeded_overrides` reads it back."""
     ap = cli.ArgumentParser(prog=prog, description=description)
     ap.add_argument("--preset", default="quick", choices=tuple(presets))
-    ap.add_argument("--out", default="experiments", help="output folder (default: experiments)")
+    ap.add_argument(
+        "--out", default=str(DEFAULT_OUT), help=f"output folder (default: {DEFAULT_OUT})"
+    )
     ap.add_argument("--cache", default="data", help="dataset cache folder")
     ap.add_argument("--seeds", type=int, default=None)
     ap.add_argument("--first-seed", type=int, default=None, help="seeds from this one (tuning)")
@@ -85,7 +91,8 @@ def render_again(
     results document ``OUT/STEM_results.json`` (or ``OUT/results``) alone, no dataset, no
     training. ``render(doc, command)`` writes them; the command they name is the one the
     existing report names (:func:`slotv_jax.runs.record.recorded_command`), else
-    ``default_command``."""
+    ``default_command``, each of its lines naming ``--out`` where ``out`` is not the
+    default (:func:`slotv_jax.runs.record.with_out`), so that a rerun writes there again."""
     path = out / (results or f"{stem}_results.json")
     if not path.is_file():
         raise cli.InputError(f"--report: no results document {path} (--out names the run's folder)")
@@ -94,7 +101,8 @@ def render_again(
     outputs = [f"{stem}.md", f"{stem}.png"]
     fileio.check_output_files(out, outputs)
     doc = json.loads(path.read_text(encoding="utf-8"))
-    render(doc, record.recorded_command(out / outputs[0]) or default_command)
+    cmd = record.recorded_command(out / outputs[0]) or default_command
+    render(doc, record.with_out(cmd, out, DEFAULT_OUT))
     print(f"wrote {', '.join(outputs)} in {out} from {path.name}")
     return 0
 

@@ -60,6 +60,25 @@ def command_line(prog: str, argv: Sequence[str] | None) -> str:
     return " ".join([prog, *(a for a in args if a not in DISPLAY_FLAGS)])
 
 
+def with_out(commands: str, out: str | Path, default: str | Path) -> str:
+    """``commands`` (lines of a report's command block) with ``--out OUT`` added to each
+    ``python -m`` line that names no ``--out``, unless ``out`` is the command's ``default``
+    (before a trailing ``  # comment``), so that each line writes where its report is.
+
+    >>> with_out("python -m m --preset paper  # resumes", "experiments", "runs")
+    'python -m m --preset paper --out experiments  # resumes'
+    """
+    if Path(out) == Path(default):
+        return commands
+    lines = []
+    for line in commands.split("\n"):
+        code, sep, comment = line.partition("  # ")
+        if code.startswith("python -m ") and "--out" not in code.split():
+            code = f"{code.rstrip()} --out {out}"
+        lines.append(code + sep + comment)
+    return "\n".join(lines)
+
+
 def recorded_command(report: str | Path) -> str | None:
     """The command block of a rendered report (the first fenced ``bash`` block: the
     commands that made its results), or None if ``report`` does not exist or has none."""

@@ -43,7 +43,7 @@ import numpy as np
 from slotv_jax.core import cli, fileio
 from slotv_jax.experiments.people_loop.config import PICK, PICK_CROSS
 from slotv_jax.experiments.people_loop.report import FAMILY_TITLES
-from slotv_jax.runs import figures
+from slotv_jax.runs import command, figures
 
 RULES = ("uniform", "halving", "cross_top2", "two_picks")
 RULE_TITLES = {
@@ -330,7 +330,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         description=__doc__.split("\n")[0],
     )
     ap.add_argument("results", help="a people loop's *_results.json")
-    ap.add_argument("--out", default="experiments", help="folder of the record")
+    ap.add_argument("--out", default=str(command.DEFAULT_OUT), help="folder of the record")
     ap.add_argument("--draws", type=int, default=DRAWS, help="simulated rounds per run")
     args = ap.parse_args(argv)
     if not 1 <= args.draws <= 1_000_000:

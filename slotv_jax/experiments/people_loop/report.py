@@ -20,7 +20,7 @@ from slotv_jax.experiments.people_loop.config import (
 )
 from slotv_jax.observers import population as population_lib
 from slotv_jax.observers import zoo
-from slotv_jax.runs import figures
+from slotv_jax.runs import command, figures
 from slotv_jax.runs.summary import crossing
 
 FAMILY_TITLES = {
@@ -277,7 +277,7 @@ def evaluation(doc: dict, pop: dict, families, strategies) -> list[str]:
     return lines
 
 
-DEFAULT_OUT = Path("experiments")  # the command's --out default: its line leaves it out
+DEFAULT_OUT = command.DEFAULT_OUT  # the command's --out default: its line leaves it out
 
 
 def report(doc: dict, stem: str, out: Path = DEFAULT_OUT) -> str:

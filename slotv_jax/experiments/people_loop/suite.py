@@ -15,7 +15,7 @@ measure, by this rule, fixed before any people-loop result on a draw was seen:
 0.05 is about half the default population's gain in the quick loop (0.47 − 0.35 at the
 paper preset) and ten times the evaluation's resolution at the paper preset (P_pop is
 exact; the studies' 12,000 guesses resolve about 0.01). Writes
-``experiments/population_suite.md`` and ``population_suite.json``;
+``OUT/population_suite.md`` and ``population_suite.json`` (``--out experiments``: the record);
 :data:`slotv_jax.observers.population.SUITE_DRAWS` holds the draws it chose.
 """
 
@@ -38,6 +38,7 @@ from slotv_jax.core.environment import environment
 from slotv_jax.experiments.people_loop import loop
 from slotv_jax.observers import population as population_lib
 from slotv_jax.planning import evaluation
+from slotv_jax.runs import command
 from slotv_jax.world import scene
 
 MIN_GAIN = 0.05  # the rule (module docstring)
@@ -136,7 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.people_loop.suite", description=__doc__.split("\n")[0]
     )
-    ap.add_argument("--out", default="experiments", help="folder of the screen's record")
+    ap.add_argument("--out", default=str(command.DEFAULT_OUT), help="folder of the screen's record")
     ap.add_argument("--limit", type=int, default=40, help="draws screened at most")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)

@@ -23,7 +23,11 @@ def _parse_args(argv):
         description="Simulated studies: trajectories × participants for a learned observer.",
     )
     ap.add_argument("--preset", default="quick", choices=tuple(PRESETS))
-    ap.add_argument("--out", default="experiments", help="output folder (default: experiments)")
+    ap.add_argument(
+        "--out",
+        default=str(command.DEFAULT_OUT),
+        help=f"output folder (default: {command.DEFAULT_OUT})",
+    )
     ap.add_argument("--cache", default="data", help="dataset cache folder")
     ap.add_argument("--n-grid", default=None, help="comma-separated N, e.g. 100,1000")
     ap.add_argument("--participants", default=None, help="comma-separated P; 0 means ∞")
