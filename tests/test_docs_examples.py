@@ -339,3 +339,25 @@ def test_page_runs(page, docs_data, tmp_path, monkeypatch):
             assert r.returncode == 0, (where, r.stderr[-3000:])
         elif lang == "python" and mode == "default":
             exec(compile(code, where, "exec"), namespace)
+
+
+def commands_of_the_package() -> set[str]:
+    """Every ``python -m`` command: packages with a __main__.py, and modules with a
+    top-level ``if __name__ == "__main__":`` (a package's cli.py is its package's)."""
+    found = set()
+    for path in (ROOT / "slotv_jax").rglob("*.py"):
+        module = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+        if path.name == "__main__.py":
+            found.add(module.removesuffix(".__main__"))
+        elif re.search(r'^if __name__ == "__main__":', path.read_text(), re.M):
+            if not (path.name == "cli.py" and (path.parent / "__main__.py").exists()):
+                found.add(module)
+    return found
+
+
+def test_the_readme_lists_every_command_once():
+    """The README's table of commands has one row per command, and only commands."""
+    text = (ROOT / "README.md").read_text()
+    rows = re.findall(r"^\| `python -m (slotv_jax[\w.]*)` \|", text, re.M)
+    assert len(rows) == len(set(rows)), rows
+    assert set(rows) == commands_of_the_package()
