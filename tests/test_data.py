@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from docs_pages import all_text
 
 from slotv_jax import data
 from slotv_jax.data import cli as data_cli
@@ -390,18 +391,17 @@ def test_a_missing_dataset_names_the_command_that_makes_it(tiny_data, tmp_path, 
 
 
 def test_readme_reads_the_dataset_the_main_job_makes():
-    """Every dataset the README reads is a preset's cached one (made by the main job) or
-    the --out of an earlier README command; no README command generates it a second time."""
+    """Every dataset the README and the manual read is a preset's cached one (made by the
+    main job) or the --out of an earlier command of theirs; none generates it a second time."""
     import re
-    from pathlib import Path
 
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    text = all_text()
     reads = [(m.start(), m.group(1)) for m in re.finditer(r"--data ([^\s`]+)", text)]
     reads += [(m.start(), m.group(1)) for m in re.finditer(r'load_split\("([^"]+)"', text)]
     assert len(reads) >= 6
     for at, where in reads:
         made = re.search(rf"--out {re.escape(where)}\b", text[:at])
-        assert where in data.PRESETS or made, f"README reads {where!r}, which nothing made"
+        assert where in data.PRESETS or made, f"the docs read {where!r}, which nothing made"
     for line in re.findall(r"python -m slotv_jax\.data [^\n`]*", text):
         assert "--relabel" in line or "--out" not in line, line  # the cache, not a copy
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from docs_pages import pages
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST_S = 30.0  # an import of JAX on a busy 2-core machine, not a dataset, labels or training
@@ -435,17 +436,20 @@ def test_ctrl_c_in_table1_is_one_line_leaves_no_half_file_and_resumes(tmp_path):
 
 
 def test_readme_commands_write_distinct_outputs():
-    """Followed in order, no two README commands write the same --out (the second would be
-    refused, or would replace the first's output with other settings)."""
-    text = (ROOT / "README.md").read_text()
-    outs: dict[str, str] = {}
-    for block in re.findall(r"```bash\n(.*?)```", text, re.S):
-        for line in block.replace("\\\n", " ").splitlines():
-            m = re.search(r"python -m (\S+).*?--out (\S+)", line)
-            if m:
-                assert m.group(2) not in outs, (line, outs.get(m.group(2)))
-                outs[m.group(2)] = line
-    assert len(outs) >= 15 and "ckpt/dragan" in outs and "ckpt/dragan_plus" in outs
+    """Followed in order, no two commands of one page (README.md, each page of the manual)
+    write the same --out (the second would be refused, or would replace the first's output
+    with other settings)."""
+    every: set[str] = set()
+    for page in pages():
+        outs: dict[str, str] = {}
+        for block in re.findall(r"```bash\n(.*?)```", page.read_text(), re.S):
+            for line in block.replace("\\\n", " ").splitlines():
+                m = re.search(r"python -m (\S+).*?--out (\S+)", line)
+                if m:
+                    assert m.group(2) not in outs, (page.name, line, outs.get(m.group(2)))
+                    outs[m.group(2)] = line
+        every |= set(outs)
+    assert len(every) >= 15 and "ckpt/dragan" in every and "ckpt/dragan_plus" in every
 
 
 @pytest.mark.parametrize(

@@ -13,7 +13,6 @@ planner's compilation dominates their time.
 from __future__ import annotations
 
 import dataclasses
-import re
 from pathlib import Path
 
 import jax
@@ -22,6 +21,7 @@ import mujoco
 import numpy as np
 import pytest
 import ref_labelers
+from docs_pages import marked_block
 
 from slotv_jax import data, planning
 from slotv_jax.core.defaults import BETAS_V1
@@ -355,20 +355,14 @@ def test_an_unreachable_goal_is_refused_before_anything_compiles(monkeypatch):
 
 @pytest.mark.slow
 def test_readme_example(tmp_path, monkeypatch, tiny_data, capsys):
-    """Runs the README's planning block verbatim, with a tiny observer at ckpt/dragan. Its
+    """Runs the planning guide's example block verbatim, with a tiny observer at ckpt/dragan. Its
     planner call compiles for 10–30 s on a CPU, silent but for one line that says so
     first."""
     from slotv_jax.training import checkpoint, types
     from slotv_jax.training import config as train_config
     from slotv_jax.training import trainer as train
 
-    text = (REPO / "README.md").read_text()
-    block = re.search(
-        r"<!-- planning-example:start -->\s*```python\n(.*?)```\s*<!-- planning-example:end -->",
-        text,
-        re.S,
-    )
-    assert block, "README.md: the planning example block is missing"
+    block = marked_block("docs/guides/planning.md", "planning-example", "python")
     cfg = train_config.quick("slotv", hidden=(16, 8), epochs=1, train_size=None)
     state, _ = train.train_trials(cfg, types.prepare(tiny_data["train"], "dragan"), [0],
                                   progress=False)  # fmt: skip
@@ -376,7 +370,7 @@ def test_readme_example(tmp_path, monkeypatch, tiny_data, capsys):
     checkpoint.save(tmp_path / "ckpt" / "dragan", cfg, train.select_trial(state, 0))
     env: dict = {}
     capsys.readouterr()
-    exec(compile(block.group(1), "README.md", "exec"), env)
+    exec(compile(block, "docs/guides/planning.md", "exec"), env)
     res = env["result"]
     assert res.xyz.shape == (4, 100, 3) and bool(np.all(res.feasible))
     assert np.all(np.isfinite(env["y"]))

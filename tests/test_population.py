@@ -11,13 +11,13 @@ import hashlib
 import json
 import math
 import sqlite3
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from compile_log import backend_compiles
+from docs_pages import marked_block
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from study_fixtures import ServerProcess, write_dot_set
@@ -710,25 +710,18 @@ def test_run_crowd_gives_each_participant_their_own_guesser():
 # ------------------------------------------------------------------ the README
 
 
-def _readme_block(start: str, end: str) -> str:
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    return text.split(start, 1)[1].split(end, 1)[0]
-
-
 def test_readme_population_file_is_the_default():
-    block = _readme_block(
-        "<!-- population-file:start -->\n```json\n", "```\n<!-- population-file:end"
-    )
-    assert P.Population.from_dict(json.loads(block), "README") == P.default()
+    """The population guide's file of the default population is the default."""
+    block = marked_block("docs/guides/population.md", "population-file", "json")
+    assert P.Population.from_dict(json.loads(block), "population.md") == P.default()
 
 
 def test_readme_python_example_runs(tmp_path, monkeypatch):
-    head = "import jax.numpy as jnp\nfrom slotv_jax.observers import population\n"
-    block = _readme_block(head, "```\n")  # the population section's block (the walk's differs)
+    """The population guide's Python block: a saved population, P_pop and its sampler agree."""
+    block = marked_block("docs/guides/population.md", "population-python", "python")
     monkeypatch.chdir(tmp_path)
     env: dict = {}
-    exec("import jax\nimport jax.numpy as jnp\nfrom slotv_jax.observers import population\n"
-         + block, env)  # fmt: skip
+    exec(compile(block, "docs/guides/population.md", "exec"), env)
     assert P.load_population(tmp_path / "my_people.json").lapse == 0.1
     freq = np.bincount(np.asarray(env["guesses"]), minlength=8) / 100_000
     np.testing.assert_allclose(freq, env["p"], atol=0.006)  # 4.6 standard errors

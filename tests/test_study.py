@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from docs_pages import marked_block
 from flax import nnx
 
 import slotv_jax  # applies the XLA CPU setting before JAX starts
@@ -758,12 +759,9 @@ def test_cli_training_then_load_observer(small, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_readme_example_runs(tmp_path):
-    text = (ROOT / "README.md").read_text()
-    m = re.search(r"<!-- study-example:start -->\n```bash\n(.*?)```\n<!-- study-example:end -->",
-                  text, re.S)  # fmt: skip
-    assert m, "README: study example block not found"
+    block = marked_block("docs/guides/study-data.md", "study-example", "bash")
     env = {"PYTHONPATH": str(ROOT), "PATH": str(Path(sys.executable).parent) + ":/usr/bin:/bin"}
-    r = subprocess.run(["bash", "-e", "-c", m.group(1)], cwd=tmp_path, env=env,
+    r = subprocess.run(["bash", "-e", "-c", block], cwd=tmp_path, env=env,
                        capture_output=True, text=True, timeout=300)  # fmt: skip
     assert r.returncode == 0, r.stderr[-3000:]
     assert "wrote my_study.npz" in r.stdout

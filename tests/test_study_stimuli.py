@@ -182,7 +182,7 @@ def test_timed_stimuli_move_at_the_robot_s_speed(tmp_path, monkeypatch):
     like.close()
     from slotv_jax.study import cli as study_cli
 
-    # a later round of the same plans (the README's later round, run twice) holds the same
+    # a later round of the same plans (the study guide's later round, run twice) holds the same
     # ids: they are the same motions at the robot's times (refused as "another motion" when
     # the check compared the plans' even times with the round's), and a moved one is not
     make_stimuli.check_ids_across_rounds(tmp_path / "stim", m, "--plans", timing)

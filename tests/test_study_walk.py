@@ -1,6 +1,6 @@
-"""The README's study walk-through, with three people in a real browser.
+"""The study guide's walk-through (docs/guides/study.md), with three people in a real browser.
 
-The README block runs verbatim in bash (stimuli from a dataset split, the server, 120
+The guide's block runs verbatim in bash (stimuli from a dataset split, the server, 120
 simulated participants, export, import, training, load_observer, a legibility gradient);
 while its server is up, three participants click through the study in headless Chromium
 (Playwright), one refreshing mid-trial and one pressing the back button. Their clicks
@@ -22,6 +22,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+from docs_pages import marked_block
 
 from slotv_jax import data, study
 
@@ -87,11 +88,8 @@ def take_part(page, url: str, pid: str, *, reload_at=None, back_at=None) -> tupl
 
 
 def readme_block(name: str) -> str:
-    """The bash block between the README's ``<!-- NAME:start -->`` and ``:end`` markers."""
-    text = (ROOT / "README.md").read_text()
-    m = re.search(rf"<!-- {name}:start -->\n```bash\n(.*?)```\n<!-- {name}:end -->", text, re.S)
-    assert m, f"README: {name} block not found"
-    return m.group(1)
+    """The bash block between the study guide's ``<!-- NAME:start -->`` and ``:end`` markers."""
+    return marked_block("docs/guides/study.md", name, "bash")
 
 
 def crowd_ids(block: str) -> range:
