@@ -18,7 +18,7 @@ array                       shape, dtype   meaning
 ``t`` (optional)            (N, T) f64     time stamps (any unit), strictly increasing
 ``goals``                   (N, 8, 3) f32  goals (m) per trajectory, or (8, 3) shared
 ``goal_mask``               (N, 8) bool    real goal slots (1-8, first), or (8,) shared
-``goal_names`` (optional)   (N, 8) or (8,) goal names (str, '' on padded slots)
+``goal_names`` (optional)   (N, 8), (8,)   goal names (str, '' on padded slots)
 ``trajectory_ids``          (N,) str       the trajectories' ids in the source tables
 ``answer_trajectory``       (A,) i32       trajectory of each answer row
 ``answer_tau``              (A,) f64       the participant saw points with t_i ≤ τ
