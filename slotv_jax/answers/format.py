@@ -76,6 +76,7 @@ labels). Points after τ never reach the network (they are replaced by the first
 and weighted 0), so they change neither the loss nor its gradient.
 
 >>> study = load_study("study.npz")                                   # doctest: +SKIP
+>>> from slotv_jax.training import config
 >>> cfg = config.quick("slotv")
 >>> state = train_study(cfg, study, jax.random.key(0))                # doctest: +SKIP
 >>> cross_validate(cfg, study, folds=5)["slotv"]["nll_per_answer"]    # doctest: +SKIP

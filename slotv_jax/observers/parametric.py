@@ -313,7 +313,7 @@ def camera_frame(
     centre to the camera) axes; it looks along −z.
 
     >>> pos, rot = camera_frame(0.0, 0.0, 2.0)
-    >>> [round(float(v), 3) for v in pos], [round(float(v), 3) for v in rot[:, 0]]
+    >>> [round(float(v), 3) + 0.0 for v in pos], [round(float(v), 3) + 0.0 for v in rot[:, 0]]
     ([2.45, 0.0, 0.15], [0.0, 1.0, 0.0])
     """
     cy, sy, cp, sp = jnp.cos(yaw), jnp.sin(yaw), jnp.cos(pitch), jnp.sin(pitch)
