@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import re
+import sys
 from pathlib import Path
 
 from docutils import nodes
@@ -34,14 +36,18 @@ def public_modules() -> list[str]:
 
 
 def home(module: str, name: str) -> tuple[str, str]:
-    """``(role, dotted name)`` of where ``module.name`` is documented."""
+    """``(role, dotted name)`` of where ``module.name`` is documented: the package module
+    whose source defines it (``def NAME``, ``class NAME``, ``NAME = ...``)."""
     obj = getattr(importlib.import_module(module), name)
     if inspect.ismodule(obj):
         return "mod", obj.__name__
-    where = getattr(obj, "__module__", None)
-    qual = getattr(obj, "__qualname__", None)
-    if where and qual and (inspect.isclass(obj) or inspect.isfunction(obj)):
-        return "obj", f"{where}.{qual}"
+    defines = re.compile(rf"^(?:def |class |async def )?{re.escape(name)}\b\s*[:=(]", re.M)
+    for other in public_modules():
+        mod = sys.modules.get(other)
+        if mod is None or other == module or getattr(mod, name, None) is not obj:
+            continue
+        if defines.search(Path(mod.__file__).read_text()):
+            return "obj", f"{other}.{name}"
     return "obj", f"{module}.{name}"
 
 
