@@ -18,7 +18,7 @@ array                       shape, dtype   meaning
 ``t`` (optional)            (N, T) f64     time stamps (any unit), strictly increasing
 ``goals``                   (N, 8, 3) f32  goals (m) per trajectory, or (8, 3) shared
 ``goal_mask``               (N, 8) bool    real goal slots (1-8, first), or (8,) shared
-``goal_names`` (optional)   (N, 8) or (8,) goal names (str, '' on padded slots)
+``goal_names`` (optional)   (N, 8), (8,)   goal names (str, '' on padded slots)
 ``trajectory_ids``          (N,) str       the trajectories' ids in the source tables
 ``answer_trajectory``       (A,) i32       trajectory of each answer row
 ``answer_tau``              (A,) f64       the participant saw points with t_i ≤ τ
@@ -76,6 +76,7 @@ labels). Points after τ never reach the network (they are replaced by the first
 and weighted 0), so they change neither the loss nor its gradient.
 
 >>> study = load_study("study.npz")                                   # doctest: +SKIP
+>>> from slotv_jax.training import config
 >>> cfg = config.quick("slotv")
 >>> state = train_study(cfg, study, jax.random.key(0))                # doctest: +SKIP
 >>> cross_validate(cfg, study, folds=5)["slotv"]["nll_per_answer"]    # doctest: +SKIP

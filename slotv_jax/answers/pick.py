@@ -185,7 +185,7 @@ def cross_judged(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The pick by plans. ``judged[f][g]`` (R,) is fit g's mean P(target | ξ_{0:τ}) of
     family f's plans (over problems and stop times); each candidate f is scored by the fits
-    it was not planned against,
+    it was not planned against::
 
         S_f = (1 / (|C| − 1)) Σ_{g ∈ C, g ≠ f} judged[f][g],
 
@@ -193,7 +193,7 @@ def cross_judged(
     optimistic, so f's own judgment of its plans is left out: a plan counts as legible
     where fits that did not make it agree that it is (cross-validation of plans, as the
     folds of :mod:`slotv_jax.answers.pooling` are of fits). Returns the chosen index into
-    ``candidates`` (R,) and the scores S (R, |C|).
+    ``candidates`` (R,) and the scores S ``(R, |C|)``.
 
     >>> j = {"a": {"a": np.array([0.9]), "b": np.array([0.4])},
     ...      "b": {"a": np.array([0.6]), "b": np.array([0.8])}}

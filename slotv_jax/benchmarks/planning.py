@@ -178,7 +178,7 @@ def quality(xyz, straight_xyz, goals, mask, target, feasible) -> str:
 
 def path_gradient_rows(n: int, n_points: int, repeats: int) -> list[str]:
     """The path gradient, J(q)ᵀ ∂f/∂p over every waypoint, by ``fk_position``'s geometric
-    Jacobian against autodiff through MJX: markdown rows (compile s, gradients/s, max |Δ|)."""
+    Jacobian against autodiff through MJX: markdown rows (compile s, gradients/s, max ``|Δ|``)."""
     qs = np.random.default_rng(1).uniform(kinematics.Q_MIN, kinematics.Q_MAX, (n, n_points, 7))
     qs = jnp.asarray(qs, jnp.float32)
     w = jnp.linspace(0.5, 1.5, 3, dtype=jnp.float32)

@@ -37,8 +37,8 @@ def label_stats(y: np.ndarray, target: np.ndarray, mask: np.ndarray) -> dict[str
     ``target_agreement`` and its chance level ``chance`` (= mean 1/n_goals),
     ``margin`` (mean gap between the two largest probabilities) and ``near_tie``
     (fraction with a gap below :data:`NEAR_TIE`), and sanity figures of the labels
-    themselves: ``max_sum_error`` (worst |Σ_real y − 1|), ``max_padded`` (largest
-    |y| on a padded slot) and ``min_value`` (smallest y on a real slot).
+    themselves: ``max_sum_error`` (worst ``|Σ_real y − 1|``), ``max_padded`` (largest
+    ``|y|`` on a padded slot) and ``min_value`` (smallest y on a real slot).
     """
     mask = np.asarray(mask, bool)
     y64 = np.asarray(y, np.float64)

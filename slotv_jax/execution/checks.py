@@ -10,7 +10,7 @@
   The hand may touch the target cube (the cube it grasps, gripper open); everything else
   counts. Contacts are computed at a subset of the samples, and every sample in between is
   certified by a swept-distance bound: between samples k and i no point of the arm moves
-  farther than C_i − C_k, with C the running sum of Σ_j R_j |Δq_j| (R_j: the largest distance
+  farther than C_i − C_k, with C the running sum of ``Σ_j R_j |Δq_j|`` (R_j: the largest distance
   of a collision shape from joint j's axis, over all configurations, by the triangle
   inequality along the chain), so two shapes at clearance c at sample k stay apart while
   2 (C_i − C_k) < c. The next sample checked is the first one not certified, so a collision

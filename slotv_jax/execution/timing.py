@@ -4,7 +4,7 @@ The path is fixed (:mod:`slotv_jax.execution.path`); only the time law s(t) is c
 
 1. **TOPP-RA** (Pham & Pham, "A New Approach to Time-Optimal Path Parameterization Based on
    Reachability Analysis", IEEE T-RO 34(3), 2018; the ``toppra`` package) gives the fastest
-   path velocity ṡ(s) on a grid (the spline's knots and the midpoints between them) under
+   path velocity ṡ(s) on a grid (the spline's knots and the midpoints between them) under::
 
        |q′_j(s) ṡ| ≤ σ(s) v_j,   |q′_j(s) s̈ + q″_j(s) ṡ²| ≤ σ(s)² a_j,   ṡ(0) = ṡ(end) = 0,
 
@@ -19,7 +19,7 @@ The path is fixed (:mod:`slotv_jax.execution.path`); only the time law s(t) is c
    the jerk of s is at most 2 max|s̈| / (w Δt), and the path stays the same (only s(t)
    changes). The jerk bound j_i of joint i is the scaled jerk limit, or less where the arm's
    torque rate binds: following the motion takes τ = M(q) q̈ + …, so τ̇_i ≈ Σ_j M_ij q⃛_j,
-   and j_i = 0.9 τ̇_max,i / max_q Σ_j |M_ij| (M at the plan's configurations; 180–320 rad/s³
+   and j_i = 0.9 τ̇_max,i / max_q ``Σ_j |M_ij|`` (M at the plan's configurations; 180–320 rad/s³
    on joints 1–4 of the Panda) keeps Franka's torque-rate limit (1000 N m/s) with 10 % for
    gravity, Coriolis and feedback. The window is at least ⌈2 max_{i,t} |q′_i s̈| / j_i / Δt⌉
    samples for the s̈ TOPP-RA takes: the least that keeps a full swing of those

@@ -30,7 +30,7 @@ Parameters live on unconstrained scales and are mapped to their meaningful range
 temperatures and distances through ``exp`` (a scale parameter: Adam's steps become
 relative changes; β spans 5 to 30 in the datasets), exponents through ``softplus``
 (α ≥ 0), metric weights through a softmax (positive, trace 3: the overall scale is β's),
-the camera pitch through ``tanh`` (|pitch| ≤ 90°) and the camera distance as
+the camera pitch through ``tanh`` (``|pitch|`` ≤ 90°) and the camera distance as
 ``DISTANCE_MIN + exp(·)`` (the camera stays outside the workspace). Each archetype's
 :meth:`describe` prints the fitted values with units, in words; :meth:`parameters` returns
 them as a dict (stored in checkpoints' ``meta``).
@@ -313,7 +313,7 @@ def camera_frame(
     centre to the camera) axes; it looks along −z.
 
     >>> pos, rot = camera_frame(0.0, 0.0, 2.0)
-    >>> [round(float(v), 3) for v in pos], [round(float(v), 3) for v in rot[:, 0]]
+    >>> [round(float(v), 3) + 0.0 for v in pos], [round(float(v), 3) + 0.0 for v in rot[:, 0]]
     ([2.45, 0.0, 0.15], [0.0, 1.0, 0.0])
     """
     cy, sy, cp, sp = jnp.cos(yaw), jnp.sin(yaw), jnp.cos(pitch), jnp.sin(pitch)
@@ -362,7 +362,7 @@ class LearnableViewpoint(_Archetype):
     formula with α = 1, w₀ = 1 and the Euclidean metric is applied to the (u, v) points
     with temperature β (per unit of image plane at depth 1).
 
-    Parameters: ψ (rad, free), φ = 90° · tanh(·) (|φ| ≤ 90°; the frame stays defined),
+    Parameters: ψ (rad, free), φ = 90° · tanh(·) (``|φ|`` ≤ 90°; the frame stays defined),
     r = DISTANCE_MIN + exp(·) (m), β = exp(·). Defaults: a start pose that is not the
     ``observer`` camera's (ψ = 45°, φ = 45°, r = 1.5 m; the observer stands at ψ = 0°,
     φ = 29.5°, r = 1.32 m) and β = 7.5. With the observer's pose and β = 7.5 the logits are

@@ -209,12 +209,12 @@ MAX_NODES = 64
 #: within a factor e⁵ ≈ 150 of β₀, already far wider than any group of people reads a motion;
 #: beyond it exp(σ z) at the quadrature's outer nodes leaves float32).
 SIGMA_LOG_MAX = 5.0
-#: |z| of the sampler's draws is below this: ``jax.random.normal`` in float32 draws
-#: |z| ≤ 5.42 (its uniforms' extreme float32 values through the inverse error function).
+#: ``|z|`` of the sampler's draws is below this: ``jax.random.normal`` in float32 draws
+#: ``|z|`` ≤ 5.42 (its uniforms' extreme float32 values through the inverse error function).
 Z_DRAW_MAX = 6.0
 #: The largest temperature a participant may get (β₀ · exp(σ z) at the quadrature's outer
 #: node or a draw's): β · e then stays finite in float32 (:data:`FLOAT32_MAX`) for evidence
-#: |e| up to 1e7 (metres for ``world``; in a camera's image plane, a point 10 m aside at the
+#: ``|e|`` up to 1e7 (metres for ``world``; in a camera's image plane, a point 10 m aside at the
 #: least depth seen, :data:`DEPTH_EPS`), so that P_pop is finite.
 BETA_MAX = FLOAT32_MAX / 1e7
 _SUM_TOL = 1e-6  # |Σ probabilities − 1| allowed in a population file
@@ -393,7 +393,7 @@ def _check_fields(d: Mapping[str, Any], where: str) -> dict[str, Any]:
 
 
 def _z_reach(sigma: float, nodes: int) -> float:
-    """The largest |z| at which a participant's β = β₀ · exp(σ z) is taken: the outer
+    """The largest ``|z|`` at which a participant's β = β₀ · exp(σ z) is taken: the outer
     Gauss–Hermite node of :func:`quadrature` (σ > 0) or a draw's (:data:`Z_DRAW_MAX`)."""
     if sigma == 0:
         return 0.0

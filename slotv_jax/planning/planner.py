@@ -9,7 +9,7 @@ archetypes).
 What people read early. An evaluation study stops the motion at times τ and asks for the
 goal; legibility is for being read before the end. With ``PlannerConfig.taus`` the
 objective is the *prefix legibility*, the mean over the stop times of the log-probability
-of the target given the motion seen so far,
+of the target given the motion seen so far::
 
     L(ξ) = (1/|taus|) Σ_{τ ∈ taus} log softmax(observer.prefix(ξ, goals, mask, L_τ))[target],
     L_τ = seen_points(τ, T)    (the first L_τ of the T waypoints, t_i = i/(T − 1) ≤ τ),
@@ -403,7 +403,7 @@ def legibility(
 ) -> Float[Array, ""]:
     """The legibility the planner maximises, for one path (pure; no checks):
     log P(target | ξ) = log softmax(observer(xyz, goals, goal_mask))[target] over the real
-    goals; with ``cfg.taus`` the prefix legibility (module docstring)
+    goals; with ``cfg.taus`` the prefix legibility (module docstring)::
 
         (1/|taus|) Σ_τ log softmax(observer.prefix(xyz, goals, goal_mask, L_τ))[target],
 

@@ -23,7 +23,7 @@ Opening a renderer needs OpenGL; :class:`RenderBackendError` says what to instal
 none can be opened. Nothing else in this module needs it.
 
 >>> frames = motion_frames(q, goals, goal_mask, tau=0.5, size=(320, 180))  # doctest: +SKIP
->>> frames.shape  # 46 frames of motion (0 ... 0.5 of 3 s at 30 fps) + 30 held
+>>> frames.shape  # 46 frames of motion (0 ... 0.5 of 3 s at 30 fps) + 30 held  # doctest: +SKIP
 (76, 180, 320, 3)
 """
 
@@ -401,7 +401,7 @@ def motion_frames(
     Returns (F, H, W, 3) uint8 frames, ``size = (W, H)``.
 
     >>> f = motion_frames(q, goals, mask, tau=0.4, fps=10, duration=2, hold=0.5)  # doctest: +SKIP
-    >>> f.shape[0]  # 0, 0.05, ..., 0.4 (9 frames) + 5 held
+    >>> f.shape[0]  # 0, 0.05, ..., 0.4 (9 frames) + 5 held  # doctest: +SKIP
     14
     """
     check_motion(q, goals, goal_mask, t=t, target=target, labels=labels)

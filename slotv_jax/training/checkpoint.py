@@ -18,8 +18,8 @@ the caller's config) and raises ValueError naming the mismatch; a missing path
 raises FileNotFoundError, truncated files a ValueError that says so.
 
 >>> observer = load_observer("runs/slotv_effdist")        # doctest: +SKIP
->>> logits = observer(xyz, goals, goal_mask)              # (8,), padded slots −∞
->>> jax.grad(lambda x: jax.nn.softmax(observer(x, goals, goal_mask))[0])(xyz)
+>>> logits = observer(xyz, goals, goal_mask)  # (8,), padded slots −∞  # doctest: +SKIP
+>>> jax.grad(lambda x: jax.nn.softmax(observer(x, goals, goal_mask))[0])(xyz)  # doctest: +SKIP
 """
 
 from __future__ import annotations

@@ -41,6 +41,7 @@ and batch sizes) go through :func:`map_on_devices`: one unit per device, dispatc
 asynchronously (JAX returns from a jitted call before the device finishes), so the host
 traces and compiles the next unit while the devices run the earlier ones.
 
+>>> from slotv_jax.training.schedule import groups
 >>> groups(list("abcdefghij"), 4)  # 10 units on 4 devices
 [(['a', 'b', 'c', 'd'], 4), (['e', 'f', 'g', 'h'], 4), (['i', 'j'], 2)]
 """

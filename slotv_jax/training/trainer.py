@@ -47,7 +47,7 @@ Sample-efficiency curves (SPEC §8): ``cfg.eval_every = k`` validates on the fir
 ``cfg.eval_size`` trajectories of ``val`` after every k updates (and once before
 training), inside the compiled loop: ``metrics.eval_updates``/``eval_accuracy``.
 
->>> from slotv_jax import config, evaluate
+>>> from slotv_jax.training import config, evaluate
 >>> cfg = config.quick("slotv")
 >>> data = prepare(splits["train"], "effdist", size=cfg.train_size)  # doctest: +SKIP
 >>> states, metrics = train_trials(cfg, data, seeds=2)  # doctest: +SKIP

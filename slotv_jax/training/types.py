@@ -14,7 +14,8 @@ They live here, below every module that uses them (:mod:`slotv_jax.training.eval
 
 >>> import numpy as np
 >>> mask = np.arange(8) < 2
->>> d = make_data(np.zeros((1, 4, 3)), np.ones((1, 8, 3)) * mask[:, None], mask[None],
+>>> goals = np.arange(24.0).reshape(1, 8, 3) * mask[:, None]  # two real goals, apart
+>>> d = make_data(np.zeros((1, 4, 3)), goals, mask[None],
 ...               np.where(mask, 0.5, 0.0)[None])
 >>> trim_goals(d).goals.shape
 (1, 2, 3)

@@ -4,28 +4,28 @@
 127.0.0.1 (``--host`` to listen elsewhere) and prints the admin token. Routes validate
 the request, call one service function and return JSON; nothing else happens here.
 
-====================================  ==================================================
-route                                 what
-====================================  ==================================================
-``GET /``                             the participant page (``static/index.html``);
-                                      ``?PROLIFIC_PID=&STUDY_ID=&SESSION_ID=`` are kept
-``GET /api/texts``                    title, consent and instructions (editable files)
-``POST /api/start``                   ``{"consent": true, "ids": {...}}``: a participant
-                                      (new, or resumed: see ``StudyService.begin``); sets
-                                      the participant cookie (HttpOnly, SameSite)
-``POST /api/resume``                  ``{"token": ...}`` of a resume link (``/#resume=``):
-                                      sets the cookie, returns the state
-``GET /api/state``                    the next unanswered trial, or the completion code
-``POST /api/answer``                  ``{"position", "guess", "confidence",
-                                      "response_ms"}``: stores it once, returns the state
-``GET /api/media/{position}/{clip|still}``  a file of one of the participant's trials
-``GET /admin``                        the admin page; its API needs
-                                      ``Authorization: Bearer <admin token>``:
-``GET /api/admin/progress``           answers per stimulus and per participant
-``GET /api/admin/export/{name}.csv``  answers, trajectories, goals, participants
-``POST /api/admin/resume-link/{n}``   a new token for participant ``n`` (the one they
-                                      held stops working) and its link ``/#resume=``
-====================================  ==================================================
+============================================  ==================================================
+route                                         what
+============================================  ==================================================
+``GET /``                                     the participant page (``static/index.html``);
+                                              ``?PROLIFIC_PID=&STUDY_ID=&SESSION_ID=`` are kept
+``GET /api/texts``                            title, consent and instructions (editable files)
+``POST /api/start``                           ``{"consent": true, "ids": {...}}``: a participant
+                                              (new, or resumed: see ``StudyService.begin``); sets
+                                              the participant cookie (HttpOnly, SameSite)
+``POST /api/resume``                          ``{"token": ...}`` of a resume link (``/#resume=``):
+                                              sets the cookie, returns the state
+``GET /api/state``                            the next unanswered trial, or the completion code
+``POST /api/answer``                          ``{"position", "guess", "confidence",
+                                              "response_ms"}``: stores it once, returns the state
+``GET /api/media/{position}/{clip|still}``    a file of one of the participant's trials
+``GET /admin``                                the admin page; its API needs
+                                              ``Authorization: Bearer <admin token>``:
+``GET /api/admin/progress``                   answers per stimulus and per participant
+``GET /api/admin/export/{name}.csv``          answers, trajectories, goals, participants
+``POST /api/admin/resume-link/{n}``           a new token for participant ``n`` (the one they
+                                              held stops working) and its link ``/#resume=``
+============================================  ==================================================
 
 Safety: a participant reaches only their own trials (their token is a random 256-bit
 cookie, stored hashed); files are looked up by trial, never by a path from the request;

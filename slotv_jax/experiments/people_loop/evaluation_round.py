@@ -78,8 +78,8 @@ def uniform_round(ask: Ask, n_cand: int, budget: int, m: int, rng) -> np.ndarray
 
 def sequential_halving(ask: Ask, n_cand: int, budget: int, m: int, rng) -> np.ndarray:
     """Karnin et al. (2013), Algorithm 1: R = ⌈log₂ C⌉ rounds; in round r each of the
-    |S_r| candidates left gets ⌊budget / (|S_r| R)⌋ answers and the ⌈|S_r| / 2⌉ with the
-    most correct go on. Answers do not carry over between rounds. Returns the kept
+    ``|S_r|`` candidates left gets ``⌊budget / (|S_r| R)⌋`` answers and the ``⌈|S_r| / 2⌉`` with
+    the most correct go on. Answers do not carry over between rounds. Returns the kept
     candidate of each of M rounds (M,)."""
     rounds = max(1, int(np.ceil(np.log2(n_cand))))
     alive = np.broadcast_to(np.arange(n_cand), (m, n_cand))
