@@ -10,7 +10,7 @@ The path is fixed (:mod:`slotv_jax.execution.path`); only the time law s(t) is c
 
    with v, a the joint velocity and acceleration limits times the speed scale, and σ ≤ 1 a
    factor per grid point that starts at 0.99 (step 3); and ṡ is capped where the path's own
-   jerk term would exceed 0.9 of the jerk bound j (step 2): |q‴_j(s)| ṡ³ ≤ 0.9 j_j (the
+   jerk term would exceed 0.9 of the jerk bound j (step 2): ``|q‴_j(s)| ṡ³ ≤ 0.9 j_j`` (the
    spline's q‴ is constant on each interval). Between grid points s̈ is constant
    (toppra's ``ParametrizeConstAccel``); this module samples that law at 1 kHz.
 2. **Jerk.** TOPP-RA's s̈ jumps (bang-bang), so the joint jerk is unbounded. The sampled
@@ -21,7 +21,7 @@ The path is fixed (:mod:`slotv_jax.execution.path`); only the time law s(t) is c
    torque rate binds: following the motion takes τ = M(q) q̈ + …, so τ̇_i ≈ Σ_j M_ij q⃛_j,
    and j_i = 0.9 τ̇_max,i / max_q ``Σ_j |M_ij|`` (M at the plan's configurations; 180–320 rad/s³
    on joints 1–4 of the Panda) keeps Franka's torque-rate limit (1000 N m/s) with 10 % for
-   gravity, Coriolis and feedback. The window is at least ⌈2 max_{i,t} |q′_i s̈| / j_i / Δt⌉
+   gravity, Coriolis and feedback. The window is at least ``⌈2 max_{i,t} |q′_i s̈| / j_i / Δt⌉``
    samples for the s̈ TOPP-RA takes: the least that keeps a full swing of those
    accelerations within j_i.
 3. **Verify, and adjust.** The backward differences of the 1 kHz samples (as the robot takes
