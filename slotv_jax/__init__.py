@@ -6,8 +6,9 @@ display it also sets ``MUJOCO_GL`` unless set (MuJoCo reads it once, at its impo
 where an EGL library loads, else ``disable``, so that MuJoCo loads without OpenGL and only
 rendering fails, in one line (:mod:`slotv_jax.core.opengl`).
 
-:func:`load_observer` (SPEC §9) is :func:`slotv_jax.training.checkpoint.load_observer`, imported
-on first use (PEP 562); ``dir(slotv_jax)`` lists it with the other public names,
+:func:`load_observer` (:ref:`concepts-observers`) is
+:func:`slotv_jax.training.checkpoint.load_observer`, imported on first use (PEP 562);
+``dir(slotv_jax)`` lists it with the other public names,
 :data:`__all__`. The package's only eager imports are :mod:`slotv_jax.core.opengl`
 and :mod:`slotv_jax.core.xla`, for two reasons measured on the 2-core CPU: ``import
 slotv_jax`` takes 0.25 s instead of 2.9 s (checkpoint pulls in JAX, Flax, MJX and Orbax),

@@ -1,7 +1,9 @@
-"""Franka Emika Panda kinematics (SPEC §1, §9) under their public name.
+"""Franka Emika Panda kinematics (:ref:`concepts-robot`, :ref:`concepts-public-names`) under their
+public name.
 
 The code lives in :mod:`slotv_jax.robot.kinematics`; this module keeps the public names of
-SPEC §9 (``slotv_jax.kinematics.tcp_position``, ``slotv_jax.kinematics.Q_HOME``).
+:ref:`concepts-public-names` (``slotv_jax.kinematics.tcp_position``,
+``slotv_jax.kinematics.Q_HOME``).
 """
 
 from slotv_jax.robot.kinematics import (

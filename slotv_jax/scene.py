@@ -1,7 +1,8 @@
-"""Scenes and the observer cameras (SPEC §2, §9) under their public name.
+"""Scenes and the observer cameras (:ref:`concepts-cameras`, :ref:`concepts-public-names`) under
+their public name.
 
-The code lives in :mod:`slotv_jax.world.scene`; this module keeps the public names of SPEC §9
-(``slotv_jax.scene.camera``).
+The code lives in :mod:`slotv_jax.world.scene`; this module keeps the public names of
+:ref:`concepts-public-names` (``slotv_jax.scene.camera``).
 """
 
 from slotv_jax.world.scene import (

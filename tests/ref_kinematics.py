@@ -1,4 +1,5 @@
-"""Independent float64 forward kinematics of the Panda, written from SPEC §1's DH table.
+"""Independent float64 forward kinematics of the Panda, written from :ref:`concepts-robot`'s DH
+table.
 
 Franka's published modified (Craig) Denavit–Hartenberg parameters: link frame i
 is ``RotX(α_i) · TransX(a_i) · RotZ(q_i) · TransZ(d_i)`` of frame i−1. The flange
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-# (a, d, alpha) per joint, from the table in SPEC §1.
+# (a, d, alpha) per joint, from the table in :ref:`concepts-robot`.
 DH = np.array(
     [
         [0.0, 0.333, 0.0],

@@ -1,4 +1,5 @@
-"""Independent float64 NumPy re-derivation of the four labelers, written from SPEC §4.
+"""Independent float64 NumPy re-derivation of the four labelers, written from
+:ref:`concepts-labelers`.
 
 Plain loops over points and goals, no vectorisation tricks and no code shared with
 ``slotv_jax.labelers``: each formula is spelled out as the SPEC writes it, so the
@@ -41,7 +42,7 @@ def softmax_over_real(s, mask) -> np.ndarray:
 
 
 def dragan(xyz, goals, mask, beta=5.0, t=None) -> np.ndarray:
-    """SPEC §4.1: y_k = ∫ P_k(t)(1 − t) dt / ∫ (1 − t) dt by the trapezoid rule."""
+    """:ref:`concepts-dragan`: y_k = ∫ P_k(t)(1 − t) dt / ∫ (1 − t) dt by the trapezoid rule."""
     xyz, goals = np.asarray(xyz, np.float64), np.asarray(goals, np.float64)
     T = len(xyz)
     tau = _times(T, t)
@@ -62,7 +63,7 @@ def dragan(xyz, goals, mask, beta=5.0, t=None) -> np.ndarray:
 
 
 def effdist(xyz, goals, mask, beta=5.0, t=None) -> np.ndarray:
-    """SPEC §4.3: s_k = −β (1/T) Σ_i d_k(i); with time stamps a time-weighted mean.
+    """:ref:`concepts-effdist`: s_k = −β (1/T) Σ_i d_k(i); with time stamps a time-weighted mean.
 
     With stamps, sample i stands for the interval between the midpoints to its
     neighbours; the ends get a mirrored neighbour (t_{−1} = 2t₀ − t₁,
@@ -84,7 +85,8 @@ def effdist(xyz, goals, mask, beta=5.0, t=None) -> np.ndarray:
 
 
 def fastapp(xyz, goals, mask, beta=5.0, t=None) -> np.ndarray:
-    """SPEC §4.4: s_k = β Σ_i w_i a_k(i) / Σ_i w_i Δt_i, w_i = 1 − t_i, a_k(i) = d_k(i−1) − d_k(i).
+    """:ref:`concepts-fastapp`: s_k = β Σ_i w_i a_k(i) / Σ_i w_i Δt_i, w_i = 1 − t_i, a_k(i) =
+    d_k(i−1) − d_k(i).
 
     T = 2 makes the ratio 0/0; the implementation's documented limit (the single
     approach speed a_k(1)/Δt) is used there.
@@ -118,7 +120,7 @@ def project(p, cam_pos, cam_xmat) -> tuple[np.ndarray, float]:
 
 
 def nikolaidis(xyz, goals, mask, cam_pos, cam_xmat, beta=7.5, t=None) -> np.ndarray:
-    """SPEC §4.2: Dragan legibility of the projected points and goals."""
+    """:ref:`concepts-cameras`: Dragan legibility of the projected points and goals."""
     pts, gs = [], []
     for p in np.asarray(xyz, np.float64):
         uv, depth = project(p, cam_pos, cam_xmat)
@@ -139,7 +141,7 @@ def dragan_author_form(xyz, goals, mask, velocity) -> np.ndarray:
     velocity at its two ends (v at the start, 0 at the end): V = v² · (L/v) / 2.
     P(g | S → p_i) ∝ exp(V(S → g) − V(p_i → g) − C(S → p_i)) with the cost so far
     C; the label is the (1 − t)-weighted trapezoid average of P over the path.
-    SPEC §4.1 says this equals :func:`dragan` with β = velocity / 2.
+    :ref:`concepts-dragan` says this equals :func:`dragan` with β = velocity / 2.
     """
     xyz, goals = np.asarray(xyz, np.float64), np.asarray(goals, np.float64)
     T = len(xyz)

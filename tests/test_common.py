@@ -31,7 +31,7 @@ def test_masks_by_hand():
 def test_time_weights_by_hand_and_in_both_forms():
     tau = common.uniform_times(3)
     np.testing.assert_allclose(common.trapezoid(tau, np), [0.25, 0.5, 0.25])
-    # SPEC §4.1's integration weights: trap · (1 − τ) = (0.25, 0.25, 0), normalised
+    # :ref:`concepts-dragan`'s integration weights: trap · (1 − τ) = (0.25, 0.25, 0), normalised
     c = common.time_weights(tau, 1.0, trapezoid_rule=True)
     np.testing.assert_allclose(c, [0.5, 0.5, 0], rtol=1e-15, atol=1e-300)
     np.testing.assert_allclose(common.time_weights(tau, 0.0), [1 / 3] * 3)

@@ -24,7 +24,8 @@ def test_the_tables_are_shared_not_copied():
     assert data.LabelConfig().betas() == dict(defaults.DEFAULT_BETAS)
     assert data.LABELS_V1.betas() == dict(defaults.BETAS_V1)
     assert data.DATA_DISTRIBUTIONS["spec_v1"][1] == data.LABELS_V1
-    # the values SPEC §4 states (the datasets' temperatures), and the first version's
+    # the values :ref:`concepts-temperatures` states (the datasets' temperatures), and the first
+    # version's
     assert dict(defaults.DEFAULT_BETAS) == {
         "dragan": 20.0,
         "nikolaidis": 30.0,

@@ -1,4 +1,5 @@
-"""Execution on a robot (SPEC §13): timing, checks and exports against independent references.
+"""Execution on a robot (:ref:`concepts-execution`): timing, checks and exports against independent
+references.
 
 References: a time-optimal straight joint motion computed by hand (a trapezoid of velocity),
 backward differences at 1 kHz written here, the DH product of ``ref_kinematics`` for the TCP,
@@ -227,8 +228,8 @@ def _polyline_distance(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
 
 
 def test_tcp_stays_within_1mm_of_the_planned_path(recorded):
-    """At every 1 kHz sample, by the DH product of SPEC §1: the planned motion is the plan's
-    configurations joined by straight joint-space lines (as the clips move the robot), taken
+    """At every 1 kHz sample, by the DH product of :ref:`concepts-robot`: the planned motion is the
+    plan's configurations joined by straight joint-space lines (as the clips move the robot), taken
     here 400 points along the path. A recorded plan; a path with a right-angled corner in
     joint space, which the spline only follows after refinement; long steps, whose TCP arcs
     away from the chords between the plan's points."""

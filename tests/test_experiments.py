@@ -40,7 +40,7 @@ def _tiny_kw():
 
 
 def _check_schema(doc: dict) -> None:
-    """SPEC §9's results.json schema."""
+    """:ref:`concepts-table1`'s results.json schema."""
     assert set(doc) >= {"preset", "config", "environment", "cells", "summary", "timing"}
     assert isinstance(doc["preset"], str) and isinstance(doc["config"], dict)
     assert {"jax", "devices", "mujoco", "flax"} <= set(doc["environment"])

@@ -1,7 +1,7 @@
 """Every command as a user runs it: a file in the way survives byte for byte, an unwritable
 ``--out`` fails in seconds before any work, and input errors are one line ``error: ...``
-with exit code 2 (SPEC §11). Each run is a fresh ``python -m`` process; every case here
-fails before JAX does any work, so a run costs about its import time."""
+with exit code 2 (:ref:`concepts-commands`). Each run is a fresh ``python -m`` process; every case
+here fails before JAX does any work, so a run costs about its import time."""
 
 from __future__ import annotations
 
@@ -455,18 +455,17 @@ def test_readme_commands_write_distinct_outputs():
 @pytest.mark.parametrize(
     "module, document",
     [
-        ("active", "experiments/active_results.json"),
-        ("active_stream", "experiments/active_stream_results.json"),
-        ("people_loop.__main__", "experiments/people_loop_results.json"),
-        ("study_size.__main__", "experiments/study_size.json"),
+        ("active", "runs/active_results.json"),
+        ("active_stream", "runs/active_stream_results.json"),
+        ("people_loop.__main__", "runs/people_loop_results.json"),
+        ("study_size.__main__", "runs/study_size.json"),
     ],
 )
-def test_experiments_whose_records_spec_names_default_to_them(
-    module, document, tmp_path, monkeypatch, capsys
-):
-    """SPEC §10-§12: active, study_size and the people loop write experiments/NAME.md and
-    its results (active_stream beside active), where a rerun resumes the recorded document;
-    --report where nothing ran yet names the document it looked for, in one line."""
+def test_experiments_with_records_default_to_runs(module, document, tmp_path, monkeypatch, capsys):
+    """active, active_stream, study_size and the people loop write NAME.md and its results
+    into runs/ on their defaults (their records in experiments/ are rewritten only with
+    --out experiments, where a rerun resumes the recorded document); --report where nothing
+    ran yet names the document it looked for, in one line."""
     import importlib
 
     monkeypatch.chdir(tmp_path)

@@ -182,7 +182,8 @@ def test_dependencies_point_down():
 
 # The package's folders are its layers, bottom up (ARCHITECTURE.md draws them): a module
 # imports only modules of its own folder or of a lower layer. Folders of one layer do not
-# import each other. The public names of SPEC §9 and the commands stand above the library.
+# import each other. The public names of :ref:`concepts-public-names` and the commands stand above
+# the library.
 LAYERS = (
     ("core",),
     ("robot",),

@@ -1,7 +1,7 @@
 """MJX kinematics and IK against MuJoCo C and an independent float64 DH product.
 
 References: ``mujoco.mj_kinematics`` on the same MJCF (float64), and
-``ref_kinematics``, a NumPy product of SPEC §1's modified DH table. Batches go
+``ref_kinematics``, a NumPy product of :ref:`concepts-robot`'s modified DH table. Batches go
 through ``jit(vmap(...))`` once per function; the compiled functions count
 their traces, so the tests can check that repeated calls do not retrace.
 """
@@ -24,13 +24,13 @@ N_CONFIGS = 1000  # random in-limit configurations for FK
 N_JAC = 64  # configurations for the Jacobian checks
 N_TARGETS = 1000  # random IK targets per region
 N_NEAR_HOME = 500  # IK targets that are FK of in-limit configurations near Q_HOME
-N_PATHS = 48  # SPEC §3 polylines (plus N_LINES straight lines) for path IK
+N_PATHS = 48  # :ref:`concepts-trajectories` polylines (plus N_LINES straight lines) for path IK
 N_LINES = 16
 N_POINTS = 100  # points per path, equally spaced by arc length
 
-FK_TOL = 1e-5  # m: MJX (float32) vs MuJoCo C / DH (float64), SPEC §1
+FK_TOL = 1e-5  # m: MJX (float32) vs MuJoCo C / DH (float64), :ref:`concepts-robot`
 ROT_TOL = 1e-5  # rotation-matrix entries; float32 rounding through 8 bodies is ~1e-6
-CHECK_TOL = 5e-5  # m: half a unit in the 4th decimal of SPEC §1's check values
+CHECK_TOL = 5e-5  # m: half a unit in the 4th decimal of :ref:`concepts-robot`'s check values
 DOWN_TOL = 1e-5  # rad: "straight down" at Q_HOME, up to float32 rounding
 JAC_AD_TOL = 1e-5  # geometric Jacobian vs jacfwd, both float32 (entries are O(1))
 JAC_FD_TOL = 1e-5  # geometric Jacobian (float32) vs float64 central differences of DH
@@ -130,7 +130,8 @@ def resample(waypoints: np.ndarray, n: int) -> np.ndarray:
 
 
 def random_paths(rng: np.random.Generator) -> np.ndarray:
-    """SPEC §3 polylines TCP(q_home) → 3–5 via points → cube goal, and straight lines."""
+    """:ref:`concepts-trajectories` polylines TCP(q_home) → 3–5 via points → cube goal, and straight
+    lines."""
     start = ref.tcp_positions(SPEC_Q_HOME)
     paths = []
     for i in range(N_PATHS + N_LINES):
@@ -156,7 +157,7 @@ def mujoco_c_poses(qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fk_inputs(rng: np.random.Generator) -> np.ndarray:
-    """SPEC §1's two check configurations, then N_CONFIGS random in-limit ones."""
+    """:ref:`concepts-robot`'s two check configurations, then N_CONFIGS random in-limit ones."""
     return np.vstack([SPEC_Q_HOME, np.zeros(7), random_configs(rng, N_CONFIGS)])
 
 
@@ -212,7 +213,8 @@ def test_constants_and_mjcf_match_spec_table():
 
 
 def test_reference_reproduces_spec_check_values():
-    # The reference is only useful if it is right: SPEC §1's printed values, in float64.
+    # The reference is only useful if it is right: :ref:`concepts-robot`'s printed values, in
+    # float64.
     np.testing.assert_allclose(
         ref.tcp_positions(SPEC_Q_HOME), [0.3069, 0.0, 0.4869], atol=CHECK_TOL
     )

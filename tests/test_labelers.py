@@ -453,7 +453,7 @@ def test_labelling_bar_shows_before_the_camera_and_the_compilation(monkeypatch, 
 
 
 def test_observer_camera_geometry_from_spec(mj_cameras):
-    # SPEC §4.2: at (1.60, 0, 0.80), looking at (0.45, 0, 0.15); x right, y up.
+    # :ref:`concepts-nikolaidis`: at (1.60, 0, 0.80), looking at (0.45, 0, 0.15); x right, y up.
     pos, xmat = mj_cameras["observer"]
     np.testing.assert_allclose(pos, [1.6, 0.0, 0.8], atol=1e-12)
     look = np.array([0.45, 0.0, 0.15]) - pos
@@ -679,8 +679,15 @@ def test_label_all_matches_per_trajectory_labelers_and_compiles_once():
     assert sorted(y) == sorted(ALL)
     for name in ALL:
         assert y[name].shape == (N, 8) and y[name].dtype == np.float32
+        # Both paths are float32 with their own summation order (the bulk kernel fuses the
+        # trajectories; on an AVX2 CPU the two differ by up to 1.4e-6 on FastApp, each
+        # within REF_TOL of float64): each against the float64 reference, the acceptance
+        # criterion, and so each other within twice it.
+        beta = L.DEFAULT_BETAS[name]
+        ref64 = np.stack([ref_call(name, *c, beta=beta) for c in cases])
+        np.testing.assert_allclose(y[name], ref64, rtol=0, atol=REF_TOL)
         expect = np.stack([np.asarray(jcall(name, *c)) for c in cases])
-        np.testing.assert_allclose(y[name], expect, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(y[name], expect, rtol=0, atol=2 * REF_TOL)
         assert np.all(y[name][~mask] == 0.0)
 
     # New data, new betas, same shapes: no retrace.

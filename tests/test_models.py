@@ -162,7 +162,8 @@ def test_model_compiles_once():
 
 
 def test_trex_pairs_follow_spec():
-    """Pairs: uniform trajectories, uniform real goal slots, label 1[y2 > y1] (SPEC §6)."""
+    """Pairs: uniform trajectories, uniform real goal slots, label 1[y2 > y1]
+    (:ref:`concepts-trex`)."""
     rng = np.random.default_rng(0)
     n = 40
     counts = rng.choice([2, 3, 5, 6], n)

@@ -1,7 +1,7 @@
-"""Tests for slotv_jax.observers.parametric (the observer archetypes, SPEC §10): at their true
-parameters they reproduce the labelers (an independent implementation); they recover known
-parameters from generated labels through the real training pipeline; jit, vmap and grad w.r.t. xyz
-(against float64 central differences); checkpoints round-trip and a wrong archetype fails
+"""Tests for slotv_jax.observers.parametric (the observer archetypes, :ref:`concepts-archetypes`):
+at their true parameters they reproduce the labelers (an independent implementation); they recover
+known parameters from generated labels through the real training pipeline; jit, vmap and grad w.r.t.
+xyz (against float64 central differences); checkpoints round-trip and a wrong archetype fails
 clearly; configuration and command line."""
 
 from __future__ import annotations
@@ -28,13 +28,13 @@ from slotv_jax.world import scene
 PROB_TOL = 2e-6  # float32 probabilities of two implementations of one formula (absolute)
 FD_TOL = 1e-6  # float64 gradient against central differences (relative to its norm)
 T = 100
-HOME = np.array([0.3069, 0.0, 0.4869])  # TCP(q_home), SPEC §1
+HOME = np.array([0.3069, 0.0, 0.4869])  # TCP(q_home), :ref:`concepts-robot`
 ARCHETYPES = ("dragan", "viewpoint", "mixture")
 
 
 def random_set(seed: int, n: int, counts=(2, 3, 5, 6), n_via: int = 1):
-    """SPEC §2-§3 without the IK: cubes on the table, a via-point path from the home TCP to a
-    random real goal, resampled to T points by arc length."""
+    """:ref:`concepts-scenes`, :ref:`concepts-trajectories` without the IK: cubes on the table, a
+    via-point path from the home TCP to a random real goal, resampled to T points by arc length."""
     rng = np.random.default_rng(seed)
     goals = np.zeros((n, 8, 3))
     mask = np.zeros((n, 8), bool)
@@ -116,7 +116,8 @@ def test_viewpoint_at_a_camera_pose_is_nikolaidis(batch, turn):
 
 
 def test_observer_camera_pose_by_hand():
-    # SPEC §4.2: at (1.60, 0, 0.80) looking at (0.45, 0, 0.15): offset (1.15, 0, 0.65)
+    # :ref:`concepts-nikolaidis`: at (1.60, 0, 0.80) looking at (0.45, 0, 0.15): offset (1.15, 0,
+    # 0.65)
     yaw, pitch, r = parametric.camera_pose(observer_cam())
     assert yaw == pytest.approx(0.0, abs=1e-6)
     assert pitch == pytest.approx(math.atan2(0.65, 1.15), abs=1e-6)
@@ -211,7 +212,8 @@ def test_unknown_archetype_and_config_validation():
     assert (cfg.model, cfg.optimizer, cfg.method) == ("viewpoint", "adam", "slotv")
     assert train_config.TrainConfig.from_dict(cfg.to_dict()) == cfg
     old = {k: v for k, v in train_config.quick("slotv").to_dict().items() if k != "model"}
-    assert train_config.TrainConfig.from_dict(old).model == "mlp"  # configs written before SPEC §10
+    # configs written before the archetypes (:ref:`concepts-archetypes`)
+    assert train_config.TrainConfig.from_dict(old).model == "mlp"
     assert train_config.preset("quick", "slotv") == train_config.quick(
         "slotv"
     )  # the MLP path unchanged

@@ -252,7 +252,8 @@ def test_homogeneous_population_is_the_dragan_labeler():
 
 
 def test_one_camera_population_is_the_nikolaidis_labeler():
-    """The image cost-to-go of one camera with Dragan's memory is SPEC §4.2's labeler."""
+    """The image cost-to-go of one camera with Dragan's memory is :ref:`concepts-cameras`'s
+    labeler."""
     pop = P.homogeneous().replace(viewpoints=(("observer_angle", 1.0),),
                                   beta=(("cost_to_go", DEFAULT_BETAS["nikolaidis"]),))  # fmt: skip
     quad = P.quadrature(pop)

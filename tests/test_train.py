@@ -57,7 +57,7 @@ class TinySplit:
 
 
 def effdist_np(xyz, goals, mask, beta=5.0):
-    """SPEC §4.3 in float64: softmax over real goals of −β · mean_i ‖p_i − g_k‖."""
+    """:ref:`concepts-effdist` in float64: softmax over real goals of −β · mean_i ‖p_i − g_k‖."""
     d = np.linalg.norm(xyz[:, :, None, :] - goals[:, None, :, :], axis=-1).mean(1)
     s = np.where(mask, -beta * d, -np.inf)
     e = np.exp(s - s.max(-1, keepdims=True))
@@ -65,8 +65,9 @@ def effdist_np(xyz, goals, mask, beta=5.0):
 
 
 def synthetic_split(seed: int, n: int, n_scenes: int = 20, counts=(2, 3, 5, 6), name="train"):
-    """SPEC §2-§3 without the IK: cubes on the table, piecewise-linear via-point paths from
-    the home TCP to the target, resampled to 100 points by arc length; EffDist labels."""
+    """:ref:`concepts-scenes`, :ref:`concepts-trajectories` without the IK: cubes on the table,
+    piecewise-linear via-point paths from the home TCP to the target, resampled to 100 points by arc
+    length; EffDist labels."""
     rng = np.random.default_rng(seed)
     sg = np.zeros((n_scenes, 8, 3), np.float32)
     sm = np.zeros((n_scenes, 8), bool)
@@ -682,8 +683,8 @@ def test_cli_checks_every_split_before_training(tiny_data, tiny_cfg, tmp_path, c
 
 
 def test_cli_init_starts_from_a_checkpoint_and_refuses_another(study_file, tmp_path, capsys):
-    """train --init CKPT (SPEC §13): the run starts from the checkpoint's parameters (with
-    a learning rate of 1e-12 the fine-tuned ones stay the checkpoint's, while the same run
+    """train --init CKPT (:ref:`concepts-pick`): the run starts from the checkpoint's parameters
+    (with a learning rate of 1e-12 the fine-tuned ones stay the checkpoint's, while the same run
     without --init ends far from them), and records where it started. Another observer,
     method or network shape, or no checkpoint, is one line before any work."""
     path, _ = study_file

@@ -1,4 +1,5 @@
-"""Trajectories: path construction, arc-length resampling, IK and executed path (SPEC §3)."""
+"""Trajectories: path construction, arc-length resampling, IK and executed path
+(:ref:`concepts-trajectories`)."""
 
 import dataclasses
 
@@ -11,7 +12,7 @@ import pytest
 from slotv_jax.robot import kinematics as K
 from slotv_jax.world import trajectories as T
 
-MAX_RESIDUAL = 2e-3  # m, SPEC §3 rejection threshold
+MAX_RESIDUAL = 2e-3  # m, :ref:`concepts-trajectories` rejection threshold
 SPACING_SPREAD = 1e-3  # relative spread of arc-length spacing, issue 2
 
 

@@ -31,7 +31,7 @@ def row_metrics(logits: np.ndarray, goal_mask: np.ndarray, counts: np.ndarray) -
     """Accuracy and likelihood of per-row goal logits (−∞ on padding) against counts.
 
     - ``accuracy``: fraction of rows whose argmax equals the modal answer (ties: the
-      lowest slot, as SPEC §8 breaks them);
+      lowest slot, as :ref:`concepts-metrics` breaks them);
     - ``answer_accuracy``: fraction of all answers that equal the argmax;
     - ``nll_per_answer``: −Σ c log p / Σ c (nats).
     """

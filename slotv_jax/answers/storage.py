@@ -1,5 +1,5 @@
-"""Study files: one ``.npz`` per study (SPEC §10), written atomically and read with
-``allow_pickle=False``.
+"""Study files: one ``.npz`` per study (:ref:`concepts-populations`), written atomically and read
+with ``allow_pickle=False``.
 """
 
 from __future__ import annotations

@@ -10,8 +10,8 @@ Two protocols, each returning every run's accuracy curve on held-out motions:
   member 0's held-out accuracy, and the strategy picks the next ``sizes[r+1] − sizes[r]``
   motions from ``subset`` unasked candidates (the same draw for every strategy of a seed).
   Every answer is reused for as many updates as the rounds give (a study pays for answers).
-- :func:`run_one_pass`: the paper's Fig. 3 protocol (SPEC §8) with a strategy choosing each
-  batch: one observer, each labelled motion used for exactly one optimiser step.
+- :func:`run_one_pass`: the paper's Fig. 3 protocol (:ref:`concepts-metrics`) with a strategy
+  choosing each batch: one observer, each labelled motion used for exactly one optimiser step.
 
 Besides the strategies of :data:`slotv_jax.asking.selection.STRATEGIES`, both run two
 *oracles* (:data:`ORACLES`) that read the candidates' labels, which no study has before it

@@ -265,7 +265,7 @@ def error(
     logp: Float[Array, "E C G"], weights: Float[Array, " E"] | None = None
 ) -> Float[Array, " C"]:
     """The posterior probability that member 0's guess is wrong, 1 − p̄(ŷ₀) with
-    ŷ₀ = argmax_k p_0,k and p̄ = Σ_e π_e p_e (ties to the lowest goal, as SPEC §8).
+    ŷ₀ = argmax_k p_0,k and p̄ = Σ_e π_e p_e (ties to the lowest goal, as :ref:`concepts-metrics`).
 
     >>> tie = jnp.log(jnp.array([[[0.5, 0.5]], [[0.5, 0.5]]]))  # everyone at a tie
     >>> lone = jnp.log(jnp.array([[[0.9, 0.1]], [[0.1, 0.9]], [[0.1, 0.9]]]))  # member 0 alone

@@ -49,7 +49,7 @@ from slotv_jax.observers import labelers as L
 from slotv_jax.observers import labelling
 from slotv_jax.world.scene import camera as scene_camera
 
-HOME = np.array([0.3069, 0.0, 0.4869])  # TCP(q_home), SPEC §1
+HOME = np.array([0.3069, 0.0, 0.4869])  # TCP(q_home), :ref:`concepts-robot`
 
 
 def synthetic(n: int, T: int = 100, seed: int = 0):

@@ -4,14 +4,14 @@
         [--populations default,homogeneous,random:0,random:1,random:2]
 
 The same problems (random scenes of 2–8 cubes, a uniform real target, start TCP(q_home)),
-the same objective (log y_target of the Dragan labeler, SPEC §4.1) and the same number
+the same objective (log y_target of the Dragan labeler, :ref:`concepts-dragan`) and the same number
 of iterations, measured side by side in one run:
 
 - **batched JAX**: :func:`slotv_jax.planning.make_planner` on all ``--n`` problems in one
   compiled call (straight-line IK, validation and planning included), after compilation;
 - **JAX loop**: the same planner called once per problem (batch of 1), after compilation;
 - **SciPy L-BFGS-B**: the way a researcher would write it without JAX: float64 NumPy
-  forward kinematics (Franka's DH table, SPEC §1) and a NumPy Dragan labeler, the
+  forward kinematics (Franka's DH table, :ref:`concepts-robot`) and a NumPy Dragan labeler, the
   interior joint configurations as variables with the joint limits as L-BFGS-B bounds,
   the trust region and the table clearance as quadratic penalties, and SciPy's default
   finite-difference gradient (no autodiff in NumPy), ``maxiter`` = the planner's
@@ -58,7 +58,8 @@ from slotv_jax.planning import evaluation
 from slotv_jax.robot import kinematics
 from slotv_jax.world import scene
 
-# Franka's modified DH table (SPEC §1): a, d, alpha per joint; then the flange and the TCP.
+# Franka's modified DH table (:ref:`concepts-robot`): a, d, alpha per joint; then the flange and the
+# TCP.
 _DH = np.array(
     [
         [0.0, 0.333, 0.0],
@@ -109,7 +110,7 @@ def np_tcp(q: np.ndarray) -> np.ndarray:
 
 
 def np_dragan(xyz: np.ndarray, goals: np.ndarray, mask: np.ndarray, beta: float = 5.0):
-    """SPEC §4.1 in NumPy: y over the real goals (zeros elsewhere)."""
+    """:ref:`concepts-dragan` in NumPy: y over the real goals (zeros elsewhere)."""
     g = goals[mask]
     t = np.linspace(0.0, 1.0, len(xyz))
     d = np.linalg.norm(xyz[:, None, :] - g[None], axis=-1)

@@ -21,8 +21,8 @@ on the device (no host sync per update, the state donated). Per (method, dtype):
 - the matmul peak of the same device and dtype, measured in the same run: an N×N×N
   ``jnp.dot`` (N = 8192 on GPUs, 2048 on CPUs), median of repeated calls.
 
-Also reported: forward-only evaluation throughput (SPEC §8 accuracy, chunked), and for
-the ``--variant-methods`` (default with ``--device-run``: slotv) the variants of the
+Also reported: forward-only evaluation throughput (:ref:`concepts-accuracy` accuracy, chunked), and
+for the ``--variant-methods`` (default with ``--device-run``: slotv) the variants of the
 update, each timed round-robin with the default in the same process (the order rotates
 every round): the default again (the run's noise floor), the other first-layer gradients
 (``backward``; "autodiff" is the simplest form) and, where SLOT-V updates are packed
@@ -285,8 +285,8 @@ def kernel_summary(trace_dir, updates: int, top: int = 25) -> None:
 
 
 def build_eval(method: str, dtype: str, n: int, trim: bool = True, *, preset: str = "paper"):
-    """Compile chunked SPEC §8 accuracy over ``n`` trajectories: (``once()``, forward FLOPs
-    per call, compile seconds, cfg)."""
+    """Compile chunked :ref:`concepts-accuracy` accuracy over ``n`` trajectories: (``once()``,
+    forward FLOPs per call, compile seconds, cfg)."""
 
     cfg = train_config.PRESETS[preset](method, compute_dtype=dtype)
     trainer = train.make_train(cfg, progress=False)
@@ -306,7 +306,8 @@ def build_eval(method: str, dtype: str, n: int, trim: bool = True, *, preset: st
 def bench_eval(
     method: str, dtype: str, n: int, repeats: int, trim: bool = True, **kw
 ) -> tuple[float, float, float]:
-    """(trajectories/s, FLOP/s, compile s) of chunked SPEC §8 accuracy (:func:`build_eval`)."""
+    """(trajectories/s, FLOP/s, compile s) of chunked :ref:`concepts-accuracy` accuracy
+    (:func:`build_eval`)."""
     once, fl, compile_s, _ = build_eval(method, dtype, n, trim, **kw)
     t = _median_time(once, repeats)
     return n / t, fl / t, compile_s

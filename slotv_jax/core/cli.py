@@ -1,4 +1,4 @@
-"""One error style for every command line (SPEC §11).
+"""One error style for every command line (:ref:`concepts-commands`).
 
 Wrap each command's ``main`` with :func:`command`::
 

@@ -1,11 +1,12 @@
 """The one table of names and default temperatures shared by every module and command.
 
-- :data:`LABELER_NAMES`: the four hand-crafted labelers, in the order of SPEC §4.
-- :data:`SPLITS`: the seven dataset splits of SPEC §7; :data:`TEST_SPLITS`: the four an
-  accuracy table reports (train and the three held-out test splits, SPEC §9).
+- :data:`LABELER_NAMES`: the four hand-crafted labelers, in the order of :ref:`concepts-labelers`.
+- :data:`SPLITS`: the seven dataset splits of :ref:`concepts-datasets`; :data:`TEST_SPLITS`: the
+  four an accuracy table reports (train and the three held-out test splits,
+  :ref:`concepts-public-names`).
 - :data:`DEFAULT_BETAS`: the inverse temperature of each labeler where none is given
-  (SPEC §4, "Default temperatures"): the public labelers, the datasets, the labelers'
-  command line, the oracle planners and the scoring of plans all take it from here, so
+  (:ref:`concepts-temperatures`, "Default temperatures"): the public labelers, the datasets, the
+  labelers' command line, the oracle planners and the scoring of plans all take it from here, so
   that a label computed anywhere without β equals the dataset's. The values are the ones
   the fidelity ablation chose for the datasets (``experiments/fidelity.md``).
 - :data:`BETAS_V1`: the first version's temperatures, kept as the ``spec_v1``

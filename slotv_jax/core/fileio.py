@@ -1,4 +1,5 @@
-"""Files the project writes: one output rule, and atomic writes (SPEC §11, STYLE 17).
+"""Files the project writes: one output rule, and atomic writes (:ref:`concepts-commands`, STYLE
+17).
 
 **The output rule**, checked by every command and writer *before* any work:
 

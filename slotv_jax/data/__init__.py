@@ -1,9 +1,9 @@
-"""The seven dataset splits of SPEC §7: configs (:mod:`.config`), generation
+"""The seven dataset splits of :ref:`concepts-datasets`: configs (:mod:`.config`), generation
 (:mod:`.generate`), storage (:mod:`.storage`) and the command line (:mod:`.cli`, ``python -m
 slotv_jax.data``).
 
 This package re-exports the public names of its modules, so ``slotv_jax.data.load_split``
-(SPEC §9) and ``slotv_jax.data.quick()`` read as before.
+(:ref:`concepts-public-names`) and ``slotv_jax.data.quick()`` read as before.
 """
 
 from slotv_jax.core.defaults import LABELER_NAMES, SPLITS

@@ -1,5 +1,5 @@
 """Dataset configs: the split names, the labelers and their temperatures, sizes and
-distributions of the seven splits (SPEC §7), presets.
+distributions of the seven splits (:ref:`concepts-datasets`), presets.
 """
 
 from __future__ import annotations

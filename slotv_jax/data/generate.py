@@ -1,4 +1,4 @@
-"""The seven dataset splits of SPEC §7: generation, labelling, storage and loading.
+"""The seven dataset splits of :ref:`concepts-datasets`: generation, labelling, storage and loading.
 
 ========================  ====================  ===========  ===================
 split                     scenes                goal counts  trajectories (paper)

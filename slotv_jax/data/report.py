@@ -1,13 +1,14 @@
 """How hard are the labelling tasks? Statistics of the four labelers' labels per split.
 
-For every labeler (SPEC §4) and every dataset split (SPEC §7) this computes:
+For every labeler (:ref:`concepts-labelers`) and every dataset split (:ref:`concepts-datasets`) this
+computes:
 
 - the mean label entropy ``H(y) = −Σ_k y_k log y_k`` over real goals (nats), beside
   the entropy of a uniform distribution over the same goals (mean ``log n_goals``);
   their ratio is 0 for one-hot labels and 1 for uniform ones;
 - the mean max-probability ``max_k y_k`` (beside the uniform ``1/n_goals``);
 - target agreement: how often ``argmax y`` is the trajectory's true target goal
-  (ties go to the lowest slot index, as in SPEC §8), beside chance ``1/n_goals``;
+  (ties go to the lowest slot index, as in :ref:`concepts-metrics`), beside chance ``1/n_goals``;
 
 and, per split, how often all four labelers' argmaxes agree and how often each
 pair agrees. The report says whether the tasks are non-trivial: labels far from
@@ -105,7 +106,7 @@ def _reading(stats: dict) -> str:
             "the motion ends"
             + (
                 " (likely because the paths pass random via points before the target, and "
-                "the (1 − t) weight of SPEC §4.1 discounts the final approach)"
+                "the (1 − t) weight of concepts: Dragan discounts the final approach)"
                 if set(at_chance) <= {"dragan", "nikolaidis"}
                 else ""
             )
@@ -171,7 +172,7 @@ def render_markdown(
         "Ratio = mean entropy / mean uniform entropy (0: one-hot, 1: uniform). "
         "*Top-2 gap* = mean difference between the two largest probabilities. "
         "*Target* = fraction with argmax(y) = the planner's target goal "
-        "(ties to the lowest slot, SPEC §8); *chance* = mean 1/n_goals.",
+        "(ties to the lowest slot, concepts: metrics); *chance* = mean 1/n_goals.",
         "",
         "## Splits",
         "",

@@ -1,6 +1,6 @@
 """Run a plan on a real Franka arm: a timed joint trajectory within the robot's published
 limits, at rest at both ends, its path kept as planned, checked for collisions and dynamics,
-in the files a controller takes (SPEC §13, "Execution on a robot").
+in the files a controller takes (:ref:`concepts-execution`, "Execution on a robot").
 
 - :mod:`.limits`: Franka's published limits (Panda / FER and FR3) and the speed scale;
 - :mod:`.path`: the plan as a smooth joint path, and its TCP's deviation from the planned path;

@@ -1,7 +1,7 @@
 """The plan's path as a smooth joint path, and how far its tool strays from the planned one.
 
-A plan is P joint configurations ``q_0 .. q_{P-1}`` (SPEC §3: 100, equally spaced by the
-TCP's arc length). People judged the TCP path through them, so the path must stay as
+A plan is P joint configurations ``q_0 .. q_{P-1}`` (:ref:`concepts-trajectories`: 100, equally
+spaced by the TCP's arc length). People judged the TCP path through them, so the path must stay as
 planned; only its timing is new. The joint path is a C² cubic spline (SciPy's
 ``CubicSpline``, not-a-knot ends, through toppra's ``SplineInterpolator``) through the
 configurations, parametrised by the cumulative joint-space chord length

@@ -8,7 +8,7 @@ intelligently sampling trajectories". This experiment runs pool-based active lea
 - ``labels`` (the paper's): the pool is the ``train`` split, an answer is the
   hand-crafted labeler's distribution of a whole motion (Dragan, Nikolaidis), the
   observer the paper's SLOT-V network, the target 80 % on ``trajectory_val`` (its first
-  ``eval_size`` trajectories, SPEC §8 accuracy);
+  ``eval_size`` trajectories, :ref:`concepts-accuracy` accuracy);
 - ``study`` (simulated participants, as in ``study_size``): each selected motion is
   shown to ``participants`` simulated people who guess by sampling the labeler's
   distribution (Dragan); the observers are the paper's MLP, SLOT-V+ (start term and time

@@ -1,6 +1,6 @@
 """The active-selection experiment's results, from the results document alone
 (``python -m slotv_jax.experiments.active``): answers to the target and the comparisons
-(SPEC §11), the Markdown report and the figure."""
+(:ref:`concepts-commands`), the Markdown report and the figure."""
 
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ def target_of(doc_cfg: dict, setting: str, model: str) -> float:
 
 def comparisons(doc: dict) -> list[dict]:
     """One entry per (setting, labeler, model, strategy), the oracles' too
-    (:func:`slotv_jax.runs.summary.against_random` of each group; SPEC §11's list
+    (:func:`slotv_jax.runs.summary.against_random` of each group; :ref:`concepts-commands`'s list
     ``comparisons`` is that of the strategies: :func:`summarise`)."""
     out = []
     for grp in doc["groups"]:
@@ -41,8 +41,9 @@ def comparisons(doc: dict) -> list[dict]:
 
 
 def summarise(doc: dict) -> dict:
-    """Set the document's ``comparisons`` (the strategies, SPEC §11) and ``oracles`` (the
-    same entries for the oracles, kept apart: they read the labels) from its groups."""
+    """Set the document's ``comparisons`` (the strategies, :ref:`concepts-active-selection`) and
+    ``oracles`` (the same entries for the oracles, kept apart: they read the labels) from its
+    groups."""
     every = comparisons(doc)
     doc["comparisons"] = [c for c in every if c["strategy"] not in ORACLES]
     doc["oracles"] = [c for c in every if c["strategy"] in ORACLES]

@@ -1,7 +1,7 @@
 """Active selection under the paper's own protocol (Fig. 3): each label is used once.
 
-The paper's Fig. 3 (SPEC §8) counts the examples of one pass over fresh labelled motions:
-every motion is labelled, used for one update of a batch, and never seen again (5,760 to
+The paper's Fig. 3 (:ref:`concepts-metrics`) counts the examples of one pass over fresh labelled
+motions: every motion is labelled, used for one update of a batch, and never seen again (5,760 to
 80 % on Dragan at the paper preset, ``experiments/sample_efficiency.json``).
 :mod:`slotv_jax.experiments.active` asks how few *answers* a study needs, so it reuses
 each answer for as many updates as its rounds give. This experiment keeps Fig. 3's
@@ -12,10 +12,10 @@ protocol and lets a strategy choose each batch:
 2. before each update, the strategy scores ``subset`` motions drawn from the not yet
    labelled part of the ``train`` split with the current observer and picks
    ``batch_size`` of them; they are labelled (the labeler's distribution) and used for
-   exactly one optimiser step of the config's optimiser (SLOT-V's loss, SPEC §5), and
+   exactly one optimiser step of the config's optimiser (SLOT-V's loss, :ref:`concepts-slotv`), and
    never again. ``random`` is Fig. 3's protocol itself;
 3. every ``every`` updates, the accuracy on ``trajectory_val`` (``eval_size`` motions from
-   ``eval_offset``, SPEC §8) is recorded against the examples labelled so far; the
+   ``eval_offset``, :ref:`concepts-metrics`) is recorded against the examples labelled so far; the
    examples to the target are the first such count at or above it (as Fig. 3).
 
 Strategies: ``random``, ``uncertainty`` and ``margin`` (:mod:`slotv_jax.asking.selection`:

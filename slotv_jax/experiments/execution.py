@@ -1,4 +1,4 @@
-"""Every recorded plan on a real Panda: timed, checked, exported or refused (SPEC §13).
+"""Every recorded plan on a real Panda: timed, checked, exported or refused (:ref:`concepts-pick`).
 
     python -m slotv_jax.experiments.execution                 # the two recorded plans files
     python -m slotv_jax.experiments.execution --plans F [F ...] --speed 0.3 --robot fer

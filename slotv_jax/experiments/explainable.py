@@ -1,5 +1,5 @@
 """Explainable observers against the MLP: Table 1 accuracy, fitted parameters, few-label
-accuracy and sample efficiency (issue 16, SPEC §10).
+accuracy and sample efficiency (issue 16, :ref:`concepts-archetypes`).
 
     python -m slotv_jax.experiments.explainable                     # quick preset, CPU
     python -m slotv_jax.experiments.explainable --preset paper      # paper sizes (GPU)
@@ -9,15 +9,15 @@ Steps, on the Table 1 dataset of the preset (cached by config digest, as table1)
 1. **Table.** For each labeler and each observer model (the MLP and the archetypes of
    :mod:`slotv_jax.observers.parametric`), train ``--trials`` trials with the preset's config (the
    MLP: SLOT-V's; an archetype: :func:`slotv_jax.training.config.archetype`) and score them on the
-   four Table 1 splits (SPEC §8); record each archetype's fitted parameters.
+   four Table 1 splits (:ref:`concepts-table1`); record each archetype's fitted parameters.
 2. **Few labels.** Each archetype again, on 1/10 and 1/100 of the MLP's training
    trajectories (its ``train_size``), with as many updates as the preset gives it on the
    full set (the epochs scaled up): does it still reach the accuracy of the MLP trained on
    all of them?
-3. **Sample efficiency** (SPEC §8's protocol, :mod:`slotv_jax.runs.curves`):
-   the MLP and, per labeler, the archetype with the best trajectory_test accuracy in step 1,
-   on Dragan and Nikolaidis labels: one epoch, validation on a fixed trajectory_val subset
-   every ``--every`` updates (the MLP every 10, as the paper).
+3. **Sample efficiency** (:ref:`concepts-sample-efficiency`'s protocol,
+   :mod:`slotv_jax.runs.curves`): the MLP and, per labeler, the archetype with the best
+   trajectory_test accuracy in step 1, on Dragan and Nikolaidis labels: one epoch, validation on a
+   fixed trajectory_val subset every ``--every`` updates (the MLP every 10, as the paper).
 
 Writes ``OUT/results.json`` (config, environment, cells, parameters, few-label cells, sample
 efficiency summaries), ``OUT/explainable.md`` (the tables) and ``OUT/explainable.png``.
@@ -199,7 +199,7 @@ def best_archetype(summary: list[dict], labeler: str, archetypes: Sequence[str])
 def main(argv: Sequence[str] | None = None) -> int:
     p = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.explainable",
-        description="Parametric (explainable) observers against the MLP (SPEC §10).",
+        description="Parametric (explainable) observers against the MLP (concepts: archetypes).",
     )
     p.add_argument("--preset", choices=sorted(presets.PRESETS), default="quick")
     p.add_argument("--trials", type=int, help="trials per cell (default: the preset's)")

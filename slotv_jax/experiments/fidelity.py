@@ -1,4 +1,5 @@
-"""Fidelity ablation: what the paper's unreported choices do to Table 1 (SPEC §3, §4, §8).
+"""Fidelity ablation: what the paper's unreported choices do to Table 1
+(:ref:`concepts-trajectories`, :ref:`concepts-labelers`, :ref:`concepts-table1`).
 
 The paper does not state every choice its datasets rest on. This experiment varies
 one factor at a time from a base setting and records, for each setting:
@@ -331,7 +332,8 @@ def run(
 def main(argv: Sequence[str] | None = None) -> int:
     p = cli.ArgumentParser(
         prog="python -m slotv_jax.experiments.fidelity",
-        description="Ablation of the paper's unreported dataset choices (SPEC §3, §4).",
+        description="Ablation of the paper's unreported dataset choices "
+        "(concepts: trajectories, labelers).",
     )
     p.add_argument("--preset", choices=sorted(PRESETS), default="quick")
     p.add_argument("--out", type=Path, help="results directory (default: runs/fidelity_<preset>)")

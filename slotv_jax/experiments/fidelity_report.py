@@ -47,7 +47,8 @@ def render_markdown(doc: dict, *, command: str = "", wall_s: float | None = None
         "the SPEC's via box, the first version's β: 5 for Dragan, EffDist and FastApp, 7.5 for "
         "Nikolaidis); then, as a second stage, one choice at a time around the first stage's "
         "defaults (β ×4): the rows of factor `defaults`. Accuracy is Table 1's "
-        "(SPEC §8), mean ± SD over trials; label statistics are means over the four Table 1 "
+        "(concepts: metrics), mean ± SD over trials; label statistics are means over the four "
+        "Table 1 "
         "splits. `python -m slotv_jax.experiments.fidelity` made it.",
         "",
     ]

@@ -1,4 +1,4 @@
-"""Random hyperparameter search of the paper (SPEC §8), resumable.
+"""Random hyperparameter search of the paper (:ref:`concepts-hparam-search`), resumable.
 
 Search spaces (paper preset):
 
@@ -10,7 +10,7 @@ Search spaces (paper preset):
 - Both: hidden layer 1 ∈ {1280, 1536, 1792}, layer 2 ∈ {256, 512, 768, 1024}, and
   in 20% of rollouts an extra hidden layer (its width drawn from the layer-2 set).
 
-The score of a rollout is its accuracy (SPEC §8) on ``trajectory_val`` for the
+The score of a rollout is its accuracy (:ref:`concepts-accuracy`) on ``trajectory_val`` for the
 chosen labeler (Dragan by default). The ``quick`` preset keeps the ranges of
 the optimiser hyperparameters but divides the widths by 16, trains on the
 first 4,000 trajectories for 1 (SLOT-V) or 3 (T-REX) epochs, and runs 8

@@ -44,14 +44,16 @@ def _header(doc: dict) -> list[str]:
 
 
 def _against_paper(doc: dict) -> list[str]:
-    """The best rollouts set against the hyperparameters the paper settled on (SPEC §5–§8)."""
+    """The best rollouts set against the hyperparameters the paper settled on
+    (:ref:`concepts-slotv`, :ref:`concepts-trex`, :ref:`concepts-datasets`,
+    :ref:`concepts-hparam-search`)."""
     lines = ["", "## Against the paper's account", ""]
     lines += [
         "The paper searched SLOT-V first with batches of 64–512, then ran 25 more rollouts "
         "with batches of 8–64, and settled on RMSprop lr 0.005, ρ 0.9, momentum 0, batch 32, "
         "hidden 1536/768; for T-REX on Adam lr 0.005, β1 0.9, β2 0.999, batch 128, hidden "
-        "1792/768 (SPEC §5, §6, §8). Its T-REX lr of 0.005 lies outside its own T-REX "
-        "search range, U[1e-5, 1e-3].",
+        "1792/768 (concepts: SLOT-V, T-REX, metrics). Its T-REX lr of 0.005 lies outside its "
+        "own T-REX search range, U[1e-5, 1e-3].",
         "",
         "| phase | n | best | median | paper's choice | best rollout here |",
         "|---|---|---|---|---|---|",

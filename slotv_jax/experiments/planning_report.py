@@ -196,7 +196,7 @@ def report(doc: dict, figures: str = "") -> str:
         f"jax {env.get('jax')}, flax {env.get('flax')}, mujoco {env.get('mujoco')}, "
         f"devices {env.get('devices')}.",
         "",
-        "Learned observers: accuracy (SPEC §8) on the labels of their family on the "
+        "Learned observers: accuracy (concepts: metrics) on the labels of their family on the "
         "held-out splits' trajectories; the learned time-weighting exponent α of SLOT-V+ and "
         "T-REX+.",
         "",

@@ -1,4 +1,4 @@
-"""Sample efficiency of SLOT-V and T-REX: the paper's Fig. 3 (SPEC §8).
+"""Sample efficiency of SLOT-V and T-REX: the paper's Fig. 3 (:ref:`concepts-sample-efficiency`).
 
 Protocol: each method trains on Dragan labels for one epoch of the train split;
 every ``--every`` updates (10 in the paper) the model is evaluated on a fixed
@@ -6,7 +6,7 @@ subset of ``trajectory_val`` (the first ``--val-size`` trajectories). The
 x axis is the number of training examples consumed so far: labelled
 trajectories for SLOT-V, labelled trajectory pairs for T-REX (its training
 examples; an epoch has as many pairs as there are training trajectories,
-SPEC §6). Each method is repeated ``--repeats`` times with different seeds;
+:ref:`concepts-trex`). Each method is repeated ``--repeats`` times with different seeds;
 the plot shows the mean ± SD over repeats.
 
     python -m slotv_jax.experiments.sample_efficiency                 # quick (CPU)
@@ -51,7 +51,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         choices=MODELS,
         default="mlp",
         help="observer trained with SLOT-V's loss: the paper's network (mlp) or a parametric "
-        "archetype (SPEC §10); T-REX keeps its network",
+        "archetype (concepts: archetypes); T-REX keeps its network",
     )
     p.add_argument("--replot", action="store_true", help="only redraw the PNG of --out")
     distributed.add_cli_args(p)

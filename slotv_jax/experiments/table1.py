@@ -1,4 +1,5 @@
-"""Table 1 of the paper: accuracy of SLOT-V and T-REX on every labeler and split (SPEC §8).
+"""Table 1 of the paper: accuracy of SLOT-V and T-REX on every labeler and split
+(:ref:`concepts-accuracy`).
 
     python -m slotv_jax.experiments.table1                      # quick preset, CPU, minutes
     python -m slotv_jax.experiments.table1 --preset paper       # paper sizes (GPU)
@@ -140,7 +141,8 @@ def report(doc: dict) -> str:
             f"# Table 1 ({doc['preset']} preset)",
             "",
             *note,
-            f"Accuracy (SPEC §8) as mean ± SD over trials; the paper's values (10 trials) "
+            "Accuracy (concepts: metrics) as mean ± SD over trials; the paper's values "
+            f"(10 trials) "
             f"in parentheses. {len(doc['cells']) // len(TEST_SPLITS)} trained models, "
             f"{per_cell:.1f} s per cell on average (training and evaluation).",
             "",
@@ -188,7 +190,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         choices=train_config.MODELS,
         default="mlp",
         help="observer trained with SLOT-V's loss: the paper's network (mlp, default) or a "
-        "parametric archetype (SPEC §10); T-REX keeps its network",
+        "parametric archetype (concepts: archetypes); T-REX keeps its network",
     )
     p.add_argument(
         "--vmap-trials",

@@ -1,8 +1,10 @@
-"""The four hand-crafted legibility labelers (SPEC §4, §9) under their public name.
+"""The four hand-crafted legibility labelers (:ref:`concepts-labelers`,
+:ref:`concepts-public-names`) under their public name.
 
 The code lives in :mod:`slotv_jax.observers.labelers` (one trajectory) and
 :mod:`slotv_jax.observers.labelling` (many at once); this package keeps the public names
-of SPEC §9 and holds the command line ``python -m slotv_jax.labelers`` (:mod:`.cli`).
+of :ref:`concepts-public-names` and holds the command line ``python -m slotv_jax.labelers``
+(:mod:`.cli`).
 """
 
 from slotv_jax.observers.labelers import (

@@ -29,7 +29,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     p = cli.ArgumentParser(
         prog="python -m slotv_jax.labelers",
-        description="Label trajectories with the four legibility labelers (SPEC §4). The input "
+        description="Label trajectories with the four legibility labelers (concepts: labelers). "
+        "The input "
         ".npz holds xyz (N, T, 3), goals (N, 8, 3) or (8, 3), goal_mask (N, 8) or (8,), and "
         "optionally t (T,) or (N, T); the output .npz holds y_<labeler> (N, 8) float32 and the "
         "betas used.",

@@ -32,7 +32,8 @@ from slotv_jax.observers.parametric import (
 
 
 class DistanceApproachMixture(_Archetype):
-    """A learned combination of an EffDist-like and a FastApp-like observer (SPEC §4.3, §4.4).
+    """A learned combination of an EffDist-like and a FastApp-like observer
+    (:ref:`concepts-effdist`, :ref:`concepts-fastapp`).
 
     With d_k(i) = ‖p_i − g_k‖ (m) at t_i = i/(T − 1)::
 

@@ -6,17 +6,17 @@ SLOT-V / T-REX networks and the planner use these, and no copy of them.
 - Time weights of samples at normalised times τ ∈ [0, 1] (0 = start, 1 = end):
   :func:`trapezoid` (the trapezoid rule's weight of each sample) and
   :func:`time_weights` / :func:`log_time_weights`, ``u_i ∝ [trap_i] · (1 − τ_i)^α``: at
-  α = 1 with the trapezoid rule these are SPEC §4.1's integration weights (Dragan &
+  α = 1 with the trapezoid rule these are :ref:`concepts-dragan`'s integration weights (Dragan &
   Srinivasa's f(t) = T − t); α = 0 gives the plain mean.
 - What a participant who stopped the motion at normalised time τ saw: :func:`seen_points`
   (its first L points), and the prefix's own times and weights for a traced L,
   :func:`prefix_times` and :func:`prefix_time_weights` (every observer family scores a
   motion seen up to a stop time: :mod:`slotv_jax.observers.prefix`).
-- Dragan's legibility, :func:`dragan_kernel` (SPEC §4.1, with a start weight, in linear
+- Dragan's legibility, :func:`dragan_kernel` (:ref:`concepts-dragan`, with a start weight, in linear
   form for the labelers or in log space for the archetypes), on :func:`distances` and the
   fused time integrals :func:`integrals`; :func:`pairwise_distances` for arrays of points.
 
-The camera projection of SPEC §4.2 belongs to the world's cameras:
+The camera projection of :ref:`concepts-cameras` belongs to the world's cameras:
 :func:`slotv_jax.world.scene.camera_coords` and :func:`slotv_jax.world.scene.image_coords`.
 
 The time weights take NumPy times (computed in float64, as constants) or JAX arrays
@@ -312,15 +312,15 @@ def dragan_kernel(
     invalid: Array | None = None,
     log: bool = False,
 ) -> Float[Array, " G"]:
-    """Dragan legibility (SPEC §4.1; Dragan & Srinivasa, RSS 2013) of one trajectory, the one
-    definition that the labelers, the archetypes and (through them) the planner use::
+    """Dragan legibility (:ref:`concepts-dragan`; Dragan & Srinivasa, RSS 2013) of one trajectory,
+    the one definition that the labelers, the archetypes and (through them) the planner use::
 
         P_k(i) = softmax_k( β (w₀ ‖S − g_k‖ − ‖p_i − g_k‖) )     (real goals only)
         y_k    = Σ_i c_i P_k(i)
 
     for points ``pts[j] (T,)`` (``S`` = the first), goals ``(G, D)``, integration weights
-    ``c = weights`` (SPEC §4.1: the trapezoid rule times ``1 − t``; :func:`time_weights`)
-    and ``w₀ = start_weight`` (None: 1, Dragan's own).
+    ``c = weights`` (:ref:`concepts-dragan`: the trapezoid rule times ``1 − t``;
+    :func:`time_weights`) and ``w₀ = start_weight`` (None: 1, Dragan's own).
 
     ``log=False`` (the labelers): ``y``, with ``P_k(i) = e_k(i) / Σ_l e_l(i)``,
     ``e = exp(logits − max_k logits)``, exactly 0 on padded slots, every integral in one

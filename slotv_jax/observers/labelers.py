@@ -1,4 +1,4 @@
-"""The four hand-crafted legibility labelers (observer models) of SPEC §4.
+"""The four hand-crafted legibility labelers (observer models) of :ref:`concepts-labelers`.
 
 Each labeler maps one trajectory to a probability vector over the goal slots::
 
@@ -10,8 +10,8 @@ and differentiate them with ``jax.grad``. ``jax.jit(jax.vmap(dragan))`` is the f
 way to label many trajectories (see the note above the cores); :func:`label_all` is
 that, chunk by chunk, with validation. Nothing else here is jitted.
 
-Notation (SPEC §4): ``S = xyz[0]``, ``p_i = xyz[i]``, ``d_k(i) = ‖p_i − g_k‖`` (m), and
-softmax is taken over the real goals only (log-sum-exp form, padded slots at −∞).
+Notation (:ref:`concepts-labelers`): ``S = xyz[0]``, ``p_i = xyz[i]``, ``d_k(i) = ‖p_i − g_k‖`` (m),
+and softmax is taken over the real goals only (log-sum-exp form, padded slots at −∞).
 
 Time. Trajectories are sampled at normalised times ``t_i = i / (T − 1)`` unless
 time stamps ``t (T,)`` are given. Given time stamps must be finite and strictly
@@ -72,7 +72,7 @@ __all__ = [
     "nikolaidis",
 ]
 
-DEPTH_EPS = 1e-6  # a point or goal with camera depth <= this is invalid (SPEC §4.2)
+DEPTH_EPS = 1e-6  # a point or goal with camera depth <= this is invalid (:ref:`concepts-cameras`)
 # label_all's default chunk: this many trajectory labels per compiled call, i.e. 16,384
 # trajectories for one labeler and 4,096 for all four (measured fastest on the 2-core
 # CPU: experiments/BENCHMARKS.md; larger chunks of all four spill out of the caches).
@@ -82,7 +82,7 @@ CHUNK_LABELS = 16384
 
 
 class TimeWeights(NamedTuple):
-    """Per-point weights that turn the integrals of SPEC §4 into dot products."""
+    """Per-point weights that turn the integrals of :ref:`concepts-labelers` into dot products."""
 
     dragan: np.ndarray | Array  # (..., T): trapezoid weight × (1 − τ), summing to 1
     effdist: np.ndarray | Array  # (..., T): time-average weights, summing to 1
@@ -121,9 +121,10 @@ def _weights_from_tau(tau, xp) -> TimeWeights:
 
 
 def _uniform_weights(T: int, dtype) -> TimeWeights:
-    """Weights for t_i = i/(T−1), computed in float64 and cast (SPEC §4 exactly)."""
+    """Weights for t_i = i/(T−1), computed in float64 and cast (:ref:`concepts-labelers`
+    exactly)."""
     tw = _weights_from_tau(np.arange(T, dtype=np.float64) / (T - 1), np)
-    w = np.full(T, 1.0 / T)  # EffDist: (1/T) Σ_i, exactly as SPEC §4.3 writes it
+    w = np.full(T, 1.0 / T)  # EffDist: (1/T) Σ_i, exactly as :ref:`concepts-effdist` writes it
     return TimeWeights(*(jnp.asarray(x, dtype) for x in (tw.dragan, w, tw.fastapp)))
 
 
@@ -148,12 +149,13 @@ def _time_weights(t, T: int, dtype) -> TimeWeights:
 
 
 def _effdist_core(pts: Sequence[Array], goals: Array, mask: Array, beta, w: Array) -> Array:
-    """SPEC §4.3 [reconstruction]: ``softmax(−β Σ_i w_i d_k(i))``."""
+    """:ref:`concepts-effdist` [reconstruction]: ``softmax(−β Σ_i w_i d_k(i))``."""
     return masked_softmax(-beta * integrals([distances(pts, g) for g in goals], w), mask)
 
 
 def _fastapp_core(pts: Sequence[Array], goals: Array, mask: Array, beta, a: Array) -> Array:
-    """SPEC §4.4 [reconstruction]: ``softmax(β Σ_i a_i d_k(i))`` (summation by parts)."""
+    """:ref:`concepts-fastapp` [reconstruction]: ``softmax(β Σ_i a_i d_k(i))`` (summation by
+    parts)."""
     return masked_softmax(beta * integrals([distances(pts, g) for g in goals], a), mask)
 
 
@@ -165,7 +167,7 @@ def _in_front(pts: Float[Array, "*n K 3"], pos, rot, mask=None, eps=DEPTH_EPS) -
 
 
 def _nikolaidis_core(xyz, goals, mask, pos, rot, beta, c, eps=DEPTH_EPS) -> Array:
-    """SPEC §4.2: Dragan legibility of the image-plane points; uniform over the real
+    """:ref:`concepts-cameras`: Dragan legibility of the image-plane points; uniform over the real
     goals if a point or real goal is at depth <= eps.
 
     The points are not divided by their depth ``z = −p_c.z``: the image-plane distance
@@ -243,7 +245,8 @@ def dragan(
     beta: float = DEFAULT_BETAS["dragan"],
     t: Float[Array, " T"] | None = None,
 ) -> Float[Array, " 8"]:
-    """Dragan legibility (SPEC §4.1; Dragan & Srinivasa, RSS 2013, "Generating Legible Motion").
+    """Dragan legibility (:ref:`concepts-dragan`; Dragan & Srinivasa, RSS 2013, "Generating Legible
+    Motion").
 
     Per point, the probability of each goal given the motion so far::
 
@@ -286,7 +289,7 @@ def effdist(
     beta: float = DEFAULT_BETAS["effdist"],
     t: Float[Array, " T"] | None = None,
 ) -> Float[Array, " 8"]:
-    """EffDist, the "effective distance" observer (SPEC §4.3) **[reconstruction]**.
+    """EffDist, the "effective distance" observer (:ref:`concepts-effdist`) **[reconstruction]**.
 
     The goal the motion stays closest to, on average over time::
 
@@ -324,7 +327,7 @@ def fastapp(
     beta: float = DEFAULT_BETAS["fastapp"],
     t: Float[Array, " T"] | None = None,
 ) -> Float[Array, " 8"]:
-    """FastApp, the "fast approach" observer (SPEC §4.4) **[reconstruction]**.
+    """FastApp, the "fast approach" observer (:ref:`concepts-fastapp`) **[reconstruction]**.
 
     The goal the motion approaches most, early. With ``a_k(i) = d_k(i−1) − d_k(i)`` (m)
     and ``w_i = 1 − t_i`` for i = 1..T−1::
@@ -415,7 +418,8 @@ def nikolaidis(
     beta: float = DEFAULT_BETAS["nikolaidis"],
     t: Float[Array, " T"] | None = None,
 ) -> Float[Array, " 8"]:
-    """Viewpoint-based (Nikolaidis) legibility: Dragan legibility in the image plane (SPEC §4.2).
+    """Viewpoint-based (Nikolaidis) legibility: Dragan legibility in the image plane
+    (:ref:`concepts-cameras`).
 
     Points and goals are projected into ``camera`` (MuJoCo convention: it looks along
     its −z axis, x right, y up)::

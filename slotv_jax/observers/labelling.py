@@ -1,6 +1,6 @@
 """Labelling many trajectories at once: :func:`label_all`, one compiled ``jit(vmap)`` of the
 four labelers per chunk, with every check that cannot raise inside the compiled call done
-per trajectory and reported by index (SPEC §4, §7).
+per trajectory and reported by index (:ref:`concepts-labelers`, :ref:`concepts-datasets`).
 
 The temperatures and the camera travel together as one :class:`LabelConfig`, checked once
 when it is made: :func:`label_all` makes one from its keyword arguments, a dataset's
@@ -39,8 +39,8 @@ from slotv_jax.world.scene import Camera
 
 @dataclasses.dataclass(frozen=True)
 class LabelConfig:
-    """Inverse temperatures of the four labelers (SPEC §4), checked once, here, and the
-    Nikolaidis camera (checked where it is used: a name needs the scene model).
+    """Inverse temperatures of the four labelers (:ref:`concepts-temperatures`), checked once, here,
+    and the Nikolaidis camera (checked where it is used: a name needs the scene model).
 
     The defaults are :data:`slotv_jax.core.defaults.DEFAULT_BETAS`, the labelers' own: four
     times the first version's (5, 7.5, 5 and 5). The paper does not state its
@@ -141,8 +141,8 @@ def label_all(
 
     Args: ``xyz (N, T, 3)`` (m, T >= 2); ``goals (N, 8, 3)`` and ``goal_mask (N, 8)``, or
     ``(8, 3)`` and ``(8,)`` shared by all; ``t`` optional time stamps, ``(T,)`` or
-    ``(N, T)``; ``labelers``: which labels; ``beta_*``: as in SPEC §4 (traced: a new
-    value does not recompile); ``camera``: for nikolaidis. ``labelers`` is a sequence of
+    ``(N, T)``; ``labelers``: which labels; ``beta_*``: as in :ref:`concepts-temperatures` (traced:
+    a new value does not recompile); ``camera``: for nikolaidis. ``labelers`` is a sequence of
     names or one name (``"dragan"``). Returns ``{name: (N, 8)}``.
     Raises ``ValueError`` naming the argument (and the first bad trajectory) for what
     the public labelers reject, and for labels that overflow float32.
@@ -173,7 +173,8 @@ def label_with(
     labelers: Sequence[str] = LABELER_NAMES,
 ) -> dict[str, np.ndarray]:
     """:func:`label_all` at the temperatures and camera of ``labels`` (checked when it was
-    made): ``{name: y (N, 8)}``, each ``y_k`` as SPEC §4 defines it at β = ``labels.beta_name``.
+    made): ``{name: y (N, 8)}``, each ``y_k`` as :ref:`concepts-temperatures` defines it at β =
+    ``labels.beta_name``.
     """
     if not isinstance(labels, LabelConfig):
         raise ValueError(f"labels: expected a LabelConfig, got {type(labels).__name__}")

@@ -1,4 +1,5 @@
-"""The learned observers: SLOT-V's value network and T-REX's reward network (SPEC §5, §6).
+"""The learned observers: SLOT-V's value network and T-REX's reward network (:ref:`concepts-slotv`,
+:ref:`concepts-trex`).
 
 Both methods share one network archetype, a function of one trajectory point
 ``r`` and one goal ``g`` through the goal-relative input ``r − g``:
@@ -353,8 +354,8 @@ class _ScoreNetwork(nnx.Module):
 
     With ``start_term`` every point's value is taken relative to the trajectory's first
     point, f(p_i, g_k) − f(p_0, g_k): SLOT-V's score becomes the (weighted) mean value
-    gained since the start. The observers of Dragan (SPEC §4.1) and FastApp (§4.4, after
-    summation by parts) score the progress made since the start, ‖S − g_k‖ − d_k(i); a
+    gained since the start. The observers of Dragan (:ref:`concepts-dragan`) and FastApp (§4.4,
+    after summation by parts) score the progress made since the start, ‖S − g_k‖ − d_k(i); a
     function of p − g alone cannot hold the per-goal constant ‖S − g_k‖, except through
     its values at the offsets where the training trajectories start, and a planner that
     moves the first waypoints exploits exactly those. (A learned weight w₀ of the start's
@@ -423,7 +424,7 @@ class _ScoreNetwork(nnx.Module):
         goal_mask: Bool[Array, "... G"],
     ) -> Float[Array, "... G"]:
         """Masked scores, the logits of softmax over real goals (SLOT-V: P(goal k |
-        trajectory); T-REX: the evaluation logits of SPEC §6)."""
+        trajectory); T-REX: the evaluation logits of :ref:`concepts-trex`)."""
         return mask_logits(self.scores(xyz, goals), goal_mask)
 
     def prefix_scores(
@@ -473,8 +474,8 @@ class _ScoreNetwork(nnx.Module):
 
 
 class SlotV(_ScoreNetwork):
-    """SLOT-V observer: logits s_k = (1/T) Σ_i V(p_i, g_k) (SPEC §5), padded goals at −∞;
-    the options give s_k = (1/T) Σ_i u_i [V(p_i, g_k) − V(p_0, g_k)] (:class:`_ScoreNetwork`).
+    """SLOT-V observer: logits s_k = (1/T) Σ_i V(p_i, g_k) (:ref:`concepts-slotv`), padded goals at
+    −∞; the options give s_k = (1/T) Σ_i u_i [V(p_i, g_k) − V(p_0, g_k)] (:class:`_ScoreNetwork`).
     ``hidden`` defaults to the paper's (1536, 768)."""
 
     method = "slotv"
@@ -484,8 +485,8 @@ class SlotV(_ScoreNetwork):
 
 
 class TRex(_ScoreNetwork):
-    """Adapted T-REX: per-goal returns R_k = Σ_i r(p_i, g_k) (SPEC §6), padded goals at −∞;
-    the options give R_k = Σ_i u_i [r(p_i, g_k) − r(p_0, g_k)] (:class:`_ScoreNetwork`).
+    """Adapted T-REX: per-goal returns R_k = Σ_i r(p_i, g_k) (:ref:`concepts-trex`), padded goals at
+    −∞; the options give R_k = Σ_i u_i [r(p_i, g_k) − r(p_0, g_k)] (:class:`_ScoreNetwork`).
     ``hidden`` defaults to the paper's (1792, 768)."""
 
     method = "trex"
@@ -529,7 +530,7 @@ def graphdef(cfg) -> nnx.GraphDef:
 def sample_trex_pairs(
     key: jax.Array, goal_mask: Bool[Array, "N 8"], labels: Float[Array, "N 8"], n_pairs: int
 ) -> tuple[Array, Array, Array]:
-    """T-REX training pairs exactly as SPEC §6, drawn on device.
+    """T-REX training pairs exactly as :ref:`concepts-trex`, drawn on device.
 
     Two trajectories i₁, i₂ uniform over the N trajectories (independently, with
     replacement); for each, a goal slot k_j uniform over its scene's real goals (real

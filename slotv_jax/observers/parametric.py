@@ -8,21 +8,21 @@ archetypes. Each maps one trajectory and the 8 goal slots to masked logits, exac
 
     logits = observer(xyz (..., T, 3), goals (..., 8, 3), goal_mask (..., 8))  # (..., 8)
 
-so training (SLOT-V's cross-entropy of SPEC §5), evaluation, checkpoints,
+so training (SLOT-V's cross-entropy of :ref:`concepts-slotv`), evaluation, checkpoints,
 :func:`slotv_jax.load_observer` and planners take them unchanged. They are selected by
 ``TrainConfig.model`` (``python -m slotv_jax.train --model {dragan,viewpoint,mixture}``):
 
-- :class:`LearnableDragan` — Dragan legibility (SPEC §4.1) with a learned temperature β,
-  time weighting (1 − t)^α, weight w₀ of the start-to-goal term and a diagonal metric on
+- :class:`LearnableDragan` — Dragan legibility (:ref:`concepts-dragan`) with a learned temperature
+  β, time weighting (1 − t)^α, weight w₀ of the start-to-goal term and a diagonal metric on
   world coordinates. At β = 5, α = 1, w₀ = 1 and the Euclidean metric its logits are
   ``log labelers.dragan``.
 - :class:`LearnableViewpoint` — Dragan legibility in the image plane of a camera whose
   pose (yaw, pitch and distance about the workspace centre :data:`CENTER`) and β are
-  learned (SPEC §4.2). At the ``observer`` camera's pose (:func:`camera_pose`) and β = 7.5
-  its logits are ``log labelers.nikolaidis``.
+  learned (:ref:`concepts-cameras`). At the ``observer`` camera's pose (:func:`camera_pose`) and β =
+  7.5 its logits are ``log labelers.nikolaidis``.
 - :class:`DistanceApproachMixture` — β_E · E + β_F · F: an EffDist-like term E (minus the
-  time-weighted mean distance, SPEC §4.3) and a FastApp-like term F (the time-weighted
-  mean approach speed, SPEC §4.4), each with its temperature and time weighting. Both
+  time-weighted mean distance, :ref:`concepts-effdist`) and a FastApp-like term F (the time-weighted
+  mean approach speed, :ref:`concepts-fastapp`), each with its temperature and time weighting. Both
   terms are in metres (time is normalised to [0, 1]), so the share β_E / (β_E + β_F) says
   which one the observer follows.
 
@@ -76,10 +76,11 @@ __all__ = [
     "time_weights",
 ]
 
-#: The workspace centre (m): the point the observer cameras look at (SPEC §4.2).
+#: The workspace centre (m): the point the observer cameras look at (:ref:`concepts-cameras`).
 CENTER = (0.45, 0.0, 0.15)
 #: The learned camera stays at least this far from :data:`CENTER` (m): every point of the
-#: SPEC §3 workspace (via box, cubes, the home TCP) lies within 0.6 m of it, so every point
+#: :ref:`concepts-trajectories` workspace (via box, cubes, the home TCP) lies within 0.6 m of it, so
+# every point
 #: stays at least 0.2 m in front of the camera, whatever its yaw and pitch.
 DISTANCE_MIN = 0.8
 
@@ -124,7 +125,8 @@ def time_weights(alpha: Float[Array, ""] | float, T: int, dtype=jnp.float32) -> 
     :func:`slotv_jax.observers.common.time_weights` at uniform times.
 
     The weighting of Dragan & Srinivasa's legibility integral (RSS 2013, f(t) = T − t at
-    α = 1; the labels of SPEC §4.1): early points count more. α = 0 gives the plain mean.
+    α = 1; the labels of :ref:`concepts-dragan`): early points count more. α = 0 gives the plain
+    mean.
 
     >>> [round(float(u), 3) for u in time_weights(1.0, 3)]
     [0.667, 0.333, 0.0]
@@ -208,8 +210,8 @@ class LearnableDragan(_Archetype):
 
     Parameters (all learned): β > 0 (1/m, ``exp``), α ≥ 0 (``softplus``), w₀ ≥ 0
     (``softplus``), metric weights m (softmax × 3; trace 3 so that β alone sets the
-    scale). The defaults (β = 5, α = 1, w₀ = 1, m = 1) are SPEC §4.1's labeler at β = 5:
-    the logits are ``log labelers.dragan(xyz, goals, goal_mask, beta=5.0)``. w₀ = 0 is a
+    scale). The defaults (β = 5, α = 1, w₀ = 1, m = 1) are :ref:`concepts-dragan`'s labeler at β =
+    5: the logits are ``log labelers.dragan(xyz, goals, goal_mask, beta=5.0)``. w₀ = 0 is a
     nearest-goal observer (no memory of the start); α = 0 weighs the whole motion
     equally, large α only its beginning; a small m_z means the observer hardly sees height.
 
@@ -277,7 +279,7 @@ class LearnableDragan(_Archetype):
         p = self.parameters()
         return "\n".join(
             [
-                "Learnable Dragan observer (SPEC §4.1 with learned parameters):",
+                "Learnable Dragan observer (concepts: Dragan with learned parameters):",
                 f"  temperature β = {p['beta']:.3g} per metre: a goal 1/β = "
                 f"{100 / p['beta']:.3g} cm closer makes it e times likelier at each moment;",
                 f"  time weighting (1 − t)^α with α = {p['alpha']:.3g}: "
@@ -308,8 +310,8 @@ def camera_frame(
 
     The camera stands at c + r (cos φ cos ψ, cos φ sin ψ, sin φ) for yaw ψ (rad, about the
     vertical through ``center``, 0 on the +x side, facing the robot), pitch φ (rad, above
-    the horizontal) and distance r (m). MuJoCo convention (SPEC §4.2): the columns of the
-    rotation are the camera's x (right, horizontal), y (up) and z (backwards: from the
+    the horizontal) and distance r (m). MuJoCo convention (:ref:`concepts-nikolaidis`): the columns
+    of the rotation are the camera's x (right, horizontal), y (up) and z (backwards: from the
     centre to the camera) axes; it looks along −z.
 
     >>> pos, rot = camera_frame(0.0, 0.0, 2.0)
@@ -327,8 +329,8 @@ def camera_frame(
 def camera_pose(cam: Camera, center=CENTER) -> tuple[float, float, float]:
     """(yaw, pitch, distance) of a camera about ``center`` (radians, radians, metres).
 
-    Converts a MuJoCo camera pose (SPEC §4.2; e.g. ``scene.camera("observer")``) to the
-    parameters of :func:`camera_frame`, from the direction and length of
+    Converts a MuJoCo camera pose (:ref:`concepts-cameras`; e.g. ``scene.camera("observer")``) to
+    the parameters of :func:`camera_frame`, from the direction and length of
     ``cam.pos − center``. Raises ValueError unless the camera looks at ``center`` (its −z
     axis points there to 1e-4) — a roll about that axis does not matter: it rotates the
     image plane, which leaves image-plane distances, and so the labels, unchanged.
@@ -354,10 +356,11 @@ def camera_pose(cam: Camera, center=CENTER) -> tuple[float, float, float]:
 
 
 class LearnableViewpoint(_Archetype):
-    """Dragan legibility in the image plane of a learned camera (SPEC §4.2, learned pose).
+    """Dragan legibility in the image plane of a learned camera (:ref:`concepts-cameras`, learned
+    pose).
 
     The camera stands at yaw ψ, pitch φ and distance r about :data:`CENTER`, looking at it
-    (:func:`camera_frame`). Points and goals are projected as in SPEC §4.2,
+    (:func:`camera_frame`). Points and goals are projected as in :ref:`concepts-cameras`,
     p_c = Rᵀ (p − c), (u, v) = (p_c.x, p_c.y) / (−p_c.z), and :func:`LearnableDragan`'s
     formula with α = 1, w₀ = 1 and the Euclidean metric is applied to the (u, v) points
     with temperature β (per unit of image plane at depth 1).
@@ -370,7 +373,7 @@ class LearnableViewpoint(_Archetype):
 
     Points or real goals at depth ≤ 1e-6 m (behind the learned camera) make the scores
     uniform over the real goals, as the labeler does; with :data:`DISTANCE_MIN` this
-    cannot happen in the SPEC §3 workspace.
+    cannot happen in the :ref:`concepts-trajectories` workspace.
 
     Reference: Nikolaidis, Dragan & Srinivasa, "Viewpoint-Based Legibility Optimization",
     HRI 2016.
@@ -461,7 +464,8 @@ class LearnableViewpoint(_Archetype):
 
 
 def _image_points(p: Float[Array, "... N 3"], pos, rot) -> tuple[Array, Array]:
-    """Image-plane points (..., N, 2) and depth validity (..., N): SPEC §4.2's projection
-    (:func:`slotv_jax.world.scene.image_coords`, guarded where the depth is ≤ DEPTH_EPS)."""
+    """Image-plane points (..., N, 2) and depth validity (..., N): :ref:`concepts-cameras`'s
+    projection (:func:`slotv_jax.world.scene.image_coords`, guarded where the depth is ≤
+    DEPTH_EPS)."""
     (u, v), ok = image_coords(p, pos, rot, DEPTH_EPS)
     return jnp.stack([u, v], axis=-1), ok

@@ -1,13 +1,14 @@
-"""A population of simulated people: a documented mixture of observers (issue 37, SPEC §12).
+"""A population of simulated people: a documented mixture of observers (issue 37,
+:ref:`concepts-populations`).
 
-The four labelers of SPEC §4 are each one formula at one temperature; people are not. A
-*population* is a distribution over participants, each of whom has their own viewpoint,
+The four labelers of :ref:`concepts-temperatures` are each one formula at one temperature; people
+are not. A *population* is a distribution over participants, each of whom has their own viewpoint,
 inference rule, temperature and memory, and sometimes guesses at random. This module states
 that model, so that every result obtained from simulated people can say which people
 (STYLE principle 20). The model, part by part, with the reason for each:
 
 **Viewpoint** v (``viewpoints``: name → probability). A participant watches the motion on
-a screen, filmed by one of the scene's observer cameras (SPEC §4.2; the default draws
+a screen, filmed by one of the scene's observer cameras (:ref:`concepts-cameras`; the default draws
 ``observer``, ``observer_angle`` and ``observer_side`` uniformly, the cameras the study's
 clips are rendered from), and judges what they see: the points and goals projected into
 that camera's normalised image plane, :func:`slotv_jax.world.scene.image_coords`,
@@ -26,13 +27,13 @@ goal in the viewpoint's coordinates, ‖·‖ Euclidean)::
     direction   e_k(i) = cos_ε(q_i − q_{i−1}, h_k − q_i),  e_k(0) = 0               (0.2)
                 cos_ε(a, b) = a·b / (√(‖a‖² + ε²) √(‖b‖² + ε²)),  ε = 1e-4
 
-``cost_to_go`` is Dragan & Srinivasa's observer (RSS 2013; SPEC §4.1), and in the image
-Nikolaidis et al.'s (HRI 2016; SPEC §4.2): the goal to which the motion so far has been
-the most efficient detour. It is the default's most common rule (half of the people; the
+``cost_to_go`` is Dragan & Srinivasa's observer (RSS 2013; :ref:`concepts-dragan`), and in the image
+Nikolaidis et al.'s (HRI 2016; :ref:`concepts-nikolaidis`): the goal to which the motion so far has
+been the most efficient detour. It is the default's most common rule (half of the people; the
 proportions are a choice) because it is the model that legibility studies test people
 against and found to predict them. ``proximity`` is the goal nearest the gripper (a naive
-reading that ignores where the motion began; FastApp-like in spirit, SPEC §4.4: the motion
-"is at" a goal when it comes near it): 30 %. ``direction`` is the goal the gripper is
+reading that ignores where the motion began; FastApp-like in spirit, :ref:`concepts-fastapp`: the
+motion "is at" a goal when it comes near it): 30 %. ``direction`` is the goal the gripper is
 heading for, from its velocity between the last two points: 20 %,
 the rarest, because a robot arm's early velocity mostly lifts away from the table rather
 than pointing at a cube, so it is the weakest reading. At the start (i = 0) no motion has
@@ -73,8 +74,8 @@ L seen (the (i+1)-th, counting from 1) weighs ``w_i ∝ ((i + 1) / L)^α`` with
 ``α ~ U(alpha_range)``; the default ``[0, 2]`` spans everyone from those who weigh the whole
 motion equally (α = 0) to those who mostly judge from its last few points (α = 2: the last
 third of the points carries 70 % of the weight at L = 100): people update their guess as a
-motion unfolds, recent points weigh more. ``dragan``: SPEC §4.1's fixed weights over the
-seen prefix, ``w_i ∝ trap_i (1 − t_i)`` at ``t_i = i / (L − 1)`` (the trapezoid rule times
+motion unfolds, recent points weigh more. ``dragan``: :ref:`concepts-dragan`'s fixed weights over
+the seen prefix, ``w_i ∝ trap_i (1 − t_i)`` at ``t_i = i / (L − 1)`` (the trapezoid rule times
 ``1 − t``, :func:`slotv_jax.observers.common.time_weights`; early points weigh more):
 the labelers' own observer. Points ≥ L are not seen: they enter neither the value nor the
 gradient.
@@ -188,7 +189,7 @@ __all__ = [
 
 #: The inference rules, in the order of :attr:`Participants.rule`'s indices.
 RULES: tuple[str, ...] = ("cost_to_go", "proximity", "direction")
-#: The memory kinds: ``recency`` ((i + 1) / L)^α, ``dragan`` SPEC §4.1's time weights.
+#: The memory kinds: ``recency`` ((i + 1) / L)^α, ``dragan`` :ref:`concepts-dragan`'s time weights.
 MEMORIES: tuple[str, ...] = ("recency", "dragan")
 #: The viewpoint that sees the motion in world coordinates (no projection).
 WORLD = "world"
@@ -201,7 +202,7 @@ VIEW_SLOTS = len(scene.CAMERAS) + 1
 NODE_SLOTS = 8
 #: ε of the direction rule's cosine (in the viewpoint's unit).
 DIRECTION_EPS = 1e-4
-#: A point or real goal at camera depth ≤ this is not seen (as SPEC §4.2's labeler).
+#: A point or real goal at camera depth ≤ this is not seen (as :ref:`concepts-cameras`'s labeler).
 DEPTH_EPS = 1e-6
 #: The most quadrature nodes a population may ask for (per parameter).
 MAX_NODES = 64
@@ -425,8 +426,8 @@ def default() -> Population:
 
 
 def homogeneous() -> Population:
-    """Everyone the dataset's Dragan labeler (SPEC §4.1): world coordinates, cost-to-go at
-    β = :data:`DEFAULT_BETAS` ``["dragan"]``, σ 0, Dragan's time weights, no lapse."""
+    """Everyone the dataset's Dragan labeler (:ref:`concepts-dragan`): world coordinates, cost-to-go
+    at β = :data:`DEFAULT_BETAS` ``["dragan"]``, σ 0, Dragan's time weights, no lapse."""
     return Population(
         name="homogeneous",
         viewpoints=((WORLD, 1.0),),
@@ -698,8 +699,8 @@ def _recency_weights(alpha: Array, T: int, L: Array, dtype) -> Float[Array, "...
 
 
 def _dragan_weights(T: int, L: Array, dtype) -> Float[Array, " T"]:
-    """SPEC §4.1's weights over the first L points, ``trap_i (1 − t_i)`` at t_i = i/(L − 1)
-    (:func:`~slotv_jax.observers.common.time_weights`), 0 beyond."""
+    """:ref:`concepts-dragan`'s weights over the first L points, ``trap_i (1 − t_i)`` at t_i = i/(L
+    − 1) (:func:`~slotv_jax.observers.common.time_weights`), 0 beyond."""
     tau = jnp.minimum(jnp.arange(T, dtype=dtype) / (L - 1).astype(dtype), 1.0)
     return time_weights(tau, 1.0, trapezoid_rule=True)
 

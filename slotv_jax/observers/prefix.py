@@ -14,7 +14,8 @@ fixed shape ``(T, 3)`` (points ≥ L are ignored and get no gradient):
   ``xyz[:L]`` at t_i = i/(L − 1), exactly what slicing computes
   (:func:`slotv_jax.answers.crossval.labeler_probs`).
 
-For the labelers this is the SPEC §4 formula of the prefix as a motion of its own::
+For the labelers this is the :ref:`concepts-stop-times` formula of the prefix as a motion of its
+own::
 
     dragan:     y_k = Σ_{i<L} c_i P_k(i),  c_i ∝ trap_i (1 − t_i),  t_i = i/(L − 1)
     effdist:    y = softmax(−β (1/L) Σ_{i<L} d_k(i))
@@ -64,7 +65,7 @@ def prefix_weights(name: str, n_points: int, seen, dtype=jnp.float32) -> Float[A
     """
     L = jnp.asarray(seen)
     valid = jnp.arange(n_points) < L
-    if name == "effdist":  # exactly 1/L, as SPEC §4.3 writes the uniform mean
+    if name == "effdist":  # exactly 1/L, as :ref:`concepts-effdist` writes the uniform mean
         return jnp.where(valid, 1.0 / L.astype(dtype), 0.0).astype(dtype)
     tau = common.prefix_times(n_points, L, dtype)
     if name in ("dragan", "nikolaidis"):

@@ -91,8 +91,8 @@ def summarise(
     length_ratio: Float[np.ndarray, " P"],
     feasible: Bool[np.ndarray, " P"],
 ) -> dict:
-    """One planner's row (SPEC §10's ``planners``): its true y_target over the problems
-    (mean, SD), how often the target is the labeler's argmax, the path length over the
+    """One planner's row (:ref:`concepts-planning`'s ``planners``): its true y_target over the
+    problems (mean, SD), how often the target is the labeler's argmax, the path length over the
     straight line's, feasibility, and the comparison with the straight line (mean gain, how
     often the plan lowered or raised y_target)."""
     y = np.asarray(y, np.float64)

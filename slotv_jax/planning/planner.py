@@ -124,7 +124,8 @@ __all__ = [
 ]
 
 
-MAX_RESIDUAL = 2e-3  # m: the start and the target must be reached this closely (SPEC §3)
+# m: the start and the target must be reached this closely (:ref:`concepts-trajectories`)
+MAX_RESIDUAL = 2e-3
 _RATIO_CLIP = 1.0 - 1e-5  # |tanh z| of the initial path: joints on a limit start just inside
 
 
@@ -141,7 +142,8 @@ class PlannerConfig:
     exempt_radius: float = 0.08  # no clearance needed this close to the target (m)
     clearance_margin: float = 0.005  # the penalty pushes to clearance + this (m)
     table_weight: float = 1e4  # weight of the quadratic clearance penalty (1/m²)
-    ik: kinematics.IKConfig = dataclasses.field(  # the datasets' per-point IK (SPEC §3)
+    # the datasets' per-point IK (:ref:`concepts-trajectories`)
+    ik: kinematics.IKConfig = dataclasses.field(
         default_factory=lambda: kinematics.IKConfig(iters=2, refine_iters=1)
     )
     # stop times τ ∈ (0, 1] of the prefix objective (module docstring); None: the whole motion
@@ -260,11 +262,11 @@ def labeler_observer(name: str, *, beta: float | None = None, camera: str = "obs
 
     softmax(log y) = y over the real goals, so the planner's objective
     log softmax(logits)[target] is log y_target. ``name`` is one of dragan, nikolaidis,
-    effdist, fastapp (SPEC §4); ``beta`` defaults to the SPEC's (it may be traced: build
-    the observer inside a jitted function of β to plan for many β with one compilation);
-    ``camera`` is the Nikolaidis viewpoint. An :class:`~slotv_jax.observers.observer.Observer`
-    whose ``params`` is β and whose ``config`` is ``(name, camera)``: ``grad`` and ``vmap``
-    take it whole.
+    effdist, fastapp (:ref:`concepts-temperatures`); ``beta`` defaults to the SPEC's (it may be
+    traced: build the observer inside a jitted function of β to plan for many β with one
+    compilation); ``camera`` is the Nikolaidis viewpoint. An
+    :class:`~slotv_jax.observers.observer.Observer` whose ``params`` is β and whose ``config`` is
+    ``(name, camera)``: ``grad`` and ``vmap`` take it whole.
 
     The observer's ``prefix(xyz, goals, goal_mask, seen) -> logits (8,)`` is the labeler
     of the motion seen up to its first ``seen`` points, ``log labeler(xyz[:seen])`` at the

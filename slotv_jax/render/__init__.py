@@ -1,5 +1,5 @@
-"""See the motion (SPEC §11): the public names of :mod:`slotv_jax.rendering` and the command
-``python -m slotv_jax.render`` (:mod:`slotv_jax.render.cli`).
+"""See the motion (:ref:`concepts-commands`): the public names of :mod:`slotv_jax.rendering` and the
+command ``python -m slotv_jax.render`` (:mod:`slotv_jax.render.cli`).
 
 >>> from slotv_jax import render
 >>> frames = render.motion_frames(q, goals, goal_mask, tau=0.6)  # doctest: +SKIP

@@ -1,4 +1,5 @@
-"""``python -m slotv_jax.render``: render trajectories as MP4, GIF or PNG (SPEC §11).
+"""``python -m slotv_jax.render``: render trajectories as MP4, GIF or PNG
+(:ref:`concepts-commands`).
 
 Sources (one of):
 

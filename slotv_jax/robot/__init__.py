@@ -1,3 +1,3 @@
 """The robot: Franka Emika Panda kinematics through MuJoCo MJX and the MJCF models
-(:mod:`.kinematics`, SPEC §1).
+(:mod:`.kinematics`, :ref:`concepts-robot`).
 """

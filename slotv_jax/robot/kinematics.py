@@ -1,7 +1,7 @@
 """Franka Emika Panda kinematics through MuJoCo MJX.
 
 Forward kinematics comes from ``mjx.kinematics`` on the MJCF in
-``franka_assets/panda.xml`` (written from Franka's modified DH table, SPEC §1).
+``franka_assets/panda.xml`` (written from Franka's modified DH table, :ref:`concepts-robot`).
 The TCP Jacobian is the geometric one built from the same call's joint anchors
 and axes: for a hinge j with world axis w_j through anchor a_j,
 ``∂p/∂q_j = w_j × (p − a_j)`` and ``∂z/∂q_j = w_j × z`` for the tool axis z.

@@ -1,6 +1,7 @@
 """The command-line pieces the experiments share: the flags of a run over presets and seeds,
-the checks of their values, and the output files checked before any work starts (SPEC §11:
-an input error is one line ``error: ...`` and exit code 2, :mod:`slotv_jax.core.cli`).
+the checks of their values, and the output files checked before any work starts
+(:ref:`concepts-commands`: an input error is one line ``error: ...`` and exit code 2,
+:mod:`slotv_jax.core.cli`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
-"""Sample-efficiency learning curves (SPEC §8, the paper's Fig. 3): each method trains one
-epoch with in-loop validation every few updates, repeated over seeds; the examples each
-needs to reach a threshold; the CSV, JSON and figure of a run.
+"""Sample-efficiency learning curves (:ref:`concepts-sample-efficiency`, the paper's Fig. 3): each
+method trains one epoch with in-loop validation every few updates, repeated over seeds; the examples
+each needs to reach a threshold; the CSV, JSON and figure of a run.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def run(
 ) -> dict:
     """Run the protocol for each method and write the CSV, JSON and PNG.
 
-    ``model`` replaces SLOT-V's network by an observer archetype (SPEC §10,
+    ``model`` replaces SLOT-V's network by an observer archetype (:ref:`concepts-archetypes`,
     :func:`slotv_jax.experiments.presets.with_model`); ``labeler`` trains and validates on
     another labeler's labels than the paper's Dragan."""
 

@@ -1,6 +1,6 @@
 """The resumable grid of trained cells: every (labeler, method, trial) trained on a cached
 dataset and scored on the table splits, each cell written to ``OUT/results.json`` as soon as
-it finishes (SPEC §9), on one device or side by side on many.
+it finishes (:ref:`concepts-public-names`), on one device or side by side on many.
 """
 
 from __future__ import annotations
@@ -77,8 +77,8 @@ def run(
 
     Every (labeler, method, trial) of ``labelers`` × ``methods`` × ``cfg.trials`` is trained
     on the cached dataset of ``cfg.data`` (:func:`slotv_jax.data.cached_dataset`) and scored
-    on :data:`slotv_jax.runs.presets.SPLITS`; the document (SPEC §9: ``preset``,
-    ``config``, ``environment``, ``cells``, ``summary``, ``timing``) is written to
+    on :data:`slotv_jax.runs.presets.SPLITS`; the document (:ref:`concepts-public-names`:
+    ``preset``, ``config``, ``environment``, ``cells``, ``summary``, ``timing``) is written to
     ``OUT/results.json`` after every cell, and a rerun skips the finished cells.
 
     On one device each trial trains on its own (or, with ``vmap_trials``, the pending trials

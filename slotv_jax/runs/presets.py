@@ -71,7 +71,8 @@ PRESETS = {"quick": quick, "paper": paper, "tiny": tiny}
 
 
 def with_model(cfg: RunConfig, model: str) -> RunConfig:
-    """The same run with SLOT-V's network replaced by an observer archetype (SPEC §10,
+    """The same run with SLOT-V's network replaced by an observer archetype
+    (:ref:`concepts-archetypes`,
     :func:`slotv_jax.training.config.archetype` of the matching preset; the tiny preset trains it
     2 epochs on all its data, as its MLP). T-REX keeps its network. ``"mlp"``: ``cfg``."""
     if model == "mlp":

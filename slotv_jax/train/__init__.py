@@ -1,1 +1,2 @@
-"""The command line that trains one observer: ``python -m slotv_jax.train`` (SPEC §9)."""
+"""The command line that trains one observer: ``python -m slotv_jax.train``
+(:ref:`concepts-public-names`)."""

@@ -1,4 +1,5 @@
-"""The command line of ``python -m slotv_jax.train`` (SPEC §9, §10).
+"""The command line of ``python -m slotv_jax.train`` (:ref:`concepts-public-names`,
+:ref:`concepts-archetypes`).
 
     python -m slotv_jax.train --data DIR --labeler NAME --method {slotv,trex} \
         --preset {quick,paper} --out CKPT [--model {mlp,dragan,viewpoint,mixture}]
@@ -51,7 +52,7 @@ def _parse_args(argv):
     ap.add_argument("--preset", default="quick", choices=tuple(train_config.PRESETS))
     ap.add_argument(
         "--model", default="mlp", choices=train_config.MODELS,
-        help="observer: the paper's network (mlp) or a parametric archetype (SPEC §10; "
+        help="observer: the paper's network (mlp) or a parametric archetype (concepts: archetypes; "
         "needs --method slotv; its preset is config.archetype)",
     )  # fmt: skip
     ap.add_argument("--out", required=True, help="checkpoint directory to write")

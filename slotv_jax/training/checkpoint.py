@@ -1,4 +1,5 @@
-"""Checkpoints (Orbax) and the learned observer as a plain JAX function (SPEC §9).
+"""Checkpoints (Orbax) and the learned observer as a plain JAX function
+(:ref:`concepts-public-names`).
 
 A checkpoint is a directory:
 
@@ -440,7 +441,8 @@ def load_observer(path: str | os.PathLike, model: str | None = None) -> models.O
 
     ``model`` (optional: "mlp", "dragan", "viewpoint", "mixture") is the observer the
     caller expects; a checkpoint of another one raises ValueError. An archetype's
-    observer also has ``describe()`` and ``parameters()`` (its fitted values, SPEC §10).
+    observer also has ``describe()`` and ``parameters()`` (its fitted values,
+    :ref:`concepts-archetypes`).
     """
     if model is not None and model not in MODELS:
         raise ValueError(f"model: expected one of {MODELS} or None, got {model!r}")

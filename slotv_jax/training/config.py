@@ -1,14 +1,15 @@
-"""Training configurations for SLOT-V and T-REX (SPEC §5, §6, §8).
+"""Training configurations for SLOT-V and T-REX (:ref:`concepts-slotv`, :ref:`concepts-trex`,
+:ref:`concepts-metrics`).
 
 A configuration is one frozen :class:`TrainConfig`. Two preset builders make
 them, one per method:
 
-- :func:`paper` — the paper's hyperparameters (SPEC §5, §6):
+- :func:`paper` — the paper's hyperparameters (:ref:`concepts-slotv`, :ref:`concepts-trex`):
   SLOT-V hidden (1536, 768), RMSprop lr 0.005, ρ 0.9, momentum 0, batch 32,
   15 epochs; T-REX hidden (1792, 768), Adam lr 0.005, β1 0.9, β2 0.999,
   batch 128, 25 epochs.
 - :func:`quick` — small networks and few epochs that fit the 2-core CPU budget
-  of SPEC §8 (the whole quick Table 1 in about 5 minutes, data included).
+  of :ref:`concepts-table1` (the whole quick Table 1 in about 5 minutes, data included).
 
 Both take keyword overrides; :func:`apply_overrides` parses ``key=value``
 strings from the command line. Derived values (steps per epoch, the number of
@@ -29,8 +30,10 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 METHODS = ("slotv", "trex")
-# Observer models: "mlp" is the paper's network (SPEC §5); the others are the parametric
-# archetypes of slotv_jax.observers.parametric, trained with SLOT-V's loss (SPEC §10).
+# Observer models: "mlp" is the paper's network (:ref:`concepts-observers`); the others are the
+# parametric
+# archetypes of slotv_jax.observers.parametric, trained with SLOT-V's loss
+# (:ref:`concepts-archetypes`).
 MODELS = ("mlp", "dragan", "viewpoint", "mixture")
 # Activation elements per (point, goal) pair an archetype holds, standing in for
 # hidden[0] when the evaluation chunk is sized (a handful of values per pair).
@@ -41,7 +44,8 @@ OPTIMIZERS = ("rmsprop", "adam")
 UNUSED_BY_OPTIMIZER = {"rmsprop": ("b1", "b2"), "adam": ("rho", "momentum")}
 MLP_ONLY = ("hidden", "activation", "start_term", "time_weight", "compute_dtype")
 COMPUTE_DTYPES = ("float32", "bfloat16")
-# Hidden activations of the MLP: "relu" is the paper's (SPEC §5); "softplus" makes V smooth,
+# Hidden activations of the MLP: "relu" is the paper's (:ref:`concepts-slotv`); "softplus" makes V
+# smooth,
 # which legible planning needs (slotv_jax.observers.models, experiments/planning_paper.md).
 ACTIVATIONS = ("relu", "softplus")
 # Elements of the first hidden activation (rows × width) one evaluation chunk may hold:
@@ -58,10 +62,11 @@ class TrainConfig:
     trajectory, T-REX sums it.
     """
 
-    method: str = "slotv"  # "slotv" (SPEC §5) or "trex" (SPEC §6)
-    model: str = (
-        "mlp"  # observer: the MLP, or an archetype of slotv_jax.observers.parametric (SPEC §10)
-    )
+    # "slotv" (:ref:`concepts-slotv`) or "trex" (:ref:`concepts-trex`)
+    method: str = "slotv"
+    # observer: the MLP, or an archetype of slotv_jax.observers.parametric
+    # (:ref:`concepts-archetypes`)
+    model: str = "mlp"
     hidden: tuple[int, ...] = (1536, 768)  # hidden widths after the r − g layer
     activation: str = "relu"  # of the hidden layers: "relu" (the paper) or "softplus" (smooth)
     start_term: bool = False  # values relative to the start's, f(p_i, g) − f(p_0, g) (models)
@@ -158,7 +163,7 @@ class TrainConfig:
 
     def steps_per_epoch(self, n_train: int) -> int:
         """Updates per epoch: ⌊n_used / batch⌋ (SLOT-V drops the last partial batch;
-        T-REX draws n_used pairs per epoch, SPEC §6)."""
+        T-REX draws n_used pairs per epoch, :ref:`concepts-trex`)."""
         return self.n_used(n_train) // self.batch_size
 
     def block_size(self, n_train: int) -> int:
@@ -226,7 +231,8 @@ class TrainConfig:
 
 
 def paper(method: str, **overrides: Any) -> TrainConfig:
-    """The paper's hyperparameters (SPEC §5, §6), with optional overrides.
+    """The paper's hyperparameters (:ref:`concepts-slotv`, :ref:`concepts-trex`), with optional
+    overrides.
 
     SLOT-V: hidden (1536, 768), RMSprop lr 0.005, ρ 0.9, momentum 0, batch 32, 15 epochs.
     T-REX: hidden (1792, 768), Adam lr 0.005, β1 0.9, β2 0.999, batch 128, 25 epochs.
@@ -259,7 +265,7 @@ def paper(method: str, **overrides: Any) -> TrainConfig:
 
 
 def quick(method: str, **overrides: Any) -> TrainConfig:
-    """Small, CPU-cheap settings for the quick Table 1 (SPEC §8) **[choice]**.
+    """Small, CPU-cheap settings for the quick Table 1 (:ref:`concepts-table1`) **[choice]**.
 
     Both methods: hidden (64, 32). SLOT-V: RMSprop lr 0.005, batch 32, 3 epochs of the first
     8,000 training trajectories. On the datasets of generator version 5 and later (one via
@@ -284,7 +290,8 @@ PRESETS = {"quick": quick, "paper": paper}
 
 
 def archetype(name: str, model: str, **overrides: Any) -> TrainConfig:
-    """Preset ``name`` ("quick" or "paper") for an observer archetype (SPEC §10) **[choice]**.
+    """Preset ``name`` ("quick" or "paper") for an observer archetype (:ref:`concepts-archetypes`)
+    **[choice]**.
 
     An archetype has 4-6 parameters, so it takes the same SLOT-V loss with Adam at a much
     larger learning rate, lr 0.1, batch 32. Quick: 2 epochs of the first 4,000 training

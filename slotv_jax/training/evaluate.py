@@ -1,4 +1,4 @@
-"""Accuracy of a learned observer (SPEC §8) and T-REX's pairwise accuracy.
+"""Accuracy of a learned observer (:ref:`concepts-accuracy`) and T-REX's pairwise accuracy.
 
 Accuracy is the fraction of trajectories where the argmax of the model's masked
 scores equals the argmax of the labeler's y over real goals,
@@ -86,7 +86,8 @@ def chunk(data, size: int) -> EvalData:
 def chunked_accuracy(
     model: models.Model, ev: EvalData, *, shard: Callable[[Array], Array] = lambda x: x
 ) -> Float[Array, ""]:
-    """SPEC §8 accuracy of ``model`` over all valid trajectories of ``ev`` (pure; jit it).
+    """:ref:`concepts-accuracy` accuracy of ``model`` over all valid trajectories of ``ev`` (pure;
+    jit it).
 
     ``shard`` constrains each chunk's batch axis (the training mesh's data axis).
     """
@@ -103,8 +104,8 @@ def chunked_accuracy(
 def chunked_pairwise_accuracy(
     model: models.Model, data, key: jax.Array, n_chunks: int, chunk_size: int, *, shard=lambda x: x
 ) -> Float[Array, ""]:
-    """Fraction of SPEC §6 pairs (drawn fresh from ``key``) whose order the model gets right:
-    1[R(γ₂, g_{k₂}) > R(γ₁, g_{k₁})] = ℓ. Pure; for T-REX it is the training objective's
+    """Fraction of :ref:`concepts-trex` pairs (drawn fresh from ``key``) whose order the model gets
+    right: 1[R(γ₂, g_{k₂}) > R(γ₁, g_{k₁})] = ℓ. Pure; for T-REX it is the training objective's
     accuracy, for SLOT-V the same test on its per-goal scores."""
 
     def body(correct, k):
@@ -158,7 +159,8 @@ def _jit_accuracy(cfg: TrainConfig, mesh: Mesh, batched: bool):
 
 
 def accuracy(cfg, params, data, labeler: str | None = None, *, mesh=None) -> np.ndarray:
-    """SPEC §8 accuracy of ``params`` on a whole split (jit-compiled, chunked, sharded).
+    """:ref:`concepts-accuracy` accuracy of ``params`` on a whole split (jit-compiled, chunked,
+    sharded).
 
     ``data`` is a :class:`slotv_jax.training.types.TrainData` or a ``Split`` with ``labeler``. Goal
     slots that no trajectory of ``data`` uses are cut first (they cannot change an argmax over real
@@ -219,7 +221,7 @@ def _jit_pairwise(cfg: TrainConfig, mesh: Mesh, batched: bool, n_chunks: int, ch
 def pairwise_accuracy(
     cfg, params, data, labeler: str | None = None, *, key=None, n_pairs: int = 10_000, mesh=None
 ) -> np.ndarray:
-    """T-REX's diagnostic: accuracy of ordering ``n_pairs`` SPEC §6 pairs of ``data``
+    """T-REX's diagnostic: accuracy of ordering ``n_pairs`` :ref:`concepts-trex` pairs of ``data``
     (rounded up to whole chunks). Same trial-axis convention as :func:`accuracy`."""
     if labeler is not None:
         data = prepare(data, labeler)

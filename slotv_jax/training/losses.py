@@ -1,5 +1,5 @@
-"""The training losses: cross-entropy of SLOT-V against soft labels (SPEC §5) and T-REX's
-pairwise Bradley-Terry loss (SPEC §6), and the optimiser.
+"""The training losses: cross-entropy of SLOT-V against soft labels (:ref:`concepts-slotv`) and
+T-REX's pairwise Bradley-Terry loss (:ref:`concepts-trex`), and the optimiser.
 """
 
 from __future__ import annotations
@@ -36,12 +36,12 @@ def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
 def slotv_loss(
     model: models.SlotV, xyz, goals, goal_mask, labels, *, backward: str = "fused"
 ) -> Float[Array, ""]:
-    """Mean over the batch of  −Σ_k y_k (s_k − logsumexp_{real j} s_j)  (SPEC §5)."""
+    """Mean over the batch of  −Σ_k y_k (s_k − logsumexp_{real j} s_j)  (:ref:`concepts-slotv`)."""
     return _cross_entropy(model.scores(xyz, goals, backward=backward), goal_mask, labels)
 
 
 def observer_loss(model, xyz, goals, goal_mask, labels) -> Float[Array, ""]:
-    """SPEC §5's cross-entropy for any observer with ``scores(xyz, goals, goal_mask)``
+    """:ref:`concepts-slotv`'s cross-entropy for any observer with ``scores(xyz, goals, goal_mask)``
     (finite per-goal scores, e.g. the archetypes of :mod:`slotv_jax.observers.parametric`): batch
     mean
     of −Σ_k y_k log softmax_k(s) over the real goals."""
@@ -87,7 +87,7 @@ def slotv_loss_packed(
 
 
 def trex_loss(model: models.TRex, xyz, goal, label, *, backward: str = "fused") -> Float[Array, ""]:
-    """Mean over pairs of the BCE on σ(R₂ − R₁) (SPEC §6).
+    """Mean over pairs of the BCE on σ(R₂ − R₁) (:ref:`concepts-trex`).
 
     xyz (B, 2, T, 3), goal (B, 2, 3), label (B,) in {0, 1}.
     """

@@ -167,8 +167,8 @@ def group_accuracy(
     *,
     labels: Float[Array, "U N 8"] | None = None,
 ) -> np.ndarray:
-    """SPEC §8 accuracy of each run of a :func:`train_group` result on one split, evaluated
-    where the run's parameters live (each device scores its own run on the whole split).
+    """:ref:`concepts-accuracy` accuracy of each run of a :func:`train_group` result on one split,
+    evaluated where the run's parameters live (each device scores its own run on the whole split).
 
     ``labels[i]`` replaces ``data.labels`` for run i when given (fewer label sets than
     runs: the last one is repeated for the padding runs). Returns the exact fractions

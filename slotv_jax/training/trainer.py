@@ -1,4 +1,5 @@
-"""Training SLOT-V and T-REX as pure, compiled functions of a key (SPEC §5, §6, §8).
+"""Training SLOT-V and T-REX as pure, compiled functions of a key (:ref:`concepts-slotv`,
+:ref:`concepts-trex`, :ref:`concepts-metrics`).
 
 ``make_train(cfg)`` returns a :class:`Trainer` whose ``train(key, data, val)``
 is a pure function: parameter initialisation, every epoch and every update run
@@ -16,8 +17,8 @@ Inside ``train``:
 - SLOT-V: each epoch shuffles the used training trajectories with
   ``jax.random.permutation`` and drops the last partial batch. The loss is the
   cross-entropy  L = −Σ_k y_k log softmax_k(s)  between the labeler's y and the
-  masked observer logits s (SPEC §5);
-- T-REX: each update draws ``batch_size`` fresh pairs on device (SPEC §6):
+  masked observer logits s (:ref:`concepts-slotv`);
+- T-REX: each update draws ``batch_size`` fresh pairs on device (:ref:`concepts-trex`):
   trajectories i₁, i₂ uniform over the used training set, a goal k_j uniform
   over the real goals of i_j's scene, label ℓ = 1[y_{k₂}(i₂) > y_{k₁}(i₁)]; an
   epoch has ⌊n/B⌋ updates, i.e. (up to the last partial batch) as many pairs as
@@ -43,8 +44,8 @@ goal slots no training trajectory uses (:func:`trim_goals`) and, on CPUs, packs 
 updates to each batch's real (trajectory, goal) pairs (:func:`slotv_loss_packed`, with a
 capacity counted exactly over every batch of the run).
 
-Sample-efficiency curves (SPEC §8): ``cfg.eval_every = k`` validates on the first
-``cfg.eval_size`` trajectories of ``val`` after every k updates (and once before
+Sample-efficiency curves (:ref:`concepts-sample-efficiency`): ``cfg.eval_every = k`` validates on
+the first ``cfg.eval_size`` trajectories of ``val`` after every k updates (and once before
 training), inside the compiled loop: ``metrics.eval_updates``/``eval_accuracy``.
 
 >>> from slotv_jax.training import config, evaluate

@@ -112,8 +112,8 @@ def trim_goals(data: TrainData) -> TrainData:
 
     Padded slots add nothing to the loss, its gradient or the accuracy (their logits are
     −∞ and their labels 0), but every one of them costs a full pass of the network over
-    the trajectory. The training split of SPEC §7 has at most 6 real goals of the 8 slots,
-    so this removes a quarter of SLOT-V's work. Needs concrete ``goal_mask`` (host or
+    the trajectory. The training split of :ref:`concepts-datasets` has at most 6 real goals of the 8
+    slots, so this removes a quarter of SLOT-V's work. Needs concrete ``goal_mask`` (host or
     device arrays, not tracers); returns ``data`` itself when nothing can be cut.
     """
     mask = np.asarray(data.goal_mask, bool)

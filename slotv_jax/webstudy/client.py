@@ -8,8 +8,8 @@ body (the server stores it once). A *guesser* chooses the goal:
 - :class:`LabelerGuesser`: a participant who answers like a hand-crafted observer. It
   recognises the stimulus from the still it was shown (the still's SHA-256 is in the
   manifest), takes the points of the motion up to τ, and draws the goal from the
-  labeler's probabilities (SPEC §4): a stand-in for people, to try the study pipeline
-  end to end before anyone takes part.
+  labeler's probabilities (:ref:`concepts-labelers`): a stand-in for people, to try the study
+  pipeline end to end before anyone takes part.
 - :class:`PopulationGuesser`: participants of a population of simulated people
   (:mod:`slotv_jax.observers.population`): each participant draws their own parameters
   (viewpoint, inference rule, temperature, memory) once, then answers every trial from

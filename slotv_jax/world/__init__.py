@@ -1,3 +1,3 @@
-"""The world around the robot: scenes and observer cameras (:mod:`.scene`, SPEC §2) and random
-pick-and-place trajectories (:mod:`.trajectories`, SPEC §3).
+"""The world around the robot: scenes and observer cameras (:mod:`.scene`, :ref:`concepts-cameras`)
+and random pick-and-place trajectories (:mod:`.trajectories`, :ref:`concepts-trajectories`).
 """

@@ -1,4 +1,5 @@
-"""Scenes (SPEC §2) and the observer cameras of the scene model (SPEC §4.2).
+"""Scenes (:ref:`concepts-cameras`) and the observer cameras of the scene model
+(:ref:`concepts-cameras`).
 
 A scene is pure arrays: ``goals (8, 3)`` and ``goal_mask (8,)``, the first
 ``n_goals`` slots real and the rest padding. Cubes are 0.05 m boxes resting on
@@ -98,7 +99,7 @@ def sample_goal_count(key: jax.Array, counts, n_counts=None) -> Int[Array, ""]:
 
 
 def check_scene(scene: Scene, cfg: SceneConfig = SceneConfig(), *, batched: bool = False) -> None:
-    """Raise ValueError if a concrete scene (or batch of scenes) breaks SPEC §2."""
+    """Raise ValueError if a concrete scene (or batch of scenes) breaks :ref:`concepts-scenes`."""
     b = (None,) if batched else ()
     validation.check_goals("goals", scene.goals, scene.goal_mask, batch_shape=b)
     g = np.asarray(scene.goals, np.float64).reshape(-1, G_MAX, 3)
@@ -178,8 +179,8 @@ def camera(name: str = "observer") -> Camera:
 
 
 def camera_coords(points: Float[Array, "*n 3"], pos, rot) -> list[Array]:
-    """The camera frame of SPEC §4.2, ``p_c = Rᵀ (p − c)``, as its three coordinates, each
-    ``(*n,)``, for a camera at ``pos (3,)`` with world-from-camera rotation ``rot (3, 3)``
+    """The camera frame of :ref:`concepts-cameras`, ``p_c = Rᵀ (p − c)``, as its three coordinates,
+    each ``(*n,)``, for a camera at ``pos (3,)`` with world-from-camera rotation ``rot (3, 3)``
     (MuJoCo's ``cam_xmat``: the camera looks along its −z axis, x right, y up).
 
     The one definition of the projection: :func:`project`, :func:`image_coords`, the
@@ -207,7 +208,7 @@ def image_coords(
 def project(
     points: Float[Array, "*n 3"], cam: Camera
 ) -> tuple[Float[Array, "*n 2"], Float[Array, "*n"]]:
-    """Normalised image-plane coordinates and depth of world points (SPEC §4.2).
+    """Normalised image-plane coordinates and depth of world points (:ref:`concepts-cameras`).
 
     ``p_c = Rᵀ (p − c)`` (:func:`camera_coords`), ``(u, v) = (p_c.x, p_c.y) / (−p_c.z)``;
     depth is ``−p_c.z``. NumPy in (points and camera), NumPy out.

@@ -1,4 +1,4 @@
-"""Random pick-and-place trajectories (SPEC §3).
+"""Random pick-and-place trajectories (:ref:`concepts-trajectories`).
 
 For a scene and a key:
 
@@ -54,9 +54,11 @@ from slotv_jax.robot import kinematics
 from slotv_jax.world.scene import Scene
 
 TIMINGS = ("arc_length", "segment")
-# Via-point boxes (m), (lower corner, upper corner). SPEC §3's [choice] spans the reachable
+# Via-point boxes (m), (lower corner, upper corner). :ref:`concepts-trajectories`'s [choice] spans
+# the reachable
 # workspace in front of the robot; the table box lies over the goal table's cube region
-# (SPEC §2), lower down. The fidelity ablation chose the table box (experiments/fidelity.md).
+# (:ref:`concepts-scenes`), lower down. The fidelity ablation chose the table box
+# (experiments/fidelity.md).
 SPEC_VIA_BOX = ((0.25, -0.50, 0.10), (0.70, 0.50, 0.40))
 TABLE_VIA_BOX = ((0.30, -0.45, 0.10), (0.70, 0.45, 0.25))
 
@@ -147,7 +149,7 @@ def resample_segments(
 
 
 class Plan(NamedTuple):
-    """A planned Cartesian path (steps 1–5 of SPEC §3)."""
+    """A planned Cartesian path (steps 1–5 of :ref:`concepts-trajectories`)."""
 
     target: Int[Array, ""]  # goal slot
     n_via: Int[Array, ""]  # via points used
@@ -176,7 +178,8 @@ def plan_path(key: jax.Array, scene: Scene, cfg: TrajectoryConfig = TrajectoryCo
     return Plan(target, n_via, waypoints, path)
 
 
-#: Named trajectory distributions (SPEC §3). ``default`` is the distribution chosen on the
+#: Named trajectory distributions (:ref:`concepts-trajectories`). ``default`` is the distribution
+# chosen on the
 #: evidence of the fidelity ablation (experiments/fidelity.md); ``spec_v1`` is the first
 #: version's (3–5 via points in the SPEC's box, equal arc-length spacing).
 DISTRIBUTIONS: dict[str, TrajectoryConfig] = {

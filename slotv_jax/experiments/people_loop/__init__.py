@@ -96,8 +96,8 @@ from slotv_jax.planning.plans import load_plans, save_plans
 
 
 def summarise(rows: Sequence[dict]) -> list[dict]:
-    """SPEC §12's ``summary``: gain kept per (population, family, strategy, answers), the
-    mean over seeds (and the seeds)."""
+    """:ref:`concepts-gain-kept`'s ``summary``: gain kept per (population, family, strategy,
+    answers), the mean over seeds (and the seeds)."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault((r["population"], r["family"], r["strategy"], r["answers"]), []).append(r)

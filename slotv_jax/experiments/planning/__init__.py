@@ -22,19 +22,19 @@ Steps:
    :class:`slotv_jax.models.SlotV`), which a planner cannot exploit the way it exploits
    the paper's score (the paper preset trains SLOT-V+ for 5 epochs: :func:`paper`); in
    ``archetype_planners``: SLOT-V's loss with the family's parametric observer archetype
-   (SPEC §10: ``dragan`` for Dragan, ``viewpoint`` for Nikolaidis), which separates what
-   the loss learns from what a network can represent;
+   (:ref:`concepts-archetypes`: ``dragan`` for Dragan, ``viewpoint`` for Nikolaidis), which
+   separates what the loss learns from what a network can represent;
 4. every observer plans every problem with :mod:`slotv_jax.planning` (one compiled
    program for all observers). One temperature per family rules the oracle planner and
-   the scoring: the dataset's (``cfg.data.labels``, SPEC §4 "Default temperatures"), the
-   temperature of the labels the learned observers were trained on, recorded as
+   the scoring: the dataset's (``cfg.data.labels``, :ref:`concepts-temperatures` "Default
+   temperatures"), the temperature of the labels the learned observers were trained on, recorded as
    ``config.scoring_betas``. Every plan is scored by that labeler: mean and SD of
    y_target, the rate at which the target is the labeler's argmax, the path-length ratio
    to the straight line, feasibility, how often the plan's true legibility fell below the
    straight line's, and the fraction of the oracle's gain (mean y_target over the straight
    line) each learned observer keeps;
-5. ``OUT/results.json`` (SPEC §10 schema plus these extras), ``OUT/plans.npz`` (example
-   plans, below), the figures rendered from those two files and ``OUT/planning.md``
+5. ``OUT/results.json`` (:ref:`concepts-archetypes` schema plus these extras), ``OUT/plans.npz``
+   (example plans, below), the figures rendered from those two files and ``OUT/planning.md``
    rendered from ``results.json``.
 
 ``plans.npz`` (:mod:`slotv_jax.planning.plans`) holds the plans of every planner for up
@@ -127,8 +127,8 @@ def train_observer(
 
 def observer_facts(observer, labeler: str, splits: dict) -> dict:
     """What a loaded learned observer (:func:`slotv_jax.load_observer`) says about itself:
-    its accuracy (SPEC §8) on the ``labeler`` labels of each split's trajectories and, with
-    time weights, the learned exponent α (``alpha``)."""
+    its accuracy (:ref:`concepts-accuracy`) on the ``labeler`` labels of each split's trajectories
+    and, with time weights, the learned exponent α (``alpha``)."""
     tc, params = observer.config, observer.params
     acc = {s: float(evaluate.accuracy(tc, params, d, labeler)) for s, d in splits.items()}
     facts: dict = {"accuracy": acc}

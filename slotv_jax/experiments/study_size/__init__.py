@@ -5,7 +5,7 @@ examples for 80 %) and human data as the next step (§VI). A study is planned in
 trajectories N and participants per trajectory P, and a participant gives one guess, not
 a distribution. This experiment simulates such studies:
 
-1. N training trajectories of the generated ``train`` split (the first N; SPEC §7);
+1. N training trajectories of the generated ``train`` split (the first N; :ref:`concepts-datasets`);
 2. P simulated participants per trajectory: each sees it up to a normalised time τ drawn
    from ``taus`` (default: the whole motion) and guesses a goal by sampling the labeler's
    distribution of what they saw, with lapse rate λ (a uniform guess with probability λ),
@@ -13,7 +13,7 @@ a distribution. This experiment simulates such studies:
 3. SLOT-V and T-REX trained on the counts (multinomial likelihood,
    :mod:`slotv_jax.study`);
 4. accuracy against the noise-free labeler on held-out scenes (``position_test``, whole
-   motions, SPEC §8 accuracy).
+   motions, :ref:`concepts-accuracy` accuracy).
 
 ``P = ∞`` (written "labels") trains on the labeler's distributions themselves: the
 paper's setting, the limit of infinitely many participants. Participants and trajectories
