@@ -332,8 +332,13 @@ def test_bad_population_inputs_are_named_before_any_work(tmp_path, capsys, no_wo
         (big, f"error: {big}: field 'beta': 'cost_to_go': expected a number in (0, "),
         (wide, f"error: {wide}: field 'beta_sigma_log': expected a number in [0, 5]"),
         (tmp_path, f"error: population {tmp_path}: is a directory; expected a population JSON"),
-        ("nosuch", "error: population: expected default, homogeneous, random:K (the K-th draw) "
-                   "or a population JSON file, got 'nosuch' (no such file)"),
+        ("nosuch", "error: population: expected default, homogeneous, random:K (the K-th draw), "
+                   "suite, a population JSON file, a zoo member (inverse_planning, "
+                   "extrapolation, accumulator, descent, salience, anchor, hesitant), zoo, or "
+                   "module:function (your own people), got 'nosuch'"),
+        ("no_such_module_xyz:people", "error: population: cannot import module "
+                                      "'no_such_module_xyz'"),
+        ("json:loads", "error: population: json:loads() failed: "),
     ):  # fmt: skip
         with pytest.raises(SystemExit) as e:
             main(["--preset", "tiny", "--out", str(tmp_path / "o"), "--population", str(spec)])
@@ -508,3 +513,26 @@ def test_the_loop_figure_keeps_every_line_apart_and_labels_the_0_8_line():
         assert len(good) == 1 and "0.8" in good[0].get_label()
         z = {ln.get_label().split(",")[0]: ln.get_zorder() for ln in lines}
         assert z["pick (answers alone)"] < z["SLOT-V (paper MLP)"]
+
+
+@pytest.mark.slow
+def test_the_loop_runs_on_a_zoo_member(tiny_run, tmp_path):
+    """A zoo member (people outside the population model) through the whole loop: its rows
+    carry its own name and fields, its oracle (planned with the member's own P) beats the
+    straight line on that P, and the report says nothing of the suite's populations."""
+    from slotv_jax.observers import zoo
+
+    _, cache, _, _ = tiny_run
+    out = tmp_path / "zoo"
+    argv = ["--preset", "tiny", "--population", "descent", "--families", "dragan_fitted",
+            "--out", str(out), "--cache", str(cache), "--no-progress"]  # fmt: skip
+    assert main(argv) == 0
+    doc = json.loads((out / "people_loop_tiny_results.json").read_text())
+    (entry,) = doc["populations"]
+    assert entry["population"] == "descent" and entry["population_config"]["zoo"] == "descent"
+    assert entry["population_config"]["view"] == zoo.MEMBERS["descent"].view
+    cmp_ = entry["comparison"]
+    assert cmp_["oracle"]["score"] > cmp_["straight"]["score"]
+    assert {r["population"] for r in doc["summary"]} == {"descent"}
+    text = (out / "people_loop_tiny.md").read_text()
+    assert "descent" in text and "Of the suite's" not in text

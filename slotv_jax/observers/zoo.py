@@ -501,7 +501,7 @@ def sample_zoo_guesses_batch(
 def _check_member(obj, spec: str) -> ZooMember:
     if not isinstance(obj, ZooMember):
         raise ValueError(
-            f"--people: {spec} must give a ZooMember (slotv_jax.observers.zoo), "
+            f"population: {spec} must give a ZooMember (slotv_jax.observers.zoo), "
             f"got {type(obj).__name__}"
         )
     xyz = jnp.linspace(jnp.array([0.31, 0.0, 0.49]), jnp.array([0.5, 0.3, 0.025]), 20)
@@ -511,15 +511,15 @@ def _check_member(obj, spec: str) -> ZooMember:
         people = _representatives(obj)
         p = np.asarray(jax.vmap(lambda q: person_probs(obj, q, xyz, goals, mask, 20))(people))
     except Exception as e:  # a user's reading: any failure is theirs to see, in one line
-        raise ValueError(f"--people: {spec}: its reading fails on a test motion: {e}") from e
+        raise ValueError(f"population: {spec}: its reading fails on a test motion: {e}") from e
     if p.shape != (N_PEOPLE, 8) or not np.all(np.isfinite(p)):
         raise ValueError(
-            f"--people: {spec}: its reading must give a finite (8,) distribution per person, "
+            f"population: {spec}: its reading must give a finite (8,) distribution per person, "
             f"got shape {p.shape[1:]}"
         )
     if not np.allclose(p.sum(-1), 1.0, atol=1e-4) or np.any(p[:, 2:] != 0):
         raise ValueError(
-            f"--people: {spec}: its reading must sum to 1 over the real goals and be 0 on "
+            f"population: {spec}: its reading must sum to 1 over the real goals and be 0 on "
             "padded slots"
         )
     return obj
@@ -533,19 +533,19 @@ def load_people(spec: str) -> ZooMember:
         return MEMBERS[spec]
     if ":" not in spec:
         raise ValueError(
-            f"--people: expected a zoo member ({', '.join(MEMBERS)}) or module:function, "
+            f"population: expected a zoo member ({', '.join(MEMBERS)}) or module:function, "
             f"got {spec!r}"
         )
     mod_name, _, fn_name = spec.partition(":")
     try:
         mod = importlib.import_module(mod_name)
     except Exception as e:
-        raise ValueError(f"--people: cannot import module {mod_name!r}: {e}") from e
+        raise ValueError(f"population: cannot import module {mod_name!r}: {e}") from e
     fn = getattr(mod, fn_name, None)
     if not callable(fn):
-        raise ValueError(f"--people: module {mod_name!r} has no function {fn_name!r}")
+        raise ValueError(f"population: module {mod_name!r} has no function {fn_name!r}")
     try:
         member = fn()
     except Exception as e:
-        raise ValueError(f"--people: {spec}() failed: {e}") from e
+        raise ValueError(f"population: {spec}() failed: {e}") from e
     return _check_member(member, spec)
