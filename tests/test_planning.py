@@ -13,6 +13,10 @@ planner's compilation dominates their time.
 from __future__ import annotations
 
 import dataclasses
+import os
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import jax
@@ -566,3 +570,51 @@ def test_family_planner_compiles_once_and_plans_each_parameter_set(straight):
             iterates = np.asarray(nik.diagnostics.objective[f, b])  # the plan is one of them
             assert np.abs(iterates - float(val_n)).min() < 1e-4, (float(val_n), iterates)
             assert float(val_n) >= float(nik.diagnostics.objective_straight[f, b]) - 1e-6
+
+
+# Plans the population's quadrature as the family planner's one parameter set (the people
+# loop's oracle) and as make_planner's closed-over constant, and saves both (a subprocess:
+# jaxlib 0.10.2 segfaulted on the first here, see make_family_planner's plan_grid).
+ONE_SET_POPULATION = textwrap.dedent("""
+    import sys
+    import jax, numpy as np
+    from slotv_jax import planning, scene
+    from slotv_jax.observers import population
+
+    cfg = planning.PlannerConfig(n_points=20, iters=3, taus=(0.5, 1.0))
+    quad = population.quadrature(population.default())
+    scenes = [scene.sample_scene(jax.random.key(i), 3) for i in range(3)]
+    goals = np.stack([np.asarray(s.goals) for s in scenes])
+    mask = np.stack([np.asarray(s.goal_mask) for s in scenes])
+    straight = planning.straight_lines(goals, mask, np.zeros(3, np.int32), cfg=cfg)
+    fam = planning.make_family_planner(population.quadrature_observer, quad, cfg)
+    one = fam.plan_problems(jax.tree.map(lambda a: a[None], quad), straight)
+    direct = planning.make_planner(population.quadrature_observer(quad), cfg)
+    ref = direct.plan_problems(straight)
+    np.savez(sys.argv[1], xyz=one.xyz, q=one.q, best=one.diagnostics.best_iter,
+             ref_xyz=ref.xyz, ref_q=ref.q, ref_best=ref.diagnostics.best_iter,
+             straight=straight.xyz)
+""")
+
+
+@pytest.mark.slow
+def test_family_planner_plans_one_population_parameter_set_as_its_constant(tmp_path):
+    """The people loop's oracle: the population's quadrature as the one parameter set of a
+    family planner (leading axis 1) plans as make_planner with the quadrature closed over,
+    to float32 rounding. On jaxlib 0.10.2 (CPU, AMD EPYC with AVX2) the vmap over the one
+    set crashed the process with a segfault in a YNNPACK reduce fusion; the planner now
+    plans a single set without that vmap."""
+    out = tmp_path / "plans.npz"
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
+    }
+    r = subprocess.run([sys.executable, "-c", ONE_SET_POPULATION, str(out)], cwd=REPO, env=env,
+                       capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert r.returncode == 0, f"exit status {r.returncode} (-11: segfault): {r.stderr[-2000:]}"
+    res = np.load(out)
+    assert res["xyz"].shape == (1, 3, 20, 3)
+    np.testing.assert_array_equal(res["best"][0], res["ref_best"])
+    np.testing.assert_allclose(res["xyz"][0], res["ref_xyz"], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(res["q"][0], res["ref_q"], rtol=0, atol=1e-6)
+    assert np.abs(res["ref_xyz"] - res["straight"]).max() > 1e-2  # the plans moved

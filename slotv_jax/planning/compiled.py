@@ -306,6 +306,18 @@ def make_family_planner(
             obs = observer_of(index, p)
             return jax.vmap(lambda prob: plan(obs, prob, cfg))(problems)
 
+        # One parameter set (a population's oracle: loop.oracle_plans) is planned without
+        # the vmap over sets, its axis put back after. jaxlib 0.10.2's CPU backend
+        # segfaults in a YNNPACK reduce fusion (slinky's make_transpose_impl) on a sum over
+        # a non-minor axis of a product of two rank-7 arrays with a size-1 axis, e.g.
+        # jax.jit(lambda x, y: (x * y).sum(-2)) on two f32[1, 3, 2, 4, 20, 8, 3]; the
+        # population's gradient has that sum over the goals when the vmap over one
+        # parameter set adds its size-1 axis (sets, problems, stop times, viewpoints,
+        # points, goals, xyz). XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=-reduce
+        # also avoids it. Test: test_planning's one-parameter-set population test.
+        if {jnp.shape(a)[:1] for a in jax.tree.leaves(params)} == {(1,)}:
+            one = one_set(jax.tree.map(lambda a: a[0], params))
+            return jax.tree.map(lambda a: a[None], one)
         return jax.vmap(one_set)(params)
 
     return FamilyPlanner(names, cfg, jax.jit(plan_grid), _straight_program(cfg))
