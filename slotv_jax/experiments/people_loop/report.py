@@ -290,8 +290,13 @@ def report(doc: dict, stem: str, out: Path = DEFAULT_OUT) -> str:
     head = [
         f"# From people's answers to motion people read ({doc['preset']} preset)",
         "",
-        "Every number here comes from **simulated people** (`slotv_jax.observers.population`), "
-        "not from a study with humans: the population named in each section.",
+        "Every number here comes from **simulated people** (`slotv_jax.observers.population`"
+        + (
+            "; the zoo of people outside its model, `slotv_jax.observers.zoo`"
+            if any(p["population"] in zoo.zoo_names() for p in doc["populations"])
+            else ""
+        )
+        + "), not from a study with humans: the population named in each section.",
         "",
         f"Rendered from `{stem}_results.json` (`{command_line(doc, out)}`). Stop times τ = "
         f"{', '.join(f'{t:g}' for t in cfg['taus'])}; "
@@ -508,10 +513,18 @@ def suite_section(doc: dict) -> list[str]:
     both = PICK_CROSS in picks
     suite_pops = [q for q in s["populations"] if q in population_lib.suite_specs()]
     missing = [q for q in population_lib.suite_specs() if q not in s["populations"]]
+    only_zoo = all(q in zoo.zoo_names() for q in s["populations"])
     if not suite_pops:  # the zoo alone (or files): nothing of the suite to miss
         missing = []
+    title = (
+        "The zoo: the pick on every member"
+        if only_zoo
+        else "The pick on every population"
+        if missing
+        else "The suite: the pick on every population"
+    )
     lines = [
-        f"## {'The pick' if missing else 'The suite: the pick'} on every population (random picks)",
+        f"## {title} (random picks)",
         "",
         "Gain kept by the **pick**, the log-linear pool of the fitted families weighted by the "
         "held-out likelihood of the answers alone (`slotv_jax.answers.pooling`)"
