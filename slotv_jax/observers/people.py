@@ -4,6 +4,8 @@ zoo of people outside it (:class:`slotv_jax.observers.zoo.ZooMember`, a research
 included). The simulated study, the scoring of plans and the loop ask these functions for
 people's guesses and probabilities, whichever kind the people are.
 
+(The scoring of plans by either kind is :func:`slotv_jax.planning.evaluation.population_scorer`.)
+
 Names (``--population`` of the people loop): ``default``, ``homogeneous``, ``random:K``, a
 population JSON file, ``suite`` (the suite's populations), a zoo member's name
 (:func:`slotv_jax.observers.zoo.zoo_names`), ``zoo`` (every member), or
@@ -29,7 +31,7 @@ SUITE = "suite"  # every population of the suite
 ZOO = "zoo"  # every member of the zoo
 
 __all__ = ["SUITE", "ZOO", "People", "expand", "get_people", "guesses_batch", "people_config",
-           "people_name", "probs"]  # fmt: skip
+           "people_name"]  # fmt: skip
 
 
 def _is_user_people(spec: str) -> bool:
@@ -98,23 +100,6 @@ def people_config(people: People) -> dict[str, Any]:
             "reference": people.reference,
         }
     return people.to_dict()
-
-
-def probs(
-    people: People,
-    xyz: Float[Array, "T 3"],
-    goals: Float[Array, "8 3"],
-    goal_mask: Bool[Array, " 8"],
-    seen: Int[Array, ""],
-) -> Float[Array, " 8"]:
-    """``P(goal | the first seen points)`` of the people: P_pop for a population
-    (:func:`slotv_jax.observers.population.population_probs` of its quadrature), the
-    member's mean over its representative people for the zoo
-    (:func:`slotv_jax.observers.zoo.zoo_probs`)."""
-    if isinstance(people, zoo.ZooMember):
-        return zoo.zoo_probs(people, xyz, goals, goal_mask, seen)
-    quad = population_lib.quadrature(people)
-    return population_lib.population_probs(quad, xyz, goals, goal_mask, seen)
 
 
 def guesses_batch(

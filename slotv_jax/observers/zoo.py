@@ -438,6 +438,11 @@ def person_probs(
     return jnp.where(mask, (1.0 - lapse) * y + lapse * u, 0.0)
 
 
+def _each_person(member, people, xyz, goals, goal_mask, seen) -> Float[Array, "n 8"]:
+    """:func:`person_probs` of every person of ``people`` (dict entries ``(n,)``)."""
+    return jax.vmap(lambda p: person_probs(member, p, xyz, goals, goal_mask, seen))(people)
+
+
 @functools.cache
 def _representatives(member: ZooMember) -> dict[str, Array]:
     with jax.ensure_compile_time_eval():
@@ -454,9 +459,7 @@ def zoo_probs(
     """The member's ``P(goal | motion seen up to point L = seen)``: the mean guess
     distribution of :data:`N_PEOPLE` representative people (a fixed draw), a pure,
     differentiable function of ``xyz``; exact zeros on padded slots."""
-    people = _representatives(member)
-    each = jax.vmap(lambda p: person_probs(member, p, xyz, goals, goal_mask, seen))(people)
-    return jnp.mean(each, axis=0)
+    return jnp.mean(_each_person(member, _representatives(member), xyz, goals, goal_mask, seen), 0)
 
 
 def sample_zoo_guesses(
@@ -471,8 +474,7 @@ def sample_zoo_guesses(
     """The guesses (goal slots) of ``n`` fresh people of ``member``, each with their own
     parameters, after the first ``seen`` points."""
     k_people, k_guess = jax.random.split(key)
-    people = draw_people(member, k_people, n)
-    p = jax.vmap(lambda q: person_probs(member, q, xyz, goals, goal_mask, seen))(people)
+    p = _each_person(member, draw_people(member, k_people, n), xyz, goals, goal_mask, seen)
     logits = masked_log(p, jnp.asarray(goal_mask).astype(bool)[None, :])
     return jax.random.categorical(k_guess, logits, axis=-1).astype(jnp.int32)
 
@@ -508,8 +510,7 @@ def _check_member(obj, spec: str) -> ZooMember:
     goals = jnp.zeros((8, 3)).at[0].set([0.5, 0.3, 0.025]).at[1].set([0.5, -0.3, 0.025])
     mask = jnp.arange(8) < 2
     try:
-        people = _representatives(obj)
-        p = np.asarray(jax.vmap(lambda q: person_probs(obj, q, xyz, goals, mask, 20))(people))
+        p = np.asarray(_each_person(obj, _representatives(obj), xyz, goals, mask, 20))
     except Exception as e:  # a user's reading: any failure is theirs to see, in one line
         raise ValueError(f"population: {spec}: its reading fails on a test motion: {e}") from e
     if p.shape != (N_PEOPLE, 8) or not np.all(np.isfinite(p)):
@@ -525,6 +526,7 @@ def _check_member(obj, spec: str) -> ZooMember:
     return obj
 
 
+@functools.cache  # a user's module is imported and checked once (failures are not kept)
 def load_people(spec: str) -> ZooMember:
     """A zoo member by name (:func:`zoo_names`) or ``module:function``, a researcher's own
     people: ``function()`` returns a :class:`ZooMember`, checked on a test motion (shape,
