@@ -321,22 +321,35 @@ def test_study_pick_by_plans_judges_every_plan_and_writes_them(
     doc = json.loads((out / "pool.json").read_text())
     pool = doc["meta"]["pick"]
     worse = ("dragan", "nikolaidis")[int(np.argmin(rep["scores"]))]
-    assert pool["rule"] == "pool" and pool["left_out"] == worse
-    assert pool["weights"][pool["candidates"].index(worse)] == 0
-    assert pool["pick"] == rep["pick"] != worse and "(left out:" in text
+    # the rule re-derived: the least-judged left out, and any no better than guessing, but
+    # never the best held-out fit
+    cands = pool["candidates"]
+    h = dict(zip(cands, pool["heldout_nll"], strict=True))
+    best = min(h, key=h.get)
+    expect = [c for c in cands if c != best and (c == worse or h[c] >= pool["uniform_nll"])]
+    assert pool["rule"] == "pool" and pool["left_out"] == expect
+    n = study.goal_mask[study.answer_trajectory].sum(-1)
+    c = np.asarray(study.counts, np.float64).sum(-1)
+    assert pool["uniform_nll"] == pytest.approx(np.sum(c * np.log(n)) / c.sum(), abs=1e-6)
+    assert all(pool["weights"][cands.index(c)] == 0 for c in expect)
+    assert ("(left out:" in text) == bool(expect) and "uniform guessing" in text
     assert sorted(p.name for p in out.iterdir()) == ["plans.npz", "pool.json"]
-    # the pool itself is written: the kept labeler with its β fitted on every answer and
-    # its weight; loaded, its P is P_labeler^w renormalised (float64, by hand)
-    w = pool["weights"][pool["candidates"].index(rep["pick"])]
-    assert doc["members"] == [{"name": rep["pick"], "weight": w, "labeler": rep["pick"],
-                               "beta": pytest.approx(betas[rep["pick"]])}]  # fmt: skip
+    # the pool itself is written: the members of weight > 0, each labeler with its β fitted
+    # on every answer; loaded, its P is Π_f P_f^{w_f} renormalised (float64, by hand)
+    w = dict(zip(cands, pool["weights"], strict=True))
+    members = [c for c in cands if w[c] > 0]
+    assert pool["pick"] == max(w, key=w.get) and pool["pick"] not in expect
+    assert doc["members"] == [{"name": c, "weight": w[c], "labeler": c,
+                               "beta": pytest.approx(betas[c])} for c in members]  # fmt: skip
     obs = load_pool(out)
-    fn = functools.partial(getattr(labelers, rep["pick"]),
-                           **(cam if rep["pick"] == "nikolaidis" else {}))  # fmt: skip
     for p in range(3):
         x, g, m = plans["xyz"][0, p], plans["goals"][p], plans["goal_mask"][p]
-        y = np.asarray(fn(x, g, m, beta=betas[rep["pick"]]), np.float64)
-        want_p = np.where(m, np.maximum(y, PROB_FLOOR) ** w, 0.0)
+        logit = np.zeros(8)
+        for c in members:
+            fn = functools.partial(getattr(labelers, c), **(cam if c == "nikolaidis" else {}))
+            y = np.asarray(fn(x, g, m, beta=betas[c]), np.float64)
+            logit += w[c] * np.log(np.maximum(y, PROB_FLOOR))
+        want_p = np.where(m, np.exp(logit - logit[m].max()), 0.0)
         got = np.asarray(jax.nn.softmax(obs(jnp.asarray(x), jnp.asarray(g), jnp.asarray(m))))
         np.testing.assert_allclose(got, want_p / want_p.sum(), atol=2e-5)
     # the plans file holds the pool's own plans too: those the loaded pool plans (its
@@ -705,3 +718,36 @@ def test_study_pick_says_which_planner_its_preset_plans_with(tmp_path, capsys, m
         study_main(["pick", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "quick 50 points, 30 iterations per plan; paper 100 points, 50 iterations" in text
+
+
+def test_the_pick_keeps_the_best_fit_and_says_when_none_explains_the_answers():
+    """Near-uniform fits judge the one sharp fit's plans least legible: the sharp fit is
+    still kept (the best held-out fit always is), a candidate no better than guessing gets
+    no weight, and the table says when even the best fit closes under 5 % of uniform
+    guessing's NLL (counts and predictions made up; the NLLs re-derived by hand)."""
+    from slotv_jax.answers import pick as pick_lib
+    from slotv_jax.answers import pooling
+
+    mask = np.ones((40, 3), bool)
+    counts = np.zeros((40, 3))
+    counts[:] = [7.0, 2.0, 1.0]  # the sharp fit's own probabilities: it is the best fit
+    sharp, flat, worse = [0.7, 0.2, 0.1], [0.36, 0.33, 0.31], [0.30, 0.35, 0.35]
+    logp = np.log(np.array([[p] * 40 for p in (sharp, flat, worse)], np.float32))
+    rep = pooling.pick_report(["sharp", "flat", "worse"], logp, counts, mask)
+    want = [-np.dot([7, 2, 1], np.log(p)) / 10 for p in (sharp, flat, worse)]
+    assert rep["heldout_nll"] == pytest.approx(want, abs=1e-5)
+    assert rep["uniform_nll"] == pytest.approx(np.log(3), abs=1e-6)
+    keep = pick_lib.trusted(np.array([[0.30, 0.40, 0.38]]), np.array([rep["heldout_nll"]]),
+                            np.array([rep["uniform_nll"]]))  # fmt: skip
+    assert keep.tolist() == [[True, True, False]]  # sharp least judged, kept; worse > uniform
+    assert pick_lib.trusted(np.array([[0.30, 0.40, 0.38]])).tolist() == [[False, True, True]]
+    good = {**pooling.pick_report(["sharp", "flat", "worse"], logp, counts, mask, keep[0]),
+            "folds": 3, "left_out": ["worse"]}  # fmt: skip
+    text = pick_lib.pick_table(good)
+    assert "(left out: no better than guessing)" in text and "no candidate explains" not in text
+    assert not good["poor_fit"] and good["weights"][0] > 0 and good["weights"][2] == 0
+    poor = pooling.pick_report(["flat", "worse"], logp[1:], counts, mask)
+    assert poor["poor_fit"] and poor["quality"][0] == pytest.approx(
+        (np.log(3) - want[1]) / np.log(3), abs=1e-5
+    )
+    assert "no candidate explains these answers well" in pick_lib.pick_table({**poor, "folds": 3})

@@ -146,10 +146,15 @@ def pick_study(
     logp, _ = out_of_fold(
         study, names, preset=preset, folds=folds, seed=seed, camera=camera, progress=progress
     )
+    return _report(study, names, logp, keep, folds=folds, seed=seed, preset=preset)
+
+
+def _report(study: Study, names, logp, keep, **meta) -> dict:
+    """:func:`slotv_jax.answers.pooling.pick_report` of out-of-fold predictions ``logp``."""
     g = study.counts.shape[-1]
     mask = study.goal_mask[study.answer_trajectory, :g]
     rep = pooling.pick_report(list(names), logp, study.counts[:, :g], mask, keep)
-    return {**rep, "folds": folds, "seed": seed, "preset": preset}
+    return {**rep, **meta}
 
 
 def check_folds(study: Study, folds: int) -> None:
@@ -169,11 +174,23 @@ def pick_table(rep: dict) -> str:
         "| candidate | held-out NLL per answer (nats) | weight |",
         "|---|---|---|",
     ]
+    u = rep["uniform_nll"]
     for n, nll, w in zip(rep["candidates"], rep["heldout_nll"], rep["weights"], strict=True):
         mark = " **(pick)**" if n == rep["pick"] else ""
-        mark += " (left out: its plans judged least legible)" if n == rep.get("left_out") else ""
+        if n in rep.get("left_out", ()):
+            why = "no better than guessing" if nll >= u else "its plans judged least legible"
+            mark += f" (left out: {why})"
         lines.append(f"| {n}{mark} | {nll:.4f} | {w:.3f} |")
     lines.append(f"| pool | {rep['pool_nll']:.4f} | |")
+    lines.append(f"| uniform guessing | {u:.4f} | |")
+    best = max(rep["quality"])
+    lines += ["", f"the best fit closes {100 * best:.1f} % of uniform guessing's NLL"]
+    if rep["poor_fit"]:
+        lines[-1] += (
+            f": **no candidate explains these answers well** (below "
+            f"{100 * pooling.POOR_FIT:g} %); plans made against them rest on little: ask "
+            "more, or about other motions, before trusting them"
+        )
     return "\n".join(lines)
 
 
@@ -210,24 +227,51 @@ def cross_judged(
     return np.argmax(s, axis=-1), s
 
 
-def trusted(scores: Float[np.ndarray, "R C"]) -> np.ndarray:
+def trusted(
+    scores: Float[np.ndarray, "R C"],
+    heldout: Float[np.ndarray, "R C"] | None = None,
+    uniform: Float[np.ndarray, " R"] | None = None,
+) -> np.ndarray:
     """The candidates the pool may weigh (:func:`slotv_jax.answers.pooling.fit_pool_weights`'s
     ``keep``), per run: every candidate but the one whose plans the other fits judge least
-    legible, ``argmin_f S_f`` of :func:`cross_judged`'s scores (R, C). Returns (R, C) bool.
+    legible, ``argmin_f S_f`` of :func:`cross_judged`'s scores (R, C); with each
+    candidate's held-out NLL per answer (``heldout`` (R, C)), never the best fit, and with
+    uniform guessing's NLL (``uniform`` (R,)), none that is no better than guessing
+    (``heldout ≥ uniform``) but the best. Returns (R, C) bool.
 
     A fit the planner can exploit, sharp where the answers did not constrain it, shows it
     in its own plans: they climb its error, and the fits that did not make them find them
     less legible (the pick by plans' S). In the pool that fit's error is scaled by its
     weight but still there to climb; leaving it out takes it away, whatever weight its
-    held-out likelihood earned. The held-out likelihood then weighs the rest.
+    held-out likelihood earned. The held-out likelihood then weighs the rest. But where
+    the others are near-uniform fits, the sharp fit is the least judged because the others
+    have learned nothing: so the best fit is kept (then none is left out), and a candidate
+    that predicts held-out answers no better than guessing has no say.
 
     >>> trusted(np.array([[0.40, 0.31, 0.38]])).tolist()
     [[True, False, True]]
+    >>> trusted(np.array([[0.40, 0.31, 0.38]]), np.array([[1.35, 1.20, 1.37]]),
+    ...         np.array([1.355])).tolist()
+    [[True, True, False]]
     """
     s = np.asarray(scores, np.float64)
     if s.ndim != 2 or s.shape[-1] < 2:
         raise ValueError(f"scores: expected (R, C) with C >= 2, got {s.shape}")
-    return np.arange(s.shape[-1]) != np.argmin(s, axis=-1)[:, None]
+    keep = np.arange(s.shape[-1]) != np.argmin(s, axis=-1)[:, None]
+    if heldout is None:
+        if uniform is not None:
+            raise ValueError("uniform: needs heldout, the candidates' held-out NLL")
+        return keep
+    h = np.asarray(heldout, np.float64)
+    if h.shape != s.shape:
+        raise ValueError(f"heldout: expected the scores' shape {s.shape}, got {h.shape}")
+    best = np.arange(s.shape[-1]) == np.argmin(h, axis=-1)[:, None]
+    if uniform is not None:
+        u = np.asarray(uniform, np.float64)
+        if u.shape != s.shape[:1]:
+            raise ValueError(f"uniform: expected shape {s.shape[:1]}, got {u.shape}")
+        keep &= h < u[:, None]
+    return keep | best
 
 
 def study_problems(study: Study, n: int) -> dict[str, np.ndarray]:
@@ -444,10 +488,18 @@ def pick_pool(
     by_plans, fits, arrays = pick_by_plans(study, names, preset=preset, seed=seed, camera=camera,
                                            problems=problems, progress=progress,
                                            rule="pool")  # fmt: skip
-    keep = trusted(np.asarray([by_plans["scores"]]))[0]
-    rep = pick_study(study, names, preset=preset, folds=folds, seed=seed, camera=camera,
-                     progress=progress, keep=keep.tolist())  # fmt: skip
-    rep = {**rep, "rule": "pool", "left_out": names[int(np.flatnonzero(~keep)[0])]}
+    logp, _ = out_of_fold(
+        study, names, preset=preset, folds=folds, seed=seed, camera=camera, progress=progress
+    )
+    full = _report(study, names, logp, None)  # every candidate alone, and guessing
+    keep = trusted(np.asarray([by_plans["scores"]]), np.asarray([full["heldout_nll"]]),
+                   np.asarray([full["uniform_nll"]]))[0]  # fmt: skip
+    rep = _report(study, names, logp, keep.tolist(), folds=folds, seed=seed, preset=preset)
+    rep = {
+        **rep,
+        "rule": "pool",
+        "left_out": [n for n, k in zip(names, keep, strict=True) if not k],
+    }
     # The pool's own plans, against P_w ∝ Π_f P_f^{w_f} over the members of weight > 0
     # (none: save_pool refuses the pool, in its own words).
     kept = [i for i, w in enumerate(rep["weights"]) if w > 0]

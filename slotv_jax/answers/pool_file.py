@@ -16,6 +16,8 @@ The folder::
     DIR/pool.json            format, version, camera, members [{name, weight, and either
                              checkpoint (a folder under DIR) or labeler and beta}], meta
     DIR/members/NAME/        each learned member's checkpoint (slotv_jax.load_observer)
+    DIR/camera.json          the lab's camera file, when the pool's camera is one
+                             (a relative "camera" path is read from DIR)
 
 :func:`load_pool` reads it back as one observer ``(xyz (T, 3), goals (8, 3), goal_mask (8,))
 -> logits (8,)`` with ``prefix`` (what :func:`slotv_jax.planning.make_planner` plans
@@ -27,6 +29,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -40,7 +43,7 @@ from slotv_jax.answers.pooling import pool_observer
 from slotv_jax.core import fileio
 from slotv_jax.core.validation import FLOAT32_MAX
 from slotv_jax.training import checkpoint
-from slotv_jax.world.scene import CAMERAS
+from slotv_jax.world.scene import CAMERAS, check_camera, is_camera_file
 
 POOL_FILE = "pool.json"
 FORMAT = "slotv_jax observer pool"
@@ -69,6 +72,9 @@ __all__ = ["POOL_FILE", "is_pool", "load_pool", "pool_observer", "save_pool"]
 def is_pool(path: str | os.PathLike) -> bool:
     """True if ``path`` is a folder holding ``pool.json``."""
     return (Path(path) / POOL_FILE).is_file()
+
+
+CAMERA_FILE = "camera.json"  # a pool's copy of the lab's camera file (when it has one)
 
 
 def save_pool(
@@ -101,6 +107,10 @@ def save_pool(
             rel = f"{MEMBERS_DIR}/{name}"
             checkpoint.save(out / rel, fit["cfg"], fit["state"])
             rows.append({"name": name, "weight": w, "checkpoint": rel})
+    if is_camera_file(camera):  # the lab's camera travels with the pool: a copy beside it
+        check_camera(camera)
+        shutil.copyfile(camera, out / CAMERA_FILE)
+        camera = CAMERA_FILE
     doc = {"format": FORMAT, "version": VERSION, "camera": camera, "members": rows,
            "meta": dict(meta or {})}  # fmt: skip
     fileio.write_text(out / POOL_FILE, json.dumps(doc, indent=1, allow_nan=False) + "\n")
@@ -141,8 +151,17 @@ def load_pool(path: str | os.PathLike):
     if doc.get("version") != VERSION:
         raise _field(where, "version", f"expected {VERSION}, got {doc.get('version')!r}")
     camera = doc.get("camera")
-    if camera not in CAMERAS:
-        raise _field(where, "camera", f"expected one of {CAMERAS}, got {camera!r}")
+    if isinstance(camera, str) and is_camera_file(camera):
+        # a camera file: beside the pool file, or where a relative path leads from it
+        camera = str(Path(camera) if Path(camera).is_absolute() else (path / camera))
+        try:
+            check_camera(camera)
+        except ValueError as e:
+            raise _field(where, "camera", str(e)) from None
+    elif camera not in CAMERAS:
+        raise _field(
+            where, "camera", f"expected one of {CAMERAS} or a camera file (*.json), got {camera!r}"
+        )
     rows = doc.get("members")
     if not isinstance(rows, list) or not rows:
         raise _field(where, "members", "expected a non-empty list of members")

@@ -65,6 +65,7 @@ from jaxtyping import Array, Bool, Float, Int
 from slotv_jax.observers import common
 from slotv_jax.observers.labelers import DEPTH_EPS
 from slotv_jax.world.scene import Camera, image_coords
+from slotv_jax.world.scene import camera as scene_camera
 
 __all__ = [
     "CENTER",
@@ -73,6 +74,7 @@ __all__ = [
     "LearnableViewpoint",
     "camera_frame",
     "camera_pose",
+    "start_pose",
     "time_weights",
 ]
 
@@ -355,6 +357,25 @@ def camera_pose(cam: Camera, center=CENTER) -> tuple[float, float, float]:
     return float(np.arctan2(back[1], back[0])), float(np.arcsin(np.clip(back[2], -1, 1))), r
 
 
+def start_pose(cam: Camera, center=CENTER) -> tuple[float, float, float]:
+    """(yaw, pitch, distance) of a camera's *position* about ``center``: the viewpoint
+    archetype's start for a study filmed by ``cam`` (a camera file's camera need not look at
+    the centre; the archetype's camera does, and learns its pose from there), the distance
+    at least :data:`DISTANCE_MIN` plus 1 cm.
+
+    >>> from slotv_jax import scene
+    >>> np.allclose(start_pose(scene.camera("observer")), camera_pose(scene.camera("observer")))
+    True
+    """
+    off = np.asarray(cam.pos, np.float64) - np.asarray(center, np.float64)
+    r = float(np.linalg.norm(off))
+    if not r > 0:
+        raise ValueError(f"camera: its position {off.tolist()} is the centre {center}")
+    back = off / r
+    pitch = float(np.clip(np.arcsin(np.clip(back[2], -1, 1)), -1.55, 1.55))
+    return float(np.arctan2(back[1], back[0])), pitch, max(r, DISTANCE_MIN + 0.01)
+
+
 class LearnableViewpoint(_Archetype):
     """Dragan legibility in the image plane of a learned camera (:ref:`concepts-cameras`, learned
     pose).
@@ -394,7 +415,10 @@ class LearnableViewpoint(_Archetype):
         pitch: float = math.radians(45.0),
         distance: float = 1.5,
         beta: float = 7.5,
+        camera: str | None = None,
     ):
+        if camera is not None:  # start where the study's camera stands (a name or a file)
+            yaw, pitch, distance = start_pose(scene_camera(camera))
         _check("yaw", yaw, -math.inf)
         p = float(pitch)
         if not (math.isfinite(p) and abs(p) < math.pi / 2):

@@ -86,6 +86,7 @@ from slotv_jax.rendering.writers import (
     write_video,
 )
 from slotv_jax.robot import kinematics
+from slotv_jax.world import scene
 
 IK_WARN = 5e-3  # metres: a TCP path the IK misses by more is reported
 LABEL_CHOICES = ("letters", "names", "none")
@@ -302,7 +303,10 @@ def _parser() -> argparse.ArgumentParser:
         "(default --problem: three, the families in turn)",
     )
     p.add_argument("--tau", type=float, default=1.0, help="show the motion up to τ in (0, 1]")
-    p.add_argument("--camera", default="observer", help=f"{', '.join(CAMERAS)} or free")
+    p.add_argument(
+        "--camera", default="observer",
+        help=f"{', '.join(CAMERAS)}, free, or a camera file (*.json: the lab's camera)",
+    )  # fmt: skip
     for f, d in (("lookat", "0.45,0,0.15"), ("distance", "1.6")):
         p.add_argument(f"--{f}", default=d, help=f"free camera {f} (default {d})")
     p.add_argument("--azimuth", type=float, default=180.0, help="free camera azimuth (deg)")
@@ -339,8 +343,17 @@ def _camera(args):
             return FreeCamera(lookat, float(args.distance), args.azimuth, args.elevation)
         except ValueError as e:
             raise cli.InputError(f"--camera free: {e}") from None
+    if scene.is_camera_file(args.camera):
+        try:
+            scene.check_camera(args.camera)
+        except ValueError as e:
+            raise cli.InputError(f"--camera: {e}") from None
+        return args.camera
     if args.camera not in CAMERAS:
-        raise cli.InputError(f"--camera: expected one of {[*CAMERAS, 'free']}, got {args.camera!r}")
+        raise cli.InputError(
+            f"--camera: expected one of {[*CAMERAS, 'free']} or a camera file (*.json), "
+            f"got {args.camera!r}"
+        )
     return args.camera
 
 
@@ -401,6 +414,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     load = {"data": _data_items, "npz": _npz_items, "study": _study_items, "plans": _plans_items}
     items = next(f(args) for k, f in load.items() if getattr(args, k) is not None)
     paths = _outputs(args, items)
+    if isinstance(camera, str) and scene.is_camera_file(camera):  # it films what it shows
+        try:
+            scene.check_sees_goals(camera, np.stack([it.goals for it in items]),
+                                   np.stack([it.goal_mask for it in items]))  # fmt: skip
+        except ValueError as e:
+            raise cli.InputError(f"--camera: {e}") from None
     if timing is not None:  # before any rendering: every motion timed, or one line why not
         items = [_timed(it, timing) for it in items]
     if not args.grid:  # every clip within its bounds: its panels, a timed motion's length

@@ -1,9 +1,10 @@
 """Where the picture is taken from: a named camera of the scene or a free camera, and
 the projection of world points to the pixels of a rendered frame.
 
-A view is either a camera name of ``franka_assets/scene.xml`` (:data:`CAMERAS`) or a
+A view is a camera name of ``franka_assets/scene.xml`` (:data:`CAMERAS`), a camera file
+(a lab's own camera: pose and field of view, :ref:`concepts-camera-files`) or a
 :class:`FreeCamera` (look-at point, distance, azimuth and elevation, MuJoCo's
-``mjvCamera`` convention). Both become a :class:`slotv_jax.scene.Camera` (position,
+``mjvCamera`` convention). Each becomes a :class:`slotv_jax.scene.Camera` (position,
 world-from-camera rotation, vertical field of view; NumPy fields, posed by MuJoCo C, so
 that nothing compiles) and are projected with
 :func:`slotv_jax.scene.project`, the one projection of the project; a frame of
@@ -69,11 +70,18 @@ View = str | FreeCamera
 
 
 def check_view(camera) -> None:
-    """Raise ValueError unless ``camera`` is a camera name of the scene or a FreeCamera."""
+    """Raise ValueError unless ``camera`` is a camera name of the scene, a valid camera file
+    (:func:`slotv_jax.scene.check_camera`) or a FreeCamera."""
     if isinstance(camera, FreeCamera):
         return
+    if isinstance(camera, str) and scene.is_camera_file(camera):
+        scene.check_camera(camera)
+        return
     if not isinstance(camera, str) or camera not in CAMERAS:
-        raise ValueError(f"camera: expected one of {list(CAMERAS)} or a FreeCamera, got {camera!r}")
+        raise ValueError(
+            f"camera: expected one of {list(CAMERAS)}, a camera file (*.json) or a FreeCamera, "
+            f"got {camera!r}"
+        )
 
 
 @functools.cache
@@ -101,7 +109,8 @@ def named_camera(name: str) -> scene.Camera:
     """A named camera of the scene posed by MuJoCo C (``mj_kinematics`` + ``mj_camlight``),
     with NumPy fields: the pose :mod:`slotv_jax.scene` computes with MJX, without
     compiling anything."""
-    check_view(name)
+    if not isinstance(name, str) or name not in CAMERAS:
+        raise ValueError(f"camera: expected one of {list(CAMERAS)}, got {name!r}")
     m = scene_model()
     d = mujoco.MjData(m)
     mujoco.mj_kinematics(m, d)
@@ -116,8 +125,15 @@ def named_camera(name: str) -> scene.Camera:
 
 
 def view_camera(camera: View) -> scene.Camera:
-    """The pinhole camera of a view (NumPy fields): a named camera or a free camera."""
+    """The pinhole camera of a view (NumPy fields): a named camera, a camera file or a free
+    camera."""
     check_view(camera)
+    if isinstance(camera, str) and scene.is_camera_file(camera):
+        c = scene.camera(camera)  # read again when the file changes
+        return scene.Camera(
+            pos=np.asarray(c.pos, np.float64), rot=np.asarray(c.rot, np.float64),
+            fovy=np.float64(c.fovy), resolution=np.asarray(c.resolution),
+        )  # fmt: skip
     if isinstance(camera, str):
         return named_camera(camera)
     pos, rot = free_camera_pose(camera)

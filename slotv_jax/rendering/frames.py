@@ -42,9 +42,10 @@ from jaxtyping import Bool, Float, UInt8
 from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
 from slotv_jax.rendering.backend import RenderBackendError, backend_message, check_backend
-from slotv_jax.rendering.camera import View, check_view, scene_model
+from slotv_jax.rendering.camera import View, check_view, scene_model, view_camera
 from slotv_jax.rendering.overlay import draw_goal_labels
 from slotv_jax.robot import kinematics
+from slotv_jax.world import scene
 
 MAX_SIDE = 4096  # largest frame width or height (pixels)
 # The bounds of one clip (check_clip), generous for real use and far below what exhausts a
@@ -283,7 +284,10 @@ class MotionRenderer:
 
     def _update(self, camera: View) -> None:
         check_view(camera)
-        if isinstance(camera, str):
+        if isinstance(camera, str) and scene.is_camera_file(camera):
+            self._r.update_scene(self.data, "observer", self._opt)
+            _pose_gl_camera(self._r.scene, view_camera(camera))
+        elif isinstance(camera, str):
             self._r.update_scene(self.data, camera, self._opt)
         else:
             c = self._free
@@ -327,6 +331,22 @@ class MotionRenderer:
             finally:
                 self._r.disable_segmentation_rendering()
         return self._r.render().copy()
+
+
+def _pose_gl_camera(scn: mujoco.MjvScene, cam: scene.Camera) -> None:
+    """Move the scene's OpenGL cameras (both eyes, at the camera centre: the picture is
+    mono) and the headlight to a camera file's pose, and set the vertical field of view:
+    frustum half-height ``near · tan(fovy / 2)``, its width from the frame's aspect (as
+    ``mjv_updateScene`` sets them for a camera of the model)."""
+    pos, rot = np.asarray(cam.pos, np.float64), np.asarray(cam.rot, np.float64)
+    for i in range(2):
+        c = scn.camera[i]
+        c.pos[:], c.forward[:], c.up[:] = pos, -rot[:, 2], rot[:, 1]
+        half = c.frustum_near * np.tan(np.deg2rad(float(cam.fovy)) / 2)
+        c.frustum_bottom, c.frustum_top, c.frustum_center, c.frustum_width = -half, half, 0, 0
+    for i in range(scn.nlight):
+        if scn.lights[i].headlight:
+            scn.lights[i].pos[:], scn.lights[i].dir[:] = pos, -rot[:, 2]
 
 
 def _add_geom(scn, kind, size, pos, rgba, mat=None) -> None:

@@ -28,6 +28,7 @@ from slotv_jax.training import checkpoint
 from slotv_jax.training import config as train_config
 from slotv_jax.training.config import TrainConfig
 from slotv_jax.webstudy import web_cli
+from slotv_jax.world import scene
 
 # ===================================================================== CLI
 
@@ -148,6 +149,9 @@ def _parse_args(argv):
     pk.add_argument("--folds", type=int, default=3)
     pk.add_argument("--seed", type=int, default=0)
     pk.add_argument("--condition", default=None)
+    pk.add_argument("--camera", default="observer",
+                    help="the camera the study's people watched, for the Nikolaidis candidate: "
+                    "a camera of the scene or the lab's camera file (*.json)")  # fmt: skip
     pk.add_argument("--overwrite", action="store_true", help="replace an earlier pick")
     pk.add_argument("--no-progress", action="store_true")
     web_cli.add_commands(sub)
@@ -178,6 +182,10 @@ def pick_main(args: argparse.Namespace) -> int:
     fileio.check_output_dir(args.out, ours=ours, overwrite=args.overwrite)
     if not (isinstance(args.problems, int) and args.problems >= 1):
         raise ValueError(f"--problems: expected an int >= 1, got {args.problems!r}")
+    try:
+        scene.check_camera(args.camera)
+    except ValueError as e:
+        raise ValueError(f"--camera: {e}") from None
     if args.by != "likelihood":  # what the plans are made with, before the work
         print(pick_lib.planner_line(args.preset), flush=True)
     study = load_study(args.study)
@@ -188,33 +196,36 @@ def pick_main(args: argparse.Namespace) -> int:
     if args.by == "plans":
         rep, fits, arrays = pick_lib.pick_by_plans(
             study, names, preset=args.preset, seed=args.seed, problems=args.problems,
-            progress=progress,
+            progress=progress, camera=args.camera,
         )  # fmt: skip
         print(pick_lib.plans_table(rep), flush=True)
     elif args.by == "pool":
         rep, fits, arrays, by_plans = pick_lib.pick_pool(
             study, names, preset=args.preset, folds=args.folds, seed=args.seed,
-            problems=args.problems, progress=progress,
+            problems=args.problems, progress=progress, camera=args.camera,
         )  # fmt: skip
         print(pick_lib.plans_table(by_plans), "", pick_lib.pick_table(rep), sep="\n", flush=True)
     else:
         rep = pick_lib.pick_study(study, names, preset=args.preset, folds=args.folds,
-                                  seed=args.seed, progress=progress)  # fmt: skip
+                                  seed=args.seed, progress=progress,
+                                  camera=args.camera)  # fmt: skip
         print(pick_lib.pick_table(rep), flush=True)
     out, winner = Path(args.out), rep["pick"]
-    meta = {"study": str(args.study), "condition": args.condition, "pick": rep}
+    meta = {"study": str(args.study), "condition": args.condition, "camera": args.camera,
+            "pick": rep}  # fmt: skip
     tmp = fileio.temp_dir_beside(out)  # the whole output, then swapped in: nothing stale
     try:
         if args.by == "pool":  # the pool itself, what the people loop plans against
             weights = dict(zip(rep["candidates"], rep["weights"], strict=True))
-            kept = pool_file.save_pool(tmp, fits, weights, meta=meta)
+            kept = pool_file.save_pool(tmp, fits, weights, meta=meta, camera=args.camera)
             said = (
                 "pick: the pool of "
                 + ", ".join(f"{n} (weight {weights[n]:.3g})" for n in kept)
                 + f", each fitted on every answer: {out} (slotv_jax.answers.load_pool)"
             )
         elif winner in pick_lib.LABELERS:
-            beta = fits[winner]["beta"] if winner in fits else fit_beta(study, winner)[0]
+            beta = (fits[winner]["beta"] if winner in fits
+                    else fit_beta(study, winner, camera=args.camera)[0])  # fmt: skip
             write_text(tmp / "pick.json", json.dumps({**meta, "labeler": winner, "beta": beta}))
             said = (
                 f"pick: {winner} with β = {beta:.4g} (fitted on every answer): {out / 'pick.json'}"

@@ -83,6 +83,7 @@ from slotv_jax.webstudy.stimuli import (
     round_dir,
     write_stimulus_set,
 )
+from slotv_jax.world import scene
 
 IK_TOLERANCE = 5e-3  # metres: a TCP path the IK misses by more is refused
 DEFAULTS = {"size": (480, 270), "fps": 25.0, "duration": 3.0, "hold": 0.5}
@@ -451,7 +452,11 @@ def add_command(sub) -> None:
     p.add_argument("--split", default="trajectory_test", choices=SPLITS)
     p.add_argument("--n", type=int, default=10, help="motions shown at every tau")
     p.add_argument("--taus", default="0.4,0.7,1.0", help="stop times in (0, 1]")
-    p.add_argument("--cameras", default="observer", help=f"comma-separated: {rendering.CAMERAS}")
+    p.add_argument(
+        "--cameras", default="observer",
+        help=f"comma-separated: cameras of the scene ({', '.join(rendering.CAMERAS)}) or the "
+        "lab's camera files (*.json: position, look_at or rotation, fovy)",
+    )  # fmt: skip
     p.add_argument("--attention", type=int, default=2,
                    help="attention-check motions (tau 1), each shown to every participant "
                    "(study.json's attention_checks)")  # fmt: skip
@@ -485,9 +490,11 @@ def stimuli_main(args: argparse.Namespace) -> int:
     clip = {k: getattr(args, k) for k in ("size", "fps", "duration", "hold")}
     size = _size(args.size or "x".join(map(str, DEFAULTS["size"])))
     cameras = tuple(c.strip() for c in args.cameras.split(","))
-    for c in cameras:
-        if c not in rendering.CAMERAS:
-            raise ValueError(f"--cameras {args.cameras}: {c!r} is not one of {rendering.CAMERAS}")
+    for c in cameras:  # a name or a camera file, read and checked before anything is loaded
+        try:
+            scene.check_camera(c)
+        except ValueError as e:
+            raise ValueError(f"--cameras {args.cameras}: {e}") from None
     check_counts(args.n, args.attention, None if args.next_round else args.trials)
     for name in ("fps", "duration"):
         if not (clip[name] is None or clip[name] > 0):

@@ -95,6 +95,7 @@ from slotv_jax.core.fileio import (
     write_text,
 )
 from slotv_jax.webstudy.design import KINDS
+from slotv_jax.world import scene as world_scene
 
 FORMAT = "slotv_jax.webstudy.stimuli/1"
 MANIFEST = "manifest.json"
@@ -261,6 +262,43 @@ def motion_tables(
         goal_tab[tid] = [[name, *(_round6(v) for v in goals[i, k])] for k, name in enumerate(names)]
         labels.append(names)
     return points, goal_tab, labels
+
+
+def check_cameras(
+    cameras: Sequence[str], goals: Float[np.ndarray, "N 8 3"], goal_mask: Bool[np.ndarray, "N 8"]
+) -> dict[str, dict]:
+    """Check the stimuli's cameras before anything is rendered: each a camera of the scene
+    or a valid camera file (:func:`slotv_jax.scene.check_camera`) that sees a real goal of
+    every motion's scene (:func:`slotv_jax.scene.check_sees_goals`), their labels (a
+    file's stem: the stimuli's ids and the answers' ``condition``) distinct. Returns each
+    camera file's record for the manifest, ``{label: {"file", "position", "rotation",
+    "fovy", "resolution"}}`` (ValueError naming ``--cameras``)."""
+    out: dict[str, dict] = {}
+    by_label: dict[str, str] = {}
+    for c in dict.fromkeys(cameras):
+        try:
+            world_scene.check_camera(c)
+            world_scene.check_sees_goals(c, goals, goal_mask)
+        except ValueError as e:
+            raise ValueError(f"--cameras: {e}") from None
+        label = world_scene.camera_label(c)
+        if label in by_label or (world_scene.is_camera_file(c) and label in world_scene.CAMERAS):
+            other = by_label.get(label, label)
+            raise ValueError(f"--cameras: {c!r} and {other!r} share the label {label!r} "
+                             "(a camera file's stem): rename one")  # fmt: skip
+        by_label[label] = c
+        if world_scene.is_camera_file(c):
+            cam = world_scene.camera(c)
+            out[label] = {
+                "file": str(c),
+                "position": [_round6(v) for v in np.asarray(cam.pos, np.float64)],
+                "rotation": [[_round6(v) for v in row] for row in np.asarray(cam.rot, np.float64)],
+                "fovy": _round6(cam.fovy),
+                "resolution": [int(v) for v in np.asarray(cam.resolution)],
+            }
+        if not ID_RE.match(label):
+            raise ValueError(f"--cameras: {c!r}: expected a file name of letters, digits and ._-")
+    return out
 
 
 def stimulus_id(trajectory: str, tau: float, camera: str, kind: str) -> str:
@@ -517,26 +555,30 @@ def write_stimulus_set(
             raise ValueError(f"specs[{i}]: expected a kind of {KINDS} and tau in (0, 1]")
         if s.kind == "attention" and (targets is None or s.tau != 1.0):
             raise ValueError(f"specs[{i}]: an attention check needs tau = 1 and targets")
+    cameras = check_cameras([s.camera for s in specs], goals, goal_mask)
     points, goal_tab, labels = motion_tables(xyz, goals, goal_mask, ids, length=length, t=t)
-    todo: list[tuple[dict, Motion]] = []
+    todo: list[tuple[dict, Motion, str]] = []
     for s in specs:
         i = s.index
         L = int(np.asarray(q).shape[1] if length is None else length[i])
-        sid = stimulus_id(ids[i], s.tau, s.camera, s.kind)
-        if any(e["id"] == sid for e, _ in todo):
+        sid = stimulus_id(ids[i], s.tau, world_scene.camera_label(s.camera), s.kind)
+        if any(e["id"] == sid for e, _, _ in todo):
             raise ValueError(f"specs: stimulus {sid} listed twice")
         target = None if targets is None else int(targets[i])
         motion = Motion(np.asarray(q[i, :L]), np.asarray(goals[i]), np.asarray(goal_mask[i], bool),
                         None if t is None else np.asarray(t[i, :L]), labels[i], target)  # fmt: skip
         entry = {
             "id": sid, "kind": s.kind, "trajectory": ids[i], "tau": float(s.tau),
-            "scene": ids[i] if scenes is None else scenes[i], "camera": s.camera,
+            "scene": ids[i] if scenes is None else scenes[i],
+            "camera": world_scene.camera_label(s.camera),
             "goals": labels[i], "target": None if target is None else labels[i][target],
             "clip": f"clips/{sid}.mp4", "still": f"stills/{sid}.png",
         }  # fmt: skip
-        todo.append((entry, motion))
+        todo.append((entry, motion, s.camera))
     header = {"format": FORMAT, "round": int(round_), "source": source or {},
               **render.settings(), "trajectories": TABLES[0], "goals": TABLES[1]}  # fmt: skip
+    if cameras:  # the lab's cameras, as the clips show them (the files may move or change)
+        header["cameras"] = cameras
     final, out = out, temp_dir_beside(out)
     try:
         write_tables(out, points, goal_tab)
@@ -558,8 +600,8 @@ def _render_into(out: Path, header: dict, todo: list, render: Renderer, progress
     (out / "clips").mkdir()
     (out / "stills").mkdir()
     entries = []
-    for entry, motion in tqdm(todo, desc="stimuli", disable=not progress):
-        frames, pixels = render.frames(motion, entry["tau"], entry["camera"])
+    for entry, motion, view in tqdm(todo, desc="stimuli", disable=not progress):
+        frames, pixels = render.frames(motion, entry["tau"], view)
         render.write_video(out / entry["clip"], frames)
         render.write_image(out / entry["still"], frames[-1])
         entries.append({

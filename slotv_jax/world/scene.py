@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
+import os
 
 import jax
 import jax.numpy as jnp
@@ -142,40 +144,216 @@ def _camera_poses() -> tuple[np.ndarray, np.ndarray]:
 
 
 CAMERAS = ("observer", "observer_angle", "observer_side")  # the named cameras of scene.xml
+CAMERA_SUFFIX = ".json"  # a camera that is not a name of the scene is a camera file
+#: A camera file's rotation is orthonormal to this (max |RᵀR − I|; six decimals typed by hand).
+ROTATION_TOL = 1e-4
+DEFAULT_RESOLUTION = (1280, 720)  # a camera file's image size when it names none (the scene's)
 
 
-def check_camera(name: str) -> int:
-    """The index of the scene model's camera ``name`` (ValueError naming the cameras there
-    for another name); poses nothing, compiles nothing."""
-    m = mj_model(SCENE_XML)
-    cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, str(name))
-    if cam < 0:
-        names = [m.camera(i).name for i in range(m.ncam)]
-        raise ValueError(f"camera: no camera named {name!r} in {SCENE_XML.name}; have {names}")
-    return cam
+def is_camera_file(camera: str) -> bool:
+    """True if ``camera`` names a camera file (a path ending in ``.json``), not a camera of
+    the scene model."""
+    return isinstance(camera, str) and camera.lower().endswith(CAMERA_SUFFIX)
+
+
+def camera_label(camera: str) -> str:
+    """The short name of a camera in ids, tables and file names: the scene camera's name, or
+    a camera file's stem (``lab/cam_left.json`` → ``cam_left``)."""
+    return os.path.splitext(os.path.basename(camera))[0] if is_camera_file(camera) else camera
+
+
+def _vector(d: dict, key: str, where: str, n: int = 3) -> np.ndarray:
+    v = d[key]
+    try:
+        a = np.asarray(v, np.float64)
+    except (TypeError, ValueError):
+        a = np.zeros(0)
+    if a.shape != (n,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{where}: field {key!r}: expected {n} finite numbers, got {v!r}")
+    return a
+
+
+def camera_from_dict(d: dict, where: str = "camera") -> Camera:
+    """The camera of a camera file's JSON object (:ref:`concepts-camera-files`), checked
+    field by field (ValueError naming ``where`` and the field); NumPy fields.
+
+    ``position`` (m) and either ``look_at`` (a point, with ``up``, default +z) or
+    ``rotation`` (world-from-camera, columns the camera's x right, y up, z backwards: it
+    looks along −z, MuJoCo's convention), ``fovy`` (vertical field of view, degrees, in
+    (0, 180)) and optionally ``resolution`` ``[width, height]`` (pixels; its aspect
+    bounds the horizontal field of view). With ``look_at`` the rotation is
+
+        z = (c − a)/‖c − a‖,  x = (u × z)/‖u × z‖,  y = z × x
+
+    for the camera centre c, the point looked at a and the up vector u.
+
+    >>> cam = camera_from_dict({"position": [1.6, 0, 0.8], "look_at": [0.45, 0, 0.15],
+    ...                         "fovy": 40})
+    >>> np.allclose(cam.rot, camera("observer").rot, atol=1e-6)
+    True
+    """
+    if not isinstance(d, dict):
+        raise ValueError(f"{where}: expected a JSON object of the camera's fields, got {d!r}")
+    known = ("position", "look_at", "up", "rotation", "fovy", "resolution", "note")
+    unknown = [k for k in d if k not in known]
+    if unknown:
+        raise ValueError(f"{where}: field {unknown[0]!r}: unknown; expected some of {list(known)}")
+    for k in ("position", "fovy"):
+        if k not in d:
+            raise ValueError(f"{where}: field {k!r}: missing")
+    if ("look_at" in d) == ("rotation" in d):
+        raise ValueError(f"{where}: expected exactly one of the fields 'look_at' and 'rotation'")
+    pos = _vector(d, "position", where)
+    if "rotation" in d:
+        if "up" in d:
+            raise ValueError(f"{where}: field 'up': only with 'look_at' (a rotation has its own)")
+        try:
+            rot = np.asarray(d["rotation"], np.float64)
+        except (TypeError, ValueError):
+            rot = np.zeros(0)
+        if rot.shape != (3, 3) or not np.all(np.isfinite(rot)):
+            raise ValueError(
+                f"{where}: field 'rotation': expected a 3x3 matrix of finite numbers, "
+                f"got {d['rotation']!r}"
+            )
+        err = float(np.abs(rot.T @ rot - np.eye(3)).max())
+        if err > ROTATION_TOL or np.linalg.det(rot) < 0:
+            raise ValueError(
+                f"{where}: field 'rotation': expected an orthonormal, right-handed rotation "
+                f"(max |RᵀR − I| ≤ {ROTATION_TOL:g}, det +1), got max |RᵀR − I| = {err:.3g}, "
+                f"det {np.linalg.det(rot):.3g}"
+            )
+    else:
+        at = _vector(d, "look_at", where)
+        up = _vector(d, "up", where) if "up" in d else np.array([0.0, 0.0, 1.0])
+        back = pos - at
+        if np.linalg.norm(back) < 1e-6:
+            raise ValueError(f"{where}: field 'look_at': expected a point away from 'position'")
+        z = back / np.linalg.norm(back)
+        x = np.cross(up, z)
+        if np.linalg.norm(x) < 1e-6 * max(np.linalg.norm(up), 1e-300):
+            raise ValueError(f"{where}: field 'up': expected a direction not along the view")
+        x /= np.linalg.norm(x)
+        rot = np.stack([x, np.cross(z, x), z], axis=1)
+    fovy = d["fovy"]
+    if isinstance(fovy, bool) or not isinstance(fovy, int | float) or not 0 < fovy < 180:
+        raise ValueError(f"{where}: field 'fovy': expected degrees in (0, 180), got {fovy!r}")
+    res = d.get("resolution", list(DEFAULT_RESOLUTION))
+    if (
+        not isinstance(res, list | tuple)
+        or len(res) != 2
+        or not all(isinstance(r, int) and not isinstance(r, bool) and r >= 1 for r in res)
+    ):
+        raise ValueError(
+            f"{where}: field 'resolution': expected [width, height] in pixels, got {res!r}"
+        )
+    return Camera(pos=pos, rot=rot, fovy=np.float64(fovy), resolution=np.asarray(res, np.int32))
+
+
+def _file_key(path: str) -> tuple:
+    """What a camera file's cache entries are keyed by: its path, and its size and time of
+    change (a rewritten file is read again)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return (path, None)
+    return (path, os.path.abspath(path), st.st_mtime_ns, st.st_size)
+
+
+def _camera_file(path: str) -> Camera:
+    return _camera_file_at(_file_key(path))
 
 
 @functools.cache
-def _camera_cached(name: str) -> Camera:
-    cam = check_camera(name)
+def _camera_file_at(key: tuple) -> Camera:
+    path = key[0]
+    if not os.path.isfile(path):
+        raise ValueError(
+            f"camera: no camera file {path!r} (a JSON file; or one of {list(CAMERAS)})"
+        )
+    try:
+        with open(path, encoding="utf-8") as f:
+            d = json.load(f)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"camera {path}: expected a JSON camera file ({e})") from None
+    return camera_from_dict(d, f"camera {path}")
+
+
+def check_camera(name: str) -> None:
+    """ValueError unless ``name`` is a camera of the scene model or a readable, valid camera
+    file (:ref:`concepts-camera-files`); poses nothing, compiles nothing."""
+    if not isinstance(name, str):
+        raise ValueError(f"camera: expected a camera name or a camera file's path, got {name!r}")
+    if is_camera_file(name):
+        _camera_file(name)
+        return
     m = mj_model(SCENE_XML)
-    pos, rot = (a[cam] for a in _camera_poses())
+    if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, name) < 0:
+        names = [m.camera(i).name for i in range(m.ncam)]
+        raise ValueError(
+            f"camera: no camera named {name!r} in {SCENE_XML.name}; have {names} "
+            f"(or a camera file, *{CAMERA_SUFFIX})"
+        )
+
+
+@functools.cache
+def _camera_cached(name: str, key: tuple = ()) -> Camera:
+    check_camera(name)
+    if is_camera_file(name):
+        c = _camera_file(name)
+        pos, rot, fovy, res = c.pos, c.rot, c.fovy, c.resolution
+    else:
+        m = mj_model(SCENE_XML)
+        cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, name)
+        pos, rot = (a[cam] for a in _camera_poses())
+        fovy, res = m.cam_fovy[cam], m.cam_resolution[cam]
     with jax.ensure_compile_time_eval():
         return Camera(
             pos=jnp.asarray(pos, jnp.float32),
             rot=jnp.asarray(rot, jnp.float32),
-            fovy=jnp.asarray(m.cam_fovy[cam], jnp.float32),
-            resolution=jnp.asarray(m.cam_resolution[cam], jnp.int32),
+            fovy=jnp.asarray(fovy, jnp.float32),
+            resolution=jnp.asarray(res, jnp.int32),
         )
 
 
 def camera(name: str = "observer") -> Camera:
-    """The named camera of the scene model, posed by ``mjx.kinematics`` + ``mjx.camlight``
-    (every camera in one compiled call, on first use).
+    """A camera of the scene model, posed by ``mjx.kinematics`` + ``mjx.camlight`` (every
+    camera in one compiled call, on first use), or a camera file's
+    (:ref:`concepts-camera-files`: a path ending in ``.json``, read once).
 
     Names: ``observer`` (default), ``observer_angle``, ``observer_side``.
     """
-    return _camera_cached(str(name))
+    name = str(name)
+    return _camera_cached(name, _file_key(name) if is_camera_file(name) else ())
+
+
+def in_view(points: Float[np.ndarray, "*n 3"], cam: Camera) -> Bool[np.ndarray, "*n"]:
+    """Which world points a camera sees: in front of it and inside its image,
+    ``depth > 0``, ``|v| ≤ tan(fovy/2)`` and ``|u| ≤ (W/H) tan(fovy/2)`` (NumPy)."""
+    x, y, z = camera_coords(np.asarray(points, np.float64), np.asarray(cam.pos, np.float64),
+                            np.asarray(cam.rot, np.float64))  # fmt: skip
+    depth = -z
+    t = np.tan(np.deg2rad(float(cam.fovy)) / 2)
+    w, h = (int(v) for v in np.asarray(cam.resolution))
+    safe = np.where(depth > 0, depth, 1.0)
+    return (depth > 0) & (np.abs(y / safe) <= t) & (np.abs(x / safe) <= t * w / h)
+
+
+def check_sees_goals(
+    camera_name: str, goals: Float[np.ndarray, "*b 8 3"], goal_mask: Bool[np.ndarray, "*b 8"]
+) -> None:
+    """ValueError naming the camera unless it sees at least one real goal of every scene
+    (:func:`in_view`): a study filmed from it could show none of the answers' options."""
+    cam = camera(camera_name)
+    g = np.asarray(goals, np.float64).reshape(-1, G_MAX, 3)
+    m = np.asarray(goal_mask, bool).reshape(-1, G_MAX)
+    seen = in_view(g, cam) & m
+    blind = np.flatnonzero(~seen.any(-1))
+    if blind.size:
+        raise ValueError(
+            f"camera {camera_name}: sees none of the goals of {blind.size} of {len(m)} scenes "
+            f"(the first: scene {int(blind[0])}); point it at the goal table"
+        )
 
 
 def camera_coords(points: Float[Array, "*n 3"], pos, rot) -> list[Array]:

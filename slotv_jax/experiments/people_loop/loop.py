@@ -317,6 +317,17 @@ def pick_heldout(
     ]
 
 
+def heldout_quality(heldout, counts, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each run's candidates' held-out NLL per answer (R, F) and uniform guessing's (R,),
+    from :func:`pick_heldout`'s predictions (:func:`slotv_jax.answers.pick.trusted`'s
+    ``heldout`` and ``uniform``)."""
+    nll, uni = [], []
+    for i, (lp, mask) in enumerate(heldout):
+        nll.append(pooling.heldout_nll(lp, counts[i, :n_rows], mask))
+        uni.append(pooling.uniform_nll(counts[i, :n_rows], mask))
+    return np.asarray(nll, np.float64), np.asarray(uni, np.float64)
+
+
 def pick_runs(
     cfg: LoopConfig, heldout, counts, n_rows: int, keep: np.ndarray | None = None
 ) -> tuple[np.ndarray, list[dict]]:
@@ -534,7 +545,7 @@ def run_population(
         timing["judge_s"] += time.perf_counter() - t0
         if PICK in cfg.families:  # the pool without the least-trusted candidate, planned
             t0 = time.perf_counter()
-            keep = trusted(cross)
+            keep = trusted(cross, *heldout_quality(heldout, counts, n_rows))
             w, pick_reports = pick_runs(cfg, heldout, counts, n_rows, keep)
             params["pick_w"] = jnp.asarray(w)
             timing["pick_s"] += time.perf_counter() - t0
@@ -573,7 +584,9 @@ def run_population(
                         row["heldout_nll"] = rep["pool_nll"]
                         row["weights"] = dict(zip(rep["candidates"], rep["weights"], strict=True))
                         row["picked"] = rep["pick"]
-                        row["left_out"] = cfg.candidates[int(np.flatnonzero(~keep[i])[0])]
+                        row["left_out"] = [cfg.candidates[j] for j in np.flatnonzero(~keep[i])]
+                        row["uniform_nll"] = rep["uniform_nll"]
+                        row["poor_fit"] = rep["poor_fit"]
                         row["weights_likelihood"] = dict(
                             zip(rep["candidates"], w_all[i].round(6).tolist(), strict=True)
                         )

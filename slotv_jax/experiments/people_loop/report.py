@@ -632,18 +632,23 @@ def left_out_line(doc: dict) -> str:
     """Which families the pick's pool left out, and how often the one left out had the
     plans of least gain among the candidates (by the population's score, which the pick
     never reads); "" for a document whose pick weighed every family."""
-    out, worst = Counter(), 0
+    out, worst, runs, none = Counter(), 0, 0, 0
     for rows in _runs(doc):
         if PICK in rows and "left_out" in rows[PICK]:
             single = {g: r["gain_kept"] for g, r in rows.items() if g not in DERIVED}
-            out[rows[PICK]["left_out"]] += 1
-            worst += rows[PICK]["left_out"] == min(single, key=single.get)
-    if not out:
+            left = rows[PICK]["left_out"]
+            left = [left] if isinstance(left, str) else left  # records before the best was kept
+            runs += 1
+            none += not left
+            out.update(left)
+            worst += min(single, key=single.get) in left
+    if not runs:
         return ""
     names = ", ".join(f"{FAMILY_TITLES.get(f, f)} in {n}" for f, n in out.most_common())
+    kept = f"; it left none out in {none}" if none else ""
     return (
-        f" The pool left out {names} of {sum(out.values())} runs; the family left out had the"
-        f" plans of least gain among the candidates in {worst} of them."
+        f" Of {runs} runs, the pool left out {names or 'no family'}{kept}; the family of the"
+        f" plans of least gain among the candidates was among those left out in {worst}."
     )
 
 
