@@ -165,3 +165,63 @@ def test_next_without_egl_refuses_before_training(tmp_path, monkeypatch, capsys)
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: cannot render: ") and "libegl1" in err[0]
+
+
+def _plans_of(study, path, names=("straight", "dragan", "pool"), shift=0.0):
+    """A pick's plans file of two of ``study``'s scenes (every planner a straight line to
+    the target, joints zero): what ``study pick --by plans`` writes, made by hand."""
+    goals = np.asarray(study.goals[:2], np.float32) + np.float32(shift)
+    mask, target = study.goal_mask[:2], np.array([0, 1])
+    start = np.array([0.3, 0.0, 0.5], np.float32)
+    s = np.linspace(0, 1, 6, dtype=np.float32)[None, :, None]
+    xyz = start + s * (goals[np.arange(2), target][:, None] - start)
+    k = len(names)
+    np.savez(path, q=np.zeros((k, 2, 6, 7), np.float32), xyz=np.stack([xyz] * k),
+             goals=np.where(mask[..., None], goals, 0), goal_mask=mask, target=target,
+             names=np.array(names))  # fmt: skip
+    return path
+
+
+def test_a_round_of_plans_asks_about_every_planner_of_the_study_s_own_scenes(tmp_path, capsys):
+    """``study next --plans``: the candidates are a pick's plans of the study's own scenes,
+    each planner asked about in turn (the best of each by the strategy's score), their ids
+    new for the round; a plans file of another study's scenes, a study with no answers, a
+    round size ≤ 0 or past ``--budget`` are refused in one line before any training."""
+    stimdir, answers = tmp_path / "study", tmp_path / "answers"
+    write_dot_set(stimdir, n=4)
+    _answer_round0(stimdir, answers)
+    got = rounds.read_answers(answers)
+    plans = _plans_of(got, tmp_path / "plans.npz")
+    cand, groups = rounds.plans_round(plans, got, 1)
+    assert cand.ids == [f"r1-{p}-{j}" for p in ("straight", "dragan", "pool") for j in (0, 1)]
+    assert groups == ["straight"] * 2 + ["dragan"] * 2 + ["pool"] * 2
+    cfg = train_config.quick("slotv", hidden=(8, 4), batch_size=4, train_size=None)
+    choice = rounds.choose(got, cand, n=4, taus=(0.5, 1.0), cfg=cfg, members=2, updates=10,
+                           seed=1, groups=groups)  # fmt: skip
+    asked = [groups[i] for i, _ in choice["picks"]]
+    assert asked[:3] == ["straight", "dragan", "pool"] and len(set(choice["picks"])) == 4
+    with pytest.raises(ValueError, match="another study"):
+        rounds.plans_round(_plans_of(got, tmp_path / "other.npz", shift=0.05), got, 1)
+    empty = got.select_rows(np.zeros(got.n_rows, bool))
+    with pytest.raises(ValueError, match="no answers yet"):
+        rounds.choose(empty, cand, n=1, taus=(1.0,), cfg=cfg, members=2, updates=1)
+    base = ["next", "--stimuli", str(stimdir), "--answers", str(answers), "--no-progress"]
+    bad = {
+        "another study": ["--plans", str(tmp_path / "other.npz")],
+        "--n 0": ["--plans", str(plans), "--n", "0"],
+        "exceed --budget 9": ["--plans", str(plans), "--n", "2", "--budget", "9"],
+    }
+    for says, extra in bad.items():
+        with pytest.raises(SystemExit) as e:
+            study_cli.main([*base, *extra])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert e.value.code == 2 and len(err) == 1 and says in err[0], (says, err)
+    assert stimuli.find_rounds(stimdir) == [0]  # nothing written
+    # and a round of plans written: round 1's trials are plans, every planner among them
+    ok = [*base, "--plans", str(plans), "--n", "3", "--members", "2", "--updates", "10",
+          "--attention", "0", "--no-practice", "--budget", "11"]  # fmt: skip
+    assert study_cli.main(ok) == 0
+    m1 = stimuli.load_stimulus_set(stimdir / "round-1").manifest
+    trials = [s["trajectory"] for s in m1["stimuli"] if s["kind"] == "trial"]
+    assert {t.split("-")[1] for t in trials} == {"straight", "dragan", "pool"}
+    assert m1["source"]["plans"] == str(plans) and "round 1" in capsys.readouterr().out

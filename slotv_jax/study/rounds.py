@@ -49,6 +49,7 @@ from slotv_jax.training import config as train_config
 from slotv_jax.webstudy import export as export_lib
 from slotv_jax.webstudy import make_stimuli, stimuli
 from slotv_jax.webstudy.database import connect
+from slotv_jax.world import scene
 
 MODELS = ("mlp", "slotv_plus")  # observers of prefixes (archetypes score whole motions)
 
@@ -86,6 +87,16 @@ def shown_stimuli(stimdir: str | Path) -> set[tuple[str, float]]:
     return out
 
 
+def trial_count(stimdir: str | Path) -> int:
+    """How many trial stimuli (not checks or practice) the study folder's rounds hold: what
+    ``study next --budget`` counts."""
+    n = 0
+    for r in stimuli.find_rounds(stimdir):
+        m = json.loads((stimuli.round_dir(stimdir, r) / stimuli.MANIFEST).read_text())
+        n += sum(s["kind"] == "trial" for s in m["stimuli"])
+    return n
+
+
 _SELECT = jax.jit(selection.select, static_argnums=(0, 4))
 
 
@@ -112,14 +123,20 @@ def choose(
     subset: int = 5000,
     exclude: set[tuple[str, float]] = frozenset(),
     seed: int = 0,
+    groups: Sequence[str] | None = None,
 ) -> dict:
     """Train an ensemble on ``answers`` and pick ``n`` (motion, τ) stimuli of ``motions``.
 
     The pool joins the answered trajectories (each answer row a candidate at its own
     stop) and the candidates, every motion at every τ, less those in ``exclude``
-    ((trajectory id, τ) pairs). Returns {"picks": [(motion index, τ), ...], "scores",
-    "strategy", "answers", "rows", "candidates", "agreement"}.
+    ((trajectory id, τ) pairs). With ``groups`` (one name per motion, e.g. the planner of
+    each plan), the picks go round the groups in turn, each group's best by the strategy's
+    ranking score first, so that every group is asked about (a round of plans covers every
+    planner). Returns {"picks": [(motion index, τ), ...], "scores", "strategy", "answers",
+    "rows", "candidates", "agreement"}.
     """
+    if answers.n_rows == 0:
+        raise ValueError("--answers / --db: the study has no answers yet; run round 0 first")
     if strategy not in selection.STRATEGIES:
         raise ValueError(f"--strategy: expected one of {selection.STRATEGIES}, got {strategy!r}")
     cfg = train_config.quick("slotv", train_size=None) if cfg is None else cfg
@@ -154,9 +171,12 @@ def choose(
     idx = jnp.arange(rows, rows + len(cand))
     logp = log_probs(ens.params, pool, idx)
     k = jax.random.fold_in(key, 2)
-    pick = np.asarray(_SELECT(strategy, k, logp, jnp.ones(len(cand), bool), n))
     name, score = selection.ranking_score(strategy, k, logp)
     score = np.asarray(score)
+    if groups is None:
+        pick = np.asarray(_SELECT(strategy, k, logp, jnp.ones(len(cand), bool), n))
+    else:
+        pick = _round_robin([groups[i] for i, _ in cand], score, n)
     return {
         "picks": [(cand[p][0], float(taus[cand[p][1]])) for p in pick],
         "scores": [round(float(score[p]), 6) for p in pick],
@@ -167,6 +187,49 @@ def choose(
         "candidates": len(cand),
         "agreement": round(float(np.mean(selection.bald(logp) < 0.01)), 4),
     }
+
+
+def _round_robin(groups: Sequence[str], score: np.ndarray, n: int) -> np.ndarray:
+    """``n`` candidates, the groups in turn (in order of first appearance), each group's
+    next-best by ``score`` (highest first; ties by position).
+
+    >>> _round_robin(["a", "a", "b", "a"], np.array([0.1, 0.9, 0.2, 0.5]), 3).tolist()
+    [1, 2, 3]
+    """
+    order: dict[str, list[int]] = {}
+    for c in np.argsort(-np.asarray(score), kind="stable"):
+        order.setdefault(groups[c], []).append(int(c))
+    firsts = sorted(order, key=lambda g: groups.index(g))
+    out: list[int] = []
+    while len(out) < n:
+        for g in firsts:
+            if order[g] and len(out) < n:
+                out.append(order[g].pop(0))
+    return np.asarray(out, int)
+
+
+def plans_round(
+    path: str | Path, answers: Study, round_: int
+) -> tuple[make_stimuli.Motions, list[str]]:
+    """A pick's plans (``study pick --by plans`` or ``pool``, ``DIR/plans.npz``) as the
+    candidate motions of a round of plans, and each one's planner. Every problem must be
+    a scene the study's answers are about (plans of another study are refused); the ids
+    become ``rR-PLANNER-PROBLEM``, so that plans made after each round are new motions."""
+    m = make_stimuli.motions_from_plans(path)
+    seen = {_scene_key(g, k) for g, k in zip(answers.goals, answers.goal_mask, strict=True)}
+    for i, (g, k) in enumerate(zip(m.goals, m.goal_mask, strict=True)):
+        if _scene_key(g, k) not in seen:
+            raise ValueError(
+                f"--plans {path}: plan {m.ids[i]}'s scene is none of the study's answered "
+                "scenes (plans or a pick of another study?)"
+            )
+    planners = [tid.rsplit("-", 1)[0] for tid in m.ids]
+    return m._replace(ids=[f"r{round_}-{tid}" for tid in m.ids]), planners
+
+
+def _scene_key(goals: np.ndarray, mask: np.ndarray) -> bytes:
+    """A scene's real goals rounded to 0.1 mm (its tables keep six decimals)."""
+    return np.round(np.asarray(goals, np.float64)[np.asarray(mask, bool)], 4).tobytes()
 
 
 def write_round(
@@ -221,9 +284,16 @@ def add_command(sub) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--answers", help="folder of the exported tables (study export)")
     src.add_argument("--db", help="the server's SQLite database")
-    p.add_argument("--data", required=True, help="dataset folder of the candidate motions")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--data", help="dataset folder of the candidate motions")
+    what.add_argument("--plans", help="a round of plans: a pick's plans.npz (study pick --by "
+                      "plans or pool), every planner asked about in turn")  # fmt: skip
     p.add_argument("--split", default="trajectory_test", choices=SPLITS)
     p.add_argument("--n", type=int, default=10, help="stimuli to choose")
+    p.add_argument(
+        "--budget", type=int, default=None,
+        help="the most trial stimuli of every round together (default: no bound)",
+    )  # fmt: skip
     p.add_argument("--taus", default="0.4,0.7,1.0", help="candidate stop times in (0, 1]")
     p.add_argument("--strategy", default="margin", choices=selection.STRATEGIES)
     p.add_argument("--model", default="mlp", choices=MODELS)
@@ -250,6 +320,19 @@ def next_main(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name} {getattr(args, name)}: expected an integer >= 1")
     if args.attention < 0:
         raise ValueError(f"--attention {args.attention}: expected an integer >= 0")
+    cameras = [c.strip() for c in args.cameras.split(",")]
+    for c in cameras:
+        try:
+            scene.check_camera(c)
+        except ValueError as e:
+            raise ValueError(f"--cameras {args.cameras}: {e}") from None
+    if args.budget is not None:
+        new, shown = args.n * len(cameras), trial_count(stimdir)
+        if args.budget < 1 or shown + new > args.budget:
+            raise ValueError(
+                f"--n {args.n}: {new} more trial stimuli ({len(cameras)} camera(s)) and the "
+                f"{shown} of the rounds so far exceed --budget {args.budget}"
+            )
     try:  # the round is rendered last, after the ensemble's training: say now if it cannot be
         rendering.check_backend()
     except rendering.RenderBackendError as e:
@@ -257,14 +340,20 @@ def next_main(args: argparse.Namespace) -> int:
     settings = json.loads((stimuli.round_dir(stimdir, 0) / stimuli.MANIFEST).read_text())
     make_stimuli.check_round0_clips(f"--stimuli {stimdir}", settings)  # before any training
     answers = read_answers(args.answers, args.db)
-    motions = make_stimuli.motions_from_split(load_split(args.data, args.split))
+    if answers.n_rows == 0:
+        raise ValueError("--answers / --db: the study has no answers yet; run round 0 first")
+    groups = None
+    if args.plans is not None:
+        motions, groups = plans_round(args.plans, answers, r)
+    else:
+        motions = make_stimuli.motions_from_split(load_split(args.data, args.split))
     cfg = train_config.preset(args.preset, "slotv", train_size=None)
     if args.model == "slotv_plus":
         cfg = dataclasses.replace(cfg, start_term=True, time_weight=True)
     choice = choose(
         answers, motions, n=args.n, taus=taus, strategy=args.strategy, cfg=cfg,
         members=args.members, updates=args.updates, subset=args.subset,
-        exclude=shown_stimuli(stimdir), seed=args.seed,
+        exclude=shown_stimuli(stimdir), seed=args.seed, groups=groups,
     )  # fmt: skip
     renderer = make_stimuli.SceneRenderer(
         tuple(settings["size"]),
@@ -273,12 +362,14 @@ def next_main(args: argparse.Namespace) -> int:
         settings["hold"],
         timing=settings.get("timing"),
     )
-    source = {"kind": "active", "data": str(args.data), "split": args.split,
-              "model": args.model, **{k: v for k, v in choice.items() if k != "picks"}}  # fmt: skip
+    source = {"kind": "active", "model": args.model,
+              **({"plans": str(args.plans)} if args.plans else
+                 {"data": str(args.data), "split": args.split}),
+              **{k: v for k, v in choice.items() if k != "picks"}}  # fmt: skip
     try:
         r, manifest = write_round(
             stimdir, motions, choice["picks"], renderer=renderer,
-            cameras=[c.strip() for c in args.cameras.split(",")], attention=args.attention,
+            cameras=cameras, attention=args.attention,
             practice=not args.no_practice, source=source, seed=args.seed,
             progress=not args.no_progress,
         )  # fmt: skip
