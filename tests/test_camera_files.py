@@ -148,7 +148,8 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_the_commands_refuse_a_bad_camera_file_in_one_line_before_any_work(tmp_path):
-    """``study stimuli``, ``render`` and ``study pick`` read the camera file first: one line
+    """``study stimuli``, ``render``, the labelers' command and ``study pick`` read the camera
+    file first: one line
     naming the flag and the field; nothing written."""
     bad = _write(tmp_path / "bad.json", position=[1, 0, 1], look_at=[0, 0, 0], fovy=200)
     out = tmp_path / "out"
@@ -157,13 +158,19 @@ def test_the_commands_refuse_a_bad_camera_file_in_one_line_before_any_work(tmp_p
                       "--cameras", f"observer,{bad}", "--out", str(out)),
         "--camera": ("slotv_jax.render", "--npz", str(tmp_path / "no.npz"), "--camera", bad,
                      "--out", str(out / "x.mp4")),
+        "labelers --camera": ("slotv_jax.labelers", "--in", str(tmp_path / "no.npz"),
+                              "--camera", bad, "--out", str(out / "y.npz")),
     }  # fmt: skip
     for flag, cmd in cmds.items():
+        flag = flag.split()[-1]
         p = _run(*cmd)
         err = p.stderr.strip().splitlines()
         assert p.returncode == 2 and len(err) == 1, (cmd, p.stderr)
         assert flag in err[0] and "'fovy'" in err[0], err
         assert not out.exists()
+    p = _run("slotv_jax.data", "--preset", "quick", "--camera", bad, "--out", str(out))
+    assert p.returncode == 2 and "python -m slotv_jax.labelers --camera" in p.stderr
+    assert not out.exists()
     p = _run("slotv_jax.study", "pick", str(tmp_path / "no.npz"), "--camera", bad, "--out",
              str(out))  # fmt: skip
     assert p.returncode == 2 and "--camera" in p.stderr and "'fovy'" in p.stderr, p.stderr

@@ -25,6 +25,7 @@ from slotv_jax.data.storage import (
     preset_dir,
     save_split,
 )
+from slotv_jax.world import scene
 
 # -------------------------------------------------------------------------- CLI
 
@@ -72,6 +73,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     label_kw = {f"beta_{n}": getattr(args, f"beta_{n}") for n in LABELER_NAMES}
     label_kw["camera"] = args.camera
+    if args.camera is not None and scene.is_camera_file(args.camera):
+        # a dataset is cached by its config, which would name the file and not what it says
+        raise cli.InputError(
+            f"--camera {args.camera}: a dataset's labels take a camera of the scene "
+            f"({', '.join(scene.CAMERAS)}); label motions from a lab's camera file with "
+            "python -m slotv_jax.labelers --camera FILE"
+        )
     label_kw = {k: v for k, v in label_kw.items() if v is not None}
     if args.relabel:
         return _relabel(args, label_kw)

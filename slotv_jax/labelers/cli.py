@@ -15,6 +15,7 @@ from slotv_jax.core.fileio import atomic_write
 from slotv_jax.core.xla import XLA_CONFIG
 from slotv_jax.observers.labelers import DEFAULT_BETAS, LABELER_NAMES
 from slotv_jax.observers.labelling import label_all
+from slotv_jax.world import scene
 
 # ------------------------------------------------------------------ command line
 
@@ -40,7 +41,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     for n in LABELER_NAMES:
         p.add_argument(f"--beta-{n}", type=float, default=DEFAULT_BETAS[n], help=f"β of {n}")
-    p.add_argument("--camera", default="observer", help="scene camera for nikolaidis")
+    p.add_argument(
+        "--camera", default="observer",
+        help="the camera for nikolaidis: a camera of the scene or a camera file (*.json)",
+    )  # fmt: skip
     p.add_argument(
         "--labelers", default=",".join(LABELER_NAMES), help="comma-separated subset to compute"
     )
@@ -51,6 +55,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     fileio.check_not_input(args.out, {"--in": args.inp})
     fileio.check_output_file(args.out, overwrite=args.overwrite, suffix=".npz")
+    try:
+        scene.check_camera(args.camera)
+    except ValueError as e:
+        raise cli.InputError(f"--camera: {e}") from None
     print(XLA_CONFIG.summary(), file=sys.stderr)
 
     names = tuple(s.strip() for s in args.labelers.split(",") if s.strip())
