@@ -145,7 +145,8 @@ def _camera_poses() -> tuple[np.ndarray, np.ndarray]:
 
 CAMERAS = ("observer", "observer_angle", "observer_side")  # the named cameras of scene.xml
 CAMERA_SUFFIX = ".json"  # a camera that is not a name of the scene is a camera file
-#: A camera file's rotation is orthonormal to this (max |RᵀR − I|; six decimals typed by hand).
+#: A camera file's rotation is orthonormal to this (the largest entry of abs(RᵀR − I); six
+#: decimals typed by hand).
 ROTATION_TOL = 1e-4
 DEFAULT_RESOLUTION = (1280, 720)  # a camera file's image size when it names none (the scene's)
 
