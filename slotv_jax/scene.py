@@ -18,6 +18,7 @@ from slotv_jax.world.scene import (
     in_view,
     is_camera_file,
     project,
+    read_camera_file,
     sample_goal_count,
     sample_scene,
 )
@@ -35,6 +36,7 @@ __all__ = [
     "in_view",
     "is_camera_file",
     "project",
+    "read_camera_file",
     "sample_goal_count",
     "sample_scene",
 ]

@@ -151,10 +151,13 @@ def pick_study(
 
 def _report(study: Study, names, logp, keep, **meta) -> dict:
     """:func:`slotv_jax.answers.pooling.pick_report` of out-of-fold predictions ``logp``."""
+    return {**pooling.pick_report(list(names), logp, *_counts(study), keep), **meta}
+
+
+def _counts(study: Study) -> tuple[np.ndarray, np.ndarray]:
+    """The answer rows' counts (A, G) and real goals (A, G), G the study's goal slots."""
     g = study.counts.shape[-1]
-    mask = study.goal_mask[study.answer_trajectory, :g]
-    rep = pooling.pick_report(list(names), logp, study.counts[:, :g], mask, keep)
-    return {**rep, **meta}
+    return study.counts[:, :g], study.goal_mask[study.answer_trajectory, :g]
 
 
 def check_folds(study: Study, folds: int) -> None:
@@ -491,9 +494,8 @@ def pick_pool(
     logp, _ = out_of_fold(
         study, names, preset=preset, folds=folds, seed=seed, camera=camera, progress=progress
     )
-    full = _report(study, names, logp, None)  # every candidate alone, and guessing
-    keep = trusted(np.asarray([by_plans["scores"]]), np.asarray([full["heldout_nll"]]),
-                   np.asarray([full["uniform_nll"]]))[0]  # fmt: skip
+    nll, uniform = pooling.heldout_quality(logp, *_counts(study))
+    keep = trusted(np.asarray([by_plans["scores"]]), nll[None], np.asarray([uniform]))[0]
     rep = _report(study, names, logp, keep.tolist(), folds=folds, seed=seed, preset=preset)
     rep = {
         **rep,

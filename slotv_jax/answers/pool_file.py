@@ -151,7 +151,7 @@ def load_pool(path: str | os.PathLike):
     if doc.get("version") != VERSION:
         raise _field(where, "version", f"expected {VERSION}, got {doc.get('version')!r}")
     camera = doc.get("camera")
-    if isinstance(camera, str) and is_camera_file(camera):
+    if is_camera_file(camera):
         # a camera file: beside the pool file, or where a relative path leads from it
         camera = str(Path(camera) if Path(camera).is_absolute() else (path / camera))
         try:

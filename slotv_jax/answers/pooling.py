@@ -61,6 +61,7 @@ __all__ = [
     "fit_quality",
     "fold_of",
     "heldout_nll",
+    "heldout_quality",
     "pick_report",
     "pool_observer",
     "pooled_logits",
@@ -201,6 +202,19 @@ def uniform_nll(counts: Float[np.ndarray, "A G"], goal_mask: Bool[np.ndarray, "A
     c = np.asarray(counts, np.float64)
     n = np.asarray(goal_mask, bool).sum(-1)
     return np.sum(c.sum(-1) * np.log(np.maximum(n, 1))) / max(c.sum(), 1e-300)
+
+
+def heldout_quality(
+    logp: Float[np.ndarray, "F A G"],
+    counts: Float[np.ndarray, "A G"],
+    goal_mask: Bool[np.ndarray, "A G"],
+) -> tuple[Float[np.ndarray, " F"], float]:
+    """Each candidate's held-out NLL per answer (:func:`heldout_nll`) and uniform guessing's
+    (:func:`uniform_nll`): what :func:`slotv_jax.answers.pick.trusted` weighs besides the
+    plans, with no pool fitted."""
+    return np.asarray(heldout_nll(logp, counts, goal_mask), np.float64), float(
+        uniform_nll(counts, goal_mask)
+    )
 
 
 def fit_quality(heldout: Float[np.ndarray, " F"], uniform: float) -> Float[np.ndarray, " F"]:

@@ -341,20 +341,27 @@ def camera_pose(cam: Camera, center=CENTER) -> tuple[float, float, float]:
     >>> [round(float(np.degrees(a)), 2) for a in camera_pose(scene.camera("observer"))[:2]]
     [0.0, 29.48]
     """
-    pos = np.asarray(cam.pos, np.float64)
+    yaw, pitch, r, back = _about(cam, center)
     rot = np.asarray(cam.rot, np.float64)
-    off = pos - np.asarray(center, np.float64)
-    r = float(np.linalg.norm(off))
-    if not r > 0:
-        raise ValueError(f"camera: its position {pos.tolist()} is the centre {center}")
-    back = off / r
     if np.max(np.abs(rot[:, 2] - back)) > 1e-4:
         raise ValueError(
             f"camera: it does not look at the centre {center} (its z axis "
             f"{rot[:, 2].round(4).tolist()}, the direction from the centre "
             f"{back.round(4).tolist()})"
         )
-    return float(np.arctan2(back[1], back[0])), float(np.arcsin(np.clip(back[2], -1, 1))), r
+    return yaw, pitch, r
+
+
+def _about(cam: Camera, center) -> tuple[float, float, float, np.ndarray]:
+    """Yaw, pitch (rad), distance (m) and unit direction of a camera's position about
+    ``center`` (ValueError if it stands on it)."""
+    pos = np.asarray(cam.pos, np.float64)
+    off = pos - np.asarray(center, np.float64)
+    r = float(np.linalg.norm(off))
+    if not r > 0:
+        raise ValueError(f"camera: its position {pos.tolist()} is the centre {center}")
+    back = off / r
+    return float(np.arctan2(back[1], back[0])), float(np.arcsin(np.clip(back[2], -1, 1))), r, back
 
 
 def start_pose(cam: Camera, center=CENTER) -> tuple[float, float, float]:
@@ -367,13 +374,8 @@ def start_pose(cam: Camera, center=CENTER) -> tuple[float, float, float]:
     >>> np.allclose(start_pose(scene.camera("observer")), camera_pose(scene.camera("observer")))
     True
     """
-    off = np.asarray(cam.pos, np.float64) - np.asarray(center, np.float64)
-    r = float(np.linalg.norm(off))
-    if not r > 0:
-        raise ValueError(f"camera: its position {off.tolist()} is the centre {center}")
-    back = off / r
-    pitch = float(np.clip(np.arcsin(np.clip(back[2], -1, 1)), -1.55, 1.55))
-    return float(np.arctan2(back[1], back[0])), pitch, max(r, DISTANCE_MIN + 0.01)
+    yaw, pitch, r, _ = _about(cam, center)
+    return yaw, float(np.clip(pitch, -1.55, 1.55)), max(r, DISTANCE_MIN + 0.01)
 
 
 class LearnableViewpoint(_Archetype):

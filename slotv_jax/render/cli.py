@@ -414,7 +414,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     load = {"data": _data_items, "npz": _npz_items, "study": _study_items, "plans": _plans_items}
     items = next(f(args) for k, f in load.items() if getattr(args, k) is not None)
     paths = _outputs(args, items)
-    if isinstance(camera, str) and scene.is_camera_file(camera):  # it films what it shows
+    if scene.is_camera_file(camera):  # it films what it shows
         try:
             scene.check_sees_goals(camera, np.stack([it.goals for it in items]),
                                    np.stack([it.goal_mask for it in items]))  # fmt: skip

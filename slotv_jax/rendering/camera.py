@@ -74,7 +74,7 @@ def check_view(camera) -> None:
     (:func:`slotv_jax.scene.check_camera`) or a FreeCamera."""
     if isinstance(camera, FreeCamera):
         return
-    if isinstance(camera, str) and scene.is_camera_file(camera):
+    if scene.is_camera_file(camera):
         scene.check_camera(camera)
         return
     if not isinstance(camera, str) or camera not in CAMERAS:
@@ -128,12 +128,8 @@ def view_camera(camera: View) -> scene.Camera:
     """The pinhole camera of a view (NumPy fields): a named camera, a camera file or a free
     camera."""
     check_view(camera)
-    if isinstance(camera, str) and scene.is_camera_file(camera):
-        c = scene.camera(camera)  # read again when the file changes
-        return scene.Camera(
-            pos=np.asarray(c.pos, np.float64), rot=np.asarray(c.rot, np.float64),
-            fovy=np.float64(c.fovy), resolution=np.asarray(c.resolution),
-        )  # fmt: skip
+    if scene.is_camera_file(camera):
+        return scene.read_camera_file(camera)
     if isinstance(camera, str):
         return named_camera(camera)
     pos, rot = free_camera_pose(camera)

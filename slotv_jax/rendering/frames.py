@@ -284,7 +284,7 @@ class MotionRenderer:
 
     def _update(self, camera: View) -> None:
         check_view(camera)
-        if isinstance(camera, str) and scene.is_camera_file(camera):
+        if scene.is_camera_file(camera):
             self._r.update_scene(self.data, "observer", self._opt)
             _pose_gl_camera(self._r.scene, view_camera(camera))
         elif isinstance(camera, str):

@@ -78,6 +78,13 @@ def read_answers(answers: str | Path | None = None, db: str | Path | None = None
     return read_tables(*files)[0]
 
 
+def check_answers(answers: Study) -> Study:
+    """``answers``, or ValueError naming ``--answers / --db`` if it holds none yet."""
+    if answers.n_rows == 0:
+        raise ValueError("--answers / --db: the study has no answers yet; run round 0 first")
+    return answers
+
+
 def shown_stimuli(stimdir: str | Path) -> set[tuple[str, float]]:
     """(trajectory id, τ) of every trial stimulus in the study folder's rounds."""
     out = set()
@@ -135,8 +142,7 @@ def choose(
     planner). Returns {"picks": [(motion index, τ), ...], "scores", "strategy", "answers",
     "rows", "candidates", "agreement"}.
     """
-    if answers.n_rows == 0:
-        raise ValueError("--answers / --db: the study has no answers yet; run round 0 first")
+    check_answers(answers)
     if strategy not in selection.STRATEGIES:
         raise ValueError(f"--strategy: expected one of {selection.STRATEGIES}, got {strategy!r}")
     cfg = train_config.quick("slotv", train_size=None) if cfg is None else cfg
@@ -199,10 +205,9 @@ def _round_robin(groups: Sequence[str], score: np.ndarray, n: int) -> np.ndarray
     order: dict[str, list[int]] = {}
     for c in np.argsort(-np.asarray(score), kind="stable"):
         order.setdefault(groups[c], []).append(int(c))
-    firsts = sorted(order, key=lambda g: groups.index(g))
     out: list[int] = []
     while len(out) < n:
-        for g in firsts:
+        for g in dict.fromkeys(groups):
             if order[g] and len(out) < n:
                 out.append(order[g].pop(0))
     return np.asarray(out, int)
@@ -339,9 +344,7 @@ def next_main(args: argparse.Namespace) -> int:
         raise ValueError(str(e)) from None
     settings = json.loads((stimuli.round_dir(stimdir, 0) / stimuli.MANIFEST).read_text())
     make_stimuli.check_round0_clips(f"--stimuli {stimdir}", settings)  # before any training
-    answers = read_answers(args.answers, args.db)
-    if answers.n_rows == 0:
-        raise ValueError("--answers / --db: the study has no answers yet; run round 0 first")
+    answers = check_answers(read_answers(args.answers, args.db))  # before loading motions
     groups = None
     if args.plans is not None:
         motions, groups = plans_round(args.plans, answers, r)

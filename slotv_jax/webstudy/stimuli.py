@@ -288,7 +288,7 @@ def check_cameras(
                              "(a camera file's stem): rename one")  # fmt: skip
         by_label[label] = c
         if world_scene.is_camera_file(c):
-            cam = world_scene.camera(c)
+            cam = world_scene.read_camera_file(c)
             out[label] = {
                 "file": str(c),
                 "position": [_round6(v) for v in np.asarray(cam.pos, np.float64)],

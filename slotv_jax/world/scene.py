@@ -261,7 +261,10 @@ def _file_key(path: str) -> tuple:
     return (path, os.path.abspath(path), st.st_mtime_ns, st.st_size)
 
 
-def _camera_file(path: str) -> Camera:
+def read_camera_file(path: str) -> Camera:
+    """A camera file's camera, checked (:func:`camera_from_dict`), with NumPy float64 fields
+    as the file gives them; read again when the file changes (:func:`camera` is its float32
+    JAX form, for traced code)."""
     return _camera_file_at(_file_key(path))
 
 
@@ -286,7 +289,7 @@ def check_camera(name: str) -> None:
     if not isinstance(name, str):
         raise ValueError(f"camera: expected a camera name or a camera file's path, got {name!r}")
     if is_camera_file(name):
-        _camera_file(name)
+        read_camera_file(name)
         return
     m = mj_model(SCENE_XML)
     if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, name) < 0:
@@ -301,7 +304,7 @@ def check_camera(name: str) -> None:
 def _camera_cached(name: str, key: tuple = ()) -> Camera:
     check_camera(name)
     if is_camera_file(name):
-        c = _camera_file(name)
+        c = read_camera_file(name)
         pos, rot, fovy, res = c.pos, c.rot, c.fovy, c.resolution
     else:
         m = mj_model(SCENE_XML)

@@ -321,11 +321,9 @@ def heldout_quality(heldout, counts, n_rows: int) -> tuple[np.ndarray, np.ndarra
     """Each run's candidates' held-out NLL per answer (R, F) and uniform guessing's (R,),
     from :func:`pick_heldout`'s predictions (:func:`slotv_jax.answers.pick.trusted`'s
     ``heldout`` and ``uniform``)."""
-    nll, uni = [], []
-    for i, (lp, mask) in enumerate(heldout):
-        nll.append(pooling.heldout_nll(lp, counts[i, :n_rows], mask))
-        uni.append(pooling.uniform_nll(counts[i, :n_rows], mask))
-    return np.asarray(nll, np.float64), np.asarray(uni, np.float64)
+    nll, uni = zip(*(pooling.heldout_quality(lp, counts[i, :n_rows], mask)
+                     for i, (lp, mask) in enumerate(heldout)), strict=True)  # fmt: skip
+    return np.stack(nll), np.asarray(uni, np.float64)
 
 
 def pick_runs(

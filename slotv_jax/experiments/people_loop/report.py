@@ -631,15 +631,16 @@ def _runs(doc: dict):
 def left_out_line(doc: dict) -> str:
     """Which families the pick's pool left out, and how often the one left out had the
     plans of least gain among the candidates (by the population's score, which the pick
-    never reads); "" for a document whose pick weighed every family."""
-    old = [r[PICK]["left_out"] for r in _runs(doc) if PICK in r and "left_out" in r[PICK]]
-    if old and all(isinstance(x, str) for x in old):
-        return _left_out_line_one(doc)  # a record of one family left out per run, as it read
-    out, worst, runs, none = Counter(), 0, 0, 0
+    never reads); "" for a document whose pick weighed every family. A record of the rule
+    that left exactly one family out of each run (``left_out`` a name, not a list) reads as
+    it did."""
+    out, worst, runs, none, one = Counter(), 0, 0, 0, True
     for rows in _runs(doc):
         if PICK in rows and "left_out" in rows[PICK]:
             single = {g: r["gain_kept"] for g, r in rows.items() if g not in DERIVED}
             left = rows[PICK]["left_out"]
+            one &= isinstance(left, str)
+            left = [left] if isinstance(left, str) else left
             runs += 1
             none += not left
             out.update(left)
@@ -647,26 +648,15 @@ def left_out_line(doc: dict) -> str:
     if not runs:
         return ""
     names = ", ".join(f"{FAMILY_TITLES.get(f, f)} in {n}" for f, n in out.most_common())
+    if one:
+        return (
+            f" The pool left out {names} of {runs} runs; the family left out had the"
+            f" plans of least gain among the candidates in {worst} of them."
+        )
     kept = f"; it left none out in {none}" if none else ""
     return (
         f" Of {runs} runs, the pool left out {names or 'no family'}{kept}; the family of the"
         f" plans of least gain among the candidates was among those left out in {worst}."
-    )
-
-
-def _left_out_line_one(doc: dict) -> str:
-    """:func:`left_out_line` of a record whose pick left exactly one family out of each
-    run's pool (the rule before the best fit was always kept)."""
-    out, worst = Counter(), 0
-    for rows in _runs(doc):
-        if PICK in rows and "left_out" in rows[PICK]:
-            single = {g: r["gain_kept"] for g, r in rows.items() if g not in DERIVED}
-            out[rows[PICK]["left_out"]] += 1
-            worst += rows[PICK]["left_out"] == min(single, key=single.get)
-    names = ", ".join(f"{FAMILY_TITLES.get(f, f)} in {n}" for f, n in out.most_common())
-    return (
-        f" The pool left out {names} of {sum(out.values())} runs; the family left out had the"
-        f" plans of least gain among the candidates in {worst} of them."
     )
 
 
