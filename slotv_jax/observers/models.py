@@ -52,7 +52,7 @@ import jax.numpy as jnp
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
-from slotv_jax.observers import archetypes, common, parametric
+from slotv_jax.observers import archetypes, common, parametric, reader
 from slotv_jax.observers.common import mask_logits as mask_logits
 
 # the observer type, its protocol and its input checks (their home: observers/observer.py)
@@ -495,18 +495,24 @@ class TRex(_ScoreNetwork):
     default_hidden = (1792, 768)
 
 
-Model = SlotV | TRex
+Model = SlotV | TRex | reader.MotionReader
 
 
 def make_model(cfg, rngs: nnx.Rngs | jax.Array | int) -> Model:
     """Build the model a :class:`slotv_jax.training.config.TrainConfig` describes: its ``model``
-    archetype of :mod:`slotv_jax.observers.parametric` (deterministic, ``rngs`` unused), or for the
-    MLP (``model="mlp"``) SLOT-V's or T-REX's network."""
+    archetype of :mod:`slotv_jax.observers.parametric` (deterministic, ``rngs`` unused), the
+    motion reader (``model="reader"``, :mod:`slotv_jax.observers.reader`: its ``hidden``,
+    ``activation`` and ``camera``), or for the MLP (``model="mlp"``) SLOT-V's or T-REX's
+    network."""
     model = getattr(cfg, "model", "mlp")
-    if model != "mlp":
-        return archetypes.make_archetype(model)
     if not isinstance(rngs, nnx.Rngs):
         rngs = nnx.Rngs(rngs)
+    if model == "reader":
+        return reader.MotionReader(
+            cfg.hidden, activation=cfg.activation, camera=cfg.camera, rngs=rngs
+        )
+    if model != "mlp":
+        return archetypes.make_archetype(model)
     cls = {"slotv": SlotV, "trex": TRex}.get(cfg.method)
     if cls is None:
         raise ValueError(f"cfg.method: expected 'slotv' or 'trex', got {cfg.method!r}")

@@ -24,6 +24,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from slotv_jax.observers import population as population_lib
 from slotv_jax.observers import zoo
+from slotv_jax.world import scene
 
 People = population_lib.Population | zoo.ZooMember
 
@@ -31,7 +32,10 @@ SUITE = "suite"  # every population of the suite
 ZOO = "zoo"  # every member of the zoo
 
 __all__ = ["SUITE", "ZOO", "People", "expand", "get_people", "guesses_batch", "people_config",
-           "people_name"]  # fmt: skip
+           "people_name", "study_camera"]  # fmt: skip
+#: The camera a simulated study of a population is filmed from (the dataset's): a population's
+#: people watch from several of the scene's cameras, and none of them is the study's alone.
+STUDY_CAMERA = "observer"
 
 
 def _is_user_people(spec: str) -> bool:
@@ -84,6 +88,16 @@ def people_name(spec: str, people: People) -> str:
     if spec in population_lib.PRESETS or spec.startswith(population_lib.RANDOM_PREFIX):
         return spec
     return Path(spec).stem
+
+
+def study_camera(people: People) -> scene.Camera:
+    """The camera a simulated study of ``people`` films its clips from, which the lab would
+    know (the motion reader's image view): a zoo member's own camera, or for a member who
+    reads the table plane and for a population, the dataset's camera
+    (:data:`STUDY_CAMERA`)."""
+    if isinstance(people, zoo.ZooMember) and people.view in zoo.ZOO_CAMERAS:
+        return zoo.zoo_camera(people.view)
+    return scene.camera(STUDY_CAMERA)
 
 
 def people_config(people: People) -> dict[str, Any]:

@@ -68,6 +68,7 @@ __all__ = [
     "person_probs",
     "sample_zoo_guesses",
     "sample_zoo_guesses_batch",
+    "zoo_camera",
     "zoo_names",
     "zoo_probs",
 ]
@@ -119,7 +120,9 @@ ZOO_CAMERAS: Mapping[str, tuple[tuple[float, ...], tuple[float, ...], float]] = 
 
 
 @functools.cache
-def _zoo_camera(name: str) -> scene.Camera:
+def zoo_camera(name: str) -> scene.Camera:
+    """The zoo's camera ``name`` (:data:`ZOO_CAMERAS`) as a
+    :class:`~slotv_jax.world.scene.Camera`."""
     pos, target, fovy = ZOO_CAMERAS[name]
     # the overhead camera looks straight down: its image's "up" is the world's +x
     up = (1.0, 0.0, 0.0) if name == "zoo_overhead" else (0.0, 0.0, 1.0)
@@ -134,7 +137,7 @@ def _coords(view: str, xyz: Array, goals: Array) -> tuple[Array, Array]:
     or the table plane (x, y in metres) for ``view == "table"``."""
     if view == "table":
         return xyz[:, :2], goals[:, :2]
-    cam = _zoo_camera(view)
+    cam = zoo_camera(view)
 
     def image(p):
         (u, v), _in_front = scene.image_coords(p, cam.pos, cam.rot, 1e-3)

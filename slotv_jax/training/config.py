@@ -33,8 +33,10 @@ METHODS = ("slotv", "trex")
 # Observer models: "mlp" is the paper's network (:ref:`concepts-observers`); the others are the
 # parametric
 # archetypes of slotv_jax.observers.parametric, trained with SLOT-V's loss
-# (:ref:`concepts-archetypes`).
-MODELS = ("mlp", "dragan", "viewpoint", "mixture")
+# (:ref:`concepts-archetypes`); "reader" is the motion reader of slotv_jax.observers.reader
+# (:ref:`concepts-reader`), a network over what a person watching a clip can read.
+MODELS = ("mlp", "dragan", "viewpoint", "mixture", "reader")
+ARCHETYPE_MODELS = ("dragan", "viewpoint", "mixture")  # the analytic ones: no network
 # Activation elements per (point, goal) pair an archetype holds, standing in for
 # hidden[0] when the evaluation chunk is sized (a handful of values per pair).
 ARCHETYPE_WIDTH = 8
@@ -43,6 +45,7 @@ OPTIMIZERS = ("rmsprop", "adam")
 # MLP reads (an archetype has no network): TrainConfig.used_dict leaves them out.
 UNUSED_BY_OPTIMIZER = {"rmsprop": ("b1", "b2"), "adam": ("rho", "momentum")}
 MLP_ONLY = ("hidden", "activation", "start_term", "time_weight", "compute_dtype")
+READER_UNUSED = ("start_term", "time_weight", "compute_dtype")  # the reader has a network
 COMPUTE_DTYPES = ("float32", "bfloat16")
 # Hidden activations of the MLP: "relu" is the paper's (:ref:`concepts-slotv`); "softplus" makes V
 # smooth,
@@ -86,6 +89,9 @@ class TrainConfig:
     eval_size: int = 1000  # trajectories of the fixed validation subset
     eval_chunk: int | None = None  # trajectories per evaluation chunk (None: derived)
     log_every: int = 50  # updates between progress reports (when not validating)
+    # the study's camera (a name of the scene or a camera file): the motion reader's image
+    # view; only model="reader" reads it (and only its dict stores it)
+    camera: str = "observer"
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -110,7 +116,21 @@ class TrainConfig:
                 raise ValueError(
                     f"TrainConfig.{name}: expected True or False, got {getattr(self, name)!r}"
                 )
-        if self.model != "mlp" and (
+        if self.model == "reader" and (self.start_term or self.time_weight):
+            raise ValueError(
+                "TrainConfig: start_term and time_weight belong to the MLP; the motion reader "
+                "learns its own weighting of the points (leave them False)"
+            )
+        if not isinstance(self.camera, str) or not self.camera:
+            raise ValueError(
+                f"TrainConfig.camera: expected a camera name or file, got {self.camera!r}"
+            )
+        if self.camera != "observer" and self.model != "reader":
+            raise ValueError(
+                f"TrainConfig.camera: only the motion reader (model='reader') reads a camera, "
+                f"got camera={self.camera!r} for model={self.model!r}"
+            )
+        if self.model in ARCHETYPE_MODELS and (
             self.start_term or self.time_weight or self.activation != "relu"
         ):
             raise ValueError(
@@ -189,7 +209,7 @@ class TrainConfig:
         else:
             budget = EVAL_CHUNK_BUDGET["cpu" if platform == "cpu" else "accelerator"]
             budget *= n_devices
-            width = self.hidden[0] if self.model == "mlp" else ARCHETYPE_WIDTH
+            width = ARCHETYPE_WIDTH if self.model in ARCHETYPE_MODELS else self.hidden[0]
             per = n_points * n_goals * width
             c = 1
             while 2 * c * per <= budget and c < 8192:
@@ -202,6 +222,8 @@ class TrainConfig:
         """Plain JSON-ready dict (tuples become lists)."""
         d = dataclasses.asdict(self)
         d["hidden"] = list(self.hidden)
+        if self.model != "reader":  # only the reader reads it: the others' dicts stay as before
+            del d["camera"]
         return d
 
     def to_json(self) -> str:
@@ -210,11 +232,14 @@ class TrainConfig:
     def used_dict(self) -> dict[str, Any]:
         """:meth:`to_dict` less the fields this run never reads, for printing: an archetype's
         has no network (``hidden``, ``activation``, ``start_term``, ``time_weight``,
-        ``compute_dtype``), and each optimiser drops the other's hyperparameters (Adam
-        ``rho`` and ``momentum``, RMSprop ``b1`` and ``b2``)."""
+        ``compute_dtype``), the motion reader none of the MLP's options (``start_term``,
+        ``time_weight``, ``compute_dtype``), and each optimiser drops the other's
+        hyperparameters (Adam ``rho`` and ``momentum``, RMSprop ``b1`` and ``b2``)."""
         unused = set(UNUSED_BY_OPTIMIZER[self.optimizer])
-        if self.model != "mlp":
+        if self.model in ARCHETYPE_MODELS:
             unused |= set(MLP_ONLY)
+        elif self.model == "reader":
+            unused |= set(READER_UNUSED)
         return {k: v for k, v in self.to_dict().items() if k not in unused}
 
     @classmethod
@@ -303,9 +328,34 @@ def archetype(name: str, model: str, **overrides: Any) -> TrainConfig:
         raise ValueError(f"model: expected one of {MODELS[1:]}, got {model!r}")
     if name not in PRESETS:
         raise ValueError(f"preset: expected one of {tuple(PRESETS)}, got {name!r}")
+    if model == "reader":
+        return reader(name, **overrides)
     base = paper("slotv", model=model, optimizer="adam", learning_rate=0.1, epochs=1)
     if name == "quick":
         base = dataclasses.replace(base, train_size=4000, epochs=2)
+    return dataclasses.replace(base, **overrides)
+
+
+def reader(name: str, **overrides: Any) -> TrainConfig:
+    """Preset ``name`` ("quick" or "paper") for the motion reader (:ref:`concepts-reader`)
+    **[choice]**: a softplus MLP (smooth, for the planner's gradients) of widths (64, 64)
+    (quick) or (128, 128) (paper) over its 14 reading features, Adam at lr 0.003, batch 32;
+    quick: 3 epochs of the first 8,000 training trajectories (as the quick MLP), paper: 5
+    epochs of all of them. Its parameters number ~5,000 (quick) to ~19,000 (paper): a fraction
+    of the paper MLP's 1.2 million, so that a prior and 1,000-2,000 answers can place them."""
+    if name not in PRESETS:
+        raise ValueError(f"preset: expected one of {tuple(PRESETS)}, got {name!r}")
+    base = paper(
+        "slotv",
+        model="reader",
+        hidden=(128, 128),
+        activation="softplus",
+        optimizer="adam",
+        learning_rate=0.003,
+        epochs=5,
+    )
+    if name == "quick":
+        base = dataclasses.replace(base, hidden=(64, 64), epochs=3, train_size=8000)
     return dataclasses.replace(base, **overrides)
 
 
@@ -326,8 +376,16 @@ def preset(name: str, method: str, model: str = "mlp", **overrides: Any) -> Trai
 
 
 #: The observer families fitted on people's answers: the paper MLP, SLOT-V+ (the MLP with
-#: the start term and time weights), the Dragan and viewpoint archetypes.
-FAMILIES = ("mlp", "slotv_plus", "dragan_archetype", "viewpoint_archetype", "mixture_archetype")
+#: the start term and time weights), the Dragan, viewpoint and mixture archetypes, and the
+#: motion reader.
+FAMILIES = (
+    "mlp",
+    "slotv_plus",
+    "dragan_archetype",
+    "viewpoint_archetype",
+    "mixture_archetype",
+    "reader",
+)
 
 
 def family(name: str, fam: str, **overrides: Any) -> TrainConfig:
@@ -335,6 +393,8 @@ def family(name: str, fam: str, **overrides: Any) -> TrainConfig:
     answers (``train_size=None``: every answer row)."""
     if fam.endswith("_archetype") and fam in FAMILIES:
         return archetype(name, fam.split("_")[0], train_size=None, **overrides)
+    if fam == "reader":
+        return reader(name, train_size=None, **overrides)
     cfg = preset(name, "slotv", train_size=None, **overrides)
     if fam == "slotv_plus":
         return dataclasses.replace(cfg, start_term=True, time_weight=True)
