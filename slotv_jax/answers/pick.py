@@ -19,6 +19,7 @@ and the best-judged candidate is the pick: the people loop's family ``pick_cross
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -28,15 +29,16 @@ from jaxtyping import Float
 from tqdm.auto import tqdm
 
 from slotv_jax import planning
-from slotv_jax.answers import pooling
+from slotv_jax.answers import pooling, prior
 from slotv_jax.answers.crossval import fit_beta, labeler_probs, labeler_visible
-from slotv_jax.answers.fitting import answer_logits, train_study
+from slotv_jax.answers.fitting import answer_logits, study_trainer, train_study
 from slotv_jax.answers.format import PROB_FLOOR, Study
 from slotv_jax.planning import evaluation
 from slotv_jax.training import checkpoint
 from slotv_jax.training import config as train_config
 
 LABELERS = ("dragan", "nikolaidis")  # the hand-crafted candidates (β fitted)
+READER = "reader"  # the motion reader: it starts from its prior (:mod:`slotv_jax.answers.prior`)
 CANDIDATES = (*train_config.FAMILIES, *LABELERS)
 #: ``study pick``'s default candidates (``--candidates`` takes a subset): every candidate,
 #: as the people loop's presets choose among every family.
@@ -90,6 +92,7 @@ def out_of_fold(
     folds. Learned families train with ``preset``'s config; labelers get β by
     :func:`slotv_jax.answers.crossval.fit_beta`."""
     names = check_candidates(names)
+    start = starts(study, names, preset=preset, camera=camera)
     fold = pooling.fold_of(study.answer_trajectory, folds, seed)
     g = study.counts.shape[-1]
     mask = study.goal_mask[study.answer_trajectory, :g]
@@ -105,8 +108,8 @@ def out_of_fold(
                 with np.errstate(divide="ignore"):
                     lp = np.where(mask[rows], np.log(np.maximum(y, PROB_FLOOR)), -np.inf)
             else:
-                cfg = fit_config(preset, name, tr.n_rows)
-                state = train_study(cfg, tr, jax.random.key(seed * 1000 + f), progress=False)
+                cfg = fit_config(preset, name, tr.n_rows, camera)
+                state = fit(cfg, tr, jax.random.key(seed * 1000 + f), start.get(name))
                 z = np.full((rows.size, g), -np.inf, np.float32)
                 lg = answer_logits(cfg, state.params, te)  # the study's goal slots in use
                 z[:, : lg.shape[-1]] = lg[:, :g]
@@ -117,12 +120,37 @@ def out_of_fold(
     return out, fold
 
 
-def fit_config(preset: str, name: str, rows: int) -> train_config.TrainConfig:
-    """The family's config, with a batch that fits a small study (as ``study train``)."""
+def fit_config(
+    preset: str, name: str, rows: int, camera: str = "observer"
+) -> train_config.TrainConfig:
+    """The family's config, with a batch that fits a small study (as ``study train``); the
+    motion reader's with the study's ``camera``."""
     cfg = train_config.family(preset, name)
+    if name == READER:
+        cfg = dataclasses.replace(cfg, camera=camera)
     if rows < cfg.batch_size:
         cfg = train_config.apply_overrides(cfg, [f"batch_size={1 << (rows.bit_length() - 1)}"])
     return cfg
+
+
+def starts(
+    study: Study, names: Sequence[str], *, preset: str = "quick", camera: str = "observer"
+) -> dict[str, object]:
+    """θ₀ of the candidates that start from a prior: the motion reader's
+    (:func:`slotv_jax.answers.prior.answered_prior`, the study's stimuli labelled by the
+    prior's sources, never its answers), once per pick; the others start from a random draw."""
+    if READER not in names:
+        return {}
+    cfg = fit_config(preset, READER, study.n_rows, camera)
+    return {READER: prior.prior_params(cfg, prior.answered_prior(study))}
+
+
+def fit(cfg: train_config.TrainConfig, study: Study, key: jax.Array, start=None):
+    """``cfg``'s family fitted on ``study``'s answers
+    (:func:`slotv_jax.answers.fitting.train_study`), from θ₀ = ``start`` (a prior, with a
+    fresh optimiser state) or a random draw from ``key``."""
+    state = None if start is None else study_trainer(cfg).init(key, start)
+    return train_study(cfg, study, key, progress=False, state=state)
 
 
 def pick_study(
@@ -339,14 +367,15 @@ def fit_candidates(
     (a learned family, :func:`slotv_jax.answers.fitting.train_study`) or "beta" (a labeler,
     :func:`slotv_jax.answers.crossval.fit_beta`)}}``."""
     out = {}
+    start = starts(study, names, preset=preset, camera=camera)
     for name in tqdm(names, desc="fits on every answer", disable=not progress):
         if name in LABELERS:
             beta, _ = fit_beta(study, name, camera=camera)
             obs = planning.labeler_observer(name, beta=beta, camera=camera)
             out[name] = {"observer": obs, "beta": beta}
         else:
-            cfg = fit_config(preset, name, study.n_rows)
-            state = train_study(cfg, study, jax.random.key(seed), progress=False)
+            cfg = fit_config(preset, name, study.n_rows, camera)
+            state = fit(cfg, study, jax.random.key(seed), start.get(name))
             obs = checkpoint.make_observer(cfg, state.params)
             out[name] = {"observer": obs, "cfg": cfg, "state": state}
     return out

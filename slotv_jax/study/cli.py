@@ -234,8 +234,9 @@ def pick_main(args: argparse.Namespace) -> int:
             if winner in fits:  # the pick by plans fitted it on every answer already
                 cfg, state = fits[winner]["cfg"], fits[winner]["state"]
             else:
-                cfg = pick_lib.fit_config(args.preset, winner, study.n_rows)
-                state = train_study(cfg, study, jax.random.key(args.seed), progress=progress)
+                cfg = pick_lib.fit_config(args.preset, winner, study.n_rows, args.camera)
+                start = pick_lib.starts(study, [winner], preset=args.preset, camera=args.camera)
+                state = pick_lib.fit(cfg, study, jax.random.key(args.seed), start.get(winner))
             checkpoint.save(tmp, cfg, state, meta=meta)
             said = f"pick: {winner}, fitted on every answer: {out} (slotv_jax.load_observer)"
         if arrays is not None:
