@@ -21,7 +21,12 @@ FITTED = {"dragan_fitted": "dragan", "nikolaidis_fitted": "nikolaidis"}  # famil
 #: distributions, its preset's label protocol), then fitted on the answers with the same
 #: updates (:func:`slotv_jax.experiments.people_loop.loop.pretrained_params`).
 PRETRAINED = {f"{f}_pre": f for f in LEARNED}  # family -> the family it starts
-TRAINED = (*LEARNED, *PRETRAINED)  # the families fitted by gradient steps on the answers
+#: The motion reader (:mod:`slotv_jax.observers.reader`), always started from its prior
+#: (:mod:`slotv_jax.answers.prior`: the labelers', drawn populations' and the zoo's guesses,
+#: never the people the run is scored on), with the study's camera
+#: (:func:`slotv_jax.observers.people.study_camera`), then fitted on the answers.
+READER = "reader"
+TRAINED = (*LEARNED, *PRETRAINED, READER)  # the families fitted by gradient steps on the answers
 #: The researcher's pick (:mod:`slotv_jax.answers.pooling`): the log-linear pool of the
 #: candidate families, weighted by the held-out likelihood of the answers, less the one
 #: whose plans the other fits judge least legible (:func:`slotv_jax.answers.pick.trusted`);
@@ -31,15 +36,23 @@ PICK = "pick"
 #: most legible (:func:`slotv_jax.experiments.people_loop.loop.cross_judged`); answers alone.
 PICK_CROSS = "pick_cross"
 DERIVED = (PICK, PICK_CROSS)  # families made of the others
-FAMILIES = (*LEARNED, *PRETRAINED, *FITTED, *DERIVED)
+FAMILIES = (*LEARNED, *PRETRAINED, READER, *FITTED, *DERIVED)
 #: The presets' families: the pre-trained ones are an experiment of their own (``--families``;
 #: ``experiments/pretrain/``). The distance/approach mixture archetype joined them once the
 #: whole suite had run with it at both presets (the records against
 #: ``experiments/history/people_loop_no_mixture/``: the pool's worst population rose from
 #: 68 to 80 % at the paper preset, 2,000 answers).
-DEFAULT_FAMILIES = (*LEARNED, *FITTED, *DERIVED)
+DEFAULT_FAMILIES = (*LEARNED, READER, *FITTED, *DERIVED)
 CAMERA = "observer"  # the viewpoint of the fitted Nikolaidis baseline (the dataset's)
 #: How θ₀ of a pre-trained family is made (recorded in the document's config).
+#: How the motion reader's prior is made (recorded in the document's config).
+READER_PRIOR = {
+    "sources": "the four labelers at their default temperatures, populations random:1000-1007, "
+    "every zoo member but the people scored",
+    "labels": "the mean of the sources' P(goal | motion seen up to τ) at every pool motion and τ",
+    "protocol": "the reader's TrainConfig (its epochs, batch and optimiser), key 4000",
+    "camera": "the study's (a zoo member's own camera, else the dataset's observer camera)",
+}
 PRETRAIN_RECIPE = {
     "labels": "mean of the train split's labeler distributions (every labeler of the dataset)",
     "protocol": "the family's TrainConfig: its train_size, epochs, batch and optimiser",
@@ -169,6 +182,9 @@ class LoopConfig:
         d["train"] = {f: self.train_config(f).to_dict() for f in LEARNED if f in used}
         if any(f in PRETRAINED for f in self.families):  # records made before it match
             d["pretrain"] = PRETRAIN_RECIPE
+        if READER in self.families:
+            d["train"][READER] = self.train_config(READER).to_dict()
+            d["reader_prior"] = READER_PRIOR
         return json.loads(json.dumps(d))
 
 

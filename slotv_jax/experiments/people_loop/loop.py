@@ -14,7 +14,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from slotv_jax import planning
-from slotv_jax.answers import pooling
+from slotv_jax.answers import pooling, prior
 from slotv_jax.answers.pick import cross_judged, trusted
 from slotv_jax.asking import selection, simulated
 from slotv_jax.core.shapes import bucket, pad_rows
@@ -26,6 +26,7 @@ from slotv_jax.experiments.people_loop.config import (
     PICK,
     PICK_CROSS,
     PRETRAINED,
+    READER,
     TRAINED,
     LoopConfig,
 )
@@ -185,7 +186,7 @@ def fit_family(
     tc = cfg.train_config(family)
     blocks = cfg.updates(rows, tc.batch_size, cfg.epochs, cfg.min_updates) // cfg.block
     init = None
-    if family in PRETRAINED:
+    if family in PRETRAINED or family == READER:
         if not inits or family not in inits:
             raise ValueError(f"inits: expected the pre-trained parameters of {family!r}")
         init = inits[family]
@@ -221,13 +222,29 @@ def pretrained_params(cfg: LoopConfig, family: str, split):
 _PRETRAINED: dict = {}
 
 
+def reader_prior(cfg: LoopConfig, split, people_name: str, camera):
+    """θ₀ of the motion reader for a study of the people called ``people_name``, filmed by
+    ``camera``: its prior (:mod:`slotv_jax.answers.prior`) on every pool motion at every
+    stop time, the zoo member ``people_name`` left out of the sources (the people scored
+    are never a source). Made once per process, config, people and camera."""
+    tc = cfg.train_config(READER)
+    pos, rot = (np.asarray(a, np.float32).round(6).tobytes() for a in (camera.pos, camera.rot))
+    key = (cfg.data, cfg.pool, cfg.taus, tc, people_name, pos, rot)
+    if key not in _PRETRAINED:
+        xyz, goals, mask = pool_motions(cfg, split)
+        study = prior.prior_study(xyz, goals, mask, cfg.taus, exclude=(people_name,))
+        _PRETRAINED[key] = prior.prior_params(tc, study, camera)
+    return _PRETRAINED[key]
+
+
 def _init_keys(family: str, seeds) -> jax.Array:
     """One key per run: from its seed (and, for a fold's fit, ``(seed, fold)``); a
     pre-trained family has the keys of the family it starts."""
     keys = []
     for sd in seeds:
         sd, fold = sd if isinstance(sd, tuple) else (sd, None)
-        key = jax.random.key(2_000 + 97 * sd + LEARNED.index(PRETRAINED.get(family, family)))
+        index = len(LEARNED) if family == READER else LEARNED.index(PRETRAINED.get(family, family))
+        key = jax.random.key(2_000 + 97 * sd + index)
         keys.append(key if fold is None else jax.random.fold_in(key, 1 + fold))
     return jnp.stack(keys)
 
@@ -457,6 +474,9 @@ def run_population(
 
     t0 = time.perf_counter()  # the pre-trained families' θ₀, from the labels alone
     inits = {f: pretrained_params(cfg, f, splits["train"]) for f in cfg.families if f in PRETRAINED}
+    if READER in cfg.families:  # its prior, without the people scored, from their camera
+        camera = people_lib.study_camera(pop)
+        inits[READER] = reader_prior(cfg, splits["train"], name, camera)
     timing["pretrain_s"] += time.perf_counter() - t0
 
     active = [i for i, (st, _) in enumerate(runs) if st != "random"]
