@@ -150,8 +150,9 @@ def _parse_args(argv):
     pk.add_argument("--seed", type=int, default=0)
     pk.add_argument("--condition", default=None)
     pk.add_argument("--camera", default="observer",
-                    help="the camera the study's people watched, for the Nikolaidis candidate: "
-                    "a camera of the scene or the lab's camera file (*.json)")  # fmt: skip
+                    help="the camera the study's people watched, for the Nikolaidis candidate "
+                    "and the motion reader: a camera of the scene or the lab's camera file "
+                    "(*.json)")  # fmt: skip
     pk.add_argument("--overwrite", action="store_true", help="replace an earlier pick")
     pk.add_argument("--no-progress", action="store_true")
     web_cli.add_commands(sub)

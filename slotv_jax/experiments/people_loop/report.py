@@ -29,6 +29,7 @@ FAMILY_TITLES = {
     "dragan_archetype": "Dragan archetype",
     "viewpoint_archetype": "viewpoint archetype",
     "mixture_archetype": "distance/approach mixture archetype",
+    "reader": "motion reader (from its prior)",
     "dragan_fitted": "Dragan, β fitted",
     "nikolaidis_fitted": "Nikolaidis, β fitted",
     "pick": "**pick** (answers alone)",
@@ -41,6 +42,7 @@ FAMILY_COLORS = {
     "dragan_archetype": "tab:green",
     "viewpoint_archetype": "tab:purple",
     "mixture_archetype": "tab:olive",
+    "reader": "teal",
     "dragan_fitted": "tab:gray",
     "nikolaidis_fitted": "tab:brown",
     "pick": "black",
@@ -59,7 +61,7 @@ STRATEGY_STYLES = {"random": "--", "margin": "-", "error": ":"}
 # rest, so the candidate they equal shows through them.
 FAMILY_MARKERS = {
     "mlp": "o", "slotv_plus": "s", "dragan_archetype": "^", "viewpoint_archetype": "v",
-    "mixture_archetype": "D", "dragan_fitted": "x", "nikolaidis_fitted": "+",
+    "mixture_archetype": "D", "reader": "h", "dragan_fitted": "x", "nikolaidis_fitted": "+",
     "pick": "*", "pick_cross": "P",
 }  # fmt: skip
 UNDER = {"pick": 4.0, "pick_cross": 3.0}  # line widths of the picks, drawn under the rest
