@@ -6,7 +6,7 @@ hand is heading and how fast it closes on a goal, whether its path, carried on, 
 a goal, how it looks *in the picture* (depth is hard to see in a video), and they weigh
 the moments they saw unevenly (the first impression, the last, or all; Hogarth & Einhorn
 1992). :class:`MotionReader` learns each of these from answers, within SLOT-V's training
-loop, loss and goal padding:
+loop, loss and goal padding::
 
     f_ik  = the reading features of point i and goal k (below), in the world and in the
             study camera's image
