@@ -39,6 +39,7 @@ from jaxtyping import Bool, Float
 from slotv_jax.answers import fitting
 from slotv_jax.answers.format import Study, make_study
 from slotv_jax.core.defaults import LABELER_NAMES
+from slotv_jax.core.shapes import pad_rows
 from slotv_jax.observers import population as population_lib
 from slotv_jax.observers import reader as reader_lib
 from slotv_jax.observers import zoo
@@ -100,15 +101,14 @@ def prior_labels(
     """y_prior of each row (motion ``xyz[a]`` seen up to its first ``seen[a]`` points): the
     mean of the sources' probabilities (float64; 0 on padded slots)."""
     a = xyz.shape[0]
-    pad = -a % CHUNK
-    arrays = [np.concatenate([v, np.repeat(v[-1:], pad, 0)]) for v in (xyz, goals, goal_mask)]
-    seen = np.concatenate([np.asarray(seen, np.int32), np.repeat(np.asarray(seen[-1:]), pad)])
+    size = a + (-a % CHUNK)  # whole chunks: one compiled shape per source
+    arrays = [pad_rows(v, size) for v in (xyz, goals, goal_mask, np.asarray(seen, np.int32))]
     total = np.zeros((a, goals.shape[1]), np.float64)
     for _, obs in srcs:
         f = _probs_fn(obs)
         parts = []
-        for i in range(0, a + pad, CHUNK):
-            chunk = [jnp.asarray(v[i : i + CHUNK]) for v in (*arrays, seen)]
+        for i in range(0, size, CHUNK):
+            chunk = [jnp.asarray(v[i : i + CHUNK]) for v in arrays]
             parts.append(np.asarray(f(*chunk), np.float64))
         p = np.concatenate(parts)[:a]
         if not np.all(np.isfinite(p)):
@@ -135,14 +135,18 @@ def prior_study(
     rows_traj = np.repeat(np.arange(n), taus.size)
     rows_tau = np.tile(taus, n)
     seen = np.tile(seen_points(taus, t), n)
+    return _labelled(xyz, goals, goal_mask, rows_traj, seen, exclude, draws, answer_tau=rows_tau)
+
+
+def _labelled(xyz, goals, goal_mask, traj, seen, exclude, draws, **study) -> Study:
+    """The rows (motion ``traj[a]`` seen up to ``seen[a]`` points) as a Study, each labelled
+    by y_prior of the sources less ``exclude`` (one answer's worth a row)."""
     y = prior_labels(
-        sources(exclude, draws), xyz[rows_traj], np.asarray(goals)[rows_traj],
-        np.asarray(goal_mask, bool)[rows_traj], seen,
+        sources(exclude, draws), np.asarray(xyz, np.float32)[traj], np.asarray(goals)[traj],
+        np.asarray(goal_mask, bool)[traj], seen,
     )  # fmt: skip
-    return make_study(
-        xyz, goals, goal_mask, rows_traj, probs=y, n_answers=np.ones(y.shape[0]),
-        answer_tau=rows_tau, source="the motion reader's prior",
-    )  # fmt: skip
+    return make_study(xyz, goals, goal_mask, traj, probs=y, n_answers=np.ones(traj.size),
+                      source="the motion reader's prior", **study)  # fmt: skip
 
 
 def prior_params(cfg: TrainConfig, study: Study, camera: scene.Camera | None = None):
@@ -151,11 +155,10 @@ def prior_params(cfg: TrainConfig, study: Study, camera: scene.Camera | None = N
     :data:`PRIOR_SEED`, with the study's ``camera`` (default: ``cfg.camera``'s)."""
     if cfg.model != "reader":
         raise ValueError(f"cfg.model: the prior is the motion reader's, got {cfg.model!r}")
-    trainer = fitting.study_trainer(cfg)
-    state = trainer.init(jax.random.key(PRIOR_SEED))
-    if camera is not None:
-        params = reader_lib.with_camera(state.params, camera)
-        state = trainer.init(jax.random.key(PRIOR_SEED), params)
+    trainer, key = fitting.study_trainer(cfg), jax.random.key(PRIOR_SEED)
+    state = trainer.init(key)
+    if camera is not None:  # the same draw, filmed by the study's camera
+        state = trainer.init(key, reader_lib.with_camera(state.params, camera))
     state = fitting.train_study(cfg, study, jax.random.key(PRIOR_SEED), progress=False,
                                 state=state)  # fmt: skip
     return state.params
@@ -168,12 +171,5 @@ def answered_prior(study: Study, exclude: Sequence[str] = ()) -> Study:
     this prior and scored on held-out answers sees each answer once, in its own folds."""
     traj = np.asarray(study.answer_trajectory)
     seen = np.asarray(study.seen(), np.int32)
-    y = prior_labels(
-        sources(exclude), np.asarray(study.xyz, np.float32)[traj], np.asarray(study.goals)[traj],
-        np.asarray(study.goal_mask, bool)[traj], seen,
-    )  # fmt: skip
-    return make_study(
-        study.xyz, study.goals, study.goal_mask, traj, probs=y, n_answers=np.ones(traj.size),
-        answer_tau=study.answer_tau, t=study.t, length=study.length,
-        source="the motion reader's prior",
-    )  # fmt: skip
+    return _labelled(study.xyz, study.goals, study.goal_mask, traj, seen, exclude, PRIOR_DRAWS,
+                     answer_tau=study.answer_tau, t=study.t, length=study.length)  # fmt: skip

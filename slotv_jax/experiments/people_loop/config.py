@@ -10,6 +10,7 @@ import math
 
 from slotv_jax import data as data_lib
 from slotv_jax import planning
+from slotv_jax.answers.pick import READER
 from slotv_jax.asking import selection
 from slotv_jax.core import validation
 from slotv_jax.training import config as train_config
@@ -21,11 +22,10 @@ FITTED = {"dragan_fitted": "dragan", "nikolaidis_fitted": "nikolaidis"}  # famil
 #: distributions, its preset's label protocol), then fitted on the answers with the same
 #: updates (:func:`slotv_jax.experiments.people_loop.loop.pretrained_params`).
 PRETRAINED = {f"{f}_pre": f for f in LEARNED}  # family -> the family it starts
-#: The motion reader (:mod:`slotv_jax.observers.reader`), always started from its prior
+#: READER, the motion reader (:mod:`slotv_jax.observers.reader`), always started from its prior
 #: (:mod:`slotv_jax.answers.prior`: the labelers', drawn populations' and the zoo's guesses,
 #: never the people the run is scored on), with the study's camera
 #: (:func:`slotv_jax.observers.people.study_camera`), then fitted on the answers.
-READER = "reader"
 TRAINED = (*LEARNED, *PRETRAINED, READER)  # the families fitted by gradient steps on the answers
 #: The researcher's pick (:mod:`slotv_jax.answers.pooling`): the log-linear pool of the
 #: candidate families, weighted by the held-out likelihood of the answers, less the one
@@ -44,7 +44,6 @@ FAMILIES = (*LEARNED, *PRETRAINED, READER, *FITTED, *DERIVED)
 #: 68 to 80 % at the paper preset, 2,000 answers).
 DEFAULT_FAMILIES = (*LEARNED, READER, *FITTED, *DERIVED)
 CAMERA = "observer"  # the viewpoint of the fitted Nikolaidis baseline (the dataset's)
-#: How θ₀ of a pre-trained family is made (recorded in the document's config).
 #: How the motion reader's prior is made (recorded in the document's config).
 READER_PRIOR = {
     "sources": "the four labelers at their default temperatures, populations random:1000-1007, "
@@ -53,6 +52,7 @@ READER_PRIOR = {
     "protocol": "the reader's TrainConfig (its epochs, batch and optimiser), key 4000",
     "camera": "the study's (a zoo member's own camera, else the dataset's observer camera)",
 }
+#: How θ₀ of a pre-trained family is made (recorded in the document's config).
 PRETRAIN_RECIPE = {
     "labels": "mean of the train split's labeler distributions (every labeler of the dataset)",
     "protocol": "the family's TrainConfig: its train_size, epochs, batch and optimiser",

@@ -108,7 +108,7 @@ def measure(cfg: LoopConfig, name: str, people, splits, seed: int, sizes: Sequen
     def scores(family, params):
         sel = selection.make_selector(cfg.train_config(family), 1, 1)
         p1 = jax.tree.map(lambda x: x[None], params)
-        return np.asarray(sel.log_probs(p1, pool, jnp.asarray(test))[0])[:, :g]
+        return np.asarray(loop._scorer(sel)(p1, pool, jnp.asarray(test))[0])[:, :g]
 
     if READER in cfg.families:
         out.append(row(PRIOR, 0, scores(READER, inits[READER])))
