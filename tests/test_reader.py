@@ -256,3 +256,14 @@ def test_study_camera_is_the_members_own_or_the_datasets():
     obs = scene.camera("observer")
     for p in (zoo.MEMBERS["descent"], people.get_people("default")):
         np.testing.assert_array_equal(np.asarray(people.study_camera(p).pos), np.asarray(obs.pos))
+
+
+def test_the_fits_experiment_refuses_a_users_file_in_the_way(tmp_path, capsys):
+    from slotv_jax.experiments.people_loop import learned
+
+    (tmp_path / "answers_learned_tiny.json").write_text('{"mine": 1}')
+    with pytest.raises(SystemExit) as e:
+        learned.main(["--preset", "tiny", "--population", "anchor", "--sizes", "20,40",
+                      "--out", str(tmp_path), "--no-progress"])  # fmt: skip
+    assert e.value.code == 2 and "not ours" in capsys.readouterr().err
+    assert (tmp_path / "answers_learned_tiny.json").read_text() == '{"mine": 1}'

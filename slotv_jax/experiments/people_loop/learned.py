@@ -119,6 +119,11 @@ def measure(cfg: LoopConfig, name: str, people, splits, seed: int, sizes: Sequen
     return out
 
 
+def is_results(path: Path) -> bool:
+    """Whether ``path`` holds a document of this experiment (ours to write again)."""
+    return fileio.is_json_object_with(path, ("preset", "sizes", "families", "rows"))
+
+
 def report(rows: Sequence[dict], preset: str, seconds: float) -> str:
     """The Markdown table: each people's share closed by each family at each size."""
     fams = list(dict.fromkeys(r["family"] for r in rows))
@@ -193,7 +198,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     people = {s: people_lib.get_people(s) for s in specs}  # every name checked first
     out = Path(args.out)
     stem = f"answers_learned_{args.preset}"
-    fileio.check_output_files(out, [f"{stem}.json", f"{stem}.md"])
+    names = [f"{stem}.json", f"{stem}.md"]  # another's file of these names is refused
+    fileio.check_output_files(out, names, ours={names[0]: is_results}, beside=names[0])
     splits = data_lib.generate_dataset(
         cfg.data, data_lib.dataset_dir(args.cache, cfg.data), progress=not args.no_progress,
         splits=("train",),
