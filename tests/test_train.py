@@ -469,8 +469,13 @@ def test_train_trials_shows_its_bar_before_it_compiles(tiny, monkeypatch):
 
     monkeypatch.setattr(train, "tqdm", Bar)
     data = types.prepare(tr, "effdist")
-    train.train_trials(cfg, data, [0], progress=True)
-    train.train_trials(cfg, data, [1], progress=True)
+    with backend_compiles() as compiled:
+        train.train_trials(cfg, data, [0], progress=True)
+        # jit's executable cache is shared by the whole process and evicts the least recently
+        # used (a long run evicts this one): the trainer keeps its own compiled program
+        train._jit_trials(train.make_train(cfg, progress=True), False).clear_cache()
+        train.train_trials(cfg, data, [1], progress=True)
+    assert compiled.count("jit(train)") == 1
     assert [b.notes[0] for b in bars] == ["compiling the training step", "starting"]
     assert [b.n for b in bars] == [b.total for b in bars] == [64, 64]  # 4 updates of 16
     assert all(set(b.notes[1]) == {"loss"} for b in bars)  # the loss replaced the note
@@ -478,20 +483,22 @@ def test_train_trials_shows_its_bar_before_it_compiles(tiny, monkeypatch):
 
 def test_training_compiles_once_per_config(tiny):
     tr, _ = tiny
-    cfg = small_cfg("trex", epochs=1, train_size=64)
+    cfg = small_cfg("trex", epochs=1, train_size=64, hidden=(18, 6))  # its own programs
     a = types.prepare(tr, "effdist")
     b = types.make_data(
         tr.xyz[::-1], tr.goals[::-1], tr.goal_mask[::-1], tr.labels["effdist"][::-1]
     )
     slots = [types.trim_goals(types.subset(d, 64)).goals.shape for d in (a, b)]
     assert slots[0] == slots[1]  # the same shapes after cutting unused goal slots
-    train.train_trials(cfg, a, 2, progress=False)
-    train.train_trials(cfg, b, [5, 6], progress=False)
-    train.train_trials(cfg, a, [1], progress=False)  # one trial: the unbatched function
-    train.train_trials(cfg, b, [2], progress=False)
+    with backend_compiles() as compiled:
+        train.train_trials(cfg, a, 2, progress=False)
+        train.train_trials(cfg, b, [5, 6], progress=False)
+        train.train_trials(cfg, a, [1], progress=False)  # one trial: the unbatched function
+        train.train_trials(cfg, b, [2], progress=False)
     trainer = train.make_train(cfg, progress=False)
-    assert train._jit_trials(trainer, True)._cache_size() == 1
-    assert train._jit_trials(trainer, False)._cache_size() == 1
+    kept = [k for k in train._PROGRAMS if k[0] is trainer]
+    assert sorted(k[1] for k in kept) == [False, True]  # one program with a trial axis, one not
+    assert compiled.count("jit(train)") == 2  # each compiled once, by its first call
 
 
 def test_precompile_is_reused_by_train_trials(tiny):

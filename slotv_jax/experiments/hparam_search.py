@@ -209,7 +209,8 @@ def run(
         trainer = train.packed_trainer(
             trainer, jax.vmap(train.Trainer.state_key)(keys), td, range(tc.epochs)
         )
-        state, metrics = train._jit_trials(trainer, False)(keys[0], td, None)
+        args = (keys[0], td, None)
+        state, metrics = train._trials_program(trainer, False, args)(*args)
         ratio, _ = evaluate.start_accuracy(tc, state.params, vd, mesh=mesh)
         loss = metrics.loss
         finite = jnp.all(jnp.isfinite(loss)).astype(jnp.float32)

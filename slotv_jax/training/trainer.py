@@ -74,7 +74,6 @@ from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Float, Int
 from tqdm.auto import tqdm
 
-from slotv_jax.core.progress import has_compiled
 from slotv_jax.observers import models
 from slotv_jax.training import devices, evaluate
 from slotv_jax.training.config import TrainConfig
@@ -481,6 +480,27 @@ def _jit_trials(trainer: Trainer, vmapped: bool):
     return jax.jit(trainer.train)
 
 
+# The compiled training programs, by trainer, trial axis and argument shapes. Held here rather
+# than left to jit's own executable cache, which is shared by every jitted function of the
+# process and evicts the least recently used: a long process (a test suite, a sweep) would
+# otherwise compile a training step again, and could not tell beforehand whether it will.
+_PROGRAMS: dict[tuple, jax.stages.Compiled] = {}
+
+
+def _program_key(trainer: Trainer, vmapped: bool, args) -> tuple:
+    leaves, tree = jax.tree.flatten(args)
+    return trainer, vmapped, tree, tuple((tuple(x.shape), x.dtype) for x in leaves)
+
+
+def _trials_program(trainer: Trainer, vmapped: bool, args) -> jax.stages.Compiled:
+    """The compiled program of :func:`_jit_trials` for ``args`` (arrays or shape specs),
+    compiled on the first request and kept."""
+    key = _program_key(trainer, vmapped, args)
+    if key not in _PROGRAMS:
+        _PROGRAMS[key] = _jit_trials(trainer, vmapped).lower(*args).compile()
+    return _PROGRAMS[key]
+
+
 def trial_keys(seeds: int | Sequence[int]) -> jax.Array:
     """Keys for trials: ``jax.random.key(s)`` for each seed (an int n means seeds 0..n−1)."""
     seeds = range(seeds) if isinstance(seeds, int) else seeds
@@ -511,14 +531,14 @@ def train_trials(
     if val is not None and cfg.eval_every:
         ev = trainer.replicate(trainer.eval_data(trim_goals(subset(val, cfg.eval_size))))
     trainer = packed_trainer(trainer, jax.vmap(Trainer.state_key)(keys), data, range(cfg.epochs))
-    fn = _jit_trials(trainer, len(keys) > 1)
+    vmapped = len(keys) > 1  # no trial axis for one trial (XLA keeps a size-1 batch)
+    args = (keys if vmapped else keys[0], data, ev)
     if trainer.progress is not None:  # the bar shows from the start, through the compilation
         total = cfg.epochs * cfg.steps_per_epoch(data.xyz.shape[0])
-        note = "starting" if has_compiled(fn) else "compiling the training step"
-        trainer.progress.begin(total, note)
-    if len(keys) == 1:  # no trial axis inside the compiled loop (XLA keeps a size-1 batch)
-        return jax.tree.map(lambda x: x[None], fn(keys[0], data, ev))
-    return fn(keys, data, ev)
+        compiled = _program_key(trainer, vmapped, args) in _PROGRAMS
+        trainer.progress.begin(total, "starting" if compiled else "compiling the training step")
+    out = _trials_program(trainer, vmapped, args)(*args)
+    return out if vmapped else jax.tree.map(lambda x: x[None], out)
 
 
 def precompile(
@@ -555,7 +575,7 @@ def precompile(
         spec((n, n_goals), jnp.float32),
     )
     key = jax.eval_shape(lambda: jax.random.key(0))
-    _jit_trials(trainer, False).lower(key, data, None).compile()
+    _trials_program(trainer, False, (key, data, None))
     return True
 
 
