@@ -1,9 +1,11 @@
-"""What XLA compiles inside a block: the tests that count compilations share this."""
+"""What XLA compiles inside a block, and how often JAX traces a function: the tests that
+count compilations share this."""
 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+import functools
+from collections.abc import Callable, Iterator
 
 import jax
 
@@ -24,3 +26,19 @@ def backend_compiles() -> Iterator[list[str]]:
         yield compiled
     finally:
         jax.monitoring.unregister_event_duration_listener(listen)
+
+
+def counting_traces(fn: Callable) -> tuple[Callable, list[int]]:
+    """``fn`` and a list that grows by one each time JAX traces it (its Python body runs
+    only when a jitted caller compiles a new program): ``len(list) == 1`` after several calls
+    says that they shared one program. Unlike a jitted function's ``_cache_size()``, this does
+    not read jit's executable cache, which the whole process shares and which drops entries
+    when it is full."""
+    traces: list[int] = []
+
+    @functools.wraps(fn)
+    def traced(*args, **kwargs):
+        traces.append(1)
+        return fn(*args, **kwargs)
+
+    return traced, traces

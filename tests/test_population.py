@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from compile_log import backend_compiles
+from compile_log import backend_compiles, counting_traces
 from docs_pages import marked_block
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
@@ -186,16 +186,17 @@ def test_every_population_shares_one_program():
     pops = [EVERYTHING, DRAGAN_MEMORY, P.default(), P.homogeneous(),
             *(P.random_population(k) for k in range(4))]  # fmt: skip
     assert len({(len(p.viewpoints), len(p.rules), p.memory) for p in pops}) >= 4
-    probs = jax.jit(lambda q, x, g, m, s: P.population_probs(q, x, g, m, s))
+    counted, traces = counting_traces(P.population_probs)
+    probs = jax.jit(counted)
     xyz, goals, mask = random_problem(1, 5, behind=True)
     keys = jax.random.split(jax.random.key(0), 2)
     x2, g2, m2 = (np.stack([a, a]) for a in (xyz.astype(np.float32), goals, mask))
-    guesses = P._guesses._cache_size()  # shared by the module: other tests' shapes count
-    for i, pop in enumerate(pops):
-        probs(P.quadrature(pop), xyz.astype(np.float32), goals, mask, 5 + i)
-        P.sample_guesses_batch(pop, keys, x2, g2, m2, np.asarray([5 + i, 9]), 13)  # 13: new
-    assert probs._cache_size() == 1
-    assert P._guesses._cache_size() == guesses + 1
+    with backend_compiles() as compiled:
+        for i, pop in enumerate(pops):
+            probs(P.quadrature(pop), xyz.astype(np.float32), goals, mask, 5 + i)
+            P.sample_guesses_batch(pop, keys, x2, g2, m2, np.asarray([5 + i, 9]), 13)  # new
+    assert len(traces) == 1
+    assert compiled.count("jit(guess_goals)") == 1  # the guesses: one program too
 
 
 @pytest.mark.parametrize("pop", [EVERYTHING, DRAGAN_MEMORY], ids=lambda p: p.name)
@@ -356,12 +357,13 @@ def test_gradients_are_finite_and_ignore_unseen_points():
     def loss(x, L):
         return jnp.log(P.population_probs(quad, x, goals, mask, L)[0])
 
-    grad = jax.jit(jax.grad(loss))
+    counted, traces = counting_traces(loss)
+    grad = jax.jit(jax.grad(counted))
     for L in (2, 8, T):
         g = np.asarray(grad(xyz, L))
         assert np.all(np.isfinite(g)) and np.abs(g[:L]).max() > 0
         assert np.all(g[L:] == 0.0)
-    assert grad._cache_size() == 1
+    assert len(traces) == 1
     # NaN beyond the seen points reaches neither the value nor the gradient
     bad = xyz.copy()
     bad[15:] = np.nan
@@ -404,14 +406,15 @@ def test_population_observer_contract():
     np.testing.assert_allclose(jnp.exp(logits), P.population_probs(quad, xyz, goals, mask, T),
                                rtol=1e-6)  # fmt: skip
     assert np.all(np.isneginf(np.asarray(logits)[~mask]))
-    prefix = jax.jit(obs.prefix)
+    counted, traces = counting_traces(obs.prefix)
+    prefix = jax.jit(counted)
     for L in (4, 19):
         np.testing.assert_allclose(
             jnp.exp(prefix(xyz, goals, mask, L)),
             P.population_probs(quad, xyz, goals, mask, L),
             rtol=1e-6,
         )
-    assert prefix._cache_size() == 1
+    assert len(traces) == 1
 
 
 # ------------------------------------------------------------------ population files
