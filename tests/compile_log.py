@@ -33,7 +33,7 @@ def counting_traces(fn: Callable) -> tuple[Callable, list[int]]:
     only when a jitted caller compiles a new program): ``len(list) == 1`` after several calls
     says that they shared one program. Unlike a jitted function's ``_cache_size()``, this does
     not read jit's executable cache, which the whole process shares and which drops entries
-    when it is full."""
+    late in a long process."""
     traces: list[int] = []
 
     @functools.wraps(fn)

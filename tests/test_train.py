@@ -471,8 +471,8 @@ def test_train_trials_shows_its_bar_before_it_compiles(tiny, monkeypatch):
     data = types.prepare(tr, "effdist")
     with backend_compiles() as compiled:
         train.train_trials(cfg, data, [0], progress=True)
-        # jit's executable cache is shared by the whole process and evicts the least recently
-        # used (a long run evicts this one): the trainer keeps its own compiled program
+        # jit's executable cache is shared by the whole process and drops entries late in a
+        # long one (as here): the trainer keeps its own compiled program
         train._jit_trials(train.make_train(cfg, progress=True), False).clear_cache()
         train.train_trials(cfg, data, [1], progress=True)
     assert compiled.count("jit(train)") == 1

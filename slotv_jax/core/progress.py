@@ -21,7 +21,11 @@ from tqdm.auto import tqdm
 
 def has_compiled(fn: Callable) -> bool:
     """Whether the jitted ``fn`` holds a compiled program (for any arguments), so that a
-    note says "compiling" only before a call that does; False where JAX does not tell."""
+    note says "compiling" only before a call that does; False where JAX does not tell. It
+    reads jit's executable cache, which drops entries late in a long process: then a note may
+    say "compiling" for a program XLA still holds. Only a note rests on it; a stage whose
+    note must be right keeps its compiled programs itself, as
+    :func:`~slotv_jax.training.trainer.train_trials` does."""
     size = getattr(fn, "_cache_size", None)
     return bool(size is not None and size() > 0)
 

@@ -481,9 +481,9 @@ def _jit_trials(trainer: Trainer, vmapped: bool):
 
 
 # The compiled training programs, by trainer, trial axis and argument shapes. Held here rather
-# than left to jit's own executable cache, which is shared by every jitted function of the
-# process and evicts the least recently used: a long process (a test suite, a sweep) would
-# otherwise compile a training step again, and could not tell beforehand whether it will.
+# than left to jit's own executable cache, which every jitted function of the process shares
+# and which, late in a long process (a test suite, a sweep), drops entries: a training step
+# would then be compiled again, and its bar could not tell beforehand whether it will be.
 _PROGRAMS: dict[tuple, jax.stages.Compiled] = {}
 
 
