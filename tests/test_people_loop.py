@@ -144,7 +144,7 @@ def test_another_seed_adds_its_rows_to_the_document(tmp_path, monkeypatch, capsy
         cmp_ = {o: {"score": 0.3, "per_tau": [0.3, 0.3], "accuracy": 0.3}
                 for o in ("straight", "oracle", "oracle_whole")}  # fmt: skip
         return {"population": name, "population_config": {}, "rows": rows, "comparison": cmp_,
-                "example": {}, "timing": {"total_s": 1.0}}  # fmt: skip
+                "example": {}, "timing": {"total_s": 1.0}, "stimuli": []}  # fmt: skip
 
     monkeypatch.setattr(exp, "run_population", fake_run_population)
     monkeypatch.setattr(exp.data_lib, "generate_dataset", lambda *a, **k: {})
@@ -544,3 +544,81 @@ def test_the_loop_runs_on_a_zoo_member(tiny_run, tmp_path):
     assert {r["population"] for r in doc["summary"]} == {"descent"}
     text = (out / "people_loop_tiny.md").read_text()
     assert "descent" in text and "Of the suite's" not in text
+
+
+@pytest.mark.slow
+def test_rounds_of_plans_never_show_an_evaluation_scene_and_count_in_the_budget(tiny_run):
+    """The tiny preset asks half of its second round about plans (``plan_share`` 0.5). Every
+    row of every run is counted (the budget's last size), the first round is dataset motions
+    only, the second holds round(0.5 · k) plans, the planned families in turn, and every
+    stimulus (motion or plan) is of a ``train`` scene, none of whose goal sets is that of
+    an evaluation problem (compared coordinate by coordinate, from the dataset itself)."""
+    from slotv_jax import data as data_lib
+
+    _, cache, _, doc = tiny_run
+    cfg = exp.tiny()
+    splits = data_lib.generate_dataset(
+        cfg.data, data_lib.dataset_dir(cache, cfg.data), progress=False,
+        splits=("train", "position_test", "goal_count_test"),
+    )  # fmt: skip
+    held = exp.loop.held_out_problems(cfg, splits)
+    train_goals = splits["train"].scene_goals
+    train_mask = splits["train"].scene_mask
+    (run,) = doc["populations"][0]["runs"]
+    rows = [s // cfg.per_stimulus for s in cfg.sizes]
+    assert len(run["stimuli"]) == len(cfg.strategies) * cfg.seeds
+    for st in run["stimuli"]:
+        assert st["split"] == "train" and st["rows_per_size"] == rows
+        assert len(st["scene"]) == len(st["plan"]) == rows[-1]  # every round's rows
+        first, second = st["plan"][: rows[0]], st["plan"][rows[0] :]
+        assert set(first) == {""}
+        k_plan = round(cfg.plan_share * (rows[1] - rows[0]))
+        planned = [f for f in second if f]
+        assert len(planned) == k_plan
+        assert planned == [cfg.planned[j % len(cfg.planned)] for j in range(k_plan)]
+        for e in set(st["scene"]):
+            goals = train_goals[e][train_mask[e]]
+            for g, m in zip(held["goals"], held["goal_mask"], strict=True):
+                same = goals.shape == g[m].shape and np.allclose(goals, g[m], atol=1e-6)
+                assert not same, f"train scene {e} is an evaluation problem's scene"
+    assert run["timing"]["study_plan_s"] > 0
+
+
+def test_rounds_of_plans_are_refused_where_they_cannot_run():
+    cfg = exp.tiny()
+    with pytest.raises(ValueError, match="plan_share: expected a share"):
+        dataclasses.replace(cfg, plan_share=1.5)
+    with pytest.raises(ValueError, match="at least two sizes"):
+        dataclasses.replace(cfg, sizes=(40,))
+    with pytest.raises(ValueError, match="plan stimuli in a round"):
+        dataclasses.replace(cfg, sizes=(20, 200), subset=200, plan_share=1.0)
+    assert "plan_share" not in dataclasses.replace(cfg, plan_share=0.0).to_json()
+
+
+def test_plans_are_resampled_in_time_not_by_arc_length():
+    from slotv_jax.experiments.people_loop import rounds
+
+    x = np.zeros((3, 3), np.float32)
+    x[:, 0] = [0.0, 1.0, 4.0]  # at t = 0, 0.5, 1: slow, then fast
+    got = rounds.resample_time(x, 5)[:, 0]  # t = 0, 0.25, 0.5, 0.75, 1, by hand
+    np.testing.assert_allclose(got, [0.0, 0.5, 1.0, 2.5, 4.0], atol=1e-6)
+    np.testing.assert_array_equal(rounds.resample_time(x, 3), x)  # already at 3 times
+
+
+def test_each_run_and_round_has_its_own_plans_and_draws_every_family_in_turn():
+    from slotv_jax.experiments.people_loop import rounds
+
+    slots = rounds.PlanSlots(100, ("a", "b", "c"), (5, 6, 7, 8), runs=2, rounds=2, n_taus=2)
+    blocks = [slots.block(i, r) for i in range(2) for r in range(2)]
+    every = np.concatenate(blocks)
+    assert every.min() == 100 and every.size == np.unique(every).size == slots.motions == 48
+    assert slots.describe(99) is None
+    assert slots.describe(int(slots.block(1, 0)[0])) == ("a", 0)
+    assert slots.describe(int(slots.block(1, 0)[-1])) == ("c", 3)
+    c = slots.draw(1, 1, 24, np.random.default_rng(0))  # all 3 × 4 × 2 of that block
+    motions = c // 2
+    assert np.unique(c).size == 24 and set(motions) == set(slots.block(1, 1))
+    fams = [slots.describe(int(m))[0] for m in motions]
+    assert fams[:6] == ["a", "b", "c"] * 2
+    with pytest.raises(ValueError, match=r"k: expected 0\.\.24"):
+        slots.draw(0, 0, 25, np.random.default_rng(0))

@@ -222,6 +222,7 @@ def _run_one(cfg, doc, entries, path, spec, seeds, splits, progress) -> None:
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "environment": environment(),
         "timing": got.pop("timing"),
+        "stimuli": got.pop("stimuli"),  # what each run asked about (seeds apart: per run)
     }
     _add(doc, entries, {**got, "runs": [record]})
     write_text(path, json.dumps(doc, indent=1))

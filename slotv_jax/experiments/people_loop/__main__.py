@@ -71,6 +71,12 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--sizes", help="comma-separated answer counts, e.g. 250,500,1000")
     ap.add_argument("--problems", type=int, help="held-out planning problems")
     ap.add_argument(
+        "--plan-share",
+        type=float,
+        help="share of every round after the first asked about the planner's own plans of "
+        "the study's scenes (0 to 1; default: the preset's)",
+    )
+    ap.add_argument(
         "--processes",
         type=int,
         default=1,
@@ -99,6 +105,8 @@ def config_from(args: argparse.Namespace) -> LoopConfig:
         change["first_seed"] = args.first_seed
     if args.problems is not None:
         change["problems"] = args.problems
+    if args.plan_share is not None:
+        change["plan_share"] = args.plan_share
     for name in ("strategies", "families"):
         v = getattr(args, name)
         if v is not None:
@@ -119,10 +127,10 @@ def config_from(args: argparse.Namespace) -> LoopConfig:
 def config_flags(args: argparse.Namespace) -> list[str]:
     """The flags that make :func:`config_from`'s config (for a spread run's workers)."""
     out = ["--preset", args.preset]
-    for flag in ("strategies", "families", "sizes", "problems"):
+    for flag in ("strategies", "families", "sizes", "problems", "plan_share"):
         v = getattr(args, flag)
         if v is not None:
-            out += [f"--{flag}", str(v)]
+            out += [f"--{flag.replace('_', '-')}", str(v)]
     return out
 
 

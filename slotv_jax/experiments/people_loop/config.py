@@ -87,6 +87,9 @@ class LoopConfig:
     first_seed: int = 0
     overrides: tuple[str, ...] = ()  # TrainConfig key=value overrides of the MLP families
     pick_folds: int = 3  # K of the pick's out-of-fold predictions (folds by motion)
+    #: Share of every round after the first asked about the planner's own plans of the
+    #: study's scenes (:mod:`slotv_jax.experiments.people_loop.rounds`); 0: dataset motions only.
+    plan_share: float = 0.0
 
     def __post_init__(self):
         s, per = self.sizes, self.per_stimulus
@@ -149,12 +152,29 @@ class LoopConfig:
                 raise ValueError(f"{f}: expected an int >= 1, got {v!r}")
         if not (self.epochs > 0 and self.select_epochs > 0):
             raise ValueError("epochs, select_epochs: expected > 0")
+        if not (isinstance(self.plan_share, int | float) and 0 <= self.plan_share <= 1):
+            raise ValueError(f"plan_share: expected a share in [0, 1], got {self.plan_share!r}")
+        if self.plan_share and len(s) < 2:
+            raise ValueError("plan_share: rounds of plans need at least two sizes")
+        cap = len(self.planned) * self.problems * len(self.taus)
+        later = max([0] + [(b - a) // per for a, b in itertools.pairwise(s)])
+        if round(self.plan_share * later) > cap:
+            raise ValueError(
+                f"plan_share: {round(self.plan_share * later)} plan stimuli in a round, the "
+                f"plans hold {cap} ({len(self.planned)} families × {self.problems} problems × "
+                f"{len(self.taus)} stop times)"
+            )
         validation.check_seeds("first_seed", self.first_seed, self.seeds, count_name="seeds")
 
     @property
     def candidates(self) -> tuple[str, ...]:
         """The families the picks choose from (every family of the run but the picks)."""
         return tuple(f for f in self.families if f not in DERIVED)
+
+    @property
+    def planned(self) -> tuple[str, ...]:
+        """The families whose plans rounds of plans ask about: the candidates and the pick."""
+        return self.candidates + ((PICK,) if PICK in self.families else ())
 
     def train_config(self, family: str) -> train_config.TrainConfig:
         """The TrainConfig that fits ``family`` (a learned or pre-trained one) on answers
@@ -178,6 +198,8 @@ class LoopConfig:
         d = dataclasses.asdict(self)
         if PICK not in self.families:  # irrelevant without the pick: records made before it match
             del d["pick_folds"]
+        if not self.plan_share:  # dataset motions only: records made before it match
+            del d["plan_share"]
         used = {PRETRAINED.get(f, f) for f in self.families}
         d["train"] = {f: self.train_config(f).to_dict() for f in LEARNED if f in used}
         if any(f in PRETRAINED for f in self.families):  # records made before it match
@@ -259,6 +281,7 @@ def tiny() -> LoopConfig:
         seeds=1,
         overrides=("hidden=16,8",),
         pick_folds=2,
+        plan_share=0.5,
     )
 
 

@@ -18,6 +18,7 @@ from slotv_jax.answers import pooling, prior
 from slotv_jax.answers.pick import cross_judged, trusted
 from slotv_jax.asking import selection, simulated
 from slotv_jax.core.shapes import bucket, pad_rows
+from slotv_jax.experiments.people_loop import rounds
 from slotv_jax.experiments.people_loop.config import (
     CAMERA,
     DERIVED,
@@ -439,16 +440,32 @@ def run_population(
             "plan_s": 0.0,
             "judge_s": 0.0,
             "eval_s": 0.0,
+            "study_plan_s": 0.0,
         },
     )
-    xyz, goals, mask = pool_motions(cfg, splits["train"])
-    pool = selection.make_pool(xyz, goals, mask, cfg.taus)
-    n_c, per, g = int(pool.traj.shape[0]), cfg.per_stimulus, int(pool.goals.shape[1])
+    per = cfg.per_stimulus
     rows = [s // per for s in cfg.sizes]
     cap = rows[-1]
     seeds = list(seeds)
     runs = [(st, sd) for st in cfg.strategies for sd in seeds]
     n_r = len(runs)
+    xyz, goals, mask = pool_motions(cfg, splits["train"])
+    n_motion_c = xyz.shape[0] * len(cfg.taus)  # the dataset motions' candidates come first
+    slots = None
+    if cfg.plan_share:  # rounds of plans: the study's problems, and the pool's plan motions
+        study = rounds.study_problems(cfg.problems, splits)
+        study_straight = planning.straight_lines(
+            study["goals"], study["goal_mask"], study["target"], cfg=cfg.planner
+        )
+        slots = rounds.PlanSlots(
+            xyz.shape[0], cfg.planned, tuple(study["scene"].tolist()), n_r, len(rows) - 1,
+            len(cfg.taus),
+        )  # fmt: skip
+        lines = rounds.resample_time(np.asarray(study_straight.xyz), xyz.shape[1])
+        pool = rounds.extend_pool(xyz, goals, mask, cfg.taus, slots, study, lines)
+    else:
+        pool = selection.make_pool(xyz, goals, mask, cfg.taus)
+    n_c, g = int(pool.traj.shape[0]), int(pool.goals.shape[1])
     run_seeds = [sd for _, sd in runs]
     cand = np.zeros((n_r, cap), np.int32)
     counts = np.zeros((n_r, cap, g), np.float32)
@@ -469,7 +486,7 @@ def run_population(
 
     t0 = time.perf_counter()
     for i, (_, sd) in enumerate(runs):  # round 0: the same random draw for every strategy
-        ask(i, 0, np.random.default_rng([sd, 1]).choice(n_c, rows[0], replace=False))
+        ask(i, 0, np.random.default_rng([sd, 1]).choice(n_motion_c, rows[0], replace=False))
     timing["answers_s"] += time.perf_counter() - t0
 
     t0 = time.perf_counter()  # the pre-trained families' θ₀, from the labels alone
@@ -635,11 +652,24 @@ def run_population(
         if r + 1 == len(rows):
             break
 
-        # Ask: the next round's stimuli.
+        # Ask: the next round's stimuli, a share of them the plans of the study's problems.
         k = rows[r + 1] - n_rows
+        k_plan = 0
+        if slots is not None:
+            t0 = time.perf_counter()
+            k_plan = round(cfg.plan_share * k)
+            study_plans = {  # every candidate's plans and the pick's, of every run
+                f: np.asarray(planner.plan_problems(params, study_straight, family=f).xyz)
+                for f in slots.families
+            }
+            for i in range(n_r):
+                own = {f: v[i] for f, v in study_plans.items()}
+                pool = rounds.write_plans(pool, slots, i, r, own)
+            timing["study_plan_s"] += time.perf_counter() - t0
+        k -= k_plan
         t0 = time.perf_counter()
         picks = {}
-        if active:
+        if active and k:
             ans = selection.Answers(
                 jnp.asarray(cand[active]),
                 jnp.asarray(counts[active]),
@@ -655,7 +685,7 @@ def run_population(
                 )
             for a, i in enumerate(active):
                 st, sd = runs[i]
-                free = np.flatnonzero(~asked[i])
+                free = np.flatnonzero(~asked[i, :n_motion_c])  # dataset motions only
                 sub = np.random.default_rng([sd, 2, r]).choice(
                     free, min(cfg.subset, free.size), replace=False
                 )
@@ -668,10 +698,14 @@ def run_population(
         timing["select_s"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         for i, (st, sd) in enumerate(runs):
-            if st == "random":
-                free = np.flatnonzero(~asked[i])
+            if st == "random" or not k:
+                free = np.flatnonzero(~asked[i, :n_motion_c])
                 picks[i] = np.random.default_rng([sd, 3, r]).choice(free, k, replace=False)
-            ask(i, n_rows, np.asarray(picks[i], np.int32))
+            new = np.asarray(picks[i], np.int32)
+            if k_plan:  # the plans of this run, drawn by its seed and round alone
+                rng = np.random.default_rng([sd, 4, r])
+                new = np.concatenate([new, slots.draw(i, r, k_plan, rng)])
+            ask(i, n_rows, new)
         timing["answers_s"] += time.perf_counter() - t0
     bar.close()
     timing["total_s"] = time.perf_counter() - t_all
@@ -693,7 +727,38 @@ def run_population(
             "q": {k: v.round(6).tolist() for k, v in example.items()},
         },
         "timing": {k: round(v, 2) for k, v in timing.items()},
+        "stimuli": asked_stimuli(runs, cand, pool, slots, splits["train"], cfg),
     }
+
+
+def asked_stimuli(runs, cand, pool, slots, split, cfg: LoopConfig) -> list[dict]:
+    """What each run asked about, row by row: the scene of the ``train`` split it showed
+    (a dataset motion's own, or a plan's study problem's), and for a plan its family (""
+    for a dataset motion); with the answers each round added, and how many were plans."""
+    traj = np.asarray(pool.traj)
+    out = []
+    for i, (st, sd) in enumerate(runs):
+        scene, family = [], []
+        for c in cand[i]:
+            m = int(traj[c])
+            what = None if slots is None else slots.describe(m)
+            if what is None:
+                scene.append(int(split.env_id[m]))
+                family.append("")
+            else:
+                scene.append(slots.scenes[what[1]])
+                family.append(what[0])
+        out.append(
+            {
+                "strategy": st,
+                "seed": sd,
+                "split": rounds.STUDY_SPLIT,
+                "scene": scene,
+                "plan": family,
+                "rows_per_size": [s // cfg.per_stimulus for s in cfg.sizes],
+            }
+        )
+    return out
 
 
 _SCORERS: dict = {}

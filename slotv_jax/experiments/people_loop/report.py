@@ -309,6 +309,13 @@ def report(doc: dict, stem: str, out: Path = DEFAULT_OUT) -> str:
             f"{FAMILY_TITLES.get(cfg['select_family'])} observers."
             if set(cfg["strategies"]) != {"random"}
             else "; the motions asked about are picked at random."
+        )
+        + (
+            f" Every round after the first asks {100 * cfg['plan_share']:.0f} % of its stimuli "
+            "about the planner's own plans of the study's scenes, the candidates' and the "
+            "pick's in turn (rounds of plans, `--plan-share`; never an evaluation problem's scene)."
+            if cfg.get("plan_share")
+            else ""
         ),
         "",
         f"Machine: {device(env)}; Python {env.get('python')}, jax "
@@ -345,6 +352,8 @@ def command_line(doc: dict, out: Path = DEFAULT_OUT) -> str:
         if base is not None and cfg[k] != base.get(k):
             v = cfg[k]
             words += [f"--{k}", ",".join(map(str, v)) if isinstance(v, list) else str(v)]
+    if base is not None and cfg.get("plan_share", 0) != base.get("plan_share", 0):
+        words += ["--plan-share", f"{cfg.get('plan_share', 0):g}"]
     pops = [p["population"] for p in doc["populations"]]
     if pops != ["default"]:
         groups = {"suite": population_lib.suite_specs(), "zoo": zoo.zoo_names()}
