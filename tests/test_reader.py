@@ -267,3 +267,32 @@ def test_the_fits_experiment_refuses_a_users_file_in_the_way(tmp_path, capsys):
                       "--out", str(tmp_path), "--no-progress"])  # fmt: skip
     assert e.value.code == 2 and "not ours" in capsys.readouterr().err
     assert (tmp_path / "answers_learned_tiny.json").read_text() == '{"mine": 1}'
+
+
+def test_a_run_never_learns_its_prior_from_the_people_it_is_scored_on(monkeypatch):
+    """A draw of the hyper-distribution can be both a prior source and the people a run is
+    scored on (``--population random:1003``): it is left out as a zoo member is. And the
+    people loop asks for the reader's prior without the population it scores: the name it
+    passes reaches ``prior_study``'s ``exclude``."""
+    from types import SimpleNamespace
+
+    from slotv_jax.experiments import people_loop as exp
+    from slotv_jax.experiments.people_loop import loop
+
+    names = [n for n, _ in prior.sources(exclude=("random:1003",))]
+    assert "random:1003" not in names and {"random:1002", "random:1004"} <= set(names)
+    assert len(names) == 4 + prior.PRIOR_DRAWS - 1 + len(zoo.MEMBERS)
+
+    asked = []
+    monkeypatch.setattr(loop, "_PRETRAINED", {})  # the process's cache is left as it was
+    monkeypatch.setattr(prior, "prior_study",
+                        lambda *a, exclude=(), **k: asked.append(tuple(exclude)))  # fmt: skip
+    monkeypatch.setattr(prior, "prior_params", lambda tc, study, camera: {"theta": 0})
+    cfg = exp.tiny()
+    xyz, goals, mask = _motions(7, cfg.pool)
+    split = SimpleNamespace(xyz=xyz, scene_goals=goals, scene_mask=mask,
+                            env_id=np.arange(cfg.pool))  # fmt: skip
+    camera = SimpleNamespace(pos=np.zeros(3), rot=np.eye(3))
+    for name in ("descent", "random:1003", "default"):
+        loop.reader_prior(cfg, split, name, camera)
+    assert asked == [("descent",), ("random:1003",), ("default",)]

@@ -14,8 +14,10 @@ the mean guess distribution of the **sources**:
 - :data:`PRIOR_DRAWS` populations drawn from the population hyper-distribution
   (:func:`slotv_jax.observers.population.random_population` of K = 1000, 1001, …: none of
   the suite's draws, :data:`slotv_jax.observers.population.SUITE_DRAWS`);
-- every member of the zoo (:mod:`slotv_jax.observers.zoo`) but the ones named in
-  ``exclude``: the people a study is scored on are never among its prior's sources.
+- every member of the zoo (:mod:`slotv_jax.observers.zoo`);
+
+less the ones named in ``exclude`` (a zoo member's name, or ``random:K`` for a draw): the
+people a study is scored on are never among its prior's sources.
 
     y_prior(k | ξ_{0:τ}) = (1/S) Σ_s P_s(k | ξ_{0:τ})
 
@@ -67,10 +69,12 @@ CHUNK = 256  # rows per compiled call of the sources' probabilities
 
 def sources(exclude: Sequence[str] = (), draws: int = PRIOR_DRAWS) -> list[tuple[str, object]]:
     """``(name, observer)`` of every source of the prior (module docstring), the zoo's
-    members named in ``exclude`` left out. Each observer has ``prefix(xyz, goals, goal_mask,
-    seen) -> log P``."""
+    members and the draws (``random:K``) named in ``exclude`` left out. Each observer has
+    ``prefix(xyz, goals, goal_mask, seen) -> log P``."""
     out: list[tuple[str, object]] = [(n, labeler_observer(n)) for n in LABELER_NAMES]
     for k in range(FIRST_DRAW, FIRST_DRAW + draws):  # one quadrature shape: one compilation
+        if f"random:{k}" in set(exclude):
+            continue
         quad = population_lib.quadrature(population_lib.random_population(k))
         out.append((f"random:{k}", population_lib.quadrature_observer(quad)))
     out += [(n, m) for n, m in zoo.MEMBERS.items() if n not in set(exclude)]

@@ -154,8 +154,6 @@ class LoopConfig:
             raise ValueError("epochs, select_epochs: expected > 0")
         if not (isinstance(self.plan_share, int | float) and 0 <= self.plan_share <= 1):
             raise ValueError(f"plan_share: expected a share in [0, 1], got {self.plan_share!r}")
-        if self.plan_share and len(s) < 2:
-            raise ValueError("plan_share: rounds of plans need at least two sizes")
         cap = len(self.planned) * self.problems * len(self.taus)
         later = max([0] + [(b - a) // per for a, b in itertools.pairwise(s)])
         if round(self.plan_share * later) > cap:

@@ -1,9 +1,25 @@
 """The loop for one population and its seeds (the package docstring's protocol): the
 planner's observers in one compiled switch, the simulated study on the pool, the fits,
-the plans and their evaluation by the population."""
+the plans and their evaluation by the population.
+
+Read from :func:`run_population` down: its stages are named objects and functions of this
+module, each size in the order learn, plan, judge, evaluate, ask:
+
+- :class:`SimulatedStudy`: the pool (with the plan motions of rounds of plans), each run's
+  rows and the population's answers (``first_round``, ``ask``, ``write_plans``, ``stimuli``);
+- :class:`ActiveAsker`: the active strategies' ensemble and their picks;
+- :func:`initial_params`, :func:`fit_family`, :func:`fitted_betas`: learn;
+- :func:`pick_heldout`, :func:`pick_runs`: the pick's held-out predictions and pool;
+- :func:`planner_for`, :func:`oracle_plans`: plan (one compiled program each);
+- :func:`judge_plans`: every plan judged by every fit (the pick by plans, the trusted);
+- :class:`Evaluation`, :func:`family_rows`: the held-out problems, the floor and oracles,
+  and each family's rows;
+- :class:`Timing`: the seconds of each stage, in the document.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 from collections.abc import Sequence
@@ -412,7 +428,268 @@ def plan_scores(scorer, keys: jax.Array, res, problems) -> dict:
     )
 
 
-# ------------------------------------------------------------------ the loop
+# ------------------------------------------------------------------ the loop's stages
+
+
+class Timing(dict):
+    """Seconds spent in each stage of the loop, ``with timing("fit"): ...`` adding to
+    ``fit_s``."""
+
+    STAGES = ("answers", "fit", "beta", "select", "pretrain", "pick", "plan", "judge", "eval",
+              "study_plan")  # fmt: skip
+
+    def __init__(self):
+        super().__init__({f"{s}_s": 0.0 for s in self.STAGES})
+        self._start = time.perf_counter()
+
+    @contextlib.contextmanager
+    def __call__(self, stage: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self[f"{stage}_s"] += time.perf_counter() - t0
+
+    def done(self) -> dict:
+        """Every stage's seconds and ``total_s``, rounded."""
+        return {**{k: round(v, 2) for k, v in self.items()},
+                "total_s": round(time.perf_counter() - self._start, 2)}  # fmt: skip
+
+
+class SimulatedStudy:
+    """The study of one population, every run (strategy, seed) side by side: the pool of
+    stimuli (the dataset's motions, then the plan motions of rounds of plans:
+    :mod:`~slotv_jax.experiments.people_loop.rounds`), each run's rows asked so far
+    (``cand (R, cap)``, ``counts (R, cap, G)``, the first ``n_rows`` filled) and the
+    population's answers, drawn once per (seed, stimulus)."""
+
+    def __init__(self, cfg: LoopConfig, pop, splits, seeds: Sequence[int]):
+        self.cfg, self.pop = cfg, pop
+        self.rows = [s // cfg.per_stimulus for s in cfg.sizes]  # rows after each size
+        self.runs = [(st, sd) for st in cfg.strategies for sd in seeds]
+        self.seeds = [sd for _, sd in self.runs]
+        xyz, goals, mask = pool_motions(cfg, splits["train"])
+        self.n_motion_c = xyz.shape[0] * len(cfg.taus)  # the dataset motions' candidates
+        self.slots = self.study_straight = None
+        if cfg.plan_share and len(self.rows) > 1:  # rounds of plans: the pool's plan motions
+            study = rounds.study_problems(cfg.problems, splits)
+            self.study_straight = planning.straight_lines(
+                study["goals"], study["goal_mask"], study["target"], cfg=cfg.planner
+            )
+            self.slots = rounds.PlanSlots(
+                xyz.shape[0], cfg.planned, tuple(study["scene"].tolist()), len(self.runs),
+                len(self.rows) - 1, len(cfg.taus),
+            )  # fmt: skip
+            lines = rounds.resample_time(np.asarray(self.study_straight.xyz), xyz.shape[1])
+            self.pool = rounds.extend_pool(xyz, goals, mask, cfg.taus, self.slots, study, lines)
+        else:
+            self.pool = selection.make_pool(xyz, goals, mask, cfg.taus)
+        n_r, cap, g = len(self.runs), self.rows[-1], int(self.pool.goals.shape[1])
+        self.cand = np.zeros((n_r, cap), np.int32)
+        self.counts = np.zeros((n_r, cap, g), np.float32)
+        self.asked = np.zeros((n_r, int(self.pool.traj.shape[0])), bool)
+        self.heard: dict[int, dict[int, np.ndarray]] = {sd: {} for sd in seeds}
+
+    def ask(self, i: int, start: int, new: np.ndarray) -> None:
+        """Run ``i``'s rows ``start, start + 1, …`` are the candidates ``new``, answered by
+        ``per_stimulus`` fresh participants each
+        (:func:`~slotv_jax.asking.simulated.population_answers`: a stimulus gets the same
+        answers under every strategy of a seed)."""
+        sd = self.runs[i][1]
+        todo = np.asarray([c for c in new if c not in self.heard[sd]], np.int32)
+        if todo.size:
+            got = simulated.population_answers(self.pop, sd, self.pool, todo, self.cfg.per_stimulus)
+            for c, k in zip(todo, got, strict=True):
+                self.heard[sd][int(c)] = k
+        self.cand[i, start : start + new.size] = new
+        self.counts[i, start : start + new.size] = [self.heard[sd][int(c)] for c in new]
+        self.asked[i, new] = True
+
+    def first_round(self) -> None:
+        """Round 0: the same random draw of dataset motions for every strategy of a seed."""
+        for i, (_, sd) in enumerate(self.runs):
+            rng = np.random.default_rng([sd, 1])
+            self.ask(i, 0, rng.choice(self.n_motion_c, self.rows[0], replace=False))
+
+    def free(self, i: int) -> np.ndarray:
+        """The dataset motions' candidates run ``i`` has not asked about."""
+        return np.flatnonzero(~self.asked[i, : self.n_motion_c])
+
+    def write_plans(self, planner, params, r: int) -> None:
+        """Rounds of plans: every run's plans of the study problems, by each candidate
+        family and the pick, written into the pool for the round after size ``r``."""
+        made = {  # (R, P, n, 3) per family
+            f: np.asarray(planner.plan_problems(params, self.study_straight, family=f).xyz)
+            for f in self.slots.families
+        }
+        for i in range(len(self.runs)):
+            own = {f: v[i] for f, v in made.items()}
+            self.pool = rounds.write_plans(self.pool, self.slots, i, r, own)
+
+    def stimuli(self, split) -> list[dict]:
+        """What each run asked about, row by row: the scene of the ``train`` split it showed
+        (a dataset motion's own, or a plan's study problem's), and for a plan its family
+        ("" for a dataset motion)."""
+        traj = np.asarray(self.pool.traj)
+        out = []
+        for i, (st, sd) in enumerate(self.runs):
+            scene, family = [], []
+            for c in self.cand[i]:
+                m = int(traj[c])
+                what = None if self.slots is None else self.slots.describe(m)
+                scene.append(int(split.env_id[m]) if what is None else self.slots.scenes[what[1]])
+                family.append("" if what is None else what[0])
+            out.append({"strategy": st, "seed": sd, "split": rounds.STUDY_SPLIT,
+                        "scene": scene, "plan": family, "rows_per_size": self.rows})  # fmt: skip
+        return out
+
+
+class ActiveAsker:
+    """The active strategies' ensemble of ``select_family`` observers (one per active run,
+    warm-started from round to round) and the candidates each strategy picks from it."""
+
+    def __init__(self, cfg: LoopConfig, study: SimulatedStudy):
+        self.cfg, self.study = cfg, study
+        self.active = [i for i, (st, _) in enumerate(study.runs) if st != "random"]
+        self.tc = cfg.train_config(cfg.select_family)
+        self.selector = selection.make_selector(self.tc, cfg.members, study.rows[-1])
+        self.ens = None
+        if self.active:
+            keys = jnp.stack([jax.random.key(3_000 + study.runs[i][1]) for i in self.active])
+            self.ens = jax.jit(jax.vmap(self.selector.init))(keys)
+
+    def pick(self, r: int, n_rows: int, k: int) -> dict[int, np.ndarray]:
+        """Each active run's ``k`` dataset-motion candidates after size ``r`` (``n_rows``
+        rows answered): the ensemble fitted on the answers so far, then the strategy's
+        choice among a random subset of the candidates not yet asked."""
+        cfg, st_, picks = self.cfg, self.study, {}
+        if not (self.active and k):
+            return picks
+        act = self.active
+        ans = selection.Answers(jnp.asarray(st_.cand[act]), jnp.asarray(st_.counts[act]),
+                                jnp.full((len(act),), n_rows, jnp.int32))  # fmt: skip
+        keys = jnp.stack([jax.random.key(5_000 + 31 * r + st_.runs[i][1]) for i in act])
+        fit = simulated.fitter(self.selector, cfg.block)
+        blocks = cfg.updates(n_rows, self.tc.batch_size, cfg.select_epochs, cfg.block) // cfg.block
+        for j in range(blocks):
+            step = jax.vmap(lambda kk, j=j: jax.random.fold_in(kk, j))(keys)
+            self.ens, _ = fit(self.ens, st_.pool, ans, step)
+        for a, i in enumerate(act):
+            st, sd = st_.runs[i]
+            free = st_.free(i)
+            sub = np.random.default_rng([sd, 2, r]).choice(
+                free, min(cfg.subset, free.size), replace=False
+            )
+            member = jax.tree.map(lambda x, a=a: x[a], self.ens.params)
+            logp = _scorer(self.selector)(member, st_.pool, jnp.asarray(sub))
+            pick = selection.select(
+                st, jax.random.fold_in(keys[a], 1), logp, jnp.ones(sub.size, bool), k
+            )
+            picks[i] = sub[np.asarray(pick)]
+        return picks
+
+
+def initial_params(cfg: LoopConfig, name: str, pop, split) -> dict:
+    """θ₀ of every family that does not start from a random draw: the pre-trained ones from
+    the labelers' labels (:func:`pretrained_params`), the motion reader from its prior
+    without the people scored, filmed by their camera (:func:`reader_prior`)."""
+    inits = {f: pretrained_params(cfg, f, split) for f in cfg.families if f in PRETRAINED}
+    if READER in cfg.families:
+        inits[READER] = reader_prior(cfg, split, name, people_lib.study_camera(pop))
+    return inits
+
+
+def fitted_betas(cfg: LoopConfig, study: SimulatedStudy, n_rows: int) -> np.ndarray:
+    """Each run's β of Dragan's and Nikolaidis' labelers (R, len(FITTED)) on its first
+    ``n_rows`` rows (:func:`slotv_jax.asking.simulated.fitted_betas`); 1 where none is fitted."""
+    betas = np.ones((len(study.runs), len(FITTED)), np.float32)
+    if any(f in FITTED for f in cfg.families):
+        for i in range(len(study.runs)):
+            betas[i] = simulated.fitted_betas(
+                study.pool, cfg.taus, study.cand[i, :n_rows], study.counts[i, :n_rows],
+                list(FITTED.values()), CAMERA,
+            )  # fmt: skip
+    return betas
+
+
+def judge_plans(cfg: LoopConfig, params, plans, problems):
+    """Every candidate's plans judged by every candidate's fit (:func:`judge_for`): each
+    family's mean P(target) per run, and the pick by plans' choice
+    (:func:`slotv_jax.answers.pick.cross_judged`)."""
+    judged: dict[str, dict[str, np.ndarray]] = {}
+    for g in cfg.candidates:
+        judge_g = judge_for(cfg, g)
+        for f in cfg.candidates:
+            p_g = judge_g(params, plans[f].xyz, problems.goals, problems.goal_mask,
+                          problems.target)  # fmt: skip
+            judged.setdefault(f, {})[g] = np.asarray(p_g, np.float64).mean((1, 2))
+    chosen, cross = cross_judged(judged, cfg.candidates)
+    return judged, chosen, cross
+
+
+class Evaluation:
+    """The held-out problems, their straight lines, the population's scorer and each run's
+    evaluation keys; the floor and the oracles, planned once."""
+
+    def __init__(self, cfg: LoopConfig, pop, splits, runs):
+        self.cfg, self.pop, n_r = cfg, pop, len(runs)
+        self.prob = held_out_problems(cfg, splits)
+        self.straight = planning.straight_lines(
+            self.prob["goals"], self.prob["goal_mask"], self.prob["target"], cfg=cfg.planner
+        )
+        self.problems = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape)), self.straight)
+        self.scorer = evaluation.population_scorer(
+            pop, cfg.taus, cfg.planner.n_points, cfg.eval_participants
+        )
+        self.keys = eval_keys(runs)
+        self.floor: dict | None = None
+
+    def scores(self, res) -> dict:
+        return plan_scores(self.scorer, self.keys, res, self.problems)
+
+    def plan_floor(self, example: dict) -> dict:
+        """The straight line's, the oracle's and the whole-motion oracle's scores (once)."""
+        if self.floor is None:
+            n_r = self.problems.q.shape[0]
+            self.floor = {"straight": self.scores(straight_as_plan(self.problems))}
+            for o, res in oracle_plans(self.cfg.planner, self.pop, self.straight).items():
+                res = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape)), res)
+                self.floor[o] = self.scores(res)
+                example[o] = np.asarray(res.q[0, 0])
+            example["straight"] = np.asarray(self.problems.q[0, 0])
+        return self.floor
+
+    def comparison(self) -> dict:
+        return {
+            o: {
+                "score": float(self.floor[o]["score"][0]),
+                "per_tau": self.floor[o]["per_tau"][0].round(6).tolist(),
+                "accuracy": float(self.floor[o]["correct"][0]),
+            }
+            for o in ("straight", "oracle", "oracle_whole")
+        }
+
+
+def family_rows(cfg, ev: Evaluation, name, runs, answers, f, res, extras) -> list[dict]:
+    """One row per run of family ``f``'s plans ``res`` at ``answers``: score, gain kept,
+    accuracy with its Wilson interval, feasibility, and run i's ``extras[i]``."""
+    sc = ev.scores(res)
+    lo, hi = ev.floor["straight"]["score"], ev.floor["oracle"]["score"]
+    n_eval = cfg.problems * len(cfg.taus) * cfg.eval_participants
+    out = []
+    for i, (st, sd) in enumerate(runs):
+        acc = float(sc["correct"][i])
+        out.append({
+            "population": name, "family": f, "strategy": st, "seed": sd, "answers": answers,
+            "score": float(sc["score"][i]),
+            "score_per_tau": sc["per_tau"][i].round(6).tolist(),
+            "gain_kept": float((sc["score"][i] - lo[i]) / (hi[i] - lo[i])),
+            "accuracy": acc,
+            "accuracy_95": [round(v, 4) for v in evaluation.wilson(acc * n_eval, n_eval)],
+            "feasible": float(np.mean(np.asarray(res.feasible[i]))),
+            **extras[i],
+        })  # fmt: skip
+    return out
 
 
 def run_population(
@@ -427,338 +704,163 @@ def run_population(
 ) -> dict:
     """The whole loop for one population and ``seeds``; returns its rows, comparison and
     timings. Each seed's rows depend on that seed alone, so seeds run apart merge into one
-    document. ``on_size(rows)`` is called with the rows so far after each size."""
-    t_all, timing = (
-        time.perf_counter(),
-        {
-            "answers_s": 0.0,
-            "fit_s": 0.0,
-            "beta_s": 0.0,
-            "select_s": 0.0,
-            "pretrain_s": 0.0,
-            "pick_s": 0.0,
-            "plan_s": 0.0,
-            "judge_s": 0.0,
-            "eval_s": 0.0,
-            "study_plan_s": 0.0,
-        },
-    )
-    per = cfg.per_stimulus
-    rows = [s // per for s in cfg.sizes]
-    cap = rows[-1]
-    seeds = list(seeds)
-    runs = [(st, sd) for st in cfg.strategies for sd in seeds]
-    n_r = len(runs)
-    xyz, goals, mask = pool_motions(cfg, splits["train"])
-    n_motion_c = xyz.shape[0] * len(cfg.taus)  # the dataset motions' candidates come first
-    slots = None
-    if cfg.plan_share:  # rounds of plans: the study's problems, and the pool's plan motions
-        study = rounds.study_problems(cfg.problems, splits)
-        study_straight = planning.straight_lines(
-            study["goals"], study["goal_mask"], study["target"], cfg=cfg.planner
-        )
-        slots = rounds.PlanSlots(
-            xyz.shape[0], cfg.planned, tuple(study["scene"].tolist()), n_r, len(rows) - 1,
-            len(cfg.taus),
-        )  # fmt: skip
-        lines = rounds.resample_time(np.asarray(study_straight.xyz), xyz.shape[1])
-        pool = rounds.extend_pool(xyz, goals, mask, cfg.taus, slots, study, lines)
-    else:
-        pool = selection.make_pool(xyz, goals, mask, cfg.taus)
-    n_c, g = int(pool.traj.shape[0]), int(pool.goals.shape[1])
-    run_seeds = [sd for _, sd in runs]
-    cand = np.zeros((n_r, cap), np.int32)
-    counts = np.zeros((n_r, cap, g), np.float32)
-    asked = np.zeros((n_r, n_c), bool)
-    heard: dict[int, dict[int, np.ndarray]] = {sd: {} for sd in seeds}
+    document. ``on_size(rows)`` is called with the rows so far after each size.
 
-    def ask(i: int, start: int, new: np.ndarray) -> None:
-        sd = runs[i][1]
-        todo = np.asarray([c for c in new if c not in heard[sd]], np.int32)
-        if todo.size:
-            for c, k in zip(
-                todo, simulated.population_answers(pop, sd, pool, todo, per), strict=True
-            ):
-                heard[sd][int(c)] = k
-        cand[i, start : start + new.size] = new
-        counts[i, start : start + new.size] = [heard[sd][int(c)] for c in new]
-        asked[i, new] = True
-
-    t0 = time.perf_counter()
-    for i, (_, sd) in enumerate(runs):  # round 0: the same random draw for every strategy
-        ask(i, 0, np.random.default_rng([sd, 1]).choice(n_motion_c, rows[0], replace=False))
-    timing["answers_s"] += time.perf_counter() - t0
-
-    t0 = time.perf_counter()  # the pre-trained families' θ₀, from the labels alone
-    inits = {f: pretrained_params(cfg, f, splits["train"]) for f in cfg.families if f in PRETRAINED}
-    if READER in cfg.families:  # its prior, without the people scored, from their camera
-        camera = people_lib.study_camera(pop)
-        inits[READER] = reader_prior(cfg, splits["train"], name, camera)
-    timing["pretrain_s"] += time.perf_counter() - t0
-
-    active = [i for i, (st, _) in enumerate(runs) if st != "random"]
-    stc = cfg.train_config(cfg.select_family)
-    selector = selection.make_selector(stc, cfg.members, cap)
-    ens = None
-    if active:
-        ens = jax.jit(jax.vmap(selector.init))(
-            jnp.stack([jax.random.key(3_000 + runs[i][1]) for i in active])
-        )
-
-    # The held-out problems, their straight lines, and the planner for every observer.
-    prob = held_out_problems(cfg, splits)
-    straight = planning.straight_lines(
-        prob["goals"], prob["goal_mask"], prob["target"], cfg=cfg.planner
-    )
-    problems = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape)), straight)
-    scorer = evaluation.population_scorer(
-        pop, cfg.taus, cfg.planner.n_points, cfg.eval_participants
-    )
-    keys_eval = eval_keys(runs)
-
-    out_rows, floor, example = [], None, {}
-    bar = tqdm(total=len(rows), desc=f"people loop ({name})", unit="size", disable=not progress)
-    for r, n_rows in enumerate(rows):
-        # Learn: every family on the answers so far.
-        t0 = time.perf_counter()
-        params = {
-            f: fit_family(cfg, f, pool, cand, counts, n_rows, run_seeds, inits)
-            for f in cfg.families
-            if f in TRAINED
-        }
-        timing["fit_s"] += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        betas = np.ones((n_r, len(FITTED)), np.float32)
-        if any(f in FITTED for f in cfg.families):
-            for i in range(n_r):
-                betas[i] = simulated.fitted_betas(
-                    pool,
-                    cfg.taus,
-                    cand[i, :n_rows],
-                    counts[i, :n_rows],
-                    list(FITTED.values()),
-                    CAMERA,
-                )
-        params["beta"] = jnp.asarray(betas)
-        timing["beta_s"] += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        pick_reports = None
-        if PICK in cfg.families:  # the held-out predictions; the pool by likelihood alone
-            heldout = pick_heldout(cfg, pool, cand, counts, n_rows, runs, inits)
-            w_all, _ = pick_runs(cfg, heldout, counts, n_rows)
-            params["pick_w"] = jnp.asarray(w_all)
-        timing["pick_s"] += time.perf_counter() - t0
+    Each size: **learn** (every family fitted on the answers so far, the labelers' β, the
+    pick's held-out predictions), **plan** (every family, the floor and oracles once),
+    **judge** (every plan by every fit: the pick by plans, and the pick's trusted
+    candidates), **evaluate** (each family's rows), then **ask** the next round (rounds of
+    plans first write the plans of the study's problems)."""
+    timing = Timing()
+    study = SimulatedStudy(cfg, pop, splits, list(seeds))
+    runs, run_seeds, n_r = study.runs, study.seeds, len(study.runs)
+    with timing("answers"):
+        study.first_round()
+    with timing("pretrain"):  # the pre-trained families' θ₀ and the reader's prior
+        inits = initial_params(cfg, name, pop, splits["train"])
+    asker = ActiveAsker(cfg, study)
+    ev = Evaluation(cfg, pop, splits, runs)
+    out_rows, example = [], {}
+    bar = tqdm(total=len(study.rows), desc=f"people loop ({name})", unit="size",
+               disable=not progress)  # fmt: skip
+    for r, n_rows in enumerate(study.rows):
+        pool, cand, counts = study.pool, study.cand, study.counts
+        with timing("fit"):  # learn: every family on the answers so far
+            params = {
+                f: fit_family(cfg, f, pool, cand, counts, n_rows, run_seeds, inits)
+                for f in cfg.families
+                if f in TRAINED
+            }
+        with timing("beta"):
+            betas = fitted_betas(cfg, study, n_rows)
+            params["beta"] = jnp.asarray(betas)
+        w_all = None
+        with timing("pick"):  # the held-out predictions; the pool by likelihood alone
+            if PICK in cfg.families:
+                heldout = pick_heldout(cfg, pool, cand, counts, n_rows, runs, inits)
+                w_all, _ = pick_runs(cfg, heldout, counts, n_rows)
+                params["pick_w"] = jnp.asarray(w_all)
         planner = planner_for(cfg, jax.tree.map(lambda a: a[0], params))
 
-        # Plan and evaluate: the floor and the oracles once, every family at every size.
-        t0 = time.perf_counter()
-        if floor is None:
-            floor = {
-                "straight": plan_scores(scorer, keys_eval, straight_as_plan(problems), problems)
+        with timing("plan"):  # plan: the floor and the oracles once, every family each size
+            ev.plan_floor(example)
+            plans = {
+                f: planner.plan_problems(params, ev.straight, family=f)
+                for f in cfg.families
+                if f not in DERIVED  # made of the others' fits or plans
             }
-            for o, res in oracle_plans(cfg.planner, pop, straight).items():
-                res = jax.tree.map(lambda a: jnp.broadcast_to(a, (n_r, *a.shape)), res)
-                floor[o] = plan_scores(scorer, keys_eval, res, problems)
-                example[o] = np.asarray(res.q[0, 0])
-            example["straight"] = np.asarray(problems.q[0, 0])
-        plans = {}
-        for f in cfg.families:
-            if f not in DERIVED:  # made of the others' fits or plans
-                plans[f] = planner.plan_problems(params, straight, family=f)
-        jax.block_until_ready(plans)
-        timing["plan_s"] += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        judged: dict[str, dict[str, np.ndarray]] = {}
-        if set(DERIVED) & set(cfg.families):  # every candidate's plans, judged by every fit
-            for g in cfg.candidates:
-                judge_g = judge_for(cfg, g)
-                for f in cfg.candidates:
-                    p_g = judge_g(params, plans[f].xyz, problems.goals, problems.goal_mask,
-                                problems.target)  # fmt: skip
-                    judged.setdefault(f, {})[g] = np.asarray(p_g, np.float64).mean((1, 2))
-            chosen, cross = cross_judged(judged, cfg.candidates)
-        timing["judge_s"] += time.perf_counter() - t0
+            jax.block_until_ready(plans)
+        judged: dict = {}
+        with timing("judge"):  # every candidate's plans, judged by every fit
+            if set(DERIVED) & set(cfg.families):
+                judged, chosen, cross = judge_plans(cfg, params, plans, ev.problems)
+        pick_reports = keep = None
         if PICK in cfg.families:  # the pool without the least-trusted candidate, planned
-            t0 = time.perf_counter()
-            keep = trusted(cross, *heldout_quality(heldout, counts, n_rows))
-            w, pick_reports = pick_runs(cfg, heldout, counts, n_rows, keep)
-            params["pick_w"] = jnp.asarray(w)
-            timing["pick_s"] += time.perf_counter() - t0
-            t0 = time.perf_counter()
-            plans[PICK] = jax.block_until_ready(
-                planner.plan_problems(params, straight, family=PICK)
-            )
-            timing["plan_s"] += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        lo, hi = floor["straight"]["score"], floor["oracle"]["score"]
-        n_eval = cfg.problems * len(cfg.taus) * cfg.eval_participants
-        made: dict[tuple[str, int], dict] = {}
-        for f in [f for f in cfg.families if f in plans]:
-            res = plans[f]
-            sc = plan_scores(scorer, keys_eval, res, problems)
-            for i, (st, sd) in enumerate(runs):
-                acc = float(sc["correct"][i])
-                row = {
-                    "population": name,
-                    "family": f,
-                    "strategy": st,
-                    "seed": sd,
-                    "answers": int(cfg.sizes[r]),
-                    "score": float(sc["score"][i]),
-                    "score_per_tau": sc["per_tau"][i].round(6).tolist(),
-                    "gain_kept": float((sc["score"][i] - lo[i]) / (hi[i] - lo[i])),
-                    "accuracy": acc,
-                    "accuracy_95": [round(v, 4) for v in evaluation.wilson(acc * n_eval, n_eval)],
-                    "feasible": float(np.mean(np.asarray(res.feasible[i]))),
-                }
-                if f in FITTED:
-                    row["beta"] = float(betas[i, list(FITTED).index(f)])
-                if pick_reports is not None:  # what the answers alone say of this family
-                    rep = pick_reports[i]
-                    if f == PICK:
-                        row["heldout_nll"] = rep["pool_nll"]
-                        row["weights"] = dict(zip(rep["candidates"], rep["weights"], strict=True))
-                        row["picked"] = rep["pick"]
-                        row["left_out"] = [cfg.candidates[j] for j in np.flatnonzero(~keep[i])]
-                        row["uniform_nll"] = rep["uniform_nll"]
-                        row["poor_fit"] = rep["poor_fit"]
-                        row["weights_likelihood"] = dict(
-                            zip(rep["candidates"], w_all[i].round(6).tolist(), strict=True)
-                        )
-                    else:
-                        row["heldout_nll"] = rep["heldout_nll"][rep["candidates"].index(f)]
-                if f in judged:  # each fit's P(target) of this family's plans
-                    row["judged_by"] = {g: round(float(v[i]), 6) for g, v in judged[f].items()}
-                made[f, i] = row
-                out_rows.append(row)
-            if r == len(rows) - 1:
-                example[f] = np.asarray(res.q[0, 0])
-        if PICK_CROSS in cfg.families:  # the pick by plans: the chosen family's plans
-            own = ("beta", "heldout_nll", "judged_by")  # what the chosen family's row says of it
-            for i in range(n_r):
-                f = cfg.candidates[chosen[i]]
-                row = {k: v for k, v in made[f, i].items() if k not in own}
-                row["family"], row["chosen"] = PICK_CROSS, f
-                row["cross_scores"] = dict(
-                    zip(cfg.candidates, cross[i].round(6).tolist(), strict=True)
+            with timing("pick"):
+                keep = trusted(cross, *heldout_quality(heldout, counts, n_rows))
+                w, pick_reports = pick_runs(cfg, heldout, counts, n_rows, keep)
+                params["pick_w"] = jnp.asarray(w)
+            with timing("plan"):
+                plans[PICK] = jax.block_until_ready(
+                    planner.plan_problems(params, ev.straight, family=PICK)
                 )
-                out_rows.append(row)
-            if r == len(rows) - 1:
-                example[PICK_CROSS] = example[cfg.candidates[chosen[0]]]
-        timing["eval_s"] += time.perf_counter() - t0
+
+        with timing("eval"):  # evaluate: each family's rows, then the pick by plans'
+            made: dict[tuple[str, int], dict] = {}
+            for f in [f for f in cfg.families if f in plans]:
+                extras = [
+                    _family_fields(cfg, f, i, betas, pick_reports, keep, w_all, judged)
+                    for i in range(n_r)
+                ]
+                got = family_rows(cfg, ev, name, runs, int(cfg.sizes[r]), f, plans[f], extras)
+                for i, row in enumerate(got):
+                    made[f, i] = row
+                out_rows += got
+                if r == len(study.rows) - 1:
+                    example[f] = np.asarray(plans[f].q[0, 0])
+            if PICK_CROSS in cfg.families:  # the pick by plans: the chosen family's plans
+                own = ("beta", "heldout_nll", "judged_by")  # what the chosen family's row says
+                for i in range(n_r):
+                    f = cfg.candidates[chosen[i]]
+                    row = {k: v for k, v in made[f, i].items() if k not in own}
+                    row["family"], row["chosen"] = PICK_CROSS, f
+                    row["cross_scores"] = dict(
+                        zip(cfg.candidates, cross[i].round(6).tolist(), strict=True)
+                    )
+                    out_rows.append(row)
+                if r == len(study.rows) - 1:
+                    example[PICK_CROSS] = example[cfg.candidates[chosen[0]]]
         if on_size is not None:
             on_size(out_rows)
         bar.update(1)
-        if r + 1 == len(rows):
+        if r + 1 == len(study.rows):
             break
 
-        # Ask: the next round's stimuli, a share of them the plans of the study's problems.
-        k = rows[r + 1] - n_rows
+        # Ask: the next round, a share of it the plans of the study's problems.
+        k = study.rows[r + 1] - n_rows
         k_plan = 0
-        if slots is not None:
-            t0 = time.perf_counter()
-            k_plan = round(cfg.plan_share * k)
-            study_plans = {  # every candidate's plans and the pick's, of every run
-                f: np.asarray(planner.plan_problems(params, study_straight, family=f).xyz)
-                for f in slots.families
-            }
-            for i in range(n_r):
-                own = {f: v[i] for f, v in study_plans.items()}
-                pool = rounds.write_plans(pool, slots, i, r, own)
-            timing["study_plan_s"] += time.perf_counter() - t0
+        if study.slots is not None:
+            with timing("study_plan"):
+                k_plan = round(cfg.plan_share * k)
+                study.write_plans(planner, params, r)
         k -= k_plan
-        t0 = time.perf_counter()
-        picks = {}
-        if active and k:
-            ans = selection.Answers(
-                jnp.asarray(cand[active]),
-                jnp.asarray(counts[active]),
-                jnp.full((len(active),), n_rows, jnp.int32),
-            )
-            keys = jnp.stack([jax.random.key(5_000 + 31 * r + runs[i][1]) for i in active])
-            fit = simulated.fitter(selector, cfg.block)
-            for j in range(
-                cfg.updates(n_rows, stc.batch_size, cfg.select_epochs, cfg.block) // cfg.block
-            ):
-                ens, _ = fit(
-                    ens, pool, ans, jax.vmap(lambda kk, j=j: jax.random.fold_in(kk, j))(keys)
-                )
-            for a, i in enumerate(active):
-                st, sd = runs[i]
-                free = np.flatnonzero(~asked[i, :n_motion_c])  # dataset motions only
-                sub = np.random.default_rng([sd, 2, r]).choice(
-                    free, min(cfg.subset, free.size), replace=False
-                )
-                member = jax.tree.map(lambda x, a=a: x[a], ens.params)
-                logp = _scorer(selector)(member, pool, jnp.asarray(sub))
-                pick = selection.select(
-                    st, jax.random.fold_in(keys[a], 1), logp, jnp.ones(sub.size, bool), k
-                )
-                picks[i] = sub[np.asarray(pick)]
-        timing["select_s"] += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        for i, (st, sd) in enumerate(runs):
-            if st == "random" or not k:
-                free = np.flatnonzero(~asked[i, :n_motion_c])
-                picks[i] = np.random.default_rng([sd, 3, r]).choice(free, k, replace=False)
-            new = np.asarray(picks[i], np.int32)
-            if k_plan:  # the plans of this run, drawn by its seed and round alone
-                rng = np.random.default_rng([sd, 4, r])
-                new = np.concatenate([new, slots.draw(i, r, k_plan, rng)])
-            ask(i, n_rows, new)
-        timing["answers_s"] += time.perf_counter() - t0
+        with timing("select"):
+            picks = asker.pick(r, n_rows, k)
+        with timing("answers"):
+            for i, (st, sd) in enumerate(runs):
+                if st == "random" or not k:
+                    rng = np.random.default_rng([sd, 3, r])
+                    picks[i] = rng.choice(study.free(i), k, replace=False)
+                new = np.asarray(picks[i], np.int32)
+                if k_plan:  # the plans of this run, drawn by its seed and round alone
+                    rng = np.random.default_rng([sd, 4, r])
+                    new = np.concatenate([new, study.slots.draw(i, r, k_plan, rng)])
+                study.ask(i, n_rows, new)
     bar.close()
-    timing["total_s"] = time.perf_counter() - t_all
-    comparison = {
-        o: {
-            "score": float(floor[o]["score"][0]),
-            "per_tau": floor[o]["per_tau"][0].round(6).tolist(),
-            "accuracy": float(floor[o]["correct"][0]),
-        }
-        for o in ("straight", "oracle", "oracle_whole")
-    }
     return {
         "population": name,
         "population_config": people_lib.people_config(pop),
         "rows": out_rows,
-        "comparison": comparison,
+        "comparison": ev.comparison(),
         "example": {
-            "problem": {k: v[0].tolist() for k, v in prob.items()},
+            "problem": {k: v[0].tolist() for k, v in ev.prob.items()},
             "q": {k: v.round(6).tolist() for k, v in example.items()},
         },
-        "timing": {k: round(v, 2) for k, v in timing.items()},
-        "stimuli": asked_stimuli(runs, cand, pool, slots, splits["train"], cfg),
+        "timing": timing.done(),
+        "stimuli": study.stimuli(splits["train"]),
     }
 
 
-def asked_stimuli(runs, cand, pool, slots, split, cfg: LoopConfig) -> list[dict]:
-    """What each run asked about, row by row: the scene of the ``train`` split it showed
-    (a dataset motion's own, or a plan's study problem's), and for a plan its family (""
-    for a dataset motion); with the answers each round added, and how many were plans."""
-    traj = np.asarray(pool.traj)
-    out = []
-    for i, (st, sd) in enumerate(runs):
-        scene, family = [], []
-        for c in cand[i]:
-            m = int(traj[c])
-            what = None if slots is None else slots.describe(m)
-            if what is None:
-                scene.append(int(split.env_id[m]))
-                family.append("")
-            else:
-                scene.append(slots.scenes[what[1]])
-                family.append(what[0])
-        out.append(
-            {
-                "strategy": st,
-                "seed": sd,
-                "split": rounds.STUDY_SPLIT,
-                "scene": scene,
-                "plan": family,
-                "rows_per_size": [s // cfg.per_stimulus for s in cfg.sizes],
-            }
-        )
-    return out
+def _family_fields(cfg, f, i, betas, pick_reports, keep, w_all, judged) -> dict:
+    """What run ``i``'s row of family ``f`` says beyond its plans' scores: a labeler's β,
+    what the answers alone say of it (its held-out NLL; the pick's pool), and each fit's
+    P(target) of its plans."""
+    row = {}
+    if f in FITTED:
+        row["beta"] = float(betas[i, list(FITTED).index(f)])
+    if pick_reports is not None:
+        rep = pick_reports[i]
+        if f == PICK:
+            row.update(_pick_fields(cfg, rep, keep[i], w_all[i]))
+        else:
+            row["heldout_nll"] = rep["heldout_nll"][rep["candidates"].index(f)]
+    if f in judged:
+        row["judged_by"] = {g: round(float(v[i]), 6) for g, v in judged[f].items()}
+    return row
+
+
+def _pick_fields(cfg: LoopConfig, rep: dict, keep: np.ndarray, w_all: np.ndarray) -> dict:
+    """What a pick row says of its pool: held-out NLL, weights (before and after leaving the
+    least-trusted out), the pick, those left out, uniform guessing's NLL and ``poor_fit``."""
+    return {
+        "heldout_nll": rep["pool_nll"],
+        "weights": dict(zip(rep["candidates"], rep["weights"], strict=True)),
+        "picked": rep["pick"],
+        "left_out": [cfg.candidates[j] for j in np.flatnonzero(~keep)],
+        "uniform_nll": rep["uniform_nll"],
+        "poor_fit": rep["poor_fit"],
+        "weights_likelihood": dict(zip(rep["candidates"], w_all.round(6).tolist(), strict=True)),
+    }
 
 
 _SCORERS: dict = {}
