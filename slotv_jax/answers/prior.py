@@ -71,13 +71,14 @@ def sources(exclude: Sequence[str] = (), draws: int = PRIOR_DRAWS) -> list[tuple
     """``(name, observer)`` of every source of the prior (module docstring), the zoo's
     members and the draws (``random:K``) named in ``exclude`` left out. Each observer has
     ``prefix(xyz, goals, goal_mask, seen) -> log P``."""
+    left_out = set(exclude)
     out: list[tuple[str, object]] = [(n, labeler_observer(n)) for n in LABELER_NAMES]
     for k in range(FIRST_DRAW, FIRST_DRAW + draws):  # one quadrature shape: one compilation
-        if f"random:{k}" in set(exclude):
+        if f"random:{k}" in left_out:
             continue
         quad = population_lib.quadrature(population_lib.random_population(k))
         out.append((f"random:{k}", population_lib.quadrature_observer(quad)))
-    out += [(n, m) for n, m in zoo.MEMBERS.items() if n not in set(exclude)]
+    out += [(n, m) for n, m in zoo.MEMBERS.items() if n not in left_out]
     return out
 
 

@@ -60,6 +60,20 @@ def scene_problems(
     }
 
 
+def even_problems(
+    scenes: Mapping[str, tuple[np.ndarray, np.ndarray]], splits: Sequence[str], n: int, what: str
+) -> dict[str, np.ndarray]:
+    """:func:`scene_problems` of ``scenes`` cut evenly to ``n`` (rows round(i (P − 1) / (n − 1))):
+    goals, goal_mask, target, split and scene. ``what`` names the scenes in the error when
+    they hold fewer than ``n`` problems."""
+    every = scene_problems(scenes, splits)
+    total = every["target"].size
+    if total < n:
+        raise ValueError(f"problems: {what} have {total}, asked for {n}")
+    pick = np.linspace(0, total - 1, n).round().astype(int)
+    return {k: v[pick] for k, v in every.items()}
+
+
 def true_labels(
     labeler: str,
     xyz: Float[np.ndarray, "N T 3"],

@@ -185,12 +185,8 @@ def held_out_problems(cfg: LoopConfig, splits) -> dict[str, np.ndarray]:
     on ``position_test`` and ``goal_count_test``), cut evenly to ``cfg.problems``."""
     names = ("position_test", "goal_count_test")
     scenes = {s: (splits[s].scene_goals, splits[s].scene_mask) for s in names}
-    every = evaluation.scene_problems(scenes, names)
-    n = every["target"].size
-    if n < cfg.problems:
-        raise ValueError(f"problems: the held-out scenes have {n}, asked for {cfg.problems}")
-    pick = np.linspace(0, n - 1, cfg.problems).round().astype(int)
-    return {k: every[k][pick] for k in ("goals", "goal_mask", "target")}
+    got = evaluation.even_problems(scenes, names, cfg.problems, "the held-out scenes")
+    return {k: got[k] for k in ("goals", "goal_mask", "target")}
 
 
 def fit_family(

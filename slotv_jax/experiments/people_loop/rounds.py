@@ -40,12 +40,9 @@ def study_problems(problems: int, splits) -> dict[str, np.ndarray]:
     goals (P, 8, 3), goal_mask (P, 8), target (P,) and scene (P,: the train split's
     scene index). The study's own problems, which rounds of plans ask about."""
     s = splits[STUDY_SPLIT]
-    every = evaluation.scene_problems({STUDY_SPLIT: (s.scene_goals, s.scene_mask)}, [STUDY_SPLIT])
-    n = every["target"].size
-    if n < problems:
-        raise ValueError(f"problems: the study's scenes have {n}, asked for {problems}")
-    pick = np.linspace(0, n - 1, problems).round().astype(int)
-    return {k: every[k][pick] for k in ("goals", "goal_mask", "target", "scene")}
+    scenes = {STUDY_SPLIT: (s.scene_goals, s.scene_mask)}
+    got = evaluation.even_problems(scenes, [STUDY_SPLIT], problems, "the study's scenes")
+    return {k: got[k] for k in ("goals", "goal_mask", "target", "scene")}
 
 
 def resample_time(xyz: Float[np.ndarray, "*B n 3"], t: int) -> Float[np.ndarray, "*B t 3"]:
