@@ -9,6 +9,7 @@ their traces, so the tests can check that repeated calls do not retrace.
 from __future__ import annotations
 
 import collections
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -485,3 +486,48 @@ def test_cold_ik_reaches_a_target_near_the_base():
     q, res = cold_ik(target)
     assert float(res[0]) <= IK_TOL
     assert np.all(np.asarray(q) >= K.Q_MIN - 1e-6) and np.all(np.asarray(q) <= K.Q_MAX + 1e-6)
+
+
+# ------------------------------------------------------- the chain against mjx.kinematics
+
+
+def test_the_chain_is_the_pose_mjx_kinematics_computes():
+    """tcp_state (the MJCF's frames multiplied along the chain) against one
+    ``mjx.kinematics`` call on the same model (``mjx_tcp_state``): the same position,
+    rotation, joint axes and anchors (so the same Jacobians), to float32 rounding."""
+    qs = jnp.asarray(random_configs(np.random.default_rng(SEED + 11), 64), jnp.float32)
+    chain = jax.jit(jax.vmap(K.tcp_state))(qs)
+    mjx = jax.jit(jax.vmap(K.mjx_tcp_state))(qs)
+    for name in K.TcpState._fields:
+        a, b = np.asarray(getattr(chain, name)), np.asarray(getattr(mjx, name))
+        assert a.dtype == np.float32 and a.shape == b.shape, name
+        np.testing.assert_allclose(a, b, rtol=0, atol=2e-6, err_msg=name)
+
+
+def test_the_chain_refuses_a_model_that_is_not_a_chain_of_hinges(tmp_path):
+    """Another joint type, two joints on one body, or no TCP site: one line naming the file."""
+
+    def mjcf(body: str) -> Path:  # a new name each (the models are cached by path)
+        path = tmp_path / f"robot{len(list(tmp_path.iterdir()))}.xml"
+        path.write_text(f"<mujoco><worldbody>{body}</worldbody></mujoco>")
+        return path
+
+    def links(joints):  # seven bodies in a chain, the last with the TCP site
+        xml = ""
+        for j in joints:
+            xml += f'<body pos="0 0 0.1">{j}<geom size="0.01"/>'
+        return xml + '<site name="tcp"/>' + "</body>" * len(joints)
+
+    hinge = '<joint type="hinge" axis="0 0 1"/>'
+    cases = {
+        "is not a hinge": links([hinge] * 6 + ['<joint type="slide" axis="0 0 1"/>']),
+        "expected at most one hinge": links([hinge] * 5 + [hinge * 2]),
+        "expected a site named": links([hinge] * 7).replace('<site name="tcp"/>', ""),
+    }
+    for says, body in cases.items():
+        path = mjcf(body)
+        K._chain.cache_clear()
+        with pytest.raises(ValueError, match=says) as e:
+            K._chain(path)
+        assert str(path) in str(e.value)
+    K._chain.cache_clear()

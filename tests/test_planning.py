@@ -219,33 +219,29 @@ def test_vmap_equals_loop(straight):
 def test_gradient_matches_finite_differences_float64(straight):
     i = 7
     with jax.enable_x64(True):
-        kinematics._mjx_panda.cache_clear()  # a float64 MJX model inside this block
-        try:
-            p64 = jax.tree.map(
-                lambda a: jnp.asarray(a[i], jnp.float64) if a.dtype == np.float32 else a[i],
-                straight,
-            )
-            cfg = planning.PlannerConfig()
-            obs = planning.labeler_observer("dragan", beta=BETA)
-            f = jax.jit(jax.value_and_grad(lambda z: planning.objective(obs, p64, z, cfg)))
-            z0 = planning_planner._initial_z(p64.q)
-            rng = np.random.default_rng(0)
-            t = np.linspace(0, np.pi, z0.shape[0])[:, None]
-            # At the straight line, and bent so far that the table penalty is active.
-            bend = np.sin(t) * np.array([0.0, 0.6, 0.0, -0.8, 0.0, 0.9, 0.0])
-            for z in (z0, z0 + bend):
-                _, g = f(z)
-                assert g.dtype == np.float64 and np.all(np.isfinite(np.asarray(g)))
-                for _ in range(3):
-                    v = rng.normal(size=z0.shape)
-                    v /= np.linalg.norm(v)
-                    h = 1e-6
-                    fd = (f(z + h * v)[0] - f(z - h * v)[0]) / (2 * h)
-                    assert float(fd) == pytest.approx(float(jnp.sum(g * v)), rel=FD_TOL, abs=1e-9)
-            xyz = planning_planner._fk(planning_planner._joints(z0 + bend, p64.q[0], p64.q[-1]))
-            assert planning_planner._table_penalty(xyz, p64, cfg) > 0  # the penalty term was tested
-        finally:
-            kinematics._mjx_panda.cache_clear()
+        p64 = jax.tree.map(
+            lambda a: jnp.asarray(a[i], jnp.float64) if a.dtype == np.float32 else a[i],
+            straight,
+        )
+        cfg = planning.PlannerConfig()
+        obs = planning.labeler_observer("dragan", beta=BETA)
+        f = jax.jit(jax.value_and_grad(lambda z: planning.objective(obs, p64, z, cfg)))
+        z0 = planning_planner._initial_z(p64.q)
+        rng = np.random.default_rng(0)
+        t = np.linspace(0, np.pi, z0.shape[0])[:, None]
+        # At the straight line, and bent so far that the table penalty is active.
+        bend = np.sin(t) * np.array([0.0, 0.6, 0.0, -0.8, 0.0, 0.9, 0.0])
+        for z in (z0, z0 + bend):
+            _, g = f(z)
+            assert g.dtype == np.float64 and np.all(np.isfinite(np.asarray(g)))
+            for _ in range(3):
+                v = rng.normal(size=z0.shape)
+                v /= np.linalg.norm(v)
+                h = 1e-6
+                fd = (f(z + h * v)[0] - f(z - h * v)[0]) / (2 * h)
+                assert float(fd) == pytest.approx(float(jnp.sum(g * v)), rel=FD_TOL, abs=1e-9)
+        xyz = planning_planner._fk(planning_planner._joints(z0 + bend, p64.q[0], p64.q[-1]))
+        assert planning_planner._table_penalty(xyz, p64, cfg) > 0  # the penalty term was tested
 
 
 def test_predictability_cost_and_metric():

@@ -1,4 +1,5 @@
-"""MJX kinematics on the CPU, with and without slotv_jax's XLA setting, against MuJoCo C.
+"""The kinematics (jax, the MJCF's chain) on the CPU, with and without slotv_jax's XLA setting,
+against MuJoCo C.
 
     python -m slotv_jax.benchmarks.kinematics [--batch 1024] [--traj-batch 1024] [--repeats 5]
 
@@ -10,20 +11,20 @@ in a fresh interpreter (a worker subprocess of this module):
 - **without**: ``SLOTV_JAX_XLA_FLAGS=0``, XLA's defaults.
 
 Each worker measures, on the same random in-limit configurations (float32 for
-MJX, float64 for MuJoCo C):
+the kinematics, float64 for MuJoCo C):
 
 1. a Python loop of MuJoCo C ``mj_kinematics`` on the same MJCF: poses/s (it does not
    use XLA, so its two columns show the machine's noise);
-2. MJX single call, ``jit(tcp_position)`` on one configuration: µs per call (median,
+2. single call, ``jit(tcp_position)`` on one configuration: µs per call (median,
    synchronised with ``block_until_ready``);
-3. MJX batched, ``jit(vmap(tcp_pose))``: poses/s at a small batch (both variants, like
+3. batched, ``jit(vmap(tcp_pose))``: poses/s at a small batch (both variants, like
    for like) and at ``--batch`` (the "with" variant only);
 4. full trajectory generation, ``jit(vmap(sample_trajectory))`` in 250 scenes
    (sampling, arc-length resampling, warm-started path IK, executed FK), with
    ``TrajectoryConfig()``: trajectories/s at one per call (both variants) and at
    ``--traj-batch`` (the "with" variant only). Every draw counts, rejected or not.
 
-Without the setting MJX is very slow (tens of ms per kinematics call, and batching
+Without the setting the kinematics is slow (tens of ms per kinematics call, and batching
 makes it slower per pose), so that variant uses a small batch and few repeats; the
 ``--slow-*`` options set them, and ``--skip-slow-trajectories`` saves its longest
 part (compiling and running one trajectory, 1–2 minutes). Rates are the best of the
@@ -197,14 +198,14 @@ def worker(args: argparse.Namespace) -> dict:
     }
     log("MuJoCo C loop")
     out["c"] = _mujoco_c(qs[: args.c_n], args.repeats)
-    log("MJX single call")
+    log("single call")
     out["single"] = _mjx_single(qs, args.single_calls if fast else args.slow_single_calls)
-    log(f"MJX batched, batch {args.slow_batch}")
+    log(f"batched, batch {args.slow_batch}")
     out["batched_small"] = _mjx_batched(
         qs, args.slow_batch, args.repeats if fast else args.slow_repeats
     )
     if fast:
-        log(f"MJX batched, batch {args.batch}")
+        log(f"batched, batch {args.batch}")
         out["batched"] = _mjx_batched(qs, args.batch, args.repeats)
     if fast or not args.skip_slow_trajectories:
         log("trajectories, 1 per call")
@@ -279,8 +280,8 @@ def report(w: dict, wo: dict, wall_s: float) -> None:
     small, big, tb = w["batched_small"]["batch"], w["batched"]["batch"], w["traj"]["batch"]
     rate_rows = [
         ("MuJoCo C mj_kinematics loop, poses/s", ("c",)),
-        (f"MJX jit(vmap(tcp_pose)) B={small}, poses/s", ("batched_small",)),
-        (f"MJX jit(vmap(tcp_pose)) B={big}, poses/s", ("batched",)),
+        (f"jit(vmap(tcp_pose)) B={small}, poses/s", ("batched_small",)),
+        (f"jit(vmap(tcp_pose)) B={big}, poses/s", ("batched",)),
         ("trajectories/s, 1 per call", ("traj_one",)),
         (f"trajectories/s, B={tb}", ("traj",)),
     ]
@@ -296,7 +297,7 @@ def report(w: dict, wo: dict, wall_s: float) -> None:
         "latency and compile time",
         [
             (
-                "MJX single call jit(tcp_position), µs",
+                "single call jit(tcp_position), µs",
                 w["single"]["us_per_call"],
                 wo["single"]["us_per_call"],
                 ",.0f",
@@ -322,14 +323,14 @@ def report(w: dict, wo: dict, wall_s: float) -> None:
     c, cw = w["c"]["per_s"], wo["c"]["per_s"]
     t = w["traj"]
     print(
-        f"\nwith the setting: MJX B={big} / MuJoCo C loop = {w['batched']['per_s'] / c:.2f}x "
-        f"(per CPU-s {w['batched']['per_cpu_s'] / w['c']['per_cpu_s']:.2f}x); one MJX call "
+        f"\nwith the setting: B={big} / MuJoCo C loop = {w['batched']['per_s'] / c:.2f}x "
+        f"(per CPU-s {w['batched']['per_cpu_s'] / w['c']['per_cpu_s']:.2f}x); one call "
         f"takes {w['single']['us_per_call'] * c / 1e6:.0f}x one C call\n"
-        f"without it:       MJX B={small} / MuJoCo C loop = "
+        f"without it:       B={small} / MuJoCo C loop = "
         f"{wo['batched_small']['per_s'] / cw:.1e}x\n"
         f"trajectory generator: IK {t['ik']}, 100 points; {100 * t['rejected']:.2f}% of "
         f"{t['draws']} draws over 2 mm (max residual {1e3 * t['max_residual_m']:.3f} mm)\n"
-        f"medians (with, wall): C {w['c']['per_s_median']:,.0f} poses/s, MJX B={big} "
+        f"medians (with, wall): C {w['c']['per_s_median']:,.0f} poses/s, B={big} "
         f"{w['batched']['per_s_median']:,.0f} poses/s, trajectories B={tb} "
         f"{t['per_s_median']:,.0f}/s"
     )
@@ -343,10 +344,10 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--batch", type=int, default=1024, help="MJX FK batch (with the setting)")
+    p.add_argument("--batch", type=int, default=1024, help="FK batch (with the setting)")
     p.add_argument("--traj-batch", type=int, default=1024, help="trajectories per call (with)")
     p.add_argument("--c-n", type=int, default=20_000, help="configurations for the C loop")
-    p.add_argument("--single-calls", type=int, default=500, help="single MJX calls (with)")
+    p.add_argument("--single-calls", type=int, default=500, help="single calls (with)")
     p.add_argument("--repeats", type=int, default=5, help="repeats of the FK measurements")
     p.add_argument("--traj-repeats", type=int, default=3, help="repeats of trajectory batches")
     p.add_argument("--slow-batch", type=int, default=16, help="small FK batch, both variants")

@@ -18,11 +18,15 @@ of iterations, measured side by side in one run:
   iterations; started from the same straight-line joints.
 
 A second table compares the planner's path gradient (one iteration's forward kinematics
-of ``n`` paths of T waypoints and its vector-Jacobian product) two ways in the same run:
+of ``n`` paths of T waypoints and its vector-Jacobian product) three ways in the same run:
 :func:`slotv_jax.kinematics.fk_position`, whose derivative is the geometric Jacobian of
-the same MJX call (what the planner uses), against reverse-mode autodiff through
-``mjx.kinematics`` (the baseline): compilation seconds, gradients per second, and the
-largest difference between the two gradients.
+the chain's product (what the planner uses), reverse-mode autodiff through the same product
+(:func:`slotv_jax.kinematics.tcp_state`), and autodiff through ``mjx.kinematics``
+(:func:`slotv_jax.kinematics.mjx_tcp_state`, the baseline): compilation seconds, gradients
+per second, and the largest difference from the baseline's gradient. Beside it, the
+planner's first call (tracing and compiling its straight lines and its iterations, then
+planning) and its later calls, with the chain's kinematics against ``mjx.kinematics``
+put in its place (``unittest.mock.patch``, in the same run).
 
 A third table (``--populations``) plans with each population's own observer (P_pop, the
 people loop's oracle) for several populations: a program per population, the quadrature
@@ -43,6 +47,7 @@ import os
 import platform
 import sys
 import time
+from unittest import mock
 
 import jax
 import jax.numpy as jnp
@@ -179,13 +184,15 @@ def quality(xyz, straight_xyz, goals, mask, target, feasible) -> str:
 
 def path_gradient_rows(n: int, n_points: int, repeats: int) -> list[str]:
     """The path gradient, J(q)ᵀ ∂f/∂p over every waypoint, by ``fk_position``'s geometric
-    Jacobian against autodiff through MJX: markdown rows (compile s, gradients/s, max ``|Δ|``)."""
+    Jacobian and by autodiff through the chain, against autodiff through MJX: markdown rows
+    (compile s, gradients/s, max ``|Δ|`` from MJX's)."""
     qs = np.random.default_rng(1).uniform(kinematics.Q_MIN, kinematics.Q_MAX, (n, n_points, 7))
     qs = jnp.asarray(qs, jnp.float32)
     w = jnp.linspace(0.5, 1.5, 3, dtype=jnp.float32)
     ways = {
         "geometric Jacobian (fk_position)": kinematics.fk_position,
-        "autodiff through mjx.kinematics": lambda q: kinematics.tcp_state(q).pos,
+        "autodiff through the chain (tcp_state)": lambda q: kinematics.tcp_state(q).pos,
+        "autodiff through mjx.kinematics": lambda q: kinematics.mjx_tcp_state(q).pos,
     }
     rows, grads = [], {}
     for name, fk in ways.items():
@@ -202,13 +209,49 @@ def path_gradient_rows(n: int, n_points: int, repeats: int) -> list[str]:
             grads[name] = np.asarray(jax.block_until_ready(g(qs)))
             best = min(best, time.perf_counter() - t0)
         rows.append((name, compile_s, n / best))
-    diff = np.abs(np.subtract(*grads.values())).max()
-    base = rows[1]
-    out = ["| path gradient | compile s | gradients/s | × autodiff (compile, rate) |",
-           "|---|---|---|---|"]  # fmt: skip
+    base = rows[-1]
+    out = ["| path gradient | compile s | gradients/s | × MJX autodiff (compile, rate) | "
+           "largest |Δ| from MJX's |", "|---|---|---|---|---|"]  # fmt: skip
     for name, c, r in rows:
-        out.append(f"| {name} | {c:.2f} | {r:.3g} | {base[1] / c:.1f}×, {r / base[2]:.1f}× |")
-    out.append(f"\n{n} paths of {n_points} waypoints; largest |Δ gradient| {diff:.1e} (float32)")
+        diff = np.abs(grads[name] - grads[base[0]]).max()
+        out.append(f"| {name} | {c:.2f} | {r:.3g} | {base[1] / c:.1f}×, {r / base[2]:.1f}× | "
+                   f"{diff:.1e} |")  # fmt: skip
+    out.append(f"\n{n} paths of {n_points} waypoints (float32)")
+    return out
+
+
+def planner_kinematics_rows(goals, mask, target, cfg: planning.PlannerConfig, repeats: int):
+    """The planner's first call (tracing, compiling, planning) and its best later call on
+    the same problems, with the chain's kinematics and with ``mjx.kinematics`` in its place:
+    markdown rows and the largest difference of the plans' objectives."""
+    obs = planning.labeler_observer("dragan", beta=BETA)
+    rows, best_obj = [], {}
+    ways = {"the chain (tcp_state)": kinematics.tcp_state,
+            "mjx.kinematics (mjx_tcp_state)": kinematics.mjx_tcp_state}  # fmt: skip
+    for name, fk in ways.items():
+        jax.clear_caches()  # nothing compiled for one way is reused by the other
+        with mock.patch.object(kinematics, "tcp_state", fk):
+            planner = planning.make_planner(obs, cfg)
+            t0 = time.perf_counter()
+            res = jax.block_until_ready(planner(goals, mask, target))
+            first = time.perf_counter() - t0
+            later = np.inf
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                jax.block_until_ready(planner(goals, mask, target))
+                later = min(later, time.perf_counter() - t0)
+        d = res.diagnostics
+        best_obj[name] = np.asarray(d.objective)[np.arange(len(target)), np.asarray(d.best_iter)]
+        rows.append((name, first, later))
+    base = rows[-1]
+    out = [f"| planner kinematics, {len(target)} problems | first call s | later call s | "
+           "× MJX (first, later) |", "|---|---|---|---|"]  # fmt: skip
+    for name, first, later in rows:
+        out.append(f"| {name} | {first:.1f} | {later:.3f} | {base[1] / first:.1f}×, "
+                   f"{base[2] / later:.1f}× |")  # fmt: skip
+    diff = np.abs(np.subtract(*best_obj.values())).max()
+    out.append(f"\nlargest |Δ best objective| {diff:.1e} (float32; the first call traces and "
+               "compiles the straight lines and the planner)")  # fmt: skip
     return out
 
 
@@ -345,6 +388,8 @@ def main(argv=None) -> int:
     print(f"\ncompilation: batch of {n} {compile_batch:.1f} s, batch of 1 {compile_one:.1f} s "
           f"(not in the rates); SciPy: {t_scipy / sn:.1f} s per problem\n")  # fmt: skip
     print("\n".join(path_gradient_rows(n, cfg.n_points, args.repeats)))
+    print()
+    print("\n".join(planner_kinematics_rows(goals[:ln], mask[:ln], target[:ln], cfg, args.repeats)))
     print()
     print("\n".join(population_rows(goals[:ln], mask[:ln], target[:ln], cfg, specs)))
     return 0

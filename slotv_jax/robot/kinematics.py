@@ -1,9 +1,17 @@
-"""Franka Emika Panda kinematics through MuJoCo MJX.
+"""Franka Emika Panda kinematics from its MJCF.
 
-Forward kinematics comes from ``mjx.kinematics`` on the MJCF in
-``franka_assets/panda.xml`` (written from Franka's modified DH table, :ref:`concepts-robot`).
-The TCP Jacobian is the geometric one built from the same call's joint anchors
-and axes: for a hinge j with world axis w_j through anchor a_j,
+Forward kinematics is the product of the MJCF's own frames along the chain from the world
+to the TCP site (``franka_assets/panda.xml``, written from Franka's modified DH table,
+:ref:`concepts-robot`): for each body, its offset and rotation in its parent
+(``body_pos``, ``body_quat``), then its hinge's rotation about the joint's axis through the
+joint's anchor (Rodrigues' formula), as MuJoCo's ``mj_kinematics`` composes them
+(:func:`_chain`). It is the same pose as ``mjx.kinematics`` on the same model
+(:func:`mjx_tcp_state`, the reference the tests and benchmarks compare with), from 210
+traced operations instead of about 4,500: the general MJX pipeline (every joint type,
+quaternions element by element) costs the planner's programs most of their tracing and
+compilation time, which users wait for (``python -m slotv_jax.benchmarks.planning``,
+``experiments/BENCHMARKS.md``). The TCP Jacobian is the geometric one built from the same
+product's joint anchors and axes: for a hinge j with world axis w_j through anchor a_j,
 ``∂p/∂q_j = w_j × (p − a_j)`` and ``∂z/∂q_j = w_j × z`` for the tool axis z.
 
 Inverse kinematics is damped least squares on the position task. A soft
@@ -71,8 +79,6 @@ def mj_model(path: str | Path = PANDA_XML) -> mujoco.MjModel:
 @functools.cache
 def _mjx_panda() -> tuple[mjx.Model, mjx.Data, int]:
     m = mj_model(PANDA_XML)
-    if m.nq != NQ:
-        raise ValueError(f"{PANDA_XML}: expected {NQ} joints, got nq={m.nq}")
     with jax.ensure_compile_time_eval():  # concrete arrays even if first called under a trace
         mx = mjx.put_model(m)
         d0 = mjx.make_data(mx)
@@ -88,7 +94,102 @@ class TcpState(NamedTuple):
     jac_axis: Float[Array, "3 7"]  # ∂(tool z axis)/∂q (1/rad)
 
 
-def _tcp_state(mx: mjx.Model, d0: mjx.Data, site: int, q) -> TcpState:
+def _quat_mat(quat) -> np.ndarray:
+    out = np.zeros(9)
+    mujoco.mju_quat2Mat(out, np.asarray(quat, np.float64))
+    return out.reshape(3, 3)
+
+
+class _Link(NamedTuple):
+    """One body of the chain: its frame in its parent's, and its hinge (or none)."""
+
+    pos: np.ndarray  # (3,) body_pos
+    rot: np.ndarray  # (3, 3) from body_quat
+    joint: int | None  # its hinge's index in q (qpos address), or None
+    axis: np.ndarray  # (3,) the hinge's axis, in the body's frame (unit)
+    anchor: np.ndarray  # (3,) the hinge's anchor, in the body's frame
+
+
+@functools.cache
+def _chain(path: str | Path = PANDA_XML) -> tuple[tuple[_Link, ...], np.ndarray, np.ndarray]:
+    """The MJCF's frames from the world to the TCP site, in float64: the links, and the
+    site's offset and rotation in the last body. Refuses a model that is not a chain of
+    NQ hinges (a body with two joints, another joint type, a joint off the TCP's chain)."""
+    m = mj_model(path)
+    if m.nq != NQ:
+        raise ValueError(f"{path}: expected {NQ} joints, got nq={m.nq}")
+    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, TCP_SITE)
+    if site < 0:
+        raise ValueError(f"{path}: expected a site named {TCP_SITE!r}")
+    bodies, b = [], int(m.site_bodyid[site])
+    while b != 0:
+        bodies.append(b)
+        b = int(m.body_parentid[b])
+    links, used = [], []
+    for b in reversed(bodies):
+        n = int(m.body_jntnum[b])
+        if n > 1:
+            raise ValueError(f"{path}: body {b} has {n} joints; expected at most one hinge")
+        joint, axis, anchor = None, np.zeros(3), np.zeros(3)
+        if n == 1:
+            j = int(m.body_jntadr[b])
+            if m.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE:
+                raise ValueError(f"{path}: joint {j} is not a hinge")
+            joint, axis, anchor = int(m.jnt_qposadr[j]), m.jnt_axis[j].copy(), m.jnt_pos[j].copy()
+            used.append(joint)
+        links.append(_Link(m.body_pos[b].copy(), _quat_mat(m.body_quat[b]), joint, axis, anchor))
+    if sorted(used) != list(range(NQ)):
+        raise ValueError(f"{path}: expected the {NQ} joints on the chain to the TCP site")
+    return tuple(links), m.site_pos[site].copy(), _quat_mat(m.site_quat[site])
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """[v]ₓ, the matrix of v × ·."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def tcp_state(q: Float[Array, "7"]) -> TcpState:
+    """TCP pose and Jacobians of ``q`` (rad), by the chain's frames (no validation).
+
+    For each link, in order from the world: p ← p + R·b, R ← R·B (the body's offset b and
+    rotation B in its parent); with a hinge of unit axis u through anchor c (body frame),
+    the joint's world axis and anchor are w = R·u, a = p + R·c, then
+    R ← R·(I + sin q [u]ₓ + (1 − cos q) [u]ₓ²) (Rodrigues) and p ← a − R·c (the rotation
+    keeps the anchor in place). The TCP is p + R·s, its rotation R·S (the site's offset and
+    rotation). This is MuJoCo's composition of the same frames (``mj_kinematics``; MuJoCo
+    documentation, "Computation"), computed in ``q``'s dtype from float64 constants."""
+    q = jnp.asarray(q)
+    links, site_pos, site_rot = _chain()
+    dt = q.dtype
+
+    def c(x):
+        return jnp.asarray(x, dt)
+
+    def mm(a, b):  # full precision: a GPU's default float32 matmul may round to TF32
+        return jnp.matmul(a, b, precision=jax.lax.Precision.HIGHEST)
+
+    p, R = jnp.zeros(3, dt), jnp.eye(3, dtype=dt)
+    axes, anchors = [None] * NQ, [None] * NQ
+    for link in links:
+        p, R = p + mm(R, c(link.pos)), mm(R, c(link.rot))
+        if link.joint is not None:
+            k = _skew(link.axis)
+            a = p + mm(R, c(link.anchor))
+            axes[link.joint], anchors[link.joint] = mm(R, c(link.axis)), a
+            qj = q[link.joint]
+            R = mm(R, c(np.eye(3)) + jnp.sin(qj) * c(k) + (1 - jnp.cos(qj)) * c(k @ k))
+            p = a - mm(R, c(link.anchor))
+    pos, rot = p + mm(R, c(site_pos)), mm(R, c(site_rot))
+    axes, anchors = jnp.stack(axes), jnp.stack(anchors)
+    jac_pos = jnp.cross(axes, pos - anchors).T
+    jac_axis = jnp.cross(axes, rot[:, 2]).T
+    return TcpState(pos, rot, jac_pos, jac_axis)
+
+
+def mjx_tcp_state(q: Float[Array, "7"]) -> TcpState:
+    """:func:`tcp_state` from one ``mjx.kinematics`` call on the same MJCF: the reference
+    that the tests compare the chain with, and the benchmarks' baseline (no validation)."""
+    mx, d0, site = _mjx_panda()
     d = mjx.kinematics(mx, d0.replace(qpos=jnp.asarray(q, d0.qpos.dtype)))
     pos = d.site_xpos[site]
     rot = d.site_xmat[site].reshape(3, 3)
@@ -98,21 +199,16 @@ def _tcp_state(mx: mjx.Model, d0: mjx.Data, site: int, q) -> TcpState:
     return TcpState(pos, rot, jac_pos, jac_axis)
 
 
-def tcp_state(q: Float[Array, "7"]) -> TcpState:
-    """TCP pose and Jacobians from one ``mjx.kinematics`` call (no validation)."""
-    return _tcp_state(*_mjx_panda(), q)
-
-
 @jax.custom_jvp
 def fk_position(q: Float[Array, "7"]) -> Float[Array, "3"]:
-    """TCP position (m) of ``q`` (rad) from ``mjx.kinematics`` (no validation), whose
-    derivative is the geometric Jacobian of the same call:
+    """TCP position (m) of ``q`` (rad) from :func:`tcp_state` (no validation), whose
+    derivative is the geometric Jacobian of the same product:
 
         d pos = J(q) dq,    J_j = w_j × (p − a_j)   (hinge j: world axis w_j through a_j),
 
     exact for the Panda's hinges (Siciliano et al., *Robotics: Modelling, Planning and
     Control*, 2009, §3.1.3; MuJoCo's ``mj_jacSite`` computes the same). So ``grad``/``vjp``
-    of a path never differentiate through MJX's quaternion algebra: a path's gradient
+    of a path never differentiate through the chain's trigonometry: a path's gradient
     compiles and runs about 3× faster on a CPU, and the planner plans about 5× more
     problems per second (``python -m slotv_jax.benchmarks.planning``,
     ``experiments/BENCHMARKS.md``). Higher derivatives differentiate J through MJX, so
@@ -128,6 +224,14 @@ def _fk_position_jvp(primals, tangents):
     return s.pos, s.jac_pos @ jnp.asarray(dq, s.jac_pos.dtype)
 
 
+def _cpu():
+    """The CPU device (the default device where JAX_PLATFORMS leaves the CPU out)."""
+    try:
+        return jax.devices("cpu")[0]
+    except RuntimeError:
+        return jax.devices()[0]
+
+
 def host_eval(fn, model: mujoco.MjModel, *args):
     """``fn(mjx.put_model(model), *args)`` as one compiled call on the CPU, as NumPy arrays.
 
@@ -136,10 +240,7 @@ def host_eval(fn, model: mujoco.MjModel, *args):
     compiled CPU call takes about a second, and gives the same constant on every machine.
     Works when first called under a trace (the result is concrete).
     """
-    try:
-        cpu = jax.devices("cpu")[0]
-    except RuntimeError:  # JAX_PLATFORMS without the CPU: the default device then
-        cpu = jax.devices()[0]
+    cpu = _cpu()
     with jax.ensure_compile_time_eval(), jax.default_device(cpu):
         mx = mjx.put_model(model, device=cpu)
         out = jax.jit(fn)(mx, *(jax.device_put(a, cpu) for a in args))
@@ -148,14 +249,11 @@ def host_eval(fn, model: mujoco.MjModel, *args):
 
 @functools.cache
 def home_tcp() -> np.ndarray:
-    """TCP(Q_HOME) (m), from MJX, as a constant (every trajectory starts here)."""
-    m = mj_model(PANDA_XML)
-    site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, TCP_SITE)
-
-    def pos(mx, q):
-        return _tcp_state(mx, mjx.make_data(mx), site, q).pos
-
-    return host_eval(pos, m, np.asarray(Q_HOME, np.float32))
+    """TCP(Q_HOME) (m), as a constant (every trajectory starts here): :func:`tcp_state` in
+    float32, one compiled call on the CPU (the same constant on every machine), concrete
+    even when first called under a trace."""
+    with jax.ensure_compile_time_eval(), jax.default_device(_cpu()):
+        return np.asarray(jax.jit(tcp_state)(np.asarray(Q_HOME, np.float32)).pos)
 
 
 @functools.cache
@@ -184,7 +282,7 @@ def _check_q(q) -> None:
 
 
 def tcp_position(q: Float[Array, "7"]) -> Float[Array, "3"]:
-    """TCP position (m, world frame) of joint configuration ``q`` (rad), via MJX.
+    """TCP position (m, world frame) of joint configuration ``q`` (rad), by :func:`tcp_state`.
 
     Example: ``tcp_position(Q_HOME) ≈ (0.3069, 0.0, 0.4869)``.
     """
@@ -193,7 +291,7 @@ def tcp_position(q: Float[Array, "7"]) -> Float[Array, "3"]:
 
 
 def tcp_pose(q: Float[Array, "7"]) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
-    """TCP position (m) and world-from-tool rotation matrix of ``q`` (rad), via MJX."""
+    """TCP position (m) and world-from-tool rotation matrix of ``q`` (rad), by :func:`tcp_state`."""
     _check_q(q)
     s = tcp_state(q)
     return s.pos, s.rot
