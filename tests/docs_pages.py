@@ -7,6 +7,7 @@ around its fence; :func:`marked_block` finds it on its page.
 from __future__ import annotations
 
 import re
+import shlex
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,3 +31,24 @@ def marked_block(page: str, name: str, lang: str) -> str:
     m = re.search(rf"<!-- {name}:start -->\n```{lang}\n(.*?)```\n<!-- {name}:end -->", text, re.S)
     assert m, f"{page}: the {name} block is missing"
     return m.group(1)
+
+
+def commands(code: str) -> list[tuple[list[str], str | None]]:
+    """The commands of a bash block as argv lists, each with its heredoc body (or None)."""
+    lines = code.replace("\\\n", " ").split("\n")
+    out, i = [], 0
+    while i < len(lines):
+        line = lines[i]
+        i += 1
+        body = None
+        here = re.search(r"<<\s*'?(\w+)'?", line)
+        if here:
+            end = lines.index(here.group(1), i)
+            body, i = "\n".join(lines[i:end]) + "\n", end + 1
+            line = line[: here.start()]
+        argv = shlex.split(line, comments=True)
+        if argv and argv[-1] == "&":
+            argv = argv[:-1]
+        if argv:
+            out.append((argv, body))
+    return out

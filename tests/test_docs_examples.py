@@ -50,7 +50,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from docs_pages import ROOT, pages
+from docs_pages import ROOT, commands, pages
 
 from slotv_jax import data
 
@@ -124,27 +124,6 @@ def test_marked_blocks_are_run_by_their_test():
 
 
 # ----------------------------------------------------------------- parsing commands
-
-
-def commands(code: str) -> list[tuple[list[str], str | None]]:
-    """The commands of a bash block as argv lists, each with its heredoc body (or None)."""
-    lines = code.replace("\\\n", " ").split("\n")
-    out, i = [], 0
-    while i < len(lines):
-        line = lines[i]
-        i += 1
-        body = None
-        here = re.search(r"<<\s*'?(\w+)'?", line)
-        if here:
-            end = lines.index(here.group(1), i)
-            body, i = "\n".join(lines[i:end]) + "\n", end + 1
-            line = line[: here.start()]
-        argv = shlex.split(line, comments=True)
-        if argv and argv[-1] == "&":
-            argv = argv[:-1]
-        if argv:
-            out.append((argv, body))
-    return out
 
 
 def ci_lines() -> list[str]:

@@ -3,6 +3,8 @@ a valid stimulus set."""
 
 import csv
 import json
+import sqlite3
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -225,3 +227,130 @@ def test_a_round_of_plans_asks_about_every_planner_of_the_study_s_own_scenes(tmp
     trials = [s["trajectory"] for s in m1["stimuli"] if s["kind"] == "trial"]
     assert {t.split("-")[1] for t in trials} == {"straight", "dragan", "pool"}
     assert m1["source"]["plans"] == str(plans) and "round 1" in capsys.readouterr().out
+
+
+# ------------------------------------------------- two rounds, as the manual walks them
+
+
+#: What the walk adds to the manual's commands, to run in a test's time: smaller clips, the
+#: hand-crafted candidates and the Dragan archetype, two folds and two problems, a
+#: two-member ensemble, and the people of a population file who watched from the lab's
+#: camera (the manual's ``default`` people watch from the scene's cameras).
+WALK_EXTRA = {
+    "stimuli": ["--size", "64x48", "--fps", "4", "--duration", "1", "--hold", "0"],
+    "simulate": ["--population", "lab_people.json"],
+    "pick": "--candidates dragan,nikolaidis --problems 2 --folds 2 --no-progress".split(),
+    "next": ["--members", "2", "--updates", "10", "--no-progress"],
+}
+
+
+def _walk_people(path, camera: str) -> None:
+    """The default population, every person watching from ``camera`` (a camera file)."""
+    from slotv_jax.observers import population
+
+    doc = population.get_population("default").to_dict()
+    doc.update(name="lab people", viewpoints={camera: 1.0})
+    path.write_text(json.dumps(doc))
+
+
+@pytest.mark.slow  # two picks that plan, two rounds rendered and answered over HTTP
+def test_two_rounds_walk_from_the_lab_s_camera_to_the_robot(
+    tiny_data, tiny_cfg, tmp_path, monkeypatch, capsys
+):
+    """The manual's two-round study (docs/guides/study.md, ``two-rounds``), each command as
+    a shell runs it (its own parser and checks), in the manual's order: stimuli from the
+    lab's camera file, people through the running server, export, import, a pick that plans
+    the study's scenes, a round of those plans, people again, export and import of both
+    rounds, the pick on every answer, and its plan written for the robot. Each step is
+    checked against what the step before it stored."""
+    from docs_pages import commands, marked_block
+    from study_fixtures import ServerProcess
+
+    from slotv_jax import data, render
+    from slotv_jax.answers.storage import load_study
+    from slotv_jax.execution import cli as execution_cli
+    from slotv_jax.planning import plans as plans_lib
+
+    home = data.dataset_dir(tmp_path / data.DEFAULT_CACHE, data.quick())
+    home.mkdir(parents=True)
+    data.save_split(home, tiny_data["trajectory_test"], tiny_cfg)
+    monkeypatch.chdir(tmp_path)
+    block = commands(marked_block("docs/guides/study.md", "two-rounds", "bash"))
+    ran: list[str] = []
+    server = None
+    try:
+        for argv, body in block:
+            if argv[0] == "cat":  # cat > FILE <<'EOF'
+                assert argv[1] == ">" and body is not None
+                Path(argv[2]).write_text(body)
+                _walk_people(tmp_path / "lab_people.json", str(tmp_path / argv[2]))
+                continue
+            if argv in (["server=$!"], ["kill", "$server"]):
+                if argv[0] == "kill":
+                    server.stop()
+                    server = None
+                continue
+            module, sub, *args = argv[2:]
+            ran.append(f"{module} {sub}")
+            if sub == "serve":
+                i = args.index("--stimuli"), args.index("--db")
+                server = ServerProcess(Path(args[i[0] + 1]), Path(args[i[1] + 1]))
+                continue
+            args = [server.url if a == "http://127.0.0.1:8765" else a for a in args]
+            main = execution_cli.main if module == "slotv_jax.execution" else study_cli.main
+            assert main([sub, *args, *WALK_EXTRA.get(sub, [])]) == 0, (sub, args)
+            out = capsys.readouterr().out
+            if sub == "simulate":
+                assert "12 of 12 simulated participants finished" in out, out
+    finally:
+        if server is not None:
+            server.stop()
+    assert ran == [
+        "slotv_jax.study stimuli", "slotv_jax.study serve", "slotv_jax.study simulate",
+        "slotv_jax.study export", "slotv_jax.study import", "slotv_jax.study pick",
+        "slotv_jax.study next", "slotv_jax.study simulate", "slotv_jax.study export",
+        "slotv_jax.study import", "slotv_jax.study pick", "slotv_jax.execution export",
+    ]  # fmt: skip
+    cam = json.loads((tmp_path / "lab_cam.json").read_text())
+    # round 0 and round 1 were filmed from the lab's camera, its pose kept in each manifest
+    m0 = stimuli.load_stimulus_set(tmp_path / "stim").manifest
+    m1 = stimuli.load_stimulus_set(tmp_path / "stim" / "round-1").manifest
+    for m in (m0, m1):
+        assert {s["camera"] for s in m["stimuli"]} == {"lab_cam"}
+        np.testing.assert_allclose(m["cameras"]["lab_cam"]["position"], cam["position"])
+        assert m["cameras"]["lab_cam"]["fovy"] == pytest.approx(cam["fovy"])
+    assert rounds.trial_count(tmp_path / "stim") == 8 + 6  # the budget, exactly
+    # round 1 asked about the first pick's plans, of round 0's scenes, every planner in turn
+    plans1 = plans_lib.load_plans(tmp_path / "pick1" / "plans.npz")
+    trials1 = [s for s in m1["stimuli"] if s["kind"] == "trial"]
+    assert all(s["trajectory"].startswith("r1-") for s in trials1)
+    asked = {s["trajectory"].split("-")[1] for s in trials1}
+    assert asked == set(plans1["names"]), (asked, plans1["names"])
+    # the second import holds every answer of both rounds, as the database stored them
+    s0, s1 = load_study(tmp_path / "study0.npz"), load_study(tmp_path / "study1.npz")
+    con = sqlite3.connect(tmp_path / "study.db")
+    per_round = dict(con.execute(
+        "SELECT s.round, COUNT(*) FROM answers a JOIN trials t ON t.trial = a.trial JOIN "
+        "stimuli s ON s.stimulus = t.stimulus WHERE s.kind = 'trial' GROUP BY s.round"
+    ).fetchall())  # fmt: skip
+    con.close()
+    assert set(per_round) == {0, 1} and all(n > 0 for n in per_round.values())
+    assert s0.n_answers == per_round[0] and s1.n_answers == per_round[0] + per_round[1]
+    assert {t for t in s1.trajectory_ids if t.startswith("r1-")} == {
+        s["trajectory"] for s in trials1}  # fmt: skip
+    # the second pick chose on both rounds' answers, and its pool's plan reached the robot:
+    # the written joint path starts and ends where the plan does, within the Panda's limits
+    pool = json.loads((tmp_path / "pick2" / "pool.json").read_text())
+    assert pool["meta"]["study"] == "study1.npz" and pool["meta"]["camera"] == "lab_cam.json"
+    plans2 = plans_lib.load_plans(tmp_path / "pick2" / "plans.npz")
+    k = list(plans2["names"]).index("pool")
+    q_plan = np.asarray(plans2["q"][k, 0], np.float64)
+    table = np.loadtxt(tmp_path / "plan.csv", delimiter=",", skiprows=1)
+    t, q = table[:, 0], table[:, 1:8]
+    assert t[0] == 0 and np.all(np.diff(t) > 0)
+    np.testing.assert_allclose(q[0], q_plan[0], atol=1e-6)
+    np.testing.assert_allclose(q[-1], q_plan[-1], atol=1e-6)
+    with render.MotionRenderer((32, 32)) as r:  # MuJoCo C's forward kinematics
+        tcp = r.tcp_path(q[-1:].astype(np.float32))
+    goal = plans2["goals"][0][plans2["target"][0]]
+    assert np.linalg.norm(tcp[-1] - goal) < 0.01, (tcp[-1], goal)
