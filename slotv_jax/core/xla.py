@@ -8,7 +8,10 @@ Two settings of XLA's CPU backend, each measured against XLA's default:
   on, each of them costs far more than the arithmetic it does: measured on a 2-core
   CPU with jax 0.10.2 and mujoco-mjx 3.17, one jitted ``mjx.kinematics`` call took
   ~6 ms with the default and ~50 µs with the flag (see
-  ``python -m slotv_jax.benchmarks.kinematics``).
+  ``python -m slotv_jax.benchmarks.kinematics``). The arm's kinematics is now the MJCF's
+  chain (:mod:`slotv_jax.robot.kinematics`), whose single call is faster without the flag,
+  but the planner still compiled faster with it and the tiny dataset generated about twice
+  as fast (2026-12-03, experiments/BENCHMARKS.md, Planning), so it stays.
 - ``--xla_cpu_prefer_vector_width=512``. XLA asks LLVM for 256-bit vectors by default,
   so on a CPU with AVX-512 half of each vector register goes unused. The labelers'
   loops (a distance, an exponential or a square root per point and goal) are bound by
