@@ -8,9 +8,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from study_fixtures import DotRenderer, motions, write_dot_set
+from docs_pages import commands, marked_block
+from study_fixtures import DotRenderer, ServerProcess, motions, write_dot_set
 
+from slotv_jax import data, render
+from slotv_jax.answers.storage import load_study
 from slotv_jax.core import opengl
+from slotv_jax.execution import cli as execution_cli
+from slotv_jax.observers import population
+from slotv_jax.planning import plans as plans_lib
 from slotv_jax.study import cli as study_cli
 from slotv_jax.study import rounds
 from slotv_jax.training import config as train_config
@@ -247,8 +253,6 @@ WALK_EXTRA = {
 
 def _walk_people(path, camera: str) -> None:
     """The default population, every person watching from ``camera`` (a camera file)."""
-    from slotv_jax.observers import population
-
     doc = population.get_population("default").to_dict()
     doc.update(name="lab people", viewpoints={camera: 1.0})
     path.write_text(json.dumps(doc))
@@ -264,14 +268,6 @@ def test_two_rounds_walk_from_the_lab_s_camera_to_the_robot(
     the study's scenes, a round of those plans, people again, export and import of both
     rounds, the pick on every answer, and its plan written for the robot. Each step is
     checked against what the step before it stored."""
-    from docs_pages import commands, marked_block
-    from study_fixtures import ServerProcess
-
-    from slotv_jax import data, render
-    from slotv_jax.answers.storage import load_study
-    from slotv_jax.execution import cli as execution_cli
-    from slotv_jax.planning import plans as plans_lib
-
     home = data.dataset_dir(tmp_path / data.DEFAULT_CACHE, data.quick())
     home.mkdir(parents=True)
     data.save_split(home, tiny_data["trajectory_test"], tiny_cfg)

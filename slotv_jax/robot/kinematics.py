@@ -143,6 +143,12 @@ def _chain(path: str | Path = PANDA_XML) -> tuple[tuple[_Link, ...], np.ndarray,
     return tuple(links), m.site_pos[site].copy(), _quat_mat(m.site_quat[site])
 
 
+def _with_jacobians(pos, rot, axes: Float[Array, "7 3"], anchors: Float[Array, "7 3"]) -> TcpState:
+    """The TCP's state from its pose and the hinges' world axes w_j and anchors a_j: the
+    geometric Jacobians ∂p/∂q_j = w_j × (p − a_j), ∂z/∂q_j = w_j × z."""
+    return TcpState(pos, rot, jnp.cross(axes, pos - anchors).T, jnp.cross(axes, rot[:, 2]).T)
+
+
 def _skew(v: np.ndarray) -> np.ndarray:
     """[v]ₓ, the matrix of v × ·."""
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
@@ -180,10 +186,7 @@ def tcp_state(q: Float[Array, "7"]) -> TcpState:
             R = mm(R, c(np.eye(3)) + jnp.sin(qj) * c(k) + (1 - jnp.cos(qj)) * c(k @ k))
             p = a - mm(R, c(link.anchor))
     pos, rot = p + mm(R, c(site_pos)), mm(R, c(site_rot))
-    axes, anchors = jnp.stack(axes), jnp.stack(anchors)
-    jac_pos = jnp.cross(axes, pos - anchors).T
-    jac_axis = jnp.cross(axes, rot[:, 2]).T
-    return TcpState(pos, rot, jac_pos, jac_axis)
+    return _with_jacobians(pos, rot, jnp.stack(axes), jnp.stack(anchors))
 
 
 def mjx_tcp_state(q: Float[Array, "7"]) -> TcpState:
@@ -191,12 +194,8 @@ def mjx_tcp_state(q: Float[Array, "7"]) -> TcpState:
     that the tests compare the chain with, and the benchmarks' baseline (no validation)."""
     mx, d0, site = _mjx_panda()
     d = mjx.kinematics(mx, d0.replace(qpos=jnp.asarray(q, d0.qpos.dtype)))
-    pos = d.site_xpos[site]
-    rot = d.site_xmat[site].reshape(3, 3)
-    axes, anchors = d.xaxis, d.xanchor  # (7, 3) each: hinge axes and points, world frame
-    jac_pos = jnp.cross(axes, pos - anchors).T
-    jac_axis = jnp.cross(axes, rot[:, 2]).T
-    return TcpState(pos, rot, jac_pos, jac_axis)
+    # d.xaxis, d.xanchor (7, 3): hinge axes and points, world frame
+    return _with_jacobians(d.site_xpos[site], d.site_xmat[site].reshape(3, 3), d.xaxis, d.xanchor)
 
 
 @jax.custom_jvp
@@ -208,11 +207,10 @@ def fk_position(q: Float[Array, "7"]) -> Float[Array, "3"]:
 
     exact for the Panda's hinges (Siciliano et al., *Robotics: Modelling, Planning and
     Control*, 2009, §3.1.3; MuJoCo's ``mj_jacSite`` computes the same). So ``grad``/``vjp``
-    of a path never differentiate through the chain's trigonometry: a path's gradient
-    compiles and runs about 3× faster on a CPU, and the planner plans about 5× more
-    problems per second (``python -m slotv_jax.benchmarks.planning``,
-    ``experiments/BENCHMARKS.md``). Higher derivatives differentiate J through MJX, so
-    they stay exact too.
+    of a path never differentiate through the chain's trigonometry: on the 2-core CPU a
+    path's gradient compiled 1.3–1.7× and ran 1.1–2.2× faster than autodiff through the
+    same product (``python -m slotv_jax.benchmarks.planning``, ``experiments/BENCHMARKS.md``).
+    Higher derivatives differentiate J through the chain, so they stay exact too.
     """
     return tcp_state(q).pos
 
