@@ -29,6 +29,12 @@ EXCEPTIONS = {
     ("slotv_jax", "slotv_jax.training.checkpoint"): "lazy package attribute",
     # Consulted only when JAX is already imported: _xla must not import JAX itself.
     ("slotv_jax.core.xla", "jax._src"): "probe of an already imported JAX",
+    # Loaded on first use, not when a command starts (each about a second or more on the
+    # 2-core CPU, paid by every `python -m slotv_jax.X`, --help included): MJX is only the
+    # kinematics' reference, toppra (SciPy's interpolation, matplotlib) only times plans.
+    ("slotv_jax.robot.kinematics", "mujoco"): "mujoco.mjx, the reference, on first use",
+    ("slotv_jax.execution.timing", "slotv_jax.execution.topp"): "toppra, on first timing",
+    ("slotv_jax.execution.path", "toppra"): "toppra's spline, on first path",
 }
 
 
@@ -242,6 +248,32 @@ def test_train_script_runs_without_double_import_warning():
     )  # fmt: skip
     assert r.returncode == 0, r.stderr[-2000:]
     assert "--study" in r.stdout
+
+
+COMMANDS_LOAD_NEITHER = """
+import sys
+from slotv_jax.data import cli as _data
+from slotv_jax.execution import cli as _execution
+from slotv_jax.labelers import cli as _labelers
+from slotv_jax.render import cli as _render
+from slotv_jax.study import cli as _study
+from slotv_jax.train import cli as _train
+from slotv_jax.world import scene
+
+scene.camera("observer"), scene.camera("observer_side")  # posed by MuJoCo C
+heavy = sorted(m for m in ("toppra", "mujoco.mjx", "scipy.interpolate") if m in sys.modules)
+assert not heavy, heavy
+print("OK")
+"""
+
+
+def test_commands_start_without_toppra_or_mjx():
+    """A command's start (``--help`` too) and the scene's cameras load neither toppra (with
+    SciPy's interpolation and matplotlib, about 1.6 s) nor MJX (about a second): they load
+    when a plan is first timed, or the MJX reference is asked for."""
+    r = subprocess.run([sys.executable, "-c", COMMANDS_LOAD_NEITHER], capture_output=True,
+                       text=True, check=False)  # fmt: skip
+    assert r.returncode == 0 and r.stdout.strip() == "OK", r.stderr[-2000:]
 
 
 IMPORT_EVERYTHING = """

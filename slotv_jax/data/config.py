@@ -18,13 +18,14 @@ from slotv_jax.world.scene import SceneConfig
 from slotv_jax.world.trajectories import DISTRIBUTIONS, TrajectoryConfig
 
 # Bump when generation code changes what a config produces, so cached datasets are not reused.
-GENERATOR_VERSION = 9  # 2: IK locks joints at their limits; 3: home TCP by one compiled call;
+GENERATOR_VERSION = 10  # 2: IK locks joints at their limits; 3: home TCP by one compiled call;
 # 4: labels from the coordinate-major labelling kernel (equal up to float32 rounding);
 # 5: the trajectory distribution chosen by the fidelity ablation (trajectories.DISTRIBUTIONS);
 # 6: labels from the public per-trajectory labelers under vmap (equal up to float32 rounding);
 # 7: via points of the default distribution in the table box (trajectories.TABLE_VIA_BOX);
 # 8: nikolaidis in homogeneous image coordinates (labels within 3e-7 of version 7's)
 # 9: the arm's kinematics as the MJCF's chain, not mjx.kinematics (poses within 2e-6)
+# 10: the scene's cameras posed by MuJoCo C, not MJX (rotations within 1.2e-7, one float32 ulp)
 
 
 # ----------------------------------------------------------------------- config

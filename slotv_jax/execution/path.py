@@ -29,12 +29,15 @@ refinement.
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 from jaxtyping import Float
-from toppra import SplineInterpolator
 
 from slotv_jax.execution.models import tcp_poses
+
+if TYPE_CHECKING:
+    from toppra import SplineInterpolator
 
 __all__ = ["SAME_CONFIGURATION", "JointPath", "deviation", "make_path", "refine"]
 
@@ -87,6 +90,8 @@ def _build(q, s, xyz, levels) -> JointPath:
     ks, kq = np.concatenate(parts_s), np.concatenate(parts_q)
     levels = np.asarray(levels, int)
     kxyz = xyz if len(kq) == len(q) else tcp_poses(kq)[0]
+    from toppra import SplineInterpolator  # SciPy's interpolation: loaded on first use
+
     return JointPath(q, s, xyz, levels, ks, kq, kxyz, SplineInterpolator(ks, kq))
 
 

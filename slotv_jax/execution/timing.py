@@ -56,8 +56,6 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-import toppra.algorithm
-import toppra.constraint
 from jaxtyping import Float
 
 from slotv_jax.execution.limits import DEFAULT_SPEED, ROBOTS, Limits, check_speed
@@ -192,61 +190,11 @@ def backward_differences(x: Float[np.ndarray, "N D"], dt: float = DT, order: int
     return out
 
 
-class _ScaledVelocity(toppra.constraint.JointVelocityConstraint):
-    """|q'_j(s) ṡ| ≤ σ(s) v_j: toppra's joint velocity constraint, its bound scaled by
-    ``self.scale`` (σ at each grid point, set before each solve), and ṡ² ≤ ``self.cap``
-    (the path's own jerk, :func:`_jerk_cap`)."""
-
-    scale: np.ndarray
-    cap: np.ndarray
-
-    def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
-        out = list(super().compute_constraint_params(path, gridpoints, *args, **kwargs))
-        xbound = np.array(out[6])
-        xbound[:, 1] = np.minimum(xbound[:, 1] * self.scale**2, self.cap)
-        out[6] = xbound
-        return tuple(out)
-
-
-class _ScaledAcceleration(toppra.constraint.JointAccelerationConstraint):
-    """|q'_j(s) s̈ + q''_j(s) ṡ²| ≤ σ(s)² a_j: toppra's joint acceleration constraint
-    (interpolation discretisation), the path's coefficients divided by σ² at each grid point."""
-
-    scale: np.ndarray
-
-    def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
-        k = self.scale[:, None] ** 2
-        dof = path.dof
-        f = np.concatenate([np.eye(dof), -np.eye(dof)])
-        g = np.concatenate([self.alim[:, 1], -self.alim[:, 0]])
-        a, b = path(gridpoints, 1) / k, path(gridpoints, 2) / k
-        return toppra.constraint.canlinear_colloc_to_interpolate(
-            a, b, np.zeros_like(a), f, g, None, None, gridpoints, identical=True
-        )
-
-
 def _grid(path: JointPath, per: int) -> np.ndarray:
     """TOPP-RA's grid: ``per`` points per spline interval (the knots and between them)."""
     ks = path.knots_s
     f = np.arange(per) / per
     return np.concatenate([(ks[:-1, None] + f * np.diff(ks)[:, None]).ravel(), ks[-1:]])
-
-
-def _topp(path: JointPath, grid: np.ndarray, constraints) -> np.ndarray:
-    """TOPP-RA's path velocities ṡ on ``grid``, at rest at both ends."""
-    algo = toppra.algorithm.TOPPRA(
-        constraints, path.spline, gridpoints=grid, solver_wrapper="seidel",
-        parametrizer="ParametrizeConstAccel",
-    )  # fmt: skip
-    algo.compute_parameterization(0.0, 0.0)
-    data = algo.problem_data
-    sd = data.sd_vec
-    if data.return_code != toppra.algorithm.ParameterizationReturnCode.Ok or sd is None:
-        raise Refused(
-            f"t = 0.000 s: TOPP-RA found no timing of the path ({data.return_code})",
-            t=0.0, check="timing",
-        )  # fmt: skip
-    return np.maximum(np.asarray(sd, np.float64), 0.0)
 
 
 def _sample(grid: np.ndarray, sd: np.ndarray) -> np.ndarray:
@@ -370,12 +318,14 @@ def time_path(path: JointPath, config: TimingConfig = TimingConfig()) -> Traject
     lim = dataclasses.replace(lim, dddq_max=np.minimum(lim.dddq_max, _torque_rate_jerk(path, lim)))
     w = 1  # the smoothing window: at least what each round's s̈ needs (_window), or widened
     grid = _grid(path, config.grid)
-    vel, acc = _ScaledVelocity(lim.dq_max), _ScaledAcceleration(lim.ddq_max)
+    from slotv_jax.execution import topp  # toppra (and SciPy, matplotlib) on first use
+
+    vel, acc = topp.ScaledVelocity(lim.dq_max), topp.ScaledAcceleration(lim.ddq_max)
     scale = np.full(len(grid), SIGMA_START)
     vel.scale = acc.scale = scale  # σ: lowered in place where a round overshoots
     vel.cap = _jerk_cap(path, grid, lim.dddq_max)
     for r in range(1, config.rounds + 1):
-        raw = _sample(grid, _topp(path, grid, [vel, acc]))
+        raw = _sample(grid, topp.topp(path, grid, [vel, acc]))
         w = max(w, _window(path, raw, lim.dddq_max))
         s = _smooth(raw, w)
         (rv, ra, rj), window = _excess(path, s, lim)

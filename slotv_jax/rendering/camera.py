@@ -107,20 +107,15 @@ def free_camera_pose(cam: FreeCamera) -> tuple[np.ndarray, np.ndarray]:
 @functools.cache
 def named_camera(name: str) -> scene.Camera:
     """A named camera of the scene posed by MuJoCo C (``mj_kinematics`` + ``mj_camlight``),
-    with NumPy fields: the pose :mod:`slotv_jax.scene` computes with MJX, without
-    compiling anything."""
+    with NumPy fields (float64): the pose of :func:`slotv_jax.scene.camera`, before its
+    cast to float32."""
     if not isinstance(name, str) or name not in CAMERAS:
         raise ValueError(f"camera: expected one of {list(CAMERAS)}, got {name!r}")
     m = scene_model()
-    d = mujoco.MjData(m)
-    mujoco.mj_kinematics(m, d)
-    mujoco.mj_camlight(m, d)
     cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, name)
+    pos, rot = (a[cam].copy() for a in scene._camera_poses())
     return scene.Camera(
-        pos=d.cam_xpos[cam].copy(),
-        rot=d.cam_xmat[cam].reshape(3, 3).copy(),
-        fovy=np.float64(m.cam_fovy[cam]),
-        resolution=m.cam_resolution[cam].copy(),
+        pos=pos, rot=rot, fovy=np.float64(m.cam_fovy[cam]), resolution=m.cam_resolution[cam].copy()
     )
 
 

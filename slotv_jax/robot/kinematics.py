@@ -39,7 +39,7 @@ import dataclasses
 import functools
 import io
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -49,9 +49,24 @@ from jaxtyping import Array, Float, Int
 
 from slotv_jax.core import validation
 
-with contextlib.redirect_stdout(io.StringIO()):
-    # mujoco.mjx prints a notice when the optional warp backend is absent.
+if TYPE_CHECKING:
     from mujoco import mjx
+
+
+def _mjx():
+    """``mujoco.mjx``, imported on first use: only the MJX reference (:func:`mjx_tcp_state`)
+    and :func:`host_eval` need it, and importing it costs every process about a second."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        # mujoco.mjx prints a notice when the optional warp backend is absent.
+        from mujoco import mjx
+    return mjx
+
+
+def __getattr__(name: str):
+    if name == "mjx":  # ``kinematics.mjx``, as before the import was deferred
+        return _mjx()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 #: The robot's MJCF files, inside the package so that a wheel carries them: in the repository
 #: ``slotv_jax/franka_assets`` is a link to the top-level ``franka_assets/``, their source.
@@ -78,6 +93,7 @@ def mj_model(path: str | Path = PANDA_XML) -> mujoco.MjModel:
 
 @functools.cache
 def _mjx_panda() -> tuple[mjx.Model, mjx.Data, int]:
+    mjx = _mjx()
     m = mj_model(PANDA_XML)
     with jax.ensure_compile_time_eval():  # concrete arrays even if first called under a trace
         mx = mjx.put_model(m)
@@ -193,7 +209,7 @@ def mjx_tcp_state(q: Float[Array, "7"]) -> TcpState:
     """:func:`tcp_state` from one ``mjx.kinematics`` call on the same MJCF: the reference
     that the tests compare the chain with, and the benchmarks' baseline (no validation)."""
     mx, d0, site = _mjx_panda()
-    d = mjx.kinematics(mx, d0.replace(qpos=jnp.asarray(q, d0.qpos.dtype)))
+    d = _mjx().kinematics(mx, d0.replace(qpos=jnp.asarray(q, d0.qpos.dtype)))
     # d.xaxis, d.xanchor (7, 3): hinge axes and points, world frame
     return _with_jacobians(d.site_xpos[site], d.site_xmat[site].reshape(3, 3), d.xaxis, d.xanchor)
 
@@ -238,7 +254,7 @@ def host_eval(fn, model: mujoco.MjModel, *args):
     compiled CPU call takes about a second, and gives the same constant on every machine.
     Works when first called under a trace (the result is concrete).
     """
-    cpu = _cpu()
+    cpu, mjx = _cpu(), _mjx()
     with jax.ensure_compile_time_eval(), jax.default_device(cpu):
         mx = mjx.put_model(model, device=cpu)
         out = jax.jit(fn)(mx, *(jax.device_put(a, cpu) for a in args))

@@ -29,7 +29,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from slotv_jax.core import validation
 from slotv_jax.core.validation import G_MAX
-from slotv_jax.robot.kinematics import SCENE_XML, host_eval, mj_model, mjx
+from slotv_jax.robot.kinematics import SCENE_XML, mj_model
 
 
 @dataclasses.dataclass(frozen=True)
@@ -132,15 +132,16 @@ class Camera:
 
 @functools.cache
 def _camera_poses() -> tuple[np.ndarray, np.ndarray]:
-    """Every camera of the scene model posed by ``mjx.kinematics`` + ``mjx.camlight``:
-    positions ``(ncam, 3)`` and rotations ``(ncam, 3, 3)``, in one compiled call (a second
-    or two; several on a loaded CPU) for all of them."""
-
-    def pose(mx):
-        d = mjx.camlight(mx, mjx.kinematics(mx, mjx.make_data(mx)))
-        return d.cam_xpos, d.cam_xmat.reshape(-1, 3, 3)
-
-    return host_eval(pose, mj_model(SCENE_XML))
+    """Every camera of the scene model posed by MuJoCo C (``mj_kinematics`` then
+    ``mj_camlight``, float64): positions ``(ncam, 3)`` and rotations ``(ncam, 3, 3)``.
+    Microseconds, and nothing to compile: posing them with ``mjx.kinematics`` +
+    ``mjx.camlight`` cost every process 7-13 s of tracing and compilation on the 2-core CPU
+    (the test suite starts hundreds); the tests check these poses against MJX's."""
+    m = mj_model(SCENE_XML)
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    mujoco.mj_camlight(m, d)
+    return d.cam_xpos.copy(), d.cam_xmat.reshape(-1, 3, 3).copy()
 
 
 CAMERAS = ("observer", "observer_angle", "observer_side")  # the named cameras of scene.xml
@@ -321,8 +322,8 @@ def _camera_cached(name: str, key: tuple = ()) -> Camera:
 
 
 def camera(name: str = "observer") -> Camera:
-    """A camera of the scene model, posed by ``mjx.kinematics`` + ``mjx.camlight`` (every
-    camera in one compiled call, on first use), or a camera file's
+    """A camera of the scene model, posed by MuJoCo C (``mj_kinematics`` + ``mj_camlight``,
+    every camera on first use), or a camera file's
     (:ref:`concepts-camera-files`: a path ending in ``.json``, read once).
 
     Names: ``observer`` (default), ``observer_angle``, ``observer_side``.
