@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 import pytest
 import ref_kinematics as ref
+from compile_log import backend_compiles
 
 from slotv_jax.robot import kinematics as K
 
@@ -223,6 +224,19 @@ def test_reference_reproduces_spec_check_values():
         ref.tcp_positions(np.zeros(7)), [0.0880, 0.0, 0.8226], atol=CHECK_TOL
     )
     np.testing.assert_allclose(ref.tcp_axes(SPEC_Q_HOME), [0.0, 0.0, -1.0], atol=1e-12)
+
+
+def test_home_tcp_is_the_chain_s_and_the_dh_reference_s_and_compiles_nothing():
+    """The home TCP (every trajectory's start) is MuJoCo C's, cast to float32: within one
+    float32 ulp of the chain's (jitted) and of the float64 DH reference, posed without
+    compiling anything."""
+    K.home_tcp.cache_clear()
+    with backend_compiles() as compiled:
+        home = K.home_tcp()
+    assert compiled == [] and home.dtype == np.float32 and home.shape == (3,)
+    chain = np.asarray(jax.jit(K.tcp_position)(jnp.asarray(K.Q_HOME, jnp.float32)))
+    np.testing.assert_allclose(home, chain, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(home, ref.tcp_positions(SPEC_Q_HOME), rtol=0, atol=1e-7)
 
 
 # --------------------------------------------------------------------------- forward kinematics

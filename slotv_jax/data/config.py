@@ -25,7 +25,7 @@ GENERATOR_VERSION = 10  # 2: IK locks joints at their limits; 3: home TCP by one
 # 7: via points of the default distribution in the table box (trajectories.TABLE_VIA_BOX);
 # 8: nikolaidis in homogeneous image coordinates (labels within 3e-7 of version 7's)
 # 9: the arm's kinematics as the MJCF's chain, not mjx.kinematics (poses within 2e-6)
-# 10: the scene's cameras posed by MuJoCo C, not MJX (rotations within 1.2e-7, one float32 ulp)
+# 10: the scene's cameras and the home TCP from MuJoCo C (both within one float32 ulp)
 
 
 # ----------------------------------------------------------------------- config

@@ -249,7 +249,7 @@ def _cpu():
 def host_eval(fn, model: mujoco.MjModel, *args):
     """``fn(mjx.put_model(model), *args)`` as one compiled call on the CPU, as NumPy arrays.
 
-    For the scene's constants (the home TCP, camera poses). Evaluated op by op, MJX
+    For constants from MJX (the tests' MJX references). Evaluated op by op, MJX
     compiles every small operation separately, which takes about 10 s on a GPU; one
     compiled CPU call takes about a second, and gives the same constant on every machine.
     Works when first called under a trace (the result is concrete).
@@ -263,11 +263,15 @@ def host_eval(fn, model: mujoco.MjModel, *args):
 
 @functools.cache
 def home_tcp() -> np.ndarray:
-    """TCP(Q_HOME) (m), as a constant (every trajectory starts here): :func:`tcp_state` in
-    float32, one compiled call on the CPU (the same constant on every machine), concrete
-    even when first called under a trace."""
-    with jax.ensure_compile_time_eval(), jax.default_device(_cpu()):
-        return np.asarray(jax.jit(tcp_state)(np.asarray(Q_HOME, np.float32)).pos)
+    """TCP(Q_HOME) (m), as a constant (every trajectory starts here): MuJoCo C's
+    ``mj_kinematics`` of the same MJCF in float64, then float32 (the same constant on every
+    machine, concrete under a trace). Within one float32 ulp of :func:`tcp_state`; compiling
+    that instead cost every process about a second."""
+    m = mj_model(PANDA_XML)
+    d = mujoco.MjData(m)
+    d.qpos[:NQ] = Q_HOME
+    mujoco.mj_kinematics(m, d)
+    return d.site_xpos[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, TCP_SITE)].astype(np.float32)
 
 
 @functools.cache
