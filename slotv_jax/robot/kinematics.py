@@ -266,7 +266,7 @@ def home_tcp() -> np.ndarray:
     """TCP(Q_HOME) (m), as a constant (every trajectory starts here): MuJoCo C's
     ``mj_kinematics`` of the same MJCF in float64, then float32 (the same constant on every
     machine, concrete under a trace). Within one float32 ulp of :func:`tcp_state`; compiling
-    that instead cost every process about a second."""
+    that instead cost every process 0.4-1 s (``python -m slotv_jax.benchmarks.startup``)."""
     m = mj_model(PANDA_XML)
     d = mujoco.MjData(m)
     d.qpos[:NQ] = Q_HOME

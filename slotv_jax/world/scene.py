@@ -135,8 +135,9 @@ def _camera_poses() -> tuple[np.ndarray, np.ndarray]:
     """Every camera of the scene model posed by MuJoCo C (``mj_kinematics`` then
     ``mj_camlight``, float64): positions ``(ncam, 3)`` and rotations ``(ncam, 3, 3)``.
     Microseconds, and nothing to compile: posing them with ``mjx.kinematics`` +
-    ``mjx.camlight`` cost every process 7-13 s of tracing and compilation on the 2-core CPU
-    (the test suite starts hundreds); the tests check these poses against MJX's."""
+    ``mjx.camlight`` cost every process about 4 s of tracing and compilation on a quiet 2-core
+    CPU, 7-13 s on a loaded one (``python -m slotv_jax.benchmarks.startup``); the tests check
+    these poses against MJX's."""
     m = mj_model(SCENE_XML)
     d = mujoco.MjData(m)
     mujoco.mj_kinematics(m, d)
