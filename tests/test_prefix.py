@@ -154,15 +154,18 @@ def test_labeler_prefix_gradient_is_the_sliced_gradient(paths, name):
     fn = labelers.LABELERS[name]
     kw = {"camera": scene.camera("observer")} if name == "nikolaidis" else {}
     got, want = {}, {}
+
+    # one program for every L: the seen count is traced, as in the planner's objective
+    @jax.jit
+    @jax.grad
+    def prefix_lp(x, L):
+        return jax.nn.log_softmax(obs.prefix(x, goals[0], mask[0], L))[1]
+
+    def sliced_lp(x):
+        return jnp.log(fn(x, goals[0], mask[0], beta=BETAS[name], **kw)[1])
+
     for L in (2, 3, 17, T):
-
-        def prefix_lp(x, L=L):
-            return jax.nn.log_softmax(obs.prefix(x, goals[0], mask[0], jnp.int32(L)))[1]
-
-        def sliced_lp(x):
-            return jnp.log(fn(x, goals[0], mask[0], beta=BETAS[name], **kw)[1])
-
-        got[L] = np.asarray(jax.jit(jax.grad(prefix_lp))(xyz[0]))
+        got[L] = np.asarray(prefix_lp(xyz[0], jnp.int32(L)))
         want[L] = np.asarray(jax.grad(sliced_lp)(xyz[0, :L]))
     # rounding relative to the gradients' size on this path (at L = 2 Dragan's is exactly 0
     # in exact arithmetic, two equal terms cancelling: float32 leaves ~1e-7 of them)
