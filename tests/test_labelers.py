@@ -395,7 +395,7 @@ def test_cameras_are_posed_and_checked_without_compiling_and_agree_with_mjx(mj_c
     every process 7-13 s on a loaded 2-core CPU), and its pose is MJX's (``mjx.kinematics``
     + ``mjx.camlight``, an independent implementation) within float32 rounding."""
     scene._camera_cached.cache_clear()
-    scene._camera_poses.cache_clear()
+    scene.camera_poses.cache_clear()
     with backend_compiles() as compiled:
         [scene.check_camera(n) for n in mj_cameras]
         cams = {n: scene.camera(n) for n in mj_cameras}
@@ -403,13 +403,13 @@ def test_cameras_are_posed_and_checked_without_compiling_and_agree_with_mjx(mj_c
     with pytest.raises(ValueError, match="no camera named 'ceiling'"):
         scene.check_camera("ceiling")
     mjx = kinematics.mjx
+
+    def mjx_poses(mx):
+        d = mjx.camlight(mx, mjx.kinematics(mx, mjx.make_data(mx)))
+        return d.cam_xpos, d.cam_xmat
+
     m = kinematics.mj_model(SCENE_XML)
-    pos, xmat = kinematics.host_eval(
-        lambda mx: (lambda d: (d.cam_xpos, d.cam_xmat))(
-            mjx.camlight(mx, mjx.kinematics(mx, mjx.make_data(mx)))
-        ),
-        m,
-    )
+    pos, xmat = kinematics.host_eval(mjx_poses, m)
     for i in range(m.ncam):
         cam = cams[m.camera(i).name]
         np.testing.assert_allclose(np.asarray(cam.pos), pos[i], rtol=0, atol=CAM_TOL)

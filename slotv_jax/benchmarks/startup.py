@@ -48,7 +48,7 @@ OLD_IMPORTS = (
     "    from mujoco import mjx\n"
 )
 
-CAMERAS_NOW = "from slotv_jax.world import scene\nposes = scene._camera_poses()\n"
+CAMERAS_NOW = "from slotv_jax.world import scene\nposes = scene.camera_poses()\n"
 CAMERAS_MJX = (
     "from slotv_jax.robot import kinematics as K\n"
     "mjx = K.mjx\n"
@@ -133,15 +133,15 @@ def main(argv=None) -> int:
                 )
                 before.append(_run([py, "-c", old], env)[0])
             print(_row(f"python -m slotv_jax.{c} --help", now, before))
-        for name, a, b in (
+        for k, (name, a, b) in enumerate((
             ("cameras: MuJoCo C / MJX", CAMERAS_NOW, CAMERAS_MJX),
             ("home TCP: MuJoCo C / jit(chain)", HOME_NOW, HOME_CHAIN),
-        ):
+        )):  # fmt: skip
             walls, inner = ([], []), ([], [])
             for i in range(args.repeats):
                 for j, body in enumerate((a, b)):
                     # an empty compilation cache every time: a user's first run
-                    d = os.path.join(cache, f"{name[:4]}{i}{j}")
+                    d = os.path.join(cache, f"{k}-{i}-{j}")
                     e = {**env, "JAX_COMPILATION_CACHE_DIR": d}
                     w, s = _run([py, "-c", _timed_constant(body)], e)
                     walls[j].append(w)

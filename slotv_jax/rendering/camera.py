@@ -113,7 +113,7 @@ def named_camera(name: str) -> scene.Camera:
         raise ValueError(f"camera: expected one of {list(CAMERAS)}, got {name!r}")
     m = scene_model()
     cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, name)
-    pos, rot = (a[cam].copy() for a in scene._camera_poses())
+    pos, rot = (a[cam].copy() for a in scene.camera_poses())
     return scene.Camera(
         pos=pos, rot=rot, fovy=np.float64(m.cam_fovy[cam]), resolution=m.cam_resolution[cam].copy()
     )

@@ -131,9 +131,10 @@ class Camera:
 
 
 @functools.cache
-def _camera_poses() -> tuple[np.ndarray, np.ndarray]:
+def camera_poses() -> tuple[Float[np.ndarray, "ncam 3"], Float[np.ndarray, "ncam 3 3"]]:
     """Every camera of the scene model posed by MuJoCo C (``mj_kinematics`` then
-    ``mj_camlight``, float64): positions ``(ncam, 3)`` and rotations ``(ncam, 3, 3)``.
+    ``mj_camlight``, float64, read-only: computed once): positions ``(ncam, 3)`` and
+    world-from-camera rotations ``(ncam, 3, 3)``, in the model's camera order.
     Microseconds, and nothing to compile: posing them with ``mjx.kinematics`` +
     ``mjx.camlight`` cost every process about 4 s of tracing and compilation on a quiet 2-core
     CPU, 7-13 s on a loaded one (``python -m slotv_jax.benchmarks.startup``); the tests check
@@ -142,7 +143,10 @@ def _camera_poses() -> tuple[np.ndarray, np.ndarray]:
     d = mujoco.MjData(m)
     mujoco.mj_kinematics(m, d)
     mujoco.mj_camlight(m, d)
-    return d.cam_xpos.copy(), d.cam_xmat.reshape(-1, 3, 3).copy()
+    pos, rot = d.cam_xpos.copy(), d.cam_xmat.reshape(-1, 3, 3).copy()
+    pos.setflags(write=False)
+    rot.setflags(write=False)
+    return pos, rot
 
 
 CAMERAS = ("observer", "observer_angle", "observer_side")  # the named cameras of scene.xml
@@ -311,7 +315,7 @@ def _camera_cached(name: str, key: tuple = ()) -> Camera:
     else:
         m = mj_model(SCENE_XML)
         cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, name)
-        pos, rot = (a[cam] for a in _camera_poses())
+        pos, rot = (a[cam] for a in camera_poses())
         fovy, res = m.cam_fovy[cam], m.cam_resolution[cam]
     with jax.ensure_compile_time_eval():
         return Camera(
