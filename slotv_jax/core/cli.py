@@ -152,6 +152,14 @@ def keep_interrupts() -> Iterator[threading.Event]:
             signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+def _cut_short(unraisable) -> None:
+    """``sys.unraisablehook`` while an interrupted command's frames are freed: a Ctrl-C
+    can land inside any object's ``__init__`` (tqdm's, between creating a bar and setting
+    its position), and that half-built object's finaliser then fails ("Exception ignored
+    in: tqdm.__del__ ... no attribute 'pos'"). Those tracebacks are about objects the
+    interrupt cut short, not errors of the command, so they are not printed."""
+
+
 def command(
     main: Callable[..., int] | None = None, *, resumes: bool | str = False
 ) -> Callable[..., int]:
@@ -164,6 +172,7 @@ def command(
 
     @functools.wraps(main)
     def wrapped(argv: Sequence[str] | None = None, *args, **kwargs) -> int:
+        hook = sys.unraisablehook
         with keep_interrupts() as pending:
             try:
                 code = main(argv, *args, **kwargs)
@@ -173,6 +182,7 @@ def command(
             except KeyboardInterrupt:
                 if os.environ.get("SLOTV_JAX_TRACEBACK"):
                     raise
+                sys.unraisablehook = _cut_short  # from here until the frames are collected
             except Exception as e:
                 if not is_input_error(e) or os.environ.get("SLOTV_JAX_TRACEBACK"):
                     raise
@@ -180,7 +190,10 @@ def command(
                 raise  # unreachable: fail() exits
         # Ctrl-C, outside the except clause: the interrupt's frames are gone, so what they
         # held (progress bars, open files) is closed before the one line is printed
-        gc.collect()
+        try:
+            gc.collect()
+        finally:
+            sys.unraisablehook = hook
         interrupted(resumes=resumes)
         raise AssertionError("unreachable: interrupted() exits")
 
