@@ -156,6 +156,28 @@ def test_tau_cut_ends_on_the_full_clips_frame(renderer):
     np.testing.assert_array_equal(still, cut[-1])
 
 
+def test_one_motion_s_clips_at_several_taus_draw_each_moment_once(renderer, monkeypatch):
+    """Frames shared through ``rendered`` (what ``study stimuli`` does for one motion's τs)
+    are the frames each clip draws alone, labels and held frames included, and each moment
+    (normalised time) is drawn once: 0.33 is off the 10 fps grid, so its last frame is new."""
+    q, taus = _path(), (0.33, 0.7, 1.0)
+    kw = {"size": SIZE, "fps": 10, "duration": 1.0, "hold": 0.3, "renderer": renderer}
+    alone = [render.motion_frames(q, GOALS, MASK, tau=t, **kw) for t in taus]
+    drawn = []
+    frame = frames_lib.MotionRenderer.frame
+    monkeypatch.setattr(frames_lib.MotionRenderer, "frame",
+                        lambda self, *a, **k: drawn.append(1) or frame(self, *a, **k))  # fmt: skip
+    shared: dict = {}
+    for t, ref in zip(taus, alone, strict=True):
+        np.testing.assert_array_equal(render.motion_frames(q, GOALS, MASK, tau=t, **kw,
+                                                           rendered=shared), ref)  # fmt: skip
+    moments = {float(x) for t in taus for x in render.frame_times(t, fps=10, duration=1.0)}
+    assert len(drawn) == len(shared) == len(moments) == 12  # 0, 0.1, ..., 1 and 0.33
+    with pytest.raises(ValueError, match="rendered"):
+        frames_lib.clips(renderer, [(q, None)] * 2, GOALS, MASK, np.zeros(2), "observer",
+                         rendered={})  # fmt: skip
+
+
 def test_labels_stand_above_their_cubes(renderer, mjx_ref):
     names = ["A", "Bo", "C"]
     layer = overlay.label_layer(SIZE, GOALS, MASK, names, "observer")

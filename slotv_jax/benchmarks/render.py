@@ -12,7 +12,10 @@ On one joint path (``Q_HOME`` to a pose over the goal table, three goals), one o
 3. a ``--frames``-frame clip: ``motion_frames`` (resampling, TCP trace, goal labels)
    alone, and without the trace and labels, then the same frames encoded to MP4 (H.264
    through PyAV) and to GIF (Pillow), and the whole MP4 (render + encode + write) as a
-   user gets it.
+   user gets it;
+4. the clips of one motion at ``study stimuli``'s stop times τ = 0.4, 0.7, 1, each drawn
+   alone (the baseline) and drawing each moment once (``motion_frames(...,
+   rendered=...)``, what ``study stimuli`` does), the frames checked equal.
 
 Times are wall clock (best of ``--repeats``) with the process's CPU time beside them;
 the load average is printed before and after (the machine may be shared). The OpenGL
@@ -39,7 +42,7 @@ from slotv_jax import render
 from slotv_jax.benchmarks._machine import cpu_model
 from slotv_jax.core import cli, fileio
 from slotv_jax.render.cli import parse_size
-from slotv_jax.rendering import writers
+from slotv_jax.rendering import frames, writers
 from slotv_jax.robot import kinematics
 
 Q_END = np.array([0.3, -0.2, 0.1, -2.0, 0.05, 1.9, 0.7])
@@ -75,7 +78,7 @@ def gl_renderer() -> str:
 
 def run(size=(640, 360), n_frames: int = 100, repeats: int = 3, naive: int = 5) -> dict:
     q = _path()
-    qs = render.frames.resample(q, np.linspace(0, 1, n_frames))
+    qs = frames.resample(q, np.linspace(0, 1, n_frames))
     res: dict = {"size": list(size), "frames": n_frames, "repeats": repeats}
     r = render.MotionRenderer(size)
     res["gl_renderer"] = gl_renderer()
@@ -128,6 +131,23 @@ def run(size=(640, 360), n_frames: int = 100, repeats: int = 3, naive: int = 5) 
         res["mp4_bytes"] = out.stat().st_size
         back = render.read_video(out)
         res["mp4_decoded"] = list(back.shape)
+    taus = (0.4, 0.7, 1.0)
+    clips_alone = [render.motion_frames(q, GOALS, MASK, renderer=r, tau=t, **kw) for t in taus]
+
+    def shared_clips():
+        shared: dict = {}
+        clip["taus"] = [
+            render.motion_frames(q, GOALS, MASK, renderer=r, tau=t, rendered=shared, **kw)
+            for t in taus
+        ]
+
+    res["taus_alone_s"] = _best(
+        lambda: [render.motion_frames(q, GOALS, MASK, renderer=r, tau=t, **kw) for t in taus],
+        repeats,
+    )["wall_s"]
+    res["taus_shared_s"] = _best(shared_clips, repeats)["wall_s"]
+    for a, b in zip(clips_alone, clip["taus"], strict=True):
+        assert np.array_equal(a, b), "the shared frames differ from the clips drawn alone"
     r.close()
     return res
 
@@ -167,6 +187,8 @@ def main(argv=None) -> int:
         (f"encode {n} frames to MP4 (H.264), s", f"{res['encode_mp4_s']:.2f}"),
         (f"encode {n} frames to GIF, s", f"{res['encode_gif_s']:.2f}"),
         (f"{n}-frame MP4, render + encode + write, s", f"{res['mp4_total_s']:.2f}"),
+        ("clips at τ = 0.4, 0.7, 1, each drawn alone, s", f"{res['taus_alone_s']:.2f}"),
+        ("the same, each moment drawn once (study stimuli), s", f"{res['taus_shared_s']:.2f}"),
     ]
     print(f"# render benchmark, {w}x{h}, {res['date']}")
     print(f"# {res['machine']}; {res['versions']}")
@@ -180,7 +202,8 @@ def main(argv=None) -> int:
         f"reused renderer vs new renderer per frame: {fps / res['naive_fps']:.0f}x;"
         f" shadows cost {res['frame_fps_shadows_off'] / res['frame_fps_shadows_on']:.1f}x;"
         f" encoding is {res['encode_mp4_s'] / res['mp4_total_s']:.0%} of the MP4's time;"
-        f" {1e3 / fps:.1f} ms per frame"
+        f" {1e3 / fps:.1f} ms per frame; one motion's three clips"
+        f" {res['taus_alone_s'] / res['taus_shared_s']:.1f}x faster drawing each moment once"
     )
     if args.json:
         fileio.write_text(args.json, json.dumps(res, indent=1))

@@ -406,6 +406,7 @@ def motion_frames(
     trace_rgba: tuple[float, float, float, float] = TRACE_RGBA,
     shadows: bool = False,
     renderer: MotionRenderer | None = None,
+    rendered: dict[float, np.ndarray] | None = None,
 ) -> UInt8[np.ndarray, "F H W 3"]:
     """The frames of one motion cut at τ, as a participant of a study would see it.
 
@@ -416,7 +417,11 @@ def motion_frames(
     a white disc under that cube; ``trace`` draws the TCP's path so far (in
     ``trace_rgba``). ``renderer``
     reuses an open :class:`MotionRenderer` of the same size (its ``shadows`` setting
-    applies); without one, a renderer is opened and closed here.
+    applies); without one, a renderer is opened and closed here. ``rendered`` ({s: frame})
+    holds this motion's unlabelled frames already drawn with the same camera, size, times,
+    trace and target (the frame at s is the same whatever τ): they are reused, and the
+    frames drawn here are added, so that the clips of one motion at several τ draw each
+    moment once (:class:`slotv_jax.webstudy.make_stimuli.SceneRenderer`).
 
     Returns (F, H, W, 3) uint8 frames, ``size = (W, H)``.
 
@@ -433,8 +438,9 @@ def motion_frames(
     r = renderer if renderer is not None else MotionRenderer(size, shadows=shadows)
     try:
         out = clips(
-            r, [(q, t)], goals, goal_mask, s, camera, rgbas=[trace_rgba], target=target, trace=trace
-        )[0]
+            r, [(q, t)], goals, goal_mask, s, camera, rgbas=[trace_rgba], target=target,
+            trace=trace, rendered=rendered,
+        )[0]  # fmt: skip
     finally:
         if renderer is None:
             r.close()
@@ -464,13 +470,17 @@ def clips(
     target: int | None = None,
     trace: bool = True,
     overlay: bool = False,
+    rendered: dict[float, np.ndarray] | None = None,
 ) -> list[np.ndarray]:
     """Unlabelled frames (F, H, W, 3) of checked motions ``(q, t)`` at normalised times s.
 
     One clip per motion, each with its own trace; with ``overlay``, one clip: at every
     time each motion is drawn with every trace and the images are averaged, so the
-    scene and the traces stay solid and each robot shows through at 1/n.
+    scene and the traces stay solid and each robot shows through at 1/n. ``rendered``
+    (one motion, no overlay): its frames already drawn, by s; reused and added to.
     """
+    if rendered is not None and (overlay or len(motions) != 1):
+        raise ValueError("rendered: frames of one motion, without overlay")
     r.set_goals(goals, goal_mask)
     rgbas = [TRACE_RGBA] * len(motions) if rgbas is None else list(rgbas)
     traces = [
@@ -490,10 +500,14 @@ def clips(
         if overlay:
             imgs = [r.frame(qi[k], camera, traces=shown, target_pos=target_pos) for qi in qs]
             out[0][k] = np.round(np.mean(imgs, axis=0)).astype(np.uint8)
+        elif rendered is not None and float(s[k]) in rendered:
+            out[0][k] = rendered[float(s[k])]
         else:
             for i, o in enumerate(out):
                 own = [shown[i]] if trace else []
                 o[k] = r.frame(qs[i][k], camera, traces=own, target_pos=target_pos)
+            if rendered is not None:
+                rendered[float(s[k])] = out[0][k].copy()
     return out
 
 

@@ -127,6 +127,9 @@ class SceneRenderer:
         self.size, self.fps, self.duration, self.hold = tuple(size), fps, duration, hold
         self.trace, self.timing = trace, timing
         self.renderer = rendering.MotionRenderer(self.size)
+        # the last motion's frames by normalised time, and what they are of: its clips at
+        # another τ reuse them (each moment of a motion is drawn once, whatever its τs)
+        self._rendered: tuple[tuple, dict[float, np.ndarray]] = ((), {})
 
     @classmethod
     def like(cls, stimdir: str | Path, *, trace: bool = True) -> SceneRenderer:
@@ -153,10 +156,15 @@ class SceneRenderer:
     ) -> tuple[UInt8[np.ndarray, "F H W 3"], Float[np.ndarray, "G 2"]]:
         """The clip cut at τ, goals labelled (no target marked), and the labels' pixels."""
         duration = self.duration if self.timing is None else motion.t[-1] - motion.t[0]
+        what = (camera, float(duration), *(np.asarray(a).tobytes() for a in motion[:3]),
+                None if motion.t is None else np.asarray(motion.t).tobytes())  # fmt: skip
+        if self._rendered[0] != what:
+            self._rendered = (what, {})
         f = rendering.motion_frames(
             motion.q, motion.goals, motion.goal_mask, camera=camera, tau=tau, size=self.size,
             fps=self.fps, duration=duration, hold=self.hold, t=motion.t,
             labels=motion.labels, trace=self.trace, renderer=self.renderer,
+            rendered=self._rendered[1],
         )  # fmt: skip
         anchor = np.asarray(motion.goals, np.float64)[motion.goal_mask] + [0.0, 0.0, LABEL_LIFT]
         px, _ = rendering.pixels(anchor, camera, self.size)

@@ -596,20 +596,26 @@ def write_stimulus_set(
 
 
 def _render_into(out: Path, header: dict, todo: list, render: Renderer, progress: bool) -> dict:
-    """Render every stimulus into ``out``, then write the manifest (the last file)."""
+    """Render every stimulus into ``out``, then write the manifest (the last file).
+
+    The stimuli of one motion and camera are drawn one after another (their manifest order
+    is kept), so that a renderer that keeps the last motion's frames draws each of its
+    moments once, whatever its τs."""
     (out / "clips").mkdir()
     (out / "stills").mkdir()
-    entries = []
-    for entry, motion, view in tqdm(todo, desc="stimuli", disable=not progress):
+    order = sorted(range(len(todo)), key=lambda i: (todo[i][0]["trajectory"], todo[i][2]))
+    entries: list = [None] * len(todo)
+    for i in tqdm(order, desc="stimuli", disable=not progress):
+        entry, motion, view = todo[i]
         frames, pixels = render.frames(motion, entry["tau"], view)
         render.write_video(out / entry["clip"], frames)
         render.write_image(out / entry["still"], frames[-1])
-        entries.append({
+        entries[i] = {
             **entry,
             "goal_pixels": [[round(float(x), 1), round(float(y), 1)] for x, y in pixels],
             "clip_sha256": _sha256(out / entry["clip"]),
             "still_sha256": _sha256(out / entry["still"]),
-        })  # fmt: skip
+        }
     manifest = {**header, "stimuli": entries}
     check_manifest(manifest, "manifest")
     write_text(out / MANIFEST, json.dumps(manifest, indent=1) + "\n")
