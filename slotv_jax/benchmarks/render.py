@@ -131,22 +131,17 @@ def run(size=(640, 360), n_frames: int = 100, repeats: int = 3, naive: int = 5) 
         res["mp4_bytes"] = out.stat().st_size
         back = render.read_video(out)
         res["mp4_decoded"] = list(back.shape)
-    taus = (0.4, 0.7, 1.0)
-    clips_alone = [render.motion_frames(q, GOALS, MASK, renderer=r, tau=t, **kw) for t in taus]
 
-    def shared_clips():
-        shared: dict = {}
-        clip["taus"] = [
+    def taus_clips(key: str, share: bool):  # the clips at τ = 0.4, 0.7, 1, into clip[key]
+        shared: dict | None = {} if share else None
+        clip[key] = [
             render.motion_frames(q, GOALS, MASK, renderer=r, tau=t, rendered=shared, **kw)
-            for t in taus
+            for t in (0.4, 0.7, 1.0)
         ]
 
-    res["taus_alone_s"] = _best(
-        lambda: [render.motion_frames(q, GOALS, MASK, renderer=r, tau=t, **kw) for t in taus],
-        repeats,
-    )["wall_s"]
-    res["taus_shared_s"] = _best(shared_clips, repeats)["wall_s"]
-    for a, b in zip(clips_alone, clip["taus"], strict=True):
+    res["taus_alone_s"] = _best(lambda: taus_clips("alone", False), repeats)["wall_s"]
+    res["taus_shared_s"] = _best(lambda: taus_clips("shared", True), repeats)["wall_s"]
+    for a, b in zip(clip["alone"], clip["shared"], strict=True):
         assert np.array_equal(a, b), "the shared frames differ from the clips drawn alone"
     r.close()
     return res
