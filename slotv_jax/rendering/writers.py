@@ -38,6 +38,7 @@ IMAGE_SUFFIXES = (".png",)
 SUFFIXES = VIDEO_SUFFIXES + IMAGE_SUFFIXES
 CRF = 20  # H.264 constant rate factor: 0 lossless ... 51 worst; ~18-23 looks clean
 PRESET = "veryfast"  # libx264 speed preset: a 100-frame 640x360 clip in about a second
+CODED_WIDTH = 64  # the coded width is a multiple of this (bytes of libx264's widest loads)
 
 
 def check_frames(frames, *, video: bool = True) -> np.ndarray:
@@ -70,19 +71,31 @@ def check_output(
 
 def encode_mp4(frames: UInt8[np.ndarray, "F H W 3"], fps: float) -> bytes:
     """H.264 (yuv420p) MP4 bytes. 4:2:0 chroma needs an even width and height: an odd
-    one gets its last row or column repeated once."""
+    one gets its last row or column repeated once.
+
+    The same frames give the same bytes in every process. libx264 reads a little past
+    the last row of a picture whose width is not a multiple of its vector loads, so the
+    bytes after the frame's buffer (which differ from process to process) changed the
+    coding of the last macroblock of some clips (up to 12 levels in a decoded pixel, and
+    through motion prediction more). The frames are therefore padded, by repeating their
+    edges, to a width that is a multiple of :data:`CODED_WIDTH` and a height that is a
+    multiple of 16, and the stream's crop rectangle (H.264's frame cropping) shows the
+    picture at its own size: decoders return ``frames`` ' width and height.
+    """
     frames = check_frames(frames)
     _, h, w, _ = frames.shape
-    if w % 2 or h % 2:
-        frames = np.pad(frames, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)), mode="edge")
-        h, w = h + h % 2, w + w % 2
+    shown_h, shown_w = h + h % 2, w + w % 2
+    coded_h, coded_w = -(-shown_h // 16) * 16, -(-shown_w // CODED_WIDTH) * CODED_WIDTH
+    if (coded_h, coded_w) != (h, w):
+        frames = np.pad(frames, ((0, 0), (0, coded_h - h), (0, coded_w - w), (0, 0)), mode="edge")
+    crop = f"crop-rect=0,0,{coded_w - shown_w},{coded_h - shown_h}"  # left, top, right, bottom
     # +faststart moves the index to the front in a second pass over a named file.
     with tempfile.TemporaryDirectory() as tmp:
         name = Path(tmp) / "clip.mp4"
         with av.open(str(name), mode="w", options={"movflags": "+faststart"}) as out:
             stream = out.add_stream("libx264", rate=_rate(fps))
-            stream.width, stream.height, stream.pix_fmt = w, h, "yuv420p"
-            stream.options = {"crf": str(CRF), "preset": PRESET}
+            stream.width, stream.height, stream.pix_fmt = coded_w, coded_h, "yuv420p"
+            stream.options = {"crf": str(CRF), "preset": PRESET, "x264-params": crop}
             for f in frames:
                 out.mux(stream.encode(av.VideoFrame.from_ndarray(f, format="rgb24")))
             out.mux(stream.encode(None))
