@@ -573,7 +573,8 @@ def plan(
         return _fk(_joints(z, q_start, q_end))
 
     def penalised(xyz):
-        return _legibility(observer, xyz, problem, cfg) - _table_penalty(xyz, problem, cfg)
+        val = _legibility(observer, xyz, problem, cfg)
+        return val - _table_penalty(xyz, problem, cfg), val
 
     # C of the straight line, from the problem's FK: the only FK outside the loop below.
     cost0 = predictability_cost(problem.xyz)
@@ -588,9 +589,9 @@ def plan(
     def step(carry, k):
         z, best, c_lin, alpha_prev, curv = carry
         xyz, pull = jax.vjp(path, z)
-        g_xyz = jax.grad(penalised)(xyz)
+        # One trace of the observer gives log P and its gradient.
+        g_xyz, val = jax.grad(penalised, has_aux=True)(xyz)
         cost, h_xyz = jax.value_and_grad(predictability_cost)(xyz)
-        val = _legibility(observer, xyz, problem, cfg)
         # Keep the best feasible iterate (z, its path, log P, iteration).
         better = ok(xyz, cost) & (val > best[2])
         best = jax.tree.map(lambda new, old: jnp.where(better, new, old), (z, xyz, val, k), best)
