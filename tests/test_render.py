@@ -225,11 +225,12 @@ def test_video_decodes_with_size_and_count(tmp_path, renderer, suffix):
 
 @pytest.mark.parametrize("size", [(270, 480), (269, 477), (48, 64), (360, 640)])
 def test_mp4_is_coded_padded_and_shown_at_its_own_size(tmp_path, size):
-    """libx264 reads past the last row of a picture whose width is not a multiple of its
-    vector loads, and what lies there differs from process to process: a few study clips'
+    """libx264 reads past the picture's last rows and columns when coding its last
+    macroblock, and what lies there differs from process to process: a few study clips'
     bytes (and last macroblocks) differed between runs of the same command. The encoder
-    gets the frames padded to a width that is a multiple of 64 (and a height of 16), and
-    the stream's crop shows them at their own size (an odd one gains a repeated edge)."""
+    gets the frames padded to a width that is a multiple of 64 and a height that is a
+    multiple of 32, and the stream's crop shows them at their own size (an odd one gains
+    a repeated edge)."""
     h, w = size
     yy, xx = np.mgrid[:h, :w]
     clip = np.stack([np.stack([(xx * 3 + 7 * i) % 256, (yy * 2) % 256,
@@ -242,7 +243,7 @@ def test_mp4_is_coded_padded_and_shown_at_its_own_size(tmp_path, size):
         coded = (stream.codec_context.coded_height, stream.codec_context.coded_width)
     shown = (h + h % 2, w + w % 2)
     assert (first.height, first.width) == shown
-    assert coded[0] % 16 == 0 and coded[1] % writers.CODED_WIDTH == 0, coded
+    assert coded[0] % writers.CODED_HEIGHT == 0 and coded[1] % writers.CODED_WIDTH == 0, coded
     back = writers.read_video(path).astype(int)
     assert back.shape == (4, *shown, 3)
     assert np.abs(back[:, :h, :w] - clip).mean() < 4.0  # the picture, not the padding

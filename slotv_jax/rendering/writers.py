@@ -39,6 +39,7 @@ SUFFIXES = VIDEO_SUFFIXES + IMAGE_SUFFIXES
 CRF = 20  # H.264 constant rate factor: 0 lossless ... 51 worst; ~18-23 looks clean
 PRESET = "veryfast"  # libx264 speed preset: a 100-frame 640x360 clip in about a second
 CODED_WIDTH = 64  # the coded width is a multiple of this (bytes of libx264's widest loads)
+CODED_HEIGHT = 32  # ... and the height of this (rows FFmpeg allocates a frame's planes to)
 
 
 def check_frames(frames, *, video: bool = True) -> np.ndarray:
@@ -74,18 +75,20 @@ def encode_mp4(frames: UInt8[np.ndarray, "F H W 3"], fps: float) -> bytes:
     one gets its last row or column repeated once.
 
     The same frames give the same bytes in every process. libx264 reads a little past
-    the last row of a picture whose width is not a multiple of its vector loads, so the
-    bytes after the frame's buffer (which differ from process to process) changed the
-    coding of the last macroblock of some clips (up to 12 levels in a decoded pixel, and
-    through motion prediction more). The frames are therefore padded, by repeating their
-    edges, to a width that is a multiple of :data:`CODED_WIDTH` and a height that is a
-    multiple of 16, and the stream's crop rectangle (H.264's frame cropping) shows the
-    picture at its own size: decoders return ``frames`` ' width and height.
+    the picture's last rows and columns when coding its last macroblock, and FFmpeg's
+    frame buffers leave rows up to a multiple of 32 uninitialised: what lay there differed
+    from process to process and changed the coding of that macroblock in some clips (up
+    to 12 levels in a decoded pixel, and through motion prediction more). The frames are
+    therefore padded, by repeating their edges, to a width that is a multiple of
+    :data:`CODED_WIDTH` and a height that is a multiple of :data:`CODED_HEIGHT`, and the
+    stream's crop rectangle (H.264's frame cropping) shows the picture at its own size:
+    decoders return the frames' own width and height.
     """
     frames = check_frames(frames)
     _, h, w, _ = frames.shape
     shown_h, shown_w = h + h % 2, w + w % 2
-    coded_h, coded_w = -(-shown_h // 16) * 16, -(-shown_w // CODED_WIDTH) * CODED_WIDTH
+    coded_h = -(-shown_h // CODED_HEIGHT) * CODED_HEIGHT
+    coded_w = -(-shown_w // CODED_WIDTH) * CODED_WIDTH
     if (coded_h, coded_w) != (h, w):
         frames = np.pad(frames, ((0, 0), (0, coded_h - h), (0, coded_w - w), (0, 0)), mode="edge")
     crop = f"crop-rect=0,0,{coded_w - shown_w},{coded_h - shown_h}"  # left, top, right, bottom
