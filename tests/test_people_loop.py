@@ -126,6 +126,26 @@ def test_the_pick_by_plans_and_the_pool_read_the_plans_the_other_fits_judge(tiny
         assert set(pick["weights_likelihood"]) == set(cands)
 
 
+def test_the_cautious_pick_plans_the_picks_pool_of_every_fold_for_its_lower_bound(tiny_run):
+    """Each run's cautious pick row: the pick's pool and weights (the same answers, the same
+    report fields), its κ and K + 1 members recorded, plans of its own (the bound moves
+    them off the pick's where the members disagree) and a report column."""
+    out, _, _, doc = tiny_run
+    cfg = exp.tiny()
+    by: dict = {}
+    for r in doc["populations"][0]["rows"]:
+        by.setdefault((r["strategy"], r["seed"], r["answers"]), {})[r["family"]] = r
+    same = ("weights", "left_out", "heldout_nll", "uniform_nll", "picked", "poor_fit")
+    for fams in by.values():
+        pick, cautious = fams["pick"], fams["pick_cautious"]
+        assert {k: cautious[k] for k in same} == {k: pick[k] for k in same}
+        assert cautious["caution"] == cfg.caution and cautious["members"] == cfg.pick_folds + 1
+        assert cautious["feasible"] == 1.0
+    assert any(f["pick_cautious"]["score"] != f["pick"]["score"] for f in by.values())
+    text = (out / "people_loop_tiny.md").read_text()
+    assert "| **cautious pick** (its folds' lower bound) |" in text
+
+
 def test_another_seed_adds_its_rows_to_the_document(tmp_path, monkeypatch, capsys):
     """A run with another seed of the same config (one GPU call per seed) keeps the rows it
     finds, runs only the seeds missing, adds their rows and records the run; the summary

@@ -1,10 +1,12 @@
 """Legible motion planning for the Panda with any observer model (:mod:`.planner`: the
 objective and the planner of one problem; :mod:`.compiled`: batches of problems, observers
-and fitted families in one compiled program).
+and fitted families in one compiled program; :mod:`.caution`: planning for a lower confidence
+bound over an ensemble of fits).
 
 This package re-exports the planner's public names.
 """
 
+from slotv_jax.planning.caution import lower_bound_observer
 from slotv_jax.planning.compiled import (
     check_problems,
     make_family_planner,
@@ -42,6 +44,7 @@ __all__ = [
     "check_problems",
     "labeler_observer",
     "legibility",
+    "lower_bound_observer",
     "make_family_planner",
     "make_planner",
     "metric_inverse",

@@ -104,6 +104,7 @@ from slotv_jax.observers.observer import (
     check_seen,
 )
 from slotv_jax.observers.prefix import prefix_labels
+from slotv_jax.planning import caution
 from slotv_jax.robot import kinematics
 from slotv_jax.world.scene import camera as scene_camera
 from slotv_jax.world.trajectories import resample_polyline
@@ -409,7 +410,9 @@ def legibility(
 
         (1/|taus|) Σ_τ log softmax(observer.prefix(xyz, goals, goal_mask, L_τ))[target],
 
-    L_τ = ``seen_points(taus, T)`` for the path's T points (static).
+    L_τ = ``seen_points(taus, T)`` for the path's T points (static). For a
+    :func:`slotv_jax.planning.caution.lower_bound_observer` each log-probability is the
+    ensemble's lower confidence bound, mean_m ℓ_m − κ sd_m ℓ_m (:mod:`.caution`).
 
     >>> import jax.numpy as jnp
     >>> g = jnp.zeros((8, 3)).at[0].set([0.5, 0.2, 0.0]).at[1].set([0.5, -0.2, 0.0])
@@ -422,6 +425,9 @@ def legibility(
     True
     """
     mask = jnp.asarray(goal_mask).astype(bool)
+    if caution.is_lower_bound(observer):  # the bound over an ensemble (:mod:`.caution`)
+        seen = None if cfg.taus is None else jnp.asarray(seen_points(cfg.taus, xyz.shape[0]))
+        return jnp.mean(caution.bound_log_probs(observer, xyz, goals, mask, target, seen))
     if cfg.taus is None:
         logits = mask_logits(observer(xyz, goals, mask), mask)
         return jax.nn.log_softmax(logits)[target]

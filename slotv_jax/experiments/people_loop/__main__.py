@@ -77,6 +77,12 @@ def parser() -> argparse.ArgumentParser:
         "the study's scenes (0 to 1; default: the preset's)",
     )
     ap.add_argument(
+        "--caution",
+        type=float,
+        help="κ of the cautious pick (family pick_cautious): the standard deviations of its "
+        "ensemble's log P(target) the planner holds back (>= 0; default: the preset's)",
+    )
+    ap.add_argument(
         "--processes",
         type=int,
         default=1,
@@ -107,6 +113,8 @@ def config_from(args: argparse.Namespace) -> LoopConfig:
         change["problems"] = args.problems
     if args.plan_share is not None:
         change["plan_share"] = args.plan_share
+    if args.caution is not None:
+        change["caution"] = args.caution
     for name in ("strategies", "families"):
         v = getattr(args, name)
         if v is not None:
@@ -127,7 +135,7 @@ def config_from(args: argparse.Namespace) -> LoopConfig:
 def config_flags(args: argparse.Namespace) -> list[str]:
     """The flags that make :func:`config_from`'s config (for a spread run's workers)."""
     out = ["--preset", args.preset]
-    for flag in ("strategies", "families", "sizes", "problems", "plan_share"):
+    for flag in ("strategies", "families", "sizes", "problems", "plan_share", "caution"):
         v = getattr(args, flag)
         if v is not None:
             out += [f"--{flag.replace('_', '-')}", str(v)]

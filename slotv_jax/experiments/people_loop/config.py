@@ -35,14 +35,20 @@ PICK = "pick"
 #: The pick by plans: the plans of the one family that the *other* families' fits judge the
 #: most legible (:func:`slotv_jax.experiments.people_loop.loop.cross_judged`); answers alone.
 PICK_CROSS = "pick_cross"
-DERIVED = (PICK, PICK_CROSS)  # families made of the others
+#: The cautious pick (issue: caution where answers are thin): the pick's pool over an
+#: ensemble of its fits, planned for a lower confidence bound
+#: (:func:`slotv_jax.planning.caution.lower_bound_observer`): the members are the pick's
+#: pools of each cross-validation fold's fits (the folds it already fits to weigh the pool)
+#: and of the fits on every answer, with the pick's weights; ``LoopConfig.caution`` κ.
+CAUTIOUS = "pick_cautious"
+DERIVED = (PICK, PICK_CROSS, CAUTIOUS)  # families made of the others
 FAMILIES = (*LEARNED, *PRETRAINED, READER, *FITTED, *DERIVED)
 #: The presets' families: the pre-trained ones are an experiment of their own (``--families``;
 #: ``experiments/pretrain/``). The distance/approach mixture archetype joined them once the
 #: whole suite had run with it at both presets (the records against
 #: ``experiments/history/people_loop_no_mixture/``: the pool's worst population rose from
 #: 68 to 80 % at the paper preset, 2,000 answers).
-DEFAULT_FAMILIES = (*LEARNED, READER, *FITTED, *DERIVED)
+DEFAULT_FAMILIES = (*LEARNED, READER, *FITTED, PICK, PICK_CROSS)
 CAMERA = "observer"  # the viewpoint of the fitted Nikolaidis baseline (the dataset's)
 #: How the motion reader's prior is made (recorded in the document's config).
 READER_PRIOR = {
@@ -90,6 +96,9 @@ class LoopConfig:
     #: Share of every round after the first asked about the planner's own plans of the
     #: study's scenes (:mod:`slotv_jax.experiments.people_loop.rounds`); 0: dataset motions only.
     plan_share: float = 0.0
+    #: κ of the cautious pick (``pick_cautious``): the standard deviations of its ensemble's
+    #: log P(target) that the planner holds back (:mod:`slotv_jax.planning.caution`).
+    caution: float = 1.0
 
     def __post_init__(self):
         s, per = self.sizes, self.per_stimulus
@@ -123,6 +132,11 @@ class LoopConfig:
         for d in DERIVED:
             if d in self.families and len(self.candidates) < 2:
                 raise ValueError(f"families: {d!r} needs at least two other families")
+        if CAUTIOUS in self.families and PICK not in self.families:
+            raise ValueError(f"families: {CAUTIOUS!r} is the pick's ensemble: it needs {PICK!r}")
+        c = self.caution
+        if isinstance(c, bool) or not isinstance(c, int | float) or not (0 <= c < math.inf):
+            raise ValueError(f"caution: expected a finite number >= 0, got {c!r}")
         if self.select_family not in LEARNED:
             raise ValueError(
                 f"select_family: expected one of {LEARNED}, got {self.select_family!r}"
@@ -198,6 +212,8 @@ class LoopConfig:
             del d["pick_folds"]
         if not self.plan_share:  # dataset motions only: records made before it match
             del d["plan_share"]
+        if CAUTIOUS not in self.families:  # records made before it match
+            del d["caution"]
         used = {PRETRAINED.get(f, f) for f in self.families}
         d["train"] = {f: self.train_config(f).to_dict() for f in LEARNED if f in used}
         if any(f in PRETRAINED for f in self.families):  # records made before it match
@@ -266,7 +282,7 @@ def tiny() -> LoopConfig:
         taus=taus,
         per_stimulus=2,
         strategies=("random", "margin"),
-        families=("mlp", "dragan_fitted", PICK, PICK_CROSS),
+        families=("mlp", "dragan_fitted", PICK, PICK_CROSS, CAUTIOUS),
         select_family="mlp",
         members=2,
         pool=60,

@@ -37,6 +37,7 @@ from slotv_jax.core.shapes import bucket, pad_rows
 from slotv_jax.experiments.people_loop import rounds
 from slotv_jax.experiments.people_loop.config import (
     CAMERA,
+    CAUTIOUS,
     DERIVED,
     FITTED,
     LEARNED,
@@ -52,7 +53,7 @@ from slotv_jax.observers import population as population_lib
 from slotv_jax.observers import zoo
 from slotv_jax.observers.common import mask_logits
 from slotv_jax.observers.observer import Observer
-from slotv_jax.planning import evaluation
+from slotv_jax.planning import caution, evaluation
 from slotv_jax.training import trainer as train_lib
 from slotv_jax.training import types as train_types
 
@@ -74,6 +75,11 @@ def builds(cfg: LoopConfig) -> dict:
     if PICK in cfg.families:
         parts = [out[f] for f in cfg.candidates]
         out[PICK] = lambda p: pooling.pool_observer([b(p) for b in parts], p["pick_w"])
+    if CAUTIOUS in cfg.families:
+        out[CAUTIOUS] = lambda p: caution.lower_bound_observer(
+            jax.vmap(lambda q: out[PICK]({**q, "pick_w": p["pick_w"]}))(p["ensemble"]),
+            cfg.caution,
+        )
     return out
 
 
@@ -271,7 +277,9 @@ def heldout_logp(
     """Each candidate family's out-of-fold log-probabilities of each run's first ``n_rows``
     answer rows (R, n_rows, G): fitted on the other folds (``fold`` (R, n_rows), by motion),
     predicting the held-out fold. The learned families fit every (run, fold) at once, a
-    held-out row's counts set to 0 (:func:`fit_family`); the labelers fit β per fold."""
+    held-out row's counts set to 0 (:func:`fit_family`); the labelers fit β per fold.
+    Returns the predictions and the folds' fits (each learned family's parameters and
+    ``beta`` (R·K, len(FITTED)), run-major: row i·K + f is run i's fit without fold f)."""
     n_r, k = cand.shape[0], cfg.pick_folds
     keep = np.ones((n_r * k, cand.shape[1]), np.float32)
     for i in range(n_r):
@@ -282,10 +290,12 @@ def heldout_logp(
     seeds_k = [(sd, f) for sd in run_seeds for f in range(k)]
     rows_pad = bucket(n_rows)
     out = {}
+    fits = {"beta": np.ones((n_r * k, len(FITTED)), np.float32)}
     for fam in cfg.candidates:
         if fam in TRAINED:
             tc = cfg.train_config(fam)
             params = fit_family(cfg, fam, pool, cand_k, counts_k, n_rows, seeds_k, inits)
+            fits[fam] = params
             sel = selection.make_selector(tc, 1, 1)
             c = jnp.asarray(np.stack([pad_rows(c[:n_rows], rows_pad) for c in cand_k]))
             lp = np.asarray(_fold_scorer(sel)(params, pool, c))[:, :n_rows]  # (R·K, A, G)
@@ -300,11 +310,12 @@ def heldout_logp(
                         pool, cfg.taus, cand[i, :n_rows][tr], counts[i, :n_rows][tr], [lab],
                         CAMERA,
                     )  # fmt: skip
+                    fits["beta"][i * k + f, list(FITTED).index(fam)] = beta
                     lp[i, te] = simulated.labeler_log_probs(
                         pool, cfg.taus, cand[i, :n_rows][te], lab, beta, CAMERA
                     )
             out[fam] = lp
-    return out
+    return out, fits
 
 
 _FOLD_SCORERS: dict = {}
@@ -323,11 +334,12 @@ def _fold_scorer(sel):
 
 
 def pick_heldout(
-    cfg: LoopConfig, pool, cand, counts, n_rows: int, runs, inits=None
-) -> list[tuple[np.ndarray, np.ndarray]]:
+    cfg: LoopConfig, pool, cand, counts, n_rows: int, runs, inits=None, *, with_fits=False
+):
     """What the pick reads of every run, from its answers alone: folds by motion and every
     candidate's out-of-fold predictions (:func:`heldout_logp`). Returns each run's
-    (log p (F, n_rows, G) in the order of ``cfg.candidates``, goal mask (n_rows, G))."""
+    (log p (F, n_rows, G) in the order of ``cfg.candidates``, goal mask (n_rows, G)); with
+    ``with_fits``, also the folds' fits (:func:`heldout_logp`'s second value)."""
     run_seeds = [sd for _, sd in runs]
     traj = np.asarray(pool.traj)
     fold = np.stack(
@@ -336,15 +348,30 @@ def pick_heldout(
             for i, sd in enumerate(run_seeds)
         ]
     )
-    logp = heldout_logp(cfg, pool, cand, counts, n_rows, run_seeds, fold, inits)
+    logp, fits = heldout_logp(cfg, pool, cand, counts, n_rows, run_seeds, fold, inits)
     g = counts.shape[-1]
-    return [
+    heldout = [
         (
             np.stack([logp[f][i] for f in cfg.candidates]),
             np.asarray(pool.goal_mask)[traj[cand[i, :n_rows]], :g],
         )
         for i in range(len(runs))
     ]
+    return (heldout, fits) if with_fits else heldout
+
+
+def ensemble(cfg: LoopConfig, params: dict, fits: dict) -> dict:
+    """The cautious pick's members of every run (each leaf (R, K + 1, ...)): the fits
+    without each of the K folds (:func:`pick_heldout`'s fits), then the fits on every
+    answer (``params``: each learned candidate's parameters and ``beta``)."""
+    k = cfg.pick_folds
+    names = [f for f in cfg.candidates if f in TRAINED] + ["beta"]
+
+    def join(folds, full):
+        folds = jnp.reshape(folds, (-1, k, *folds.shape[1:]))
+        return jnp.concatenate([folds, jnp.asarray(full)[:, None]], axis=1)
+
+    return {f: jax.tree.map(join, fits[f], params[f]) for f in names}
 
 
 def heldout_quality(heldout, counts, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
@@ -733,9 +760,14 @@ def run_population(
         w_all = None
         with timing("pick"):  # the held-out predictions; the pool by likelihood alone
             if PICK in cfg.families:
-                heldout = pick_heldout(cfg, pool, cand, counts, n_rows, runs, inits)
+                heldout, fits = pick_heldout(
+                    cfg, pool, cand, counts, n_rows, runs, inits, with_fits=True
+                )
                 w_all, _ = pick_runs(cfg, heldout, counts, n_rows)
                 params["pick_w"] = jnp.asarray(w_all)
+                if CAUTIOUS in cfg.families:
+                    params["ensemble"] = ensemble(cfg, params, fits)
+                del fits
         planner = planner_for(cfg, jax.tree.map(lambda a: a[0], params))
 
         with timing("plan"):  # plan: the floor and the oracles once, every family each size
@@ -757,9 +789,11 @@ def run_population(
                 w, pick_reports = pick_runs(cfg, heldout, counts, n_rows, keep)
                 params["pick_w"] = jnp.asarray(w)
             with timing("plan"):
-                plans[PICK] = jax.block_until_ready(
-                    planner.plan_problems(params, ev.straight, family=PICK)
-                )
+                for f in (PICK, CAUTIOUS):
+                    if f in cfg.families:
+                        plans[f] = jax.block_until_ready(
+                            planner.plan_problems(params, ev.straight, family=f)
+                        )
 
         with timing("eval"):  # evaluate: each family's rows, then the pick by plans'
             made: dict[tuple[str, int], dict] = {}
@@ -836,10 +870,12 @@ def _family_fields(cfg, f, i, betas, pick_reports, keep, w_all, judged) -> dict:
         row["beta"] = float(betas[i, list(FITTED).index(f)])
     if pick_reports is not None:
         rep = pick_reports[i]
-        if f == PICK:
+        if f in (PICK, CAUTIOUS):
             row.update(_pick_fields(cfg, rep, keep[i], w_all[i]))
         else:
             row["heldout_nll"] = rep["heldout_nll"][rep["candidates"].index(f)]
+    if f == CAUTIOUS:
+        row["caution"], row["members"] = cfg.caution, cfg.pick_folds + 1
     if f in judged:
         row["judged_by"] = {g: round(float(v[i]), 6) for g, v in judged[f].items()}
     return row

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from slotv_jax.core.fileio import write_text
 from slotv_jax.experiments.people_loop.config import (
+    CAUTIOUS,
     DERIVED,
     PICK,
     PICK_CROSS,
@@ -34,6 +35,7 @@ FAMILY_TITLES = {
     "nikolaidis_fitted": "Nikolaidis, β fitted",
     "pick": "**pick** (answers alone)",
     "pick_cross": "**pick by plans** (answers alone)",
+    "pick_cautious": "**cautious pick** (its folds' lower bound)",
 }
 FAMILY_TITLES |= {f: f"{FAMILY_TITLES[b]}, pre-trained" for f, b in PRETRAINED.items()}
 FAMILY_COLORS = {
@@ -47,6 +49,7 @@ FAMILY_COLORS = {
     "nikolaidis_fitted": "tab:brown",
     "pick": "black",
     "pick_cross": "darkorange",
+    "pick_cautious": "dimgray",
     "mlp_pre": "tab:cyan",
     "slotv_plus_pre": "deeppink",
     "dragan_archetype_pre": "yellowgreen",
@@ -62,8 +65,9 @@ STRATEGY_STYLES = {"random": "--", "margin": "-", "error": ":"}
 FAMILY_MARKERS = {
     "mlp": "o", "slotv_plus": "s", "dragan_archetype": "^", "viewpoint_archetype": "v",
     "mixture_archetype": "D", "reader": "h", "dragan_fitted": "x", "nikolaidis_fitted": "+",
-    "pick": "*", "pick_cross": "P",
+    "pick": "*", "pick_cross": "P", "pick_cautious": "X",
 }  # fmt: skip
+PICK_COLUMNS = {"pick": "pick", "pick_cross": "by plans", "pick_cautious": "cautious"}
 UNDER = {"pick": 4.0, "pick_cross": 3.0}  # line widths of the picks, drawn under the rest
 GOOD_GAIN = 0.8  # the gain kept that the report's crossing columns count the answers to
 BASELINES = ("dragan_fitted", "nikolaidis_fitted")
@@ -521,7 +525,7 @@ def suite_section(doc: dict) -> list[str]:
         return []
     s = picks[PICK]
     sizes, at = s["sizes"], headline_size(doc)
-    both = PICK_CROSS in picks
+    both = len(picks) > 1
     suite_pops = [q for q in s["populations"] if q in population_lib.suite_specs()]
     missing = [q for q in population_lib.suite_specs() if q not in s["populations"]]
     only_zoo = all(q in zoo.zoo_names() for q in s["populations"])
@@ -546,9 +550,16 @@ def suite_section(doc: dict) -> list[str]:
             else ", every family weighed (the rule before the pick left one family out)"
         )
         + (
-            ", and by the **pick by plans**, the plans of the family that the other families' "
+            ", by the **pick by plans**, the plans of the family that the other families' "
             "fits judge the most legible (`slotv_jax.experiments.people_loop.loop.cross_judged`)"
-            if both
+            if PICK_CROSS in picks
+            else ""
+        )
+        + (
+            ", by the **cautious pick**, the pick's pools of its folds' fits and of its fits on "
+            "every answer planned for their lower confidence bound "
+            "(`slotv_jax.planning.caution`)"
+            if CAUTIOUS in picks
             else ""
         )
         + (
@@ -558,15 +569,14 @@ def suite_section(doc: dict) -> list[str]:
         ),
         "",
         "| population | seeds | "
-        + " | ".join(f"pick {a:,}" for a in sizes)
-        + (" | " + " | ".join(f"by plans {a:,}" for a in sizes) if both else "")
+        + " | ".join(f"{PICK_COLUMNS[f]} {a:,}" for f in picks for a in sizes)
         + (
             " | Dragan, β fitted | Nikolaidis, β fitted | the best single family (oracle's "
             "choice) |"
             if at
             else " |"
         ),
-        "|---|---|" + "---|" * (len(sizes) * (1 + both) + (3 if at else 0)),
+        "|---|---|" + "---|" * (len(sizes) * len(picks) + (3 if at else 0)),
     ]
     seeds = {p["population"]: len(seeds_of(p)) for p in doc["populations"]}
     for q in s["populations"]:
