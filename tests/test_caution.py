@@ -156,6 +156,6 @@ def test_the_loop_config_refuses_a_cautious_pick_without_the_pick_or_a_bad_kappa
     with pytest.raises(ValueError, match=r"pick_cautious.*needs 'pick'"):
         dataclasses.replace(cfg, families=("mlp", "dragan_fitted", "pick_cautious"))
     for bad in (-0.5, float("inf"), True):
-        with pytest.raises(ValueError, match="caution: expected a finite number >= 0"):
+        with pytest.raises(ValueError, match=r"caution: expected a (finite )?number"):
             dataclasses.replace(cfg, caution=bad)
     assert "caution" not in dataclasses.replace(cfg, families=("mlp", "dragan_fitted")).to_json()

@@ -751,3 +751,106 @@ def test_the_pick_keeps_the_best_fit_and_says_when_none_explains_the_answers():
         (np.log(3) - want[1]) / np.log(3), abs=1e-5
     )
     assert "no candidate explains these answers well" in pick_lib.pick_table({**poor, "folds": 3})
+
+
+def test_study_pick_by_pool_with_caution_plans_the_pools_lower_bound(
+    label_pool, tmp_path, monkeypatch, capsys
+):
+    """``study pick --by pool --caution K``: the plans file gets ``pool_cautious`` after
+    ``pool``, the plans of the lower bound over the pool of each fold's fits and of the fits
+    on every answer: re-planned here from members rebuilt by hand (each fold's β fitted again
+    on its own rows, the pool's weights, κ), to the same joints. Bad values are one line
+    before any fit."""
+    from slotv_jax.answers import pick as pick_lib
+    from slotv_jax.answers.crossval import fit_beta
+    from slotv_jax.planning import caution
+    from slotv_jax.planning.plans import load_plans
+
+    monkeypatch.setitem(pick_lib.PLANNERS, "quick", {"n_points": 20, "iters": 3})
+    path = tmp_path / "s.npz"
+    study, _, taus = _dragan_study(label_pool, 1, path)
+    out = tmp_path / "pick"
+    argv = ["pick", str(path), "--out", str(out), "--candidates", "dragan,nikolaidis",
+            "--folds", "2", "--no-progress"]  # fmt: skip
+    monkeypatch.setattr(pick_lib, "fit_candidates", lambda *a, **k: pytest.fail("fitted"))
+    for extra, words in (
+        (["--by", "plans", "--caution", "1"], "--caution: plans the pool's bound"),
+        (["--by", "pool", "--caution", "-1"], "--caution: expected a finite number >= 0"),
+        (["--by", "pool", "--caution", "nan"], "--caution: expected a finite number >= 0"),
+    ):
+        with pytest.raises(SystemExit) as e:
+            study_main([*argv, *extra])
+        assert e.value.code == 2 and words in capsys.readouterr().err, extra
+        assert not out.exists()
+    monkeypatch.undo()
+    monkeypatch.setitem(pick_lib.PLANNERS, "quick", {"n_points": 20, "iters": 3})
+    assert study_main([*argv, "--by", "pool", "--caution", "1.5"]) == 0
+    text = capsys.readouterr().out
+    assert "pool_cautious: the pool's lower bound, κ = 1.5" in text
+    plans = load_plans(out / "plans.npz")
+    names = plans["names"].tolist()
+    assert names == ["straight", "dragan", "nikolaidis", "pool", "pool_cautious"]
+    rep = json.loads((out / "pool.json").read_text())["meta"]["pick"]
+    assert rep["caution"] == 1.5
+    w = dict(zip(rep["candidates"], rep["weights"], strict=True))
+    members = [c for c in rep["candidates"] if w[c] > 0]
+    fold = pooling.fold_of(study.answer_trajectory, 2, 0)
+    fits = [study.select_rows(fold != f) for f in range(2)] + [study]
+    cam = {"camera": "observer"}
+    pools = [
+        pooling.pool_observer(
+            [planning.labeler_observer(c, beta=fit_beta(s, c)[0], **cam) for c in members],
+            [w[c] for c in members],
+        )
+        for s in fits
+    ]
+    stacked = jax.tree.map(lambda *p: jnp.stack([jnp.asarray(x) for x in p]), *pools)
+    bound = caution.lower_bound_observer(stacked, 1.5)
+    cfg = planning.PlannerConfig(n_points=20, iters=3, taus=taus)
+    again = planning.make_planner(bound, cfg)(plans["goals"], plans["goal_mask"], plans["target"])
+    k = names.index("pool_cautious")
+    np.testing.assert_allclose(plans["q"][k], np.asarray(again.q), rtol=0, atol=1e-5)
+    assert np.all(np.asarray(again.feasible))
+
+
+def test_a_cautious_pool_of_learned_fits_stacks_folds_trained_with_other_batches(
+    label_pool, tmp_path
+):
+    """:func:`slotv_jax.answers.pick.cautious_pool` with a learned family: a fold's fit on
+    fewer rows had another batch (another TrainConfig), and is rebuilt with the full fit's
+    config; called as an observer, the bound is the equal-weight pool of its members."""
+    from slotv_jax.answers import pick as pick_lib
+    from slotv_jax.planning import caution
+    from slotv_jax.training import checkpoint
+
+    study, (xs, gs, ms), _ = _dragan_study(label_pool, 2, tmp_path / "s.npz")
+    cfg = pick_lib.fit_config("quick", "dragan_archetype", study.n_rows)
+    small = pick_lib.fit_config("quick", "dragan_archetype", 8)
+    assert small != cfg  # a fold of few rows trains with another batch
+    state = pick_lib.fit(cfg, study, jax.random.key(0))
+    archetype = checkpoint.make_observer(cfg, state.params)
+    dragan = planning.labeler_observer("dragan", beta=6.0)
+    fits = {
+        "dragan_archetype": {"cfg": cfg, "observer": archetype},
+        "dragan": {"observer": dragan, "beta": 6.0},
+    }
+    folds = [
+        {"dragan_archetype": {"params": jax.tree.map(lambda a, s=s: a * s, state.params)},
+         "dragan": {"beta": b}}
+        for s, b in ((0.9, 4.0), (1.1, 9.0))
+    ]  # fmt: skip
+    members, weights = ["dragan_archetype", "dragan"], [0.7, 0.4]
+    obs = pick_lib.cautious_pool(fits, folds, members, weights, 1.0)
+    assert caution.members_of(obs) == (1.0, 3)
+    xyz, g, m = xs[0], gs[0], ms[0]
+    got = np.asarray(obs(xyz, g, m))
+    want = []
+    for ff in [*folds, None]:
+        parts = [
+            checkpoint.make_observer(cfg, ff["dragan_archetype"]["params"]) if ff else
+            fits["dragan_archetype"]["observer"],
+            planning.labeler_observer("dragan", beta=ff["dragan"]["beta"] if ff else 6.0),
+        ]  # fmt: skip
+        z = np.asarray(pooling.pool_observer(parts, weights)(xyz, g, m), np.float64)
+        want.append(z[m] - np.log(np.sum(np.exp(z[m] - z[m].max()))) - z[m].max())
+    np.testing.assert_allclose(got[m], np.mean(want, axis=0), atol=2e-5)

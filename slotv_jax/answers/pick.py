@@ -33,6 +33,7 @@ from slotv_jax.answers import pooling, prior
 from slotv_jax.answers.crossval import fit_beta, labeler_probs, labeler_visible
 from slotv_jax.answers.fitting import answer_logits, study_trainer, train_study
 from slotv_jax.answers.format import PROB_FLOOR, Study
+from slotv_jax.planning import caution as caution_lib
 from slotv_jax.planning import evaluation
 from slotv_jax.training import checkpoint
 from slotv_jax.training import config as train_config
@@ -86,11 +87,13 @@ def out_of_fold(
     seed: int = 0,
     camera: str = "observer",
     progress: bool = True,
-) -> tuple[Float[np.ndarray, "F A G"], np.ndarray]:
-    """Each candidate's log-probabilities of every answer row, predicted by its fit on the
-    other folds (folds by motion, :func:`slotv_jax.answers.pooling.fold_of`); and the rows'
-    folds. Learned families train with ``preset``'s config; labelers get β by
-    :func:`slotv_jax.answers.crossval.fit_beta`."""
+    with_fits: bool = False,
+) -> tuple:
+    """Each candidate's log-probabilities (F, A, G) of every answer row, predicted by its
+    fit on the other folds (folds by motion, :func:`slotv_jax.answers.pooling.fold_of`);
+    and the rows' folds (A,). Learned families train with ``preset``'s config; labelers get β
+    by :func:`slotv_jax.answers.crossval.fit_beta`. With ``with_fits``, also each fold's
+    fits, ``[{name: {"beta": β} or {"params": θ}}]`` (fold f's: fitted without fold f)."""
     names = check_candidates(names)
     start = starts(study, names, preset=preset, camera=camera)
     fold = pooling.fold_of(study.answer_trajectory, folds, seed)
@@ -98,18 +101,21 @@ def out_of_fold(
     mask = study.goal_mask[study.answer_trajectory, :g]
     out = np.full((len(names), study.n_rows, g), -np.inf, np.float32)
     bar = tqdm(total=folds * len(names), desc="held-out fits", disable=not progress)
+    fold_fits: list[dict] = [{} for _ in range(folds)]
     for f in range(folds):
         rows = np.flatnonzero(fold == f)
         tr, te = study.select_rows(fold != f), study.select_rows(fold == f)
         for j, name in enumerate(names):
             if name in LABELERS:
                 beta, _ = fit_beta(tr, name, camera=camera)
+                fold_fits[f][name] = {"beta": beta}
                 y = labeler_probs(te, name, beta=beta, camera=camera)[:, :g]
                 with np.errstate(divide="ignore"):
                     lp = np.where(mask[rows], np.log(np.maximum(y, PROB_FLOOR)), -np.inf)
             else:
                 cfg = fit_config(preset, name, tr.n_rows, camera)
                 state = fit(cfg, tr, jax.random.key(seed * 1000 + f), start.get(name))
+                fold_fits[f][name] = {"params": state.params}
                 z = np.full((rows.size, g), -np.inf, np.float32)
                 lg = answer_logits(cfg, state.params, te)  # the study's goal slots in use
                 z[:, : lg.shape[-1]] = lg[:, :g]
@@ -117,7 +123,7 @@ def out_of_fold(
             out[j, rows] = lp
             bar.update(1)
     bar.close()
-    return out, fold
+    return (out, fold, fold_fits) if with_fits else (out, fold)
 
 
 def fit_config(
@@ -505,6 +511,7 @@ def pick_pool(
     camera: str = "observer",
     problems: int = 12,
     progress: bool = True,
+    caution: float | None = None,
 ) -> tuple[dict, dict[str, dict], dict[str, np.ndarray], dict]:
     """The people loop's ``pick`` on a study: every candidate's plans judged by the other
     fits (:func:`pick_by_plans`), the candidate of the least-judged plans left out
@@ -514,15 +521,25 @@ def pick_pool(
     and scenes only. Returns the pool's report (``rule``
     ``"pool"``, ``left_out``), the fits, the plans file's arrays (the straight line, every
     candidate's plans, then ``pool``: the plans made against the pool itself, what a
-    researcher runs) and the report of the plans."""
+    researcher runs) and the report of the plans.
+
+    ``caution`` κ (None: none): the plans file gets ``pool_cautious`` too, the pool planned
+    for a lower confidence bound over its folds (:func:`cautious_pool`), and the report
+    ``caution``."""
     names = check_candidates(names)
     check_folds(study, folds)
+    if caution is not None:  # refused before any fit, in the flag's words
+        try:
+            caution_lib.check_caution(caution)
+        except ValueError as e:
+            raise ValueError(f"--{e}") from None
     by_plans, fits, arrays = pick_by_plans(study, names, preset=preset, seed=seed, camera=camera,
                                            problems=problems, progress=progress,
                                            rule="pool")  # fmt: skip
-    logp, _ = out_of_fold(
-        study, names, preset=preset, folds=folds, seed=seed, camera=camera, progress=progress
-    )
+    logp, _, fold_fits = out_of_fold(
+        study, names, preset=preset, folds=folds, seed=seed, camera=camera, progress=progress,
+        with_fits=True,
+    )  # fmt: skip
     nll, uniform = pooling.heldout_quality(logp, *_counts(study))
     keep = trusted(np.asarray([by_plans["scores"]]), nll[None], np.asarray([uniform]))[0]
     rep = _report(study, names, logp, keep.tolist(), folds=folds, seed=seed, preset=preset)
@@ -536,15 +553,52 @@ def pick_pool(
     kept = [i for i, w in enumerate(rep["weights"]) if w > 0]
     if not kept:
         return rep, fits, arrays, by_plans
-    pool = pooling.pool_observer(
-        [fits[names[i]]["observer"] for i in kept], [rep["weights"][i] for i in kept]
-    )
+    members = [names[i] for i in kept]
+    weights = [rep["weights"][i] for i in kept]
+    observers = {"pool": pooling.pool_observer([fits[n]["observer"] for n in members], weights)}
+    if caution is not None:
+        rep["caution"] = float(caution)
+        observers["pool_cautious"] = cautious_pool(
+            fits, fold_fits, members, weights, caution, camera=camera
+        )
     cfg = planning.PlannerConfig(**PLANNERS.get(preset, {}), taus=tuple(by_plans["taus"]))
-    got = planning.make_planner(pool, cfg)(arrays["goals"], arrays["goal_mask"], arrays["target"])
-    arrays = {
-        **arrays,
-        "names": np.append(arrays["names"], "pool"),
-        "q": np.concatenate([arrays["q"], np.asarray(got.q, np.float32)[None]]),
-        "xyz": np.concatenate([arrays["xyz"], np.asarray(got.xyz, np.float32)[None]]),
-    }
+    for name, obs in observers.items():
+        got = planning.make_planner(obs, cfg)(
+            arrays["goals"], arrays["goal_mask"], arrays["target"]
+        )
+        arrays = {
+            **arrays,
+            "names": np.append(arrays["names"], name),
+            "q": np.concatenate([arrays["q"], np.asarray(got.q, np.float32)[None]]),
+            "xyz": np.concatenate([arrays["xyz"], np.asarray(got.xyz, np.float32)[None]]),
+        }
     return rep, fits, arrays, by_plans
+
+
+def cautious_pool(
+    fits: Mapping[str, dict],
+    fold_fits: Sequence[Mapping[str, dict]],
+    members: Sequence[str],
+    weights: Sequence[float],
+    caution: float,
+    *,
+    camera: str = "observer",
+):
+    """The pool of ``members`` with ``weights`` as a lower bound over K + 1 fits
+    (:func:`slotv_jax.planning.caution.lower_bound_observer`, κ = ``caution``): the pools
+    of each fold's fits (:func:`out_of_fold`'s, fitted without that fold) and of the fits on
+    every answer (:func:`fit_candidates`'), stacked; what the people loop's ``pick_cautious``
+    plans. A fold's learned fit takes the full fit's config (its network is the same; only
+    the batch of its training differed)."""
+
+    def member(name, fit):
+        if name in LABELERS:
+            return planning.labeler_observer(name, beta=fit["beta"], camera=camera)
+        return checkpoint.make_observer(fits[name]["cfg"], fit["params"])
+
+    pools = [
+        pooling.pool_observer([member(n, ff[n]) for n in members], weights) for ff in fold_fits
+    ]
+    pools.append(pooling.pool_observer([fits[n]["observer"] for n in members], weights))
+    stacked = jax.tree.map(lambda *p: jnp.stack([jnp.asarray(x) for x in p]), *pools)
+    return caution_lib.lower_bound_observer(stacked, float(caution))

@@ -42,7 +42,13 @@ from jaxtyping import Array, Bool, Float, Int
 from slotv_jax.observers.common import mask_logits
 from slotv_jax.observers.observer import Observer, ObserverLike
 
-__all__ = ["bound_log_probs", "is_lower_bound", "lower_bound_observer", "members_of"]
+__all__ = [
+    "bound_log_probs",
+    "check_caution",
+    "is_lower_bound",
+    "lower_bound_observer",
+    "members_of",
+]
 
 #: added to the members' variance under the square root (its gradient is finite at 0)
 VAR_EPS = 1e-12
@@ -85,6 +91,14 @@ def _n_members(members) -> int:
     return int(m)
 
 
+def check_caution(caution) -> None:
+    """ValueError naming ``caution`` unless it is a finite Python number κ ≥ 0."""
+    if isinstance(caution, bool) or not isinstance(caution, int | float | np.floating):
+        raise ValueError(f"caution: expected a number of standard deviations >= 0, got {caution!r}")
+    if not (np.isfinite(caution) and caution >= 0):
+        raise ValueError(f"caution: expected a finite number >= 0, got {caution!r}")
+
+
 def lower_bound_observer(members: ObserverLike, caution: float) -> Observer:
     """The planner's lower confidence bound over ``members`` (module docstring).
 
@@ -94,10 +108,7 @@ def lower_bound_observer(members: ObserverLike, caution: float) -> Observer:
     form). An :class:`~slotv_jax.observers.observer.Observer` named "lower bound" whose
     ``params`` are the stacked members and whose ``config`` is ``("lower bound", κ, M)``;
     as an observer it gives the members' log-linear pool with equal weights."""
-    if isinstance(caution, bool) or not isinstance(caution, int | float):
-        raise ValueError(f"caution: expected a number of standard deviations >= 0, got {caution!r}")
-    if not (np.isfinite(caution) and caution >= 0):
-        raise ValueError(f"caution: expected a finite number >= 0, got {caution!r}")
+    check_caution(caution)
     if not callable(getattr(members, "prefix", None)):
         raise ValueError("members: expected stacked observers with a .prefix (ObserverLike)")
     m = _n_members(members)

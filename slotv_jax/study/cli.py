@@ -22,6 +22,7 @@ from slotv_jax.answers.storage import load_study, save_study
 from slotv_jax.answers.tables import read_tables
 from slotv_jax.core import cli, fileio, validation
 from slotv_jax.core.fileio import write_text
+from slotv_jax.planning import caution as caution_lib
 from slotv_jax.planning.plans import save_plans
 from slotv_jax.study import rounds
 from slotv_jax.training import checkpoint
@@ -146,6 +147,10 @@ def _parse_args(argv):
     pk.add_argument("--problems", type=int, default=12,
                     help="--by plans or pool: at most this many of the study's (scene, goal) "
                     "problems are planned")  # fmt: skip
+    pk.add_argument("--caution", type=float, default=None,
+                    help="--by pool: also plan the pool for a lower confidence bound over its "
+                    "folds' fits and its fits on every answer, this many standard deviations "
+                    "held back (plans.npz's pool_cautious; default: not planned)")  # fmt: skip
     pk.add_argument("--folds", type=int, default=3)
     pk.add_argument("--seed", type=int, default=0)
     pk.add_argument("--condition", default=None)
@@ -183,6 +188,14 @@ def pick_main(args: argparse.Namespace) -> int:
     fileio.check_output_dir(args.out, ours=ours, overwrite=args.overwrite)
     if not (isinstance(args.problems, int) and args.problems >= 1):
         raise ValueError(f"--problems: expected an int >= 1, got {args.problems!r}")
+    if args.caution is not None:
+        if args.by != "pool":
+            raise ValueError(f"--caution: plans the pool's bound, so it needs --by pool, got "
+                             f"--by {args.by}")  # fmt: skip
+        try:
+            caution_lib.check_caution(args.caution)
+        except ValueError as e:
+            raise ValueError(f"--{e}") from None
     try:
         scene.check_camera(args.camera)
     except ValueError as e:
@@ -204,6 +217,7 @@ def pick_main(args: argparse.Namespace) -> int:
         rep, fits, arrays, by_plans = pick_lib.pick_pool(
             study, names, preset=args.preset, folds=args.folds, seed=args.seed,
             problems=args.problems, progress=progress, camera=args.camera,
+            caution=args.caution,
         )  # fmt: skip
         print(pick_lib.plans_table(by_plans), "", pick_lib.pick_table(rep), sep="\n", flush=True)
     else:
@@ -249,6 +263,8 @@ def pick_main(args: argparse.Namespace) -> int:
     print(said)
     if arrays is not None:
         whose = "every candidate's and the pool's" if args.by == "pool" else "every candidate's"
+        if args.by == "pool" and args.caution is not None:
+            whose += f" (pool_cautious: the pool's lower bound, κ = {args.caution:g})"
         print(f"plans: the straight line and {whose}: {out / 'plans.npz'} "
               "(study stimuli --plans, render --plans)")  # fmt: skip
     return 0

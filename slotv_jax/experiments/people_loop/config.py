@@ -13,6 +13,7 @@ from slotv_jax import planning
 from slotv_jax.answers.pick import READER
 from slotv_jax.asking import selection
 from slotv_jax.core import validation
+from slotv_jax.planning import caution
 from slotv_jax.training import config as train_config
 
 LEARNED = ("mlp", "slotv_plus", "dragan_archetype", "viewpoint_archetype", "mixture_archetype")
@@ -134,9 +135,7 @@ class LoopConfig:
                 raise ValueError(f"families: {d!r} needs at least two other families")
         if CAUTIOUS in self.families and PICK not in self.families:
             raise ValueError(f"families: {CAUTIOUS!r} is the pick's ensemble: it needs {PICK!r}")
-        c = self.caution
-        if isinstance(c, bool) or not isinstance(c, int | float) or not (0 <= c < math.inf):
-            raise ValueError(f"caution: expected a finite number >= 0, got {c!r}")
+        caution.check_caution(self.caution)
         if self.select_family not in LEARNED:
             raise ValueError(
                 f"select_family: expected one of {LEARNED}, got {self.select_family!r}"
