@@ -49,7 +49,7 @@ FAMILY_COLORS = {
     "nikolaidis_fitted": "tab:brown",
     "pick": "black",
     "pick_cross": "darkorange",
-    "pick_cautious": "dimgray",
+    "pick_cautious": "crimson",
     "mlp_pre": "tab:cyan",
     "slotv_plus_pre": "deeppink",
     "dragan_archetype_pre": "yellowgreen",
@@ -68,7 +68,11 @@ FAMILY_MARKERS = {
     "pick": "*", "pick_cross": "P", "pick_cautious": "X",
 }  # fmt: skip
 PICK_COLUMNS = {"pick": "pick", "pick_cross": "by plans", "pick_cautious": "cautious"}
-UNDER = {"pick": 4.0, "pick_cross": 3.0}  # line widths of the picks, drawn under the rest
+UNDER = {
+    "pick": 4.0,
+    "pick_cross": 3.0,
+    "pick_cautious": 2.5,
+}  # line widths of the picks, drawn under the rest
 GOOD_GAIN = 0.8  # the gain kept that the report's crossing columns count the answers to
 BASELINES = ("dragan_fitted", "nikolaidis_fitted")
 RENDER_TAU = 0.5
