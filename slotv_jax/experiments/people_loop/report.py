@@ -553,18 +553,18 @@ def suite_section(doc: dict) -> list[str]:
             if _leaves_one_out(doc)
             else ", every family weighed (the rule before the pick left one family out)"
         )
-        + (
-            ", by the **pick by plans**, the plans of the family that the other families' "
-            "fits judge the most legible (`slotv_jax.experiments.people_loop.loop.cross_judged`)"
-            if PICK_CROSS in picks
-            else ""
-        )
-        + (
-            ", by the **cautious pick**, the pick's pools of its folds' fits and of its fits on "
-            "every answer planned for their lower confidence bound "
-            "(`slotv_jax.planning.caution`)"
-            if CAUTIOUS in picks
-            else ""
+        + _and_by(
+            [
+                "the **pick by plans**, the plans of the family that the other families' fits "
+                "judge the most legible (`slotv_jax.experiments.people_loop.loop.cross_judged`)"
+            ]
+            * (PICK_CROSS in picks)
+            + [
+                "the **cautious pick**, the pick's pools of its folds' fits and of its fits on "
+                "every answer planned for their lower confidence bound "
+                "(`slotv_jax.planning.caution`)"
+            ]
+            * (CAUTIOUS in picks)
         )
         + (
             f"; beside {'them' if both else 'it'} the fitted baselines at {at:,} answers."
@@ -641,6 +641,13 @@ def suite_section(doc: dict) -> list[str]:
     lines.append("")
     lines += pick_agreement(doc)
     return lines
+
+
+def _and_by(phrases: list[str]) -> str:
+    """ ", and by A" or ", by A, and by B" (nothing for no phrase)."""
+    if not phrases:
+        return ""
+    return "".join(", by " + p for p in phrases[:-1]) + ", and by " + phrases[-1]
 
 
 def _runs(doc: dict):
