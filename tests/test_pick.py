@@ -840,7 +840,8 @@ def test_a_cautious_pool_of_learned_fits_stacks_folds_trained_with_other_batches
         for s, b in ((0.9, 4.0), (1.1, 9.0))
     ]  # fmt: skip
     members, weights = ["dragan_archetype", "dragan"], [0.7, 0.4]
-    obs = pick_lib.cautious_pool(fits, folds, members, weights, 1.0)
+    full = pooling.pool_observer([archetype, dragan], weights)
+    obs = pick_lib.cautious_pool(full, fits, folds, members, weights, 1.0)
     assert caution.members_of(obs) == (1.0, 3)
     xyz, g, m = xs[0], gs[0], ms[0]
     got = np.asarray(obs(xyz, g, m))

@@ -528,11 +528,8 @@ def pick_pool(
     ``caution``."""
     names = check_candidates(names)
     check_folds(study, folds)
-    if caution is not None:  # refused before any fit, in the flag's words
-        try:
-            caution_lib.check_caution(caution)
-        except ValueError as e:
-            raise ValueError(f"--{e}") from None
+    if caution is not None:  # refused before any fit
+        caution_lib.check_caution(caution)
     by_plans, fits, arrays = pick_by_plans(study, names, preset=preset, seed=seed, camera=camera,
                                            problems=problems, progress=progress,
                                            rule="pool")  # fmt: skip
@@ -559,7 +556,7 @@ def pick_pool(
     if caution is not None:
         rep["caution"] = float(caution)
         observers["pool_cautious"] = cautious_pool(
-            fits, fold_fits, members, weights, caution, camera=camera
+            observers["pool"], fits, fold_fits, members, weights, caution, camera=camera
         )
     cfg = planning.PlannerConfig(**PLANNERS.get(preset, {}), taus=tuple(by_plans["taus"]))
     for name, obs in observers.items():
@@ -576,6 +573,7 @@ def pick_pool(
 
 
 def cautious_pool(
+    pool,
     fits: Mapping[str, dict],
     fold_fits: Sequence[Mapping[str, dict]],
     members: Sequence[str],
@@ -584,10 +582,11 @@ def cautious_pool(
     *,
     camera: str = "observer",
 ):
-    """The pool of ``members`` with ``weights`` as a lower bound over K + 1 fits
+    """The ``pool`` of ``members`` with ``weights`` (fitted on every answer,
+    :func:`fit_candidates`) as a lower bound over K + 1 fits
     (:func:`slotv_jax.planning.caution.lower_bound_observer`, κ = ``caution``): the pools
-    of each fold's fits (:func:`out_of_fold`'s, fitted without that fold) and of the fits on
-    every answer (:func:`fit_candidates`'), stacked; what the people loop's ``pick_cautious``
+    of each fold's fits (:func:`out_of_fold`'s, fitted without that fold), then ``pool``,
+    stacked; what the people loop's ``pick_cautious``
     plans. A fold's learned fit takes the full fit's config (its network is the same; only
     the batch of its training differed)."""
 
@@ -598,7 +597,6 @@ def cautious_pool(
 
     pools = [
         pooling.pool_observer([member(n, ff[n]) for n in members], weights) for ff in fold_fits
-    ]
-    pools.append(pooling.pool_observer([fits[n]["observer"] for n in members], weights))
+    ] + [pool]
     stacked = jax.tree.map(lambda *p: jnp.stack([jnp.asarray(x) for x in p]), *pools)
     return caution_lib.lower_bound_observer(stacked, float(caution))

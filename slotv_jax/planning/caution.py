@@ -37,15 +37,15 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Float
 
 from slotv_jax.observers.common import mask_logits
 from slotv_jax.observers.observer import Observer, ObserverLike
 
 __all__ = [
-    "bound_log_probs",
     "check_caution",
     "is_lower_bound",
+    "lower_bound",
     "lower_bound_observer",
     "members_of",
 ]
@@ -135,29 +135,11 @@ def members_of(observer: Observer) -> tuple[float, int]:
     return caution, m
 
 
-def bound_log_probs(
-    observer: Observer,
-    xyz: Float[Array, "T 3"],
-    goals: Float[Array, "8 3"],
-    goal_mask: Bool[Array, " 8"],
-    target: Int[Array, ""],
-    seen: Int[Array, " K"] | None,
-) -> Float[Array, " K"]:
-    """B_τ = mean_m ℓ_m − κ sd_m ℓ_m at each prefix length of ``seen`` (K,) (None: the
-    whole motion, K = 1), ℓ_m = log P_m(target | the first ``seen`` points); pure."""
-    caution, m = members_of(observer)
-    members, mask = observer.params, jnp.asarray(goal_mask).astype(bool)
-
-    def member_lp(o):
-        if seen is None:
-            z = o(xyz, goals, mask)[None]
-        else:
-            z = jax.vmap(lambda n: o.prefix(xyz, goals, mask, n))(seen)
-        return jax.nn.log_softmax(mask_logits(z, mask), axis=-1)[:, target]
-
-    lp = jax.vmap(member_lp)(members)  # (M, K)
+def lower_bound(lp: Float[Array, "M K"], caution: float) -> Float[Array, " K"]:
+    """B = mean_m ℓ_m − κ sd_m ℓ_m of the members' log-probabilities ``lp`` (M, K) at each
+    of K stop times (module docstring; κ = ``caution``, static); pure."""
     mean = jnp.mean(lp, axis=0)
     if caution == 0:
         return mean
-    var = jnp.sum((lp - mean) ** 2, axis=0) / (m - 1)
+    var = jnp.sum((lp - mean) ** 2, axis=0) / (lp.shape[0] - 1)
     return mean - caution * jnp.sqrt(var + VAR_EPS)

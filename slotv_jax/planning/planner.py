@@ -426,17 +426,23 @@ def legibility(
     """
     mask = jnp.asarray(goal_mask).astype(bool)
     if caution.is_lower_bound(observer):  # the bound over an ensemble (:mod:`.caution`)
-        seen = None if cfg.taus is None else jnp.asarray(seen_points(cfg.taus, xyz.shape[0]))
-        return jnp.mean(caution.bound_log_probs(observer, xyz, goals, mask, target, seen))
+        kappa, _ = caution.members_of(observer)
+        terms = jax.vmap(lambda o: _log_probs(o, xyz, goals, mask, target, cfg))(observer.params)
+        return jnp.mean(caution.lower_bound(terms, kappa))
+    return jnp.mean(_log_probs(observer, xyz, goals, mask, target, cfg))
+
+
+def _log_probs(observer, xyz, goals, mask, target, cfg: PlannerConfig) -> Float[Array, " K"]:
+    """log P(target | ξ) (K = 1), or at each stop time of ``cfg.taus``."""
     if cfg.taus is None:
         logits = mask_logits(observer(xyz, goals, mask), mask)
-        return jax.nn.log_softmax(logits)[target]
+        return jax.nn.log_softmax(logits)[target][None]
     if not callable(getattr(observer, "prefix", None)):
         raise ValueError(
             "observer: PlannerConfig.taus needs an observer with a .prefix(xyz, goals, "
             f"goal_mask, seen) attribute; {_observer_name(observer)} has none"
         )
-    return jnp.mean(stop_log_probs(observer, xyz, goals, mask, target, cfg.taus))
+    return stop_log_probs(observer, xyz, goals, mask, target, cfg.taus)
 
 
 def stop_log_probs(
