@@ -14,7 +14,7 @@ import optax
 import pytest
 from flax import nnx
 
-from slotv_jax.asking import replay, selection
+from slotv_jax.asking import replay, selection, simulated
 from slotv_jax.experiments import active, active_report, active_stream
 from slotv_jax.runs import summary
 from slotv_jax.training import config as train_config
@@ -235,6 +235,32 @@ def test_pool_and_answers_validate():
         selection.make_answers([0, 1, 2], np.ones((3, 8)), 2)
     sel = selection.make_selector(train_config.archetype("quick", "dragan"), 2, 8)
     sel.check_pool(pool)  # archetypes score prefixes too (tests/test_prefix.py)
+
+
+def test_a_fit_cuts_the_goal_slots_no_motion_has_and_learns_the_same(monkeypatch):
+    """Fitting on the pool's real goal slots only (``selection.trim_goals``) gives the fit
+    of the 8 padded slots: a padded slot adds nothing to the likelihood or its gradient."""
+    xyz, goals, mask, rng = _tiny_pool(g=3)
+    mask[::2, 2] = False  # scenes of 2 and 3 goals: slots 3-7 are padding everywhere
+    pool = selection.make_pool(xyz, goals, mask, taus=(0.6, 1.0))
+    cand = rng.choice(pool.traj.shape[0], (2, 16), replace=False)
+    counts = np.zeros((2, 16, 8), np.float32)
+    for r in range(2):
+        real = mask[np.asarray(pool.traj)[cand[r]]]
+        counts[r, :, :3] = rng.multinomial(5, [0.5, 0.3, 0.2], 16) * real[:, :3]
+    trimmed, c = selection.trim_goals(pool, counts)
+    assert trimmed.goals.shape[1:] == (3, 3) and c.shape == (2, 16, 3)
+    tc = train_config.archetype("quick", "dragan")
+    keys = jnp.stack([jax.random.key(1), jax.random.key(2)])
+    cut = simulated.fit_runs(tc, pool, cand, counts, 16, keys, 2, 10)
+    monkeypatch.setattr(selection, "trim_goals", lambda p, c: (p, np.asarray(c)))
+    padded = simulated.fit_runs(tc, pool, cand, counts, 16, keys, 2, 10)
+    for a, b in zip(jax.tree.leaves(cut), jax.tree.leaves(padded), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=FLOAT32_STEPS, atol=1e-6)
+    monkeypatch.undo()
+    counts[0, 0, 5] = 1.0  # a guess of a goal that no motion of the pool has
+    with pytest.raises(ValueError, match="counts: guesses of a goal slot past"):
+        selection.trim_goals(pool, counts)
 
 
 @pytest.fixture(scope="module")

@@ -26,3 +26,20 @@ def test_the_render_benchmark_runs_and_checks_its_shared_clips(capsys):
     assert render.main(["--size", "64x36", "--frames", "6", "--repeats", "1"]) == 0
     out = capsys.readouterr().out
     assert "each moment drawn once (study stimuli)" in out and out.count("\n| ") == 11, out
+
+
+def test_the_people_fits_benchmark_times_both_ways_and_refuses_bad_flags(capsys):
+    """At a tiny size: a row per family, padded against the real slots."""
+    from slotv_jax.benchmarks import people_fits
+
+    argv = ["--families", "dragan_archetype,mlp", "--rows", "20", "--runs", "1", "--repeats", "1"]
+    assert people_fits.main(argv) == 0
+    out = capsys.readouterr().out
+    assert "| dragan_archetype | 300 |" in out and "| mlp | 300 |" in out, out
+    assert "| **every family** |" in out, out
+    for bad, piece in ((["--families", "nope"], "--families: expected names of"),
+                       (["--rows", "0"], "--rows: expected an int >= 1")):  # fmt: skip
+        with pytest.raises(SystemExit) as e:
+            people_fits.main(bad)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and piece in err and "Traceback" not in err

@@ -58,6 +58,7 @@ __all__ = [
     "prior_labels",
     "prior_params",
     "prior_study",
+    "source_names",
     "sources",
 ]
 
@@ -67,19 +68,34 @@ PRIOR_SEED = 4_000  # the prior's training key
 CHUNK = 256  # rows per compiled call of the sources' probabilities
 
 
+def source_names(exclude: Sequence[str] = (), draws: int = PRIOR_DRAWS) -> tuple[str, ...]:
+    """The names of :func:`sources` ``(exclude, draws)``, in its order, without building them:
+    two studies whose names are the same have the same prior."""
+    left_out = set(exclude)
+    draw_names = [f"random:{k}" for k in range(FIRST_DRAW, FIRST_DRAW + draws)]
+    return (
+        *LABELER_NAMES,
+        *(n for n in draw_names if n not in left_out),
+        *(n for n in zoo.MEMBERS if n not in left_out),
+    )
+
+
 def sources(exclude: Sequence[str] = (), draws: int = PRIOR_DRAWS) -> list[tuple[str, object]]:
     """``(name, observer)`` of every source of the prior (module docstring), the zoo's
-    members and the draws (``random:K``) named in ``exclude`` left out. Each observer has
-    ``prefix(xyz, goals, goal_mask, seen) -> log P``."""
-    left_out = set(exclude)
-    out: list[tuple[str, object]] = [(n, labeler_observer(n)) for n in LABELER_NAMES]
-    for k in range(FIRST_DRAW, FIRST_DRAW + draws):  # one quadrature shape: one compilation
-        if f"random:{k}" in left_out:
-            continue
-        quad = population_lib.quadrature(population_lib.random_population(k))
-        out.append((f"random:{k}", population_lib.quadrature_observer(quad)))
-    out += [(n, m) for n, m in zoo.MEMBERS.items() if n not in left_out]
-    return out
+    members and the draws (``random:K``) named in ``exclude`` left out
+    (:func:`source_names`). Each observer has ``prefix(xyz, goals, goal_mask, seen) -> log P``."""
+
+    def observer(name: str):
+        if name in LABELER_NAMES:
+            return labeler_observer(name)
+        if name in zoo.MEMBERS:
+            return zoo.MEMBERS[name]
+        k = int(name.removeprefix("random:"))  # one quadrature shape: one compilation
+        return population_lib.quadrature_observer(
+            population_lib.quadrature(population_lib.random_population(k))
+        )
+
+    return [(n, observer(n)) for n in source_names(exclude, draws)]
 
 
 def _probs(observer, x, g, m, s):

@@ -195,6 +195,32 @@ def make_pool(
     )
 
 
+def trim_goals(pool: Pool, counts: Float[np.ndarray, "... G"]) -> tuple[Pool, np.ndarray]:
+    """The pool and the answers' ``counts`` with the goal axis cut after the last slot that
+    is real in any of the pool's trajectories, for fitting.
+
+    As :func:`slotv_jax.training.types.trim_goals` does for SLOT-V's training: a padded slot
+    adds nothing to the count likelihood or its gradient (its log-probability is −∞ and
+    its count 0), but every one costs a pass of the network over the motion; the datasets'
+    training scenes hold at most 6 real goals of the 8 slots. Needs a concrete goal mask;
+    returns the arguments themselves when nothing can be cut. Raises ValueError if an
+    answer names a slot that no trajectory has.
+
+    >>> pool = make_pool(np.zeros((2, 5, 3)), np.ones((2, 8, 3)), np.arange(8) < [[2], [3]])
+    >>> p, c = trim_goals(pool, np.zeros((4, 8)))
+    >>> p.goals.shape, c.shape
+    ((2, 3, 3), (4, 3))
+    """
+    mask = np.asarray(pool.goal_mask, bool)
+    g = max(1, int(np.where(mask, np.arange(1, mask.shape[-1] + 1), 0).max(initial=0)))
+    counts = np.asarray(counts)
+    if g == mask.shape[-1]:
+        return pool, counts
+    if np.any(counts[..., g:]):
+        raise ValueError(f"counts: guesses of a goal slot past the pool's last real one ({g})")
+    return pool._replace(goals=pool.goals[:, :g], goal_mask=pool.goal_mask[:, :g]), counts[..., :g]
+
+
 def make_answers(
     cand: Int[np.ndarray, " A"], counts: Float[np.ndarray, "A G"], capacity: int
 ) -> Answers:

@@ -81,7 +81,9 @@ def fit_runs(
     ``blocks × block`` updates from ``keys (R,)``: its parameters with a leading run axis.
     ``init`` (the observer's parameters, no run axis) starts every run from θ₀ = ``init``
     instead of a random draw, with a fresh optimiser state (fine-tuning, Howard & Ruder
-    2018); the keys still draw the minibatches."""
+    2018); the keys still draw the minibatches. The goal slots that no trajectory of the
+    pool uses are cut first (:func:`~slotv_jax.asking.selection.trim_goals`)."""
+    pool, counts = selection.trim_goals(pool, counts)  # padded goal slots cost, add nothing
     sel = selection.make_selector(tc, 1, cand.shape[1])
     ens = jax.jit(jax.vmap(sel.init, in_axes=(0, None)))(keys, init)
     ans = selection.Answers(

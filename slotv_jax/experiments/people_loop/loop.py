@@ -245,10 +245,11 @@ def reader_prior(cfg: LoopConfig, split, people_name: str, camera):
     """θ₀ of the motion reader for a study of the people called ``people_name``, filmed by
     ``camera``: its prior (:mod:`slotv_jax.answers.prior`) on every pool motion at every
     stop time, the zoo member ``people_name`` left out of the sources (the people scored
-    are never a source). Made once per process, config, people and camera."""
+    are never a source). Made once per process, config, sources and camera: the people of
+    the suite, none of them a source, share one."""
     tc = cfg.train_config(READER)
     pos, rot = (np.asarray(a, np.float32).round(6).tobytes() for a in (camera.pos, camera.rot))
-    key = (cfg.data, cfg.pool, cfg.taus, tc, people_name, pos, rot)
+    key = (cfg.data, cfg.pool, cfg.taus, tc, prior.source_names((people_name,)), pos, rot)
     if key not in _PRETRAINED:
         xyz, goals, mask = pool_motions(cfg, split)
         study = prior.prior_study(xyz, goals, mask, cfg.taus, exclude=(people_name,))
@@ -589,14 +590,15 @@ class ActiveAsker:
         if not (self.active and k):
             return picks
         act = self.active
-        ans = selection.Answers(jnp.asarray(st_.cand[act]), jnp.asarray(st_.counts[act]),
+        pool, counts = selection.trim_goals(st_.pool, st_.counts[act])
+        ans = selection.Answers(jnp.asarray(st_.cand[act]), jnp.asarray(counts),
                                 jnp.full((len(act),), n_rows, jnp.int32))  # fmt: skip
         keys = jnp.stack([jax.random.key(5_000 + 31 * r + st_.runs[i][1]) for i in act])
         fit = simulated.fitter(self.selector, cfg.block)
         blocks = cfg.updates(n_rows, self.tc.batch_size, cfg.select_epochs, cfg.block) // cfg.block
         for j in range(blocks):
             step = jax.vmap(lambda kk, j=j: jax.random.fold_in(kk, j))(keys)
-            self.ens, _ = fit(self.ens, st_.pool, ans, step)
+            self.ens, _ = fit(self.ens, pool, ans, step)
         for a, i in enumerate(act):
             st, sd = st_.runs[i]
             free = st_.free(i)
