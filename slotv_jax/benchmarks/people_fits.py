@@ -7,8 +7,8 @@ Every size of the people loop fits each trained family once on all answers and o
 fold of the pick (:func:`slotv_jax.asking.simulated.fit_runs`, the runs side by side);
 those fits are most of a quick population's time. A synthetic pool (T = 100 points to one
 of 2-6 goals of the 8 slots, :func:`slotv_jax.benchmarks.selection.synthetic_pool`) and
-answers of 5 guesses on each of ``--rows`` stimuli; each family's fit of its preset's
-updates (:meth:`LoopConfig.updates`), timed after a first call that compiles, the median
+answers of 5 guesses on each of ``--rows`` stimuli; each family's fit of ``--updates``
+(300: the quick loop's at every size), timed after a first call that compiles, the median
 of ``--repeats``:
 
 - **padded**: the pool's 8 goal slots, as the loop fitted before 2026-12-07 (the baseline);
@@ -38,7 +38,11 @@ from slotv_jax.benchmarks._machine import cpu_model
 from slotv_jax.benchmarks.selection import synthetic_pool
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
-from slotv_jax.experiments.people_loop import config as loop_config
+from slotv_jax.training import config as train_config
+
+#: The people loop's trained families (slotv_jax.experiments.people_loop.config: LEARNED, READER).
+FAMILIES = ("mlp", "slotv_plus", "dragan_archetype", "viewpoint_archetype", "mixture_archetype",
+            "reader")  # fmt: skip
 
 
 def padded_fit(tc, pool, cand, counts, rows, keys, blocks, block):
@@ -71,18 +75,19 @@ def _median(fn, repeats: int) -> tuple[float, float]:
 def main(argv=None) -> int:
     ap = cli.ArgumentParser(prog="python -m slotv_jax.benchmarks.people_fits")
     ap.add_argument("--preset", default="quick", choices=("quick", "paper"))
-    ap.add_argument("--families", default=",".join((*loop_config.LEARNED, loop_config.READER)))
+    ap.add_argument("--families", default=",".join(FAMILIES))
+    ap.add_argument("--updates", type=int, default=300, help="updates a fit (the quick loop's)")
+    ap.add_argument("--block", type=int, default=100, help="updates a compiled call")
     ap.add_argument("--rows", type=int, default=400, help="answer rows (stimuli) fitted")
     ap.add_argument("--runs", type=int, default=3, help="fits side by side (the pick's folds)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", default=None, help="also write the results here")
     args = ap.parse_args(argv)
-    cfg = loop_config.PRESETS[args.preset]()
     fams = [f for f in args.families.split(",") if f]
-    bad = [f for f in fams if f not in loop_config.TRAINED]
+    bad = [f for f in fams if f not in FAMILIES]
     if bad or not fams:
-        ap.error(f"--families: expected names of {loop_config.TRAINED}, got {args.families!r}")
-    for name in ("rows", "runs", "repeats"):
+        ap.error(f"--families: expected names of {FAMILIES}, got {args.families!r}")
+    for name in ("rows", "runs", "repeats", "updates", "block"):
         if getattr(args, name) < 1:
             ap.error(f"--{name}: expected an int >= 1, got {getattr(args, name)}")
     if args.json:  # checked before the benchmark; the file is regenerated
@@ -97,7 +102,7 @@ def main(argv=None) -> int:
     print(f"# {slotv_jax.XLA_CONFIG.summary()}")
     pool = synthetic_pool(2000)
     pool = selection.make_pool(
-        np.asarray(pool.xyz), np.asarray(pool.goals), np.asarray(pool.goal_mask), cfg.taus
+        np.asarray(pool.xyz), np.asarray(pool.goals), np.asarray(pool.goal_mask), (0.4, 0.7, 1.0)
     )
     rng = np.random.default_rng(0)
     mask = np.asarray(pool.goal_mask)[np.asarray(pool.traj)]
@@ -112,13 +117,14 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|")
     rows = {}
     for f in fams:
-        tc = cfg.train_config(f)
-        updates = cfg.updates(args.rows, tc.batch_size, cfg.epochs, cfg.min_updates)
-        blocks = updates // cfg.block
+        tc = train_config.family(args.preset, f)
+        block = args.block
+        blocks = -(-args.updates // args.block)
+        updates = blocks * block
         old = _median(lambda tc=tc, b=blocks: padded_fit(tc, pool, cand, counts, args.rows, keys,
-                                                         b, cfg.block), args.repeats)  # fmt: skip
+                                                         b, args.block), args.repeats)  # fmt: skip
         new = _median(lambda tc=tc, b=blocks: simulated.fit_runs(tc, pool, cand, counts,
-                                                                 args.rows, keys, b, cfg.block),
+                                                                 args.rows, keys, b, args.block),
                       args.repeats)  # fmt: skip
         rows[f] = {"updates": updates, "padded": old, "real_slots": new}
         print(f"| {f} | {updates} | {old[1]:.2f} | {new[1]:.2f} | {old[1] / new[1]:.2f} |",
