@@ -25,8 +25,6 @@ import datetime
 import json
 import os
 import pathlib
-import statistics
-import time
 
 import jax
 import jax.numpy as jnp
@@ -35,7 +33,7 @@ import numpy as np
 import slotv_jax  # applies the XLA CPU setting before JAX starts
 from slotv_jax.asking import selection, simulated
 from slotv_jax.benchmarks._machine import cpu_model
-from slotv_jax.benchmarks.selection import synthetic_pool
+from slotv_jax.benchmarks.selection import _time, synthetic_pool
 from slotv_jax.core import cli, fileio
 from slotv_jax.core.environment import environment
 from slotv_jax.training import config as train_config
@@ -57,18 +55,6 @@ def padded_fit(tc, pool, cand, counts, rows, keys, blocks, block):
     for j in range(blocks):
         ens, _ = fit(ens, pool, ans, jax.vmap(lambda k, j=j: jax.random.fold_in(k, j))(keys))
     return jax.tree.map(lambda x: x[:, 0], ens.params)
-
-
-def _median(fn, repeats: int) -> tuple[float, float]:
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn())
-    first = time.perf_counter() - t0
-    runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        runs.append(time.perf_counter() - t0)
-    return first, statistics.median(runs)
 
 
 @cli.command
@@ -121,11 +107,14 @@ def main(argv=None) -> int:
         block = args.block
         blocks = -(-args.updates // args.block)
         updates = blocks * block
-        old = _median(lambda tc=tc, b=blocks: padded_fit(tc, pool, cand, counts, args.rows, keys,
-                                                         b, args.block), args.repeats)  # fmt: skip
-        new = _median(lambda tc=tc, b=blocks: simulated.fit_runs(tc, pool, cand, counts,
-                                                                 args.rows, keys, b, args.block),
-                      args.repeats)  # fmt: skip
+
+        def padded(tc=tc, b=blocks):
+            return padded_fit(tc, pool, cand, counts, args.rows, keys, b, args.block)
+
+        def cut(tc=tc, b=blocks):
+            return simulated.fit_runs(tc, pool, cand, counts, args.rows, keys, b, args.block)
+
+        old, new = (_time(fn, repeats=args.repeats) for fn in (padded, cut))
         rows[f] = {"updates": updates, "padded": old, "real_slots": new}
         print(f"| {f} | {updates} | {old[1]:.2f} | {new[1]:.2f} | {old[1] / new[1]:.2f} |",
               flush=True)  # fmt: skip
