@@ -338,11 +338,14 @@ def archetype(name: str, model: str, **overrides: Any) -> TrainConfig:
 
 def reader(name: str, **overrides: Any) -> TrainConfig:
     """Preset ``name`` ("quick" or "paper") for the motion reader (:ref:`concepts-reader`)
-    **[choice]**: a softplus MLP (smooth, for the planner's gradients) of widths (64, 64)
+    **[choice]**: a softplus MLP (smooth, for the planner's gradients) of widths (32, 32)
     (quick) or (128, 128) (paper) over its 14 reading features, Adam at lr 0.003, batch 32;
     quick: 3 epochs of the first 8,000 training trajectories (as the quick MLP), paper: 5
-    epochs of all of them. Its parameters number ~5,000 (quick) to ~19,000 (paper): a fraction
-    of the paper MLP's 1.2 million, so that a prior and 1,000-2,000 answers can place them."""
+    epochs of all of them. Its parameters number ~1,600 (quick) to ~19,000 (paper): a fraction
+    of the paper MLP's 1.2 million, so that a prior and 1,000-2,000 answers can place them.
+    The quick widths were (64, 64) before 2026-12-07: (32, 32) fits in 0.59 of the time on a
+    2-core CPU and kept as much of the oracle's gain in the people loop
+    (``experiments/BENCHMARKS.md``, "The quick preset within 40 minutes")."""
     if name not in PRESETS:
         raise ValueError(f"preset: expected one of {tuple(PRESETS)}, got {name!r}")
     base = paper(
@@ -355,7 +358,7 @@ def reader(name: str, **overrides: Any) -> TrainConfig:
         epochs=5,
     )
     if name == "quick":
-        base = dataclasses.replace(base, hidden=(64, 64), epochs=3, train_size=8000)
+        base = dataclasses.replace(base, hidden=(32, 32), epochs=3, train_size=8000)
     return dataclasses.replace(base, **overrides)
 
 
