@@ -453,7 +453,7 @@ def test_a_people_loop_report_names_its_own_folder_and_part_of_the_suite():
     folder = Path(__file__).resolve().parent.parent / "experiments"
     doc = json.loads((folder / "people_loop_results.json").read_text())
     text = report.report(doc, "people_loop", Path("/tmp/mine"))
-    assert "--population suite --out /tmp/mine`" in text
+    assert "--population suite,zoo --out /tmp/mine`" in text
     assert "--plans /tmp/mine/people_loop_plans.npz" in text and "experiments/" not in text
     assert "## The suite: the pick on every population" in text
     one = {
