@@ -197,11 +197,16 @@ def run(
     if todo and jobs is None:  # the suite's order, whichever worker finished first
         order = {name: i for i, name in enumerate(people_lib.expand(["suite", "zoo"]))}
         doc["populations"].sort(key=lambda p: order.get(p["population"], len(order)))
-        write_text(path, json.dumps(doc, separators=(",", ":")))  # data; the report is its reading
+        _write_doc(path, doc)
     if jobs is None:
         report_lib.render(doc, out, stem)
         draw_example(doc, out, stem, again=doc["summary"] != summary_before)
     return doc
+
+
+def _write_doc(path: Path, doc: dict) -> None:
+    """The results document, without indentation: data; the report is its reading."""
+    write_text(path, json.dumps(doc, separators=(",", ":")))
 
 
 PARTS = ".people_loop_parts"  # the workers' documents of a spread run, inside --out
@@ -225,7 +230,7 @@ def _run_one(cfg, doc, entries, path, spec, seeds, splits, progress) -> None:
         "stimuli": got.pop("stimuli"),  # what each run asked about (seeds apart: per run)
     }
     _add(doc, entries, {**got, "runs": [record]})
-    write_text(path, json.dumps(doc, separators=(",", ":")))  # data; the report is its reading
+    _write_doc(path, doc)
 
 
 def _add(doc: dict, entries: dict, got: dict) -> None:
@@ -343,7 +348,7 @@ def _merge_parts(doc: dict, conf: dict, parts: Path, path: Path) -> None:
                 _add(doc, entries, p)
         doc.setdefault("dataset", part.get("dataset"))
         merged.append(f)
-    write_text(path, json.dumps(doc, separators=(",", ":")))  # data; the report is its reading
+    _write_doc(path, doc)
     for f in merged:
         f.unlink()
     for d in parts.glob("worker*"):  # every document merged: the workers' logs go too
