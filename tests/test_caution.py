@@ -159,3 +159,27 @@ def test_the_loop_config_refuses_a_cautious_pick_without_the_pick_or_a_bad_kappa
         with pytest.raises(ValueError, match=r"caution: expected a (finite )?number"):
             dataclasses.replace(cfg, caution=bad)
     assert "caution" not in dataclasses.replace(cfg, families=("mlp", "dragan_fitted")).to_json()
+
+
+@pytest.mark.parametrize("kappa", [0.0, 2.0])
+def test_a_family_planner_of_several_families_plans_the_bound(kappa):
+    """Beside other families in one program (the people loop's planner: a ``lax.switch`` over
+    the families' observers), the cautious family still plans its bound: its plan and
+    objective are those of :func:`make_planner` on the bound alone, and κ changes them."""
+    _, g, mask = scene()
+    cfg = planning.PlannerConfig(n_points=20, iters=8, taus=(0.5, 1.0))
+    builds = {
+        "effdist": lambda p: planning.labeler_observer("effdist", beta=p["beta"][0]),
+        "cautious": lambda p: caution.lower_bound_observer(stacked(p["beta"]), kappa),
+    }
+    params = {"beta": jnp.asarray(BETAS)}
+    family = planning.make_family_planner(builds, params, cfg)
+    got = family(jax.tree.map(lambda a: a[None], params), g[None], mask[None], np.array([0]),
+                 family="cautious")  # fmt: skip
+    alone = planning.make_planner(caution.lower_bound_observer(stacked(BETAS), kappa), cfg)
+    want = alone(g[None], mask[None], np.array([0]))
+    np.testing.assert_allclose(got.xyz[0, 0], want.xyz[0], atol=1e-5)
+    d, w = got.diagnostics, want.diagnostics
+    np.testing.assert_allclose(d.objective[0, 0], w.objective[0], rtol=1e-5, atol=1e-6)
+    other = planning.make_planner(caution.lower_bound_observer(stacked(BETAS), kappa + 1.0), cfg)
+    assert not np.allclose(other(g[None], mask[None], np.array([0])).xyz[0], got.xyz[0, 0])

@@ -26,7 +26,7 @@ from jaxtyping import Array, Bool, Float, Int
 from slotv_jax.core import validation
 from slotv_jax.core.progress import status
 from slotv_jax.core.validation import G_MAX
-from slotv_jax.observers.observer import Observer, ObserverLike
+from slotv_jax.observers.observer import ObserverLike
 from slotv_jax.planning.planner import (
     MAX_RESIDUAL,
     PlannerConfig,
@@ -35,6 +35,7 @@ from slotv_jax.planning.planner import (
     check_observer,
     plan,
     straight_line,
+    switched_observer,
 )
 from slotv_jax.robot import kinematics
 
@@ -152,12 +153,10 @@ def make_planner(
     names = tuple(observers)
     branches = tuple(observers.values())
 
-    run = jax.jit(
-        lambda problems, index: jax.vmap(lambda p: plan(_switched(index, branches), p, cfg))(
-            problems
-        )
-    )
-    return Planner(names, cfg, run, _straight_program(cfg))
+    def run(problems: Problem, index) -> PlanResult:
+        return jax.vmap(lambda p: plan(switched_observer(index, branches), p, cfg))(problems)
+
+    return Planner(names, cfg, jax.jit(run), _straight_program(cfg))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -208,22 +207,6 @@ class Planner:
         """Every problem planned with the observer named ``observer`` (None: the first)."""
         index = _index_of(self.observers, observer, "observer")
         return self._run(self.straight_line(goals, goal_mask, target, start), index)
-
-
-def _switch_logits(observers, index, xyz, g, m):
-    return jax.lax.switch(index, observers, xyz, g, m)
-
-
-def _switch_prefix(observers, index, xyz, g, m, n):
-    return jax.lax.switch(index, tuple(o.prefix for o in observers), xyz, g, m, n)
-
-
-def _switched(index: jax.Array, observers: Sequence[ObserverLike]) -> ObserverLike:
-    """The observer ``observers[index]`` (and its ``prefix``): a ``lax.switch`` on an
-    unbatched index, so one program holds them all."""
-    if len(observers) == 1:
-        return observers[0]
-    return Observer(_switch_logits, _switch_prefix, params=index, config=tuple(observers))
 
 
 def _index_of(names: Sequence[str], name: str | None, what: str) -> jax.Array:
@@ -299,7 +282,7 @@ def make_family_planner(
     names, fns = tuple(builds), tuple(builds.values())
 
     def observer_of(index, p) -> ObserverLike:  # every family's observer of p, switched
-        return _switched(index, [b(p) for b in fns])
+        return switched_observer(index, [b(p) for b in fns])
 
     def plan_grid(params, problems: Problem, index) -> PlanResult:
         def one_set(p):

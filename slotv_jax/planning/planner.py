@@ -122,6 +122,8 @@ __all__ = [
     "plan",
     "predictability_cost",
     "straight_line",
+    "switch_branches",
+    "switched_observer",
 ]
 
 
@@ -424,12 +426,44 @@ def legibility(
     >>> bool(jnp.isclose(legibility(obs, xyz, g, m, 0, cfg), ref))
     True
     """
+    branches = switch_branches(observer)
+    if branches is not None:  # each branch's own objective (a bound stays a bound)
+        return jax.lax.switch(
+            observer.params,
+            [lambda x, o=o: legibility(o, x, goals, goal_mask, target, cfg) for o in branches],
+            xyz,
+        )
     mask = jnp.asarray(goal_mask).astype(bool)
     if caution.is_lower_bound(observer):  # the bound over an ensemble (:mod:`.caution`)
         kappa, _ = caution.members_of(observer)
         terms = jax.vmap(lambda o: _log_probs(o, xyz, goals, mask, target, cfg))(observer.params)
         return jnp.mean(caution.lower_bound(terms, kappa))
     return jnp.mean(_log_probs(observer, xyz, goals, mask, target, cfg))
+
+
+def _switch_logits(observers, index, xyz, g, m):
+    return jax.lax.switch(index, observers, xyz, g, m)
+
+
+def _switch_prefix(observers, index, xyz, g, m, n):
+    return jax.lax.switch(index, tuple(o.prefix for o in observers), xyz, g, m, n)
+
+
+def switched_observer(index: Int[Array, ""], observers: Sequence[ObserverLike]) -> ObserverLike:
+    """The observer ``observers[index]`` (and its ``prefix``): a ``lax.switch`` on an
+    unbatched index, so one program holds them all. :func:`legibility` switches between the
+    branches' own objectives, so a branch that is a
+    :func:`slotv_jax.planning.caution.lower_bound_observer` is planned for its bound."""
+    if len(observers) == 1:
+        return observers[0]
+    return Observer(_switch_logits, _switch_prefix, params=index, config=tuple(observers))
+
+
+def switch_branches(observer) -> tuple[ObserverLike, ...] | None:
+    """The branches of a :func:`switched_observer` (None for any other observer)."""
+    if isinstance(observer, Observer) and observer.logits_fn is _switch_logits:
+        return observer.config
+    return None
 
 
 def _log_probs(observer, xyz, goals, mask, target, cfg: PlannerConfig) -> Float[Array, " K"]:
