@@ -9,6 +9,7 @@ venv stays out and the ``slotv_jax`` imported is the wheel's (checked by its ``_
 
 import json
 import os
+import shutil
 import site
 import subprocess
 import sys
@@ -24,6 +25,9 @@ from slotv_jax.core.defaults import TEST_SPLITS
 from slotv_jax.runs import presets
 
 REPO = Path(__file__).resolve().parents[1]
+# what the sdist packs (pyproject's package data and setuptools' defaults: tests/ among them)
+SDIST_INPUTS = ("pyproject.toml", "README.md", "LICENSE", "slotv_jax", "tests")
+_SKIP = shutil.ignore_patterns("__pycache__", "*.egg-info")
 
 # Run by the wheel's interpreter: the robot, a scene and a labelled straight line to goal 0.
 USE = """
@@ -55,8 +59,15 @@ def venv(tmp_path_factory) -> Path:
     """A fresh venv holding the wheel built from the repository's sdist: its site-packages."""
     root = tmp_path_factory.mktemp("wheel")
     dist = root / "dist"
+    # The sdist is staged in its source folder: build from a copy of what it packs, so that
+    # the staging never sits in the repository while the other worker's tests run there.
+    src = root / "src"
+    src.mkdir()
+    for name in SDIST_INPUTS:
+        copy = shutil.copytree if (REPO / name).is_dir() else shutil.copy2
+        copy(REPO / name, src / name, **({"ignore": _SKIP} if (REPO / name).is_dir() else {}))
     # sdist first, then the wheel from the unpacked sdist: both must carry the robot's files
-    _run([sys.executable, "-m", "build", "--no-isolation", "--outdir", dist, REPO], root)
+    _run([sys.executable, "-m", "build", "--no-isolation", "--outdir", dist, src], root)
     (wheel,) = dist.glob("slotv_jax-*.whl")
     _run([sys.executable, "-m", "venv", "--without-pip", root / "venv"], root)
     paths = {"base": str(root / "venv"), "platbase": str(root / "venv")}
