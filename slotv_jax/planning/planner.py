@@ -122,7 +122,6 @@ __all__ = [
     "plan",
     "predictability_cost",
     "straight_line",
-    "switch_branches",
     "switched_observer",
 ]
 
@@ -426,7 +425,7 @@ def legibility(
     >>> bool(jnp.isclose(legibility(obs, xyz, g, m, 0, cfg), ref))
     True
     """
-    branches = switch_branches(observer)
+    branches = _switch_branches(observer)
     if branches is not None:  # each branch's own objective (a bound stays a bound)
         return jax.lax.switch(
             observer.params,
@@ -459,7 +458,7 @@ def switched_observer(index: Int[Array, ""], observers: Sequence[ObserverLike]) 
     return Observer(_switch_logits, _switch_prefix, params=index, config=tuple(observers))
 
 
-def switch_branches(observer) -> tuple[ObserverLike, ...] | None:
+def _switch_branches(observer) -> tuple[ObserverLike, ...] | None:
     """The branches of a :func:`switched_observer` (None for any other observer)."""
     if isinstance(observer, Observer) and observer.logits_fn is _switch_logits:
         return observer.config
