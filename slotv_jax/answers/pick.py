@@ -20,6 +20,7 @@ and the best-judged candidate is the pick: the people loop's family ``pick_cross
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -49,6 +50,11 @@ BY = ("likelihood", "plans", "pool")  # the rules of ``study pick --by``
 #: 30 steps on a CPU, the default planner on a GPU).
 PLANNERS = {"quick": {"n_points": 50, "iters": 30}, "paper": {}}
 MAX_TAUS = 8  # the study's distinct stop times the planner's objective takes at most
+#: :func:`refuted_by_plans`: the standard errors by which another fit must explain the
+#: answers about a candidate's own plans better to refute it, and the fewest answer rows
+#: about its plans that may (choices made before any run with them).
+REFUTE_SE = 2.0
+REFUTE_MIN_ROWS = 5
 
 
 def check_candidates(names: Sequence[str]) -> tuple[str, ...]:
@@ -216,6 +222,8 @@ def pick_table(rep: dict) -> str:
         mark = " **(pick)**" if n == rep["pick"] else ""
         if n in rep.get("left_out", ()):
             why = "no better than guessing" if nll >= u else "its plans judged least legible"
+            if n in rep.get("refuted", ()):
+                why = "refuted by the answers about its own plans"
             mark += f" (left out: {why})"
         lines.append(f"| {n}{mark} | {nll:.4f} | {w:.3f} |")
     lines.append(f"| pool | {rep['pool_nll']:.4f} | |")
@@ -268,6 +276,7 @@ def trusted(
     scores: Float[np.ndarray, "R C"],
     heldout: Float[np.ndarray, "R C"] | None = None,
     uniform: Float[np.ndarray, " R"] | None = None,
+    refuted: np.ndarray | None = None,
 ) -> np.ndarray:
     """The candidates the pool may weigh (:func:`slotv_jax.answers.pooling.fit_pool_weights`'s
     ``keep``), per run: every candidate but the one whose plans the other fits judge least
@@ -285,11 +294,21 @@ def trusted(
     have learned nothing: so the best fit is kept (then none is left out), and a candidate
     that predicts held-out answers no better than guessing has no say.
 
+    ``refuted`` (R, C) bool (:func:`refuted_by_plans`): candidates whose fit the answers
+    about their own plans refute. Where people were asked about the plans, the answers
+    tell a fit the planner exploits from one that is simply better, which the fits'
+    judgments cannot: a refuted candidate is left out, the best fit too (it is kept only
+    while unrefuted). Should that leave a run nothing, the run keeps what it would have
+    kept without ``refuted``.
+
     >>> trusted(np.array([[0.40, 0.31, 0.38]])).tolist()
     [[True, False, True]]
     >>> trusted(np.array([[0.40, 0.31, 0.38]]), np.array([[1.35, 1.20, 1.37]]),
     ...         np.array([1.355])).tolist()
     [[True, True, False]]
+    >>> trusted(np.array([[0.40, 0.31, 0.38]]), np.array([[1.30, 1.20, 1.31]]),
+    ...         np.array([1.355]), np.array([[False, True, False]])).tolist()
+    [[True, False, True]]
     """
     s = np.asarray(scores, np.float64)
     if s.ndim != 2 or s.shape[-1] < 2:
@@ -308,7 +327,94 @@ def trusted(
         if u.shape != s.shape[:1]:
             raise ValueError(f"uniform: expected shape {s.shape[:1]}, got {u.shape}")
         keep &= h < u[:, None]
-    return keep | best
+    if refuted is None:
+        return keep | best
+    bad = np.asarray(refuted, bool)
+    if bad.shape != s.shape:
+        raise ValueError(f"refuted: expected the scores' shape {s.shape}, got {bad.shape}")
+    out = (keep & ~bad) | (best & ~bad)
+    return np.where(out.any(-1, keepdims=True), out, keep | best)
+
+
+_PLAN_ID = re.compile(r"^r\d+-(?P<planner>.+)-[^-]+$")
+
+
+def row_planners(study: Study) -> list[str]:
+    """The planner of each answer row's motion (A,): for a motion of a round of plans
+    (``study next --plans``: its id ``rR-PLANNER-PROBLEM``) its planner, "" for any other.
+
+    >>> import dataclasses
+    >>> s = dataclasses.make_dataclass("S", ["trajectory_ids", "answer_trajectory"])
+    >>> row_planners(s(("m7", "r1-reader-3", "r2-pool-0"), np.array([0, 1, 2, 1])))
+    ['', 'reader', 'pool', 'reader']
+    """
+    ids = [m["planner"] if (m := _PLAN_ID.match(t or "")) else "" for t in study.trajectory_ids]
+    if not ids:
+        return [""] * len(study.answer_trajectory)
+    return [ids[int(i)] for i in study.answer_trajectory]
+
+
+def refuted_by_plans(
+    logp: Float[np.ndarray, "C A G"],
+    counts: Float[np.ndarray, "A G"],
+    planners: Sequence[str],
+    candidates: Sequence[str],
+    *,
+    se: float = REFUTE_SE,
+    min_rows: int = REFUTE_MIN_ROWS,
+) -> np.ndarray:
+    """Which candidates the answers about their own plans refute, from out-of-fold
+    predictions ``logp`` (C, A, G) of A answer rows with ``counts`` (A, G) and each row's
+    ``planners`` (A,): the candidate whose plan the row's motion is, "" (or any name not
+    in ``candidates``) for a motion no candidate planned. Returns (C,) bool.
+
+    Candidate f is refuted when another candidate g explains the answers about f's plans
+    (rows R_f, at least ``min_rows``) better by ``se`` standard errors: with each row's NLL
+    ``n_f(a) = −Σ_k c_ak log p_f(k | a)`` and ``d_g(a) = n_f(a) − n_g(a)``,
+
+        max_{g ≠ f}  mean_{a ∈ R_f} d_g(a) − se · sd_{a ∈ R_f}(d_g) / √|R_f|  >  0.
+
+    A fit the planner exploits is confident where it is wrong, and its own plans go
+    exactly there; people's answers about them then favour the other fits, however well it
+    predicted the answers about other motions. A fit that is simply better also predicts
+    the answers about its own plans better. Christiano et al. (2017) and Gao et al. (2023)
+    on querying a learned reward model where its optimiser goes. The predictions must be
+    out-of-fold (:func:`out_of_fold`, the loop's ``pick_heldout``): a fit that saw a
+    row's answers cannot be judged by them.
+
+    >>> lp = np.log(np.array([[[0.9, 0.1]] * 6, [[0.4, 0.6]] * 6]))  # f0 sure of goal 0
+    >>> c = np.array([[1.0, 4.0]] * 6)  # but people guessed goal 1 about f0's plans
+    >>> refuted_by_plans(lp, c, ["a"] * 6, ["a", "b"]).tolist()
+    [True, False]
+    >>> refuted_by_plans(lp, c, [""] * 6, ["a", "b"]).tolist()  # no answers about plans
+    [False, False]
+    """
+    lp = np.asarray(logp, np.float64)
+    c = np.asarray(counts, np.float64)
+    names = list(candidates)
+    if lp.ndim != 3 or lp.shape[0] != len(names) or c.shape != lp.shape[1:]:
+        raise ValueError(
+            f"logp, counts: expected (C, A, G) and (A, G) with C = {len(names)} candidates, "
+            f"got {lp.shape} and {c.shape}"
+        )
+    if len(planners) != c.shape[0]:
+        raise ValueError(
+            f"planners: expected one per answer row ({c.shape[0]}), got {len(planners)}"
+        )
+    if se < 0 or min_rows < 2:
+        raise ValueError(f"se, min_rows: expected se >= 0 and min_rows >= 2, got {se}, {min_rows}")
+    lp = np.maximum(np.where(c > 0, lp, 0.0), np.log(PROB_FLOOR))
+    nll = -np.sum(np.where(c > 0, c * lp, 0.0), axis=-1)  # (C, A)
+    who = np.asarray(planners, object)
+    out = np.zeros(len(names), bool)
+    for f, name in enumerate(names):
+        rows = np.flatnonzero(who == name)
+        if rows.size < min_rows:
+            continue
+        d = nll[f, rows][None] - np.delete(nll[:, rows], f, axis=0)  # (C − 1, |R_f|)
+        low = d.mean(-1) - se * d.std(-1, ddof=1) / np.sqrt(rows.size)
+        out[f] = bool(np.max(low) > 0)
+    return out
 
 
 def study_problems(study: Study, n: int) -> dict[str, np.ndarray]:
@@ -538,12 +644,16 @@ def pick_pool(
         with_fits=True,
     )  # fmt: skip
     nll, uniform = pooling.heldout_quality(logp, *_counts(study))
-    keep = trusted(np.asarray([by_plans["scores"]]), nll[None], np.asarray([uniform]))[0]
+    refuted = refuted_by_plans(logp, _counts(study)[0], row_planners(study), names)
+    keep = trusted(
+        np.asarray([by_plans["scores"]]), nll[None], np.asarray([uniform]), refuted[None]
+    )[0]
     rep = _report(study, names, logp, keep.tolist(), folds=folds, seed=seed, preset=preset)
     rep = {
         **rep,
         "rule": "pool",
         "left_out": [n for n, k in zip(names, keep, strict=True) if not k],
+        "refuted": [n for n, r in zip(names, refuted, strict=True) if r],
     }
     # The pool's own plans, against P_w ∝ Π_f P_f^{w_f} over the members of weight > 0
     # (none: save_pool refuses the pool, in its own words).
