@@ -9,7 +9,9 @@ largest weight is the pick. Only the study's answers are read.
 
 The people loop's family ``pick`` plans against the pool itself, less one candidate: the
 one whose plans the other fits judge least legible (:func:`trusted`, from the judgments of
-the pick by plans below); the held-out likelihood weighs the rest.
+the pick by plans below), and less any candidate that the answers about its own plans
+refute (:func:`refuted_by_plans`, where a round asked about plans); the held-out
+likelihood weighs the rest.
 
 The pick *by plans* (:func:`pick_by_plans`, ``study pick --by plans``) judges the plans
 instead: every candidate, fitted on every answer, plans the study's own scenes, each
