@@ -473,25 +473,27 @@ def test_the_pick_by_plans_leaves_each_family_out_of_its_own_judgment():
 
 def _refuted_by_hand(logp, counts, planners, names, se=2.0, min_rows=5):
     """refuted_by_plans re-derived with plain loops in float64."""
+
+    def nll(k, a):
+        floor = math.log(PROB_FLOOR)
+        return -sum(c * max(logp[k][a][g], floor) for g, c in enumerate(counts[a]) if c > 0)
+
+    def mean_var(x):
+        m = sum(x) / len(x)
+        return m, sum((v - m) ** 2 for v in x) / (len(x) - 1)
+
+    data = [a for a, p in enumerate(planners) if p == ""]
     out = []
     for f, name in enumerate(names):
         rows = [a for a, p in enumerate(planners) if p == name]
-        if len(rows) < min_rows:
-            out.append(False)
-            continue
-
-        def nll(k, a):
-            floor = math.log(PROB_FLOOR)
-            return -sum(c * max(logp[k][a][g], floor) for g, c in enumerate(counts[a]) if c > 0)
-
         hit = False
-        for g in range(len(names)):
-            if g == f:
-                continue
-            d = [nll(f, a) - nll(g, a) for a in rows]
-            mean = sum(d) / len(d)
-            sd = math.sqrt(sum((x - mean) ** 2 for x in d) / (len(d) - 1))
-            hit |= mean - se * sd / math.sqrt(len(d)) > 0
+        if len(rows) >= min_rows and len(data) >= min_rows:
+            for g in range(len(names)):
+                if g != f:
+                    m_r, v_r = mean_var([nll(f, a) - nll(g, a) for a in rows])
+                    m_d, v_d = mean_var([nll(f, a) - nll(g, a) for a in data])
+                    err = math.sqrt(v_r / len(rows) + v_d / len(data))
+                    hit |= m_r > 0 and m_r - m_d - se * err > 0
         out.append(hit)
     return out
 
@@ -510,16 +512,17 @@ def test_answers_about_a_fits_own_plans_refute_the_fit_the_planner_exploits():
         got = pick_lib.refuted_by_plans(logp, counts, planners, names)
         assert got.tolist() == _refuted_by_hand(logp, counts, planners, names)
     # By hand: 100 dataset rows where "a" predicts best, 8 rows about a's plans where a is
-    # sure of goal 0 and people said goal 1, 8 about b's plans where b predicts best.
+    # sure of goal 0 and people said goal 1, 8 about b's plans and 8 about c's, where each
+    # fit stands against the others as it does on the dataset rows.
     sure, fair, flat = [0.9, 0.1], [0.3, 0.7], [0.5, 0.5]
-    lp = np.log(np.array([[fair] * 100 + [sure] * 8 + [fair] * 8,
-                          [flat] * 100 + [fair] * 8 + [fair] * 8,
-                          [flat] * 100 + [flat] * 8 + [flat] * 8]))  # fmt: skip
-    counts = np.array([[1.0, 4.0]] * 116)
-    planners = [""] * 100 + ["a"] * 8 + ["b"] * 8
+    lp = np.log(np.array([[fair] * 100 + [sure] * 8 + [fair] * 16,
+                          [flat] * 100 + [fair] * 8 + [flat] * 16,
+                          [flat] * 100 + [flat] * 8 + [flat] * 16]))  # fmt: skip
+    counts = np.array([[1.0, 4.0]] * 124)
+    planners = [""] * 100 + ["a"] * 8 + ["b"] * 8 + ["c"] * 8
     bad = pick_lib.refuted_by_plans(lp, counts, planners, names)
-    assert bad.tolist() == [True, False, False]
-    h = pooling.heldout_nll(lp, counts, np.ones((116, 2), bool))
+    assert bad.tolist() == [True, False, False]  # b and c are worse than a, but no worse there
+    h = pooling.heldout_nll(lp, counts, np.ones((124, 2), bool))
     assert int(np.argmin(h)) == 0  # a is the best fit over every answer
     scores = np.array([[0.40, 0.31, 0.38]])  # b's plans judged least legible
     assert trusted(scores, h[None], np.array([2.0])).tolist() == [[True, False, True]]
@@ -527,8 +530,11 @@ def test_answers_about_a_fits_own_plans_refute_the_fit_the_planner_exploits():
     # every candidate refuted: the run keeps what it kept without the answers about plans
     everyone = np.ones((1, 3), bool)
     assert trusted(scores, h[None], np.array([2.0]), everyone).tolist() == [[True, False, True]]
-    # four rows about a's plans are too few to refute it
-    assert not pick_lib.refuted_by_plans(lp, counts, [""] * 104 + ["a"] * 4 + ["b"] * 8, names)[0]
+    # four rows about a's plans are too few to refute it, and so are four dataset rows
+    few = [""] * 100 + ["a"] * 4 + ["x"] * 4 + ["b"] * 8 + ["c"] * 8
+    assert not pick_lib.refuted_by_plans(lp, counts, few, names)[0]
+    few = ["x"] * 96 + [""] * 4 + ["a"] * 8 + ["b"] * 8 + ["c"] * 8
+    assert not pick_lib.refuted_by_plans(lp, counts, few, names).any()
     with pytest.raises(ValueError, match="planners"):
         pick_lib.refuted_by_plans(lp, counts, planners[:-1], names)
     with pytest.raises(ValueError, match="logp, counts"):

@@ -367,28 +367,33 @@ def refuted_by_plans(
 ) -> np.ndarray:
     """Which candidates the answers about their own plans refute, from out-of-fold
     predictions ``logp`` (C, A, G) of A answer rows with ``counts`` (A, G) and each row's
-    ``planners`` (A,): the candidate whose plan the row's motion is, "" (or any name not
-    in ``candidates``) for a motion no candidate planned. Returns (C,) bool.
+    ``planners`` (A,): the name of the planner whose plan the row's motion is, "" for a
+    dataset motion (no planner's). Returns (C,) bool.
 
-    Candidate f is refuted when another candidate g explains the answers about f's plans
-    (rows R_f, at least ``min_rows``) better by ``se`` standard errors: with each row's NLL
-    ``n_f(a) = −Σ_k c_ak log p_f(k | a)`` and ``d_g(a) = n_f(a) − n_g(a)``,
+    With each row's NLL ``n_f(a) = −Σ_k c_ak log p_f(k | a)`` and, for another candidate
+    g, ``d_g(a) = n_f(a) − n_g(a)``: candidate f is refuted when on the answers about its
+    own plans (rows R_f) some g explains them better, and f's standing against g there is
+    worse than on the dataset motions (rows D) by ``se`` standard errors::
 
-        max_{g ≠ f}  mean_{a ∈ R_f} d_g(a) − se · sd_{a ∈ R_f}(d_g) / √|R_f|  >  0.
+        ∃ g ≠ f:  mean_{R_f} d_g > 0  and
+                  mean_{R_f} d_g − mean_D d_g  >  se · √(var_{R_f}(d_g) / |R_f| + var_D(d_g) / |D|)
 
-    A fit the planner exploits is confident where it is wrong, and its own plans go
-    exactly there; people's answers about them then favour the other fits, however well it
-    predicted the answers about other motions. A fit that is simply better also predicts
-    the answers about its own plans better. Christiano et al. (2017) and Gao et al. (2023)
-    on querying a learned reward model where its optimiser goes. The predictions must be
-    out-of-fold (:func:`out_of_fold`, the loop's ``pick_heldout``): a fit that saw a
-    row's answers cannot be judged by them.
+    (|R_f| and |D| at least ``min_rows``; otherwise f is not judged). A fit the planner
+    exploits is confident where it is wrong, and its own plans go exactly there: it
+    predicts the answers about them worse, against the others, than it predicts the answers
+    about dataset motions. A fit that is simply better, or simply worse, keeps its standing
+    on its own plans. Christiano et al. (2017) and Gao et al. (2023) on asking about what
+    a learned reward model's optimiser produces. The predictions must be out-of-fold
+    (:func:`out_of_fold`, the loop's ``pick_heldout``): a fit that saw a row's answers
+    cannot be judged by them.
 
-    >>> lp = np.log(np.array([[[0.9, 0.1]] * 6, [[0.4, 0.6]] * 6]))  # f0 sure of goal 0
-    >>> c = np.array([[1.0, 4.0]] * 6)  # but people guessed goal 1 about f0's plans
-    >>> refuted_by_plans(lp, c, ["a"] * 6, ["a", "b"]).tolist()
+    >>> sure, good, fair = [0.9, 0.1], [0.2, 0.8], [0.4, 0.6]
+    >>> lp = np.log(np.array([[sure] * 6 + [good] * 6, [fair] * 12]))  # a: sure of goal 0
+    >>> c = np.array([[1.0, 4.0]] * 12)  # on its 6 plans, where people guessed goal 1
+    >>> refuted_by_plans(lp, c, ["a"] * 6 + [""] * 6, ["a", "b"]).tolist()
     [True, False]
-    >>> refuted_by_plans(lp, c, [""] * 6, ["a", "b"]).tolist()  # no answers about plans
+    >>> lp = np.log(np.array([[good] * 12, [fair] * 12]))  # b worse everywhere, alike
+    >>> refuted_by_plans(lp, c, ["b"] * 6 + [""] * 6, ["a", "b"]).tolist()
     [False, False]
     """
     lp = np.asarray(logp, np.float64)
@@ -408,14 +413,20 @@ def refuted_by_plans(
     lp = np.maximum(np.where(c > 0, lp, 0.0), np.log(PROB_FLOOR))
     nll = -np.sum(np.where(c > 0, c * lp, 0.0), axis=-1)  # (C, A)
     who = np.asarray(planners, object)
+    data = np.flatnonzero(who == "")
     out = np.zeros(len(names), bool)
+    if data.size < min_rows:
+        return out
     for f, name in enumerate(names):
         rows = np.flatnonzero(who == name)
         if rows.size < min_rows:
             continue
-        d = nll[f, rows][None] - np.delete(nll[:, rows], f, axis=0)  # (C − 1, |R_f|)
-        low = d.mean(-1) - se * d.std(-1, ddof=1) / np.sqrt(rows.size)
-        out[f] = bool(np.max(low) > 0)
+        others = np.delete(nll, f, axis=0)
+        d_r = nll[f, rows][None] - others[:, rows]  # (C − 1, |R_f|)
+        d_d = nll[f, data][None] - others[:, data]  # (C − 1, |D|)
+        gap = d_r.mean(-1) - d_d.mean(-1)
+        err = np.sqrt(d_r.var(-1, ddof=1) / rows.size + d_d.var(-1, ddof=1) / data.size)
+        out[f] = bool(np.any((d_r.mean(-1) > 0) & (gap - se * err > 0)))
     return out
 
 
