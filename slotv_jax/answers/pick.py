@@ -9,9 +9,7 @@ largest weight is the pick. Only the study's answers are read.
 
 The people loop's family ``pick`` plans against the pool itself, less one candidate: the
 one whose plans the other fits judge least legible (:func:`trusted`, from the judgments of
-the pick by plans below), and less any candidate that the answers about its own plans
-refute (:func:`refuted_by_plans`, where a round asked about plans); the held-out
-likelihood weighs the rest.
+the pick by plans below); the held-out likelihood weighs the rest.
 
 The pick *by plans* (:func:`pick_by_plans`, ``study pick --by plans``) judges the plans
 instead: every candidate, fitted on every answer, plans the study's own scenes, each
@@ -22,7 +20,6 @@ and the best-judged candidate is the pick: the people loop's family ``pick_cross
 from __future__ import annotations
 
 import dataclasses
-import re
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -52,11 +49,6 @@ BY = ("likelihood", "plans", "pool")  # the rules of ``study pick --by``
 #: 30 steps on a CPU, the default planner on a GPU).
 PLANNERS = {"quick": {"n_points": 50, "iters": 30}, "paper": {}}
 MAX_TAUS = 8  # the study's distinct stop times the planner's objective takes at most
-#: :func:`refuted_by_plans`: the standard errors by which another fit must explain the
-#: answers about a candidate's own plans better to refute it, and the fewest answer rows
-#: about its plans that may (choices made before any run with them).
-REFUTE_SE = 2.0
-REFUTE_MIN_ROWS = 5
 
 
 def check_candidates(names: Sequence[str]) -> tuple[str, ...]:
@@ -224,8 +216,6 @@ def pick_table(rep: dict) -> str:
         mark = " **(pick)**" if n == rep["pick"] else ""
         if n in rep.get("left_out", ()):
             why = "no better than guessing" if nll >= u else "its plans judged least legible"
-            if n in rep.get("refuted", ()):
-                why = "refuted by the answers about its own plans"
             mark += f" (left out: {why})"
         lines.append(f"| {n}{mark} | {nll:.4f} | {w:.3f} |")
     lines.append(f"| pool | {rep['pool_nll']:.4f} | |")
@@ -278,7 +268,6 @@ def trusted(
     scores: Float[np.ndarray, "R C"],
     heldout: Float[np.ndarray, "R C"] | None = None,
     uniform: Float[np.ndarray, " R"] | None = None,
-    refuted: np.ndarray | None = None,
 ) -> np.ndarray:
     """The candidates the pool may weigh (:func:`slotv_jax.answers.pooling.fit_pool_weights`'s
     ``keep``), per run: every candidate but the one whose plans the other fits judge least
@@ -296,21 +285,11 @@ def trusted(
     have learned nothing: so the best fit is kept (then none is left out), and a candidate
     that predicts held-out answers no better than guessing has no say.
 
-    ``refuted`` (R, C) bool (:func:`refuted_by_plans`): candidates whose fit the answers
-    about their own plans refute. Where people were asked about the plans, the answers
-    tell a fit the planner exploits from one that is simply better, which the fits'
-    judgments cannot: a refuted candidate is left out, the best fit too (it is kept only
-    while unrefuted). Should that leave a run nothing, the run keeps what it would have
-    kept without ``refuted``.
-
     >>> trusted(np.array([[0.40, 0.31, 0.38]])).tolist()
     [[True, False, True]]
     >>> trusted(np.array([[0.40, 0.31, 0.38]]), np.array([[1.35, 1.20, 1.37]]),
     ...         np.array([1.355])).tolist()
     [[True, True, False]]
-    >>> trusted(np.array([[0.40, 0.31, 0.38]]), np.array([[1.30, 1.20, 1.31]]),
-    ...         np.array([1.355]), np.array([[False, True, False]])).tolist()
-    [[True, False, True]]
     """
     s = np.asarray(scores, np.float64)
     if s.ndim != 2 or s.shape[-1] < 2:
@@ -329,105 +308,7 @@ def trusted(
         if u.shape != s.shape[:1]:
             raise ValueError(f"uniform: expected shape {s.shape[:1]}, got {u.shape}")
         keep &= h < u[:, None]
-    if refuted is None:
-        return keep | best
-    bad = np.asarray(refuted, bool)
-    if bad.shape != s.shape:
-        raise ValueError(f"refuted: expected the scores' shape {s.shape}, got {bad.shape}")
-    out = (keep & ~bad) | (best & ~bad)
-    return np.where(out.any(-1, keepdims=True), out, keep | best)
-
-
-_PLAN_ID = re.compile(r"^r\d+-(?P<planner>.+)-[^-]+$")
-
-
-def row_planners(study: Study) -> list[str]:
-    """The planner of each answer row's motion (A,): for a motion of a round of plans
-    (``study next --plans``: its id ``rR-PLANNER-PROBLEM``) its planner, "" for any other.
-
-    >>> import dataclasses
-    >>> s = dataclasses.make_dataclass("S", ["trajectory_ids", "answer_trajectory"])
-    >>> row_planners(s(("m7", "r1-reader-3", "r2-pool-0"), np.array([0, 1, 2, 1])))
-    ['', 'reader', 'pool', 'reader']
-    """
-    ids = [m["planner"] if (m := _PLAN_ID.match(t or "")) else "" for t in study.trajectory_ids]
-    if not ids:
-        return [""] * len(study.answer_trajectory)
-    return [ids[int(i)] for i in study.answer_trajectory]
-
-
-def refuted_by_plans(
-    logp: Float[np.ndarray, "C A G"],
-    counts: Float[np.ndarray, "A G"],
-    planners: Sequence[str],
-    candidates: Sequence[str],
-    *,
-    se: float = REFUTE_SE,
-    min_rows: int = REFUTE_MIN_ROWS,
-) -> np.ndarray:
-    """Which candidates the answers about their own plans refute, from out-of-fold
-    predictions ``logp`` (C, A, G) of A answer rows with ``counts`` (A, G) and each row's
-    ``planners`` (A,): the name of the planner whose plan the row's motion is, "" for a
-    dataset motion (no planner's). Returns (C,) bool.
-
-    With each row's NLL ``n_f(a) = −Σ_k c_ak log p_f(k | a)`` and, for another candidate
-    g, ``d_g(a) = n_f(a) − n_g(a)``: candidate f is refuted when on the answers about its
-    own plans (rows R_f) some g explains them better, and f's standing against g there is
-    worse than on the dataset motions (rows D) by ``se`` standard errors::
-
-        ∃ g ≠ f:  mean_{R_f} d_g > 0  and
-                  mean_{R_f} d_g − mean_D d_g  >  se · √(var_{R_f}(d_g) / |R_f| + var_D(d_g) / |D|)
-
-    (|R_f| and |D| at least ``min_rows``; otherwise f is not judged). A fit the planner
-    exploits is confident where it is wrong, and its own plans go exactly there: it
-    predicts the answers about them worse, against the others, than it predicts the answers
-    about dataset motions. A fit that is simply better, or simply worse, keeps its standing
-    on its own plans. Christiano et al. (2017) and Gao et al. (2023) on asking about what
-    a learned reward model's optimiser produces. The predictions must be out-of-fold
-    (:func:`out_of_fold`, the loop's ``pick_heldout``): a fit that saw a row's answers
-    cannot be judged by them.
-
-    >>> sure, good, fair = [0.9, 0.1], [0.2, 0.8], [0.4, 0.6]
-    >>> lp = np.log(np.array([[sure] * 6 + [good] * 6, [fair] * 12]))  # a: sure of goal 0
-    >>> c = np.array([[1.0, 4.0]] * 12)  # on its 6 plans, where people guessed goal 1
-    >>> refuted_by_plans(lp, c, ["a"] * 6 + [""] * 6, ["a", "b"]).tolist()
-    [True, False]
-    >>> lp = np.log(np.array([[good] * 12, [fair] * 12]))  # b worse everywhere, alike
-    >>> refuted_by_plans(lp, c, ["b"] * 6 + [""] * 6, ["a", "b"]).tolist()
-    [False, False]
-    """
-    lp = np.asarray(logp, np.float64)
-    c = np.asarray(counts, np.float64)
-    names = list(candidates)
-    if lp.ndim != 3 or lp.shape[0] != len(names) or c.shape != lp.shape[1:]:
-        raise ValueError(
-            f"logp, counts: expected (C, A, G) and (A, G) with C = {len(names)} candidates, "
-            f"got {lp.shape} and {c.shape}"
-        )
-    if len(planners) != c.shape[0]:
-        raise ValueError(
-            f"planners: expected one per answer row ({c.shape[0]}), got {len(planners)}"
-        )
-    if se < 0 or min_rows < 2:
-        raise ValueError(f"se, min_rows: expected se >= 0 and min_rows >= 2, got {se}, {min_rows}")
-    lp = np.maximum(np.where(c > 0, lp, 0.0), np.log(PROB_FLOOR))
-    nll = -np.sum(np.where(c > 0, c * lp, 0.0), axis=-1)  # (C, A)
-    who = np.asarray(planners, object)
-    data = np.flatnonzero(who == "")
-    out = np.zeros(len(names), bool)
-    if data.size < min_rows:
-        return out
-    for f, name in enumerate(names):
-        rows = np.flatnonzero(who == name)
-        if rows.size < min_rows:
-            continue
-        others = np.delete(nll, f, axis=0)
-        d_r = nll[f, rows][None] - others[:, rows]  # (C − 1, |R_f|)
-        d_d = nll[f, data][None] - others[:, data]  # (C − 1, |D|)
-        gap = d_r.mean(-1) - d_d.mean(-1)
-        err = np.sqrt(d_r.var(-1, ddof=1) / rows.size + d_d.var(-1, ddof=1) / data.size)
-        out[f] = bool(np.any((d_r.mean(-1) > 0) & (gap - se * err > 0)))
-    return out
+    return keep | best
 
 
 def study_problems(study: Study, n: int) -> dict[str, np.ndarray]:
@@ -657,16 +538,12 @@ def pick_pool(
         with_fits=True,
     )  # fmt: skip
     nll, uniform = pooling.heldout_quality(logp, *_counts(study))
-    refuted = refuted_by_plans(logp, _counts(study)[0], row_planners(study), names)
-    keep = trusted(
-        np.asarray([by_plans["scores"]]), nll[None], np.asarray([uniform]), refuted[None]
-    )[0]
+    keep = trusted(np.asarray([by_plans["scores"]]), nll[None], np.asarray([uniform]))[0]
     rep = _report(study, names, logp, keep.tolist(), folds=folds, seed=seed, preset=preset)
     rep = {
         **rep,
         "rule": "pool",
         "left_out": [n for n, k in zip(names, keep, strict=True) if not k],
-        "refuted": [n for n, r in zip(names, refuted, strict=True) if r],
     }
     # The pool's own plans, against P_w ∝ Π_f P_f^{w_f} over the members of weight > 0
     # (none: save_pool refuses the pool, in its own words).

@@ -23,10 +23,8 @@ the planner seeks out whatever one fit gets wrong. So the pick is not one fit bu
 3. **Plan against the pool** of the candidates fitted on every answer, with ``w*``.
 
 The people loop's ``pick`` first leaves one candidate out (``keep``): the one whose own
-plans the other fits judge least legible (:func:`slotv_jax.answers.pick.trusted`), and,
-once people were asked about plans, any whose fit the answers about its own plans refute
-(:func:`slotv_jax.answers.pick.refuted_by_plans`); then it weighs the rest as above. The
-held-out likelihood cannot see the planner's side of a fit:
+plans the other fits judge least legible (:func:`slotv_jax.answers.pick.trusted`), then
+weighs the rest as above. The held-out likelihood cannot see the planner's side of a fit:
 at the paper preset the paper MLP's share of the weight grew from 0.06 to 0.22 between
 1,000 and 2,000 answers while its own plans kept half the gain, and its error, scaled by
 its weight, was still there for the planner to climb (``experiments/README.md``).

@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 
 from slotv_jax import planning
 from slotv_jax.answers import pooling, prior
-from slotv_jax.answers.pick import cross_judged, refuted_by_plans, trusted
+from slotv_jax.answers.pick import cross_judged, trusted
 from slotv_jax.asking import selection, simulated
 from slotv_jax.core.shapes import bucket, pad_rows
 from slotv_jax.experiments.people_loop import rounds
@@ -375,16 +375,6 @@ def ensemble(cfg: LoopConfig, params: dict, fits: dict) -> dict:
     return {f: jax.tree.map(join, fits[f], params[f]) for f in names}
 
 
-def refuted_runs(cfg: LoopConfig, study: SimulatedStudy, heldout, n_rows: int) -> np.ndarray:
-    """Each run's candidates that the answers about their own plans refute (R, F):
-    :func:`slotv_jax.answers.pick.refuted_by_plans` of :func:`pick_heldout`'s predictions,
-    with each row's planner (none before a round of plans)."""
-    return np.stack([
-        refuted_by_plans(lp, study.counts[i, :n_rows], study.planners(i, n_rows), cfg.candidates)
-        for i, (lp, _) in enumerate(heldout)
-    ])  # fmt: skip
-
-
 def heldout_quality(heldout, counts, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
     """Each run's candidates' held-out NLL per answer (R, F) and uniform guessing's (R,),
     from :func:`pick_heldout`'s predictions (:func:`slotv_jax.answers.pick.trusted`'s
@@ -560,17 +550,6 @@ class SimulatedStudy:
             own = {f: v[i] for f, v in made.items()}
             self.pool = rounds.write_plans(self.pool, self.slots, i, r, own)
 
-    def planners(self, i: int, n_rows: int) -> list[str]:
-        """The planner of each of run ``i``'s first ``n_rows`` rows: the family whose plan
-        its motion is, "" for a dataset motion."""
-        traj = np.asarray(self.pool.traj)
-        return [self._what(int(traj[c]))[0] for c in self.cand[i, :n_rows]]
-
-    def _what(self, motion: int) -> tuple[str, int | None]:
-        """(planner, study problem) of a pool motion; ("", None) for a dataset motion."""
-        what = None if self.slots is None else self.slots.describe(motion)
-        return ("", None) if what is None else what
-
     def stimuli(self, split) -> list[dict]:
         """What each run asked about, row by row: the scene of the ``train`` split it showed
         (a dataset motion's own, or a plan's study problem's), and for a plan its family
@@ -581,10 +560,9 @@ class SimulatedStudy:
             scene, family = [], []
             for c in self.cand[i]:
                 m = int(traj[c])
-                planner, problem = self._what(m)
-                own = problem is None  # a dataset motion shows its own scene
-                scene.append(int(split.env_id[m]) if own else self.slots.scenes[problem])
-                family.append(planner)
+                what = None if self.slots is None else self.slots.describe(m)
+                scene.append(int(split.env_id[m]) if what is None else self.slots.scenes[what[1]])
+                family.append("" if what is None else what[0])
             out.append({"strategy": st, "seed": sd, "split": rounds.STUDY_SPLIT,
                         "scene": scene, "plan": family, "rows_per_size": self.rows})  # fmt: skip
         return out
@@ -806,11 +784,10 @@ def run_population(
         with timing("judge"):  # every candidate's plans, judged by every fit
             if set(DERIVED) & set(cfg.families):
                 judged, chosen, cross = judge_plans(cfg, params, plans, ev.problems)
-        pick_reports = keep = refuted = None
+        pick_reports = keep = None
         if PICK in cfg.families:  # the pool without the least-trusted candidate, planned
             with timing("pick"):
-                refuted = refuted_runs(cfg, study, heldout, n_rows)
-                keep = trusted(cross, *heldout_quality(heldout, counts, n_rows), refuted)
+                keep = trusted(cross, *heldout_quality(heldout, counts, n_rows))
                 w, pick_reports = pick_runs(cfg, heldout, counts, n_rows, keep)
                 params["pick_w"] = jnp.asarray(w)
             with timing("plan"):
@@ -824,7 +801,7 @@ def run_population(
             made: dict[tuple[str, int], dict] = {}
             for f in [f for f in cfg.families if f in plans]:
                 extras = [
-                    _family_fields(cfg, f, i, betas, pick_reports, keep, refuted, w_all, judged)
+                    _family_fields(cfg, f, i, betas, pick_reports, keep, w_all, judged)
                     for i in range(n_r)
                 ]
                 got = family_rows(cfg, ev, name, runs, int(cfg.sizes[r]), f, plans[f], extras)
@@ -886,7 +863,7 @@ def run_population(
     }
 
 
-def _family_fields(cfg, f, i, betas, pick_reports, keep, refuted, w_all, judged) -> dict:
+def _family_fields(cfg, f, i, betas, pick_reports, keep, w_all, judged) -> dict:
     """What run ``i``'s row of family ``f`` says beyond its plans' scores: a labeler's β,
     what the answers alone say of it (its held-out NLL; the pick's pool), and each fit's
     P(target) of its plans."""
@@ -896,7 +873,7 @@ def _family_fields(cfg, f, i, betas, pick_reports, keep, refuted, w_all, judged)
     if pick_reports is not None:
         rep = pick_reports[i]
         if f in (PICK, CAUTIOUS):
-            row.update(_pick_fields(cfg, rep, keep[i], refuted[i], w_all[i]))
+            row.update(_pick_fields(cfg, rep, keep[i], w_all[i]))
         else:
             row["heldout_nll"] = rep["heldout_nll"][rep["candidates"].index(f)]
     if f == CAUTIOUS:
@@ -906,18 +883,14 @@ def _family_fields(cfg, f, i, betas, pick_reports, keep, refuted, w_all, judged)
     return row
 
 
-def _pick_fields(
-    cfg: LoopConfig, rep: dict, keep: np.ndarray, refuted: np.ndarray, w_all: np.ndarray
-) -> dict:
+def _pick_fields(cfg: LoopConfig, rep: dict, keep: np.ndarray, w_all: np.ndarray) -> dict:
     """What a pick row says of its pool: held-out NLL, weights (before and after leaving the
-    least-trusted out), the pick, those left out, those the answers about their own plans
-    refuted, uniform guessing's NLL and ``poor_fit``."""
+    least-trusted out), the pick, those left out, uniform guessing's NLL and ``poor_fit``."""
     return {
         "heldout_nll": rep["pool_nll"],
         "weights": dict(zip(rep["candidates"], rep["weights"], strict=True)),
         "picked": rep["pick"],
         "left_out": [cfg.candidates[j] for j in np.flatnonzero(~keep)],
-        "refuted": [cfg.candidates[j] for j in np.flatnonzero(refuted)],
         "uniform_nll": rep["uniform_nll"],
         "poor_fit": rep["poor_fit"],
         "weights_likelihood": dict(zip(rep["candidates"], w_all.round(6).tolist(), strict=True)),

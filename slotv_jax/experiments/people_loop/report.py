@@ -667,12 +667,8 @@ def left_out_line(doc: dict) -> str:
     that left exactly one family out of each run (``left_out`` a name, not a list) reads as
     it did."""
     out, worst, runs, none, one = Counter(), 0, 0, 0, True
-    refuted, refuted_gain = Counter(), []
     for rows in _runs(doc):
         if PICK in rows and "left_out" in rows[PICK]:
-            for g in rows[PICK].get("refuted", []):
-                refuted[g] += 1
-                refuted_gain.append(rows[g]["gain_kept"])
             single = {g: r["gain_kept"] for g, r in rows.items() if g not in DERIVED}
             left = rows[PICK]["left_out"]
             one &= isinstance(left, str)
@@ -690,18 +686,10 @@ def left_out_line(doc: dict) -> str:
             f" plans of least gain among the candidates in {worst} of them."
         )
     kept = f"; it left none out in {none}" if none else ""
-    line = (
+    return (
         f" Of {runs} runs, the pool left out {names or 'no family'}{kept}; the family of the"
         f" plans of least gain among the candidates was among those left out in {worst}."
     )
-    if refuted:  # rounds of plans: fits the answers about their own plans refuted
-        names = ", ".join(f"{FAMILY_TITLES.get(f, f)} in {n}" for f, n in refuted.most_common())
-        line += (
-            f" The answers about a family's own plans refuted its fit (so it was left out)"
-            f" for {names}; those families' plans kept a median of"
-            f" {100 * statistics.median(refuted_gain):.0f} % of the oracle's gain."
-        )
-    return line
 
 
 def pick_agreement(doc: dict) -> list[str]:
