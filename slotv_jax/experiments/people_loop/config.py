@@ -227,7 +227,9 @@ def quick() -> LoopConfig:
     """CPU preset: the quick dataset and networks (64/32; the motion reader 32/32), one seed,
     12 problems, 50-point plans of 30 steps, 1,000 and 2,000 answers picked at random (the
     paper preset's sizes, at which the targets are stated; the active strategies with
-    ``--strategies random,margin,error``). Suite and zoo at one seed take about half an hour
+    ``--strategies random,margin,error``), half of the second round asked about the
+    planner's own plans (rounds of plans; ``--plan-share 0`` for dataset motions only, the
+    presets' default before 2026-12-08). Suite and zoo at one seed take about half an hour
     on a 2-core CPU; before 2026-12-07 it asked for 250-2,000 answers at 2 seeds and the
     reader was 64/64 (``experiments/suite_quick/``, ``experiments/zoo_quick/``: 79 minutes
     at one seed)."""
@@ -242,6 +244,7 @@ def quick() -> LoopConfig:
         strategies=("random",),
         subset=2000,
         seeds=1,
+        plan_share=0.5,
     )
 
 
@@ -250,7 +253,8 @@ def paper() -> LoopConfig:
     which the pool takes 10,000, and the held-out scenes), 3 seeds, 100 problems, the
     default planner (100 points, 50 steps), 1,000 and 2,000 answers picked at random (the
     sizes the suite's targets are stated at; the record before the mixture archetype joined
-    the families also ran 500, ``experiments/history/people_loop_no_mixture/``)."""
+    the families also ran 500, ``experiments/history/people_loop_no_mixture/``), half of
+    the second round asked about the planner's own plans, as the quick preset."""
     taus = (0.4, 0.7, 1.0)
     return LoopConfig(
         "paper",
@@ -268,6 +272,7 @@ def paper() -> LoopConfig:
         epochs=30.0,
         min_updates=1000,
         block=250,
+        plan_share=0.5,
     )
 
 
