@@ -64,8 +64,10 @@ def venv(tmp_path_factory) -> Path:
     src = root / "src"
     src.mkdir()
     for name in SDIST_INPUTS:
-        copy = shutil.copytree if (REPO / name).is_dir() else shutil.copy2
-        copy(REPO / name, src / name, **({"ignore": _SKIP} if (REPO / name).is_dir() else {}))
+        if (REPO / name).is_dir():
+            shutil.copytree(REPO / name, src / name, ignore=_SKIP)
+        else:
+            shutil.copy2(REPO / name, src / name)
     # sdist first, then the wheel from the unpacked sdist: both must carry the robot's files
     _run([sys.executable, "-m", "build", "--no-isolation", "--outdir", dist, src], root)
     (wheel,) = dist.glob("slotv_jax-*.whl")

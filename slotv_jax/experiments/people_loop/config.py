@@ -95,8 +95,9 @@ class LoopConfig:
     overrides: tuple[str, ...] = ()  # TrainConfig key=value overrides of the MLP families
     pick_folds: int = 3  # K of the pick's out-of-fold predictions (folds by motion)
     #: Share of every round after the first asked about the planner's own plans of the
-    #: study's scenes (:mod:`slotv_jax.experiments.people_loop.rounds`); 0: dataset motions only.
-    plan_share: float = 0.0
+    #: study's scenes (:mod:`slotv_jax.experiments.people_loop.rounds`); 0: dataset motions
+    #: only (every preset's default before 2026-12-08, ``experiments/zoo.md``).
+    plan_share: float = 0.5
     #: κ of the cautious pick (``pick_cautious``): the standard deviations of its ensemble's
     #: log P(target) that the planner holds back (:mod:`slotv_jax.planning.caution`).
     caution: float = 1.0
@@ -244,7 +245,6 @@ def quick() -> LoopConfig:
         strategies=("random",),
         subset=2000,
         seeds=1,
-        plan_share=0.5,
     )
 
 
@@ -272,7 +272,6 @@ def paper() -> LoopConfig:
         epochs=30.0,
         min_updates=1000,
         block=250,
-        plan_share=0.5,
     )
 
 
@@ -304,7 +303,6 @@ def tiny() -> LoopConfig:
         seeds=1,
         overrides=("hidden=16,8",),
         pick_folds=2,
-        plan_share=0.5,
     )
 
 
